@@ -1,0 +1,59 @@
+"""A plain numpy/scipy implementation of the GP formulas, written independently of the Rust core,
+used as the oracle the core is tested against."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+
+
+def corr(a: np.ndarray, b: np.ndarray, wx: float, wy: float) -> np.ndarray:
+    dx = a[:, None, 0] - b[None, :, 0]
+    dy = a[:, None, 1] - b[None, :, 1]
+    return np.exp(-(dx**2) / (2 * wx**2) - dy**2 / (2 * wy**2))
+
+
+def mvn_logpdf(r: np.ndarray, cov: np.ndarray) -> float:
+    c = cho_factor(cov, lower=True)
+    logdet = 2 * np.sum(np.log(np.diag(c[0])))
+    return float(-0.5 * r @ cho_solve(c, r) - 0.5 * logdet - 0.5 * len(r) * np.log(2 * np.pi))
+
+
+def log_marginal_likelihood(xy, v, p) -> float:
+    (wx, wy), s2, sn2, mu = p.length_scales, p.signal_var, p.noise_var, p.mean
+    R = corr(xy, xy, wx, wy)
+    return sum(mvn_logpdf(v[:, d] - mu[d], s2[d] * R + sn2 * np.eye(len(xy))) for d in range(2))
+
+
+def predictive_moments(train_xy, train_v, test_xy, p, d):
+    """Mean and covariance of the noisy test velocities of output d given the training data."""
+    (wx, wy), s2, sn2, mu = p.length_scales, p.signal_var[d], p.noise_var, p.mean[d]
+    K = s2 * corr(train_xy, train_xy, wx, wy) + sn2 * np.eye(len(train_xy))
+    Ks = s2 * corr(train_xy, test_xy, wx, wy)
+    Kss = s2 * corr(test_xy, test_xy, wx, wy) + sn2 * np.eye(len(test_xy))
+    c = cho_factor(K, lower=True)
+    mean = mu + Ks.T @ cho_solve(c, train_v[:, d] - mu)
+    cov = Kss - Ks.T @ cho_solve(c, Ks)
+    return mean, cov
+
+
+def log_predictive(train_xy, train_v, test_xy, test_v, p) -> float:
+    total = 0.0
+    for d in range(2):
+        mean, cov = predictive_moments(train_xy, train_v, test_xy, p, d)
+        total += mvn_logpdf(test_v[:, d] - mean, cov)
+    return total
+
+
+def posterior(train_xy, train_v, query_xy, p):
+    (wx, wy), s2, sn2, mu = p.length_scales, p.signal_var, p.noise_var, p.mean
+    R = corr(train_xy, train_xy, wx, wy)
+    Rq = corr(train_xy, query_xy, wx, wy)
+    mean = np.empty((len(query_xy), 2))
+    var = np.empty((len(query_xy), 2))
+    for d in range(2):
+        c = cho_factor(s2[d] * R + sn2 * np.eye(len(train_xy)), lower=True)
+        Ks = s2[d] * Rq
+        mean[:, d] = mu[d] + Ks.T @ cho_solve(c, train_v[:, d] - mu[d])
+        var[:, d] = s2[d] - np.einsum("ij,ij->j", Ks, cho_solve(c, Ks))
+    return mean, var
