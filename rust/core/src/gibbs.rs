@@ -1,0 +1,760 @@
+//! The collapsed Gibbs sampler of the DP mixture of GP velocity fields (design.md §2, §4).
+//!
+//! State: an assignment of every frame to a pattern (patterns live in a generational arena, so
+//! their ids are stable), per-pattern length scales, and α. One sweep visits every frame in
+//! order: remove it from its pattern (a rank-l update), score it against every pattern by the
+//! append trial — from a cache keyed by pattern version, so only patterns that changed are
+//! re-scored — and against new patterns by Neal's Algorithm 8, then insert it where it was drawn.
+//! Length scales are then slice-sampled per pattern and α by slice sampling on log α.
+//!
+//! Every random draw comes from a stream keyed by (seed, sweep, phase, entity) and every
+//! parallel result is reduced in slot order, so a run does not depend on the thread count.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use rand::RngExt;
+use rand_distr::{Distribution, Gamma};
+use rayon::prelude::*;
+
+use crate::error::{Error, Result};
+use crate::gp::GpParams;
+use crate::kernel::{LengthScales, Point};
+use crate::pattern::{FrameRef, Pattern, prior_score};
+use crate::rng::{Phase, stream};
+use crate::slice::slice_step;
+use crate::special::{ln_gamma, ln_gamma_pdf, log_sum_exp};
+
+const NONE: usize = usize::MAX;
+/// Frames scored together in one triangular solve when refreshing a pattern's scores.
+const SCORE_BLOCK: usize = 32;
+
+/// How a frame's pattern is chosen from its conditional.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Assignment {
+    /// Draw from the conditional: a true Gibbs sampler.
+    Gibbs,
+    /// Take the most probable pattern (the paper's Algorithm 1).
+    Map,
+}
+
+/// Everything that configures a run.
+#[derive(Clone, Debug)]
+pub struct Settings {
+    pub assignment: Assignment,
+    /// Signal variances, noise variance and means; its length scales are used for every pattern
+    /// when `fixed_length_scales` is set.
+    pub base: GpParams,
+    pub fixed_length_scales: bool,
+    /// Gamma(shape, scale) prior of each length scale.
+    pub length_scale_prior: (f64, f64),
+    /// A fixed concentration; `None` samples it.
+    pub alpha: Option<f64>,
+    /// Auxiliary patterns of Algorithm 8.
+    pub new_pattern_samples: usize,
+    pub seed: u64,
+}
+
+impl Settings {
+    pub fn validate(&self) -> Result<()> {
+        let (a, b) = self.length_scale_prior;
+        if !(a.is_finite() && a > 0.0 && b.is_finite() && b > 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "length_scale_prior must be (shape, scale) with both positive, got ({a}, {b})"
+            )));
+        }
+        if let Some(al) = self.alpha {
+            if !(al.is_finite() && al > 0.0) {
+                return Err(Error::InvalidInput(format!("alpha must be a positive number, got {al}")));
+            }
+        }
+        if self.new_pattern_samples == 0 {
+            return Err(Error::InvalidInput("new_pattern_samples must be at least 1".into()));
+        }
+        Ok(())
+    }
+}
+
+/// The training frames, stored flat.
+#[derive(Clone, Debug)]
+pub struct Data {
+    xy: Vec<Point>,
+    v: Vec<[f64; 2]>,
+    offsets: Vec<usize>,
+}
+
+impl Data {
+    pub fn new(xy: Vec<Point>, v: Vec<[f64; 2]>, offsets: Vec<usize>) -> Result<Self> {
+        if offsets.len() < 2 || offsets[0] != 0 || *offsets.last().unwrap_or(&0) != xy.len() {
+            return Err(Error::Shape("offsets must run from 0 to the number of points".into()));
+        }
+        if offsets.windows(2).any(|w| w[1] <= w[0]) {
+            return Err(Error::Shape("every frame must hold at least one vehicle".into()));
+        }
+        if xy.len() != v.len() {
+            return Err(Error::Shape(format!("{} positions but {} velocities", xy.len(), v.len())));
+        }
+        crate::error::check_finite("positions", xy.as_flattened())?;
+        crate::error::check_finite("velocities", v.as_flattened())?;
+        Ok(Self { xy, v, offsets })
+    }
+
+    pub fn len(&self) -> usize {
+        self.offsets.len() - 1
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    pub fn frame(&self, i: usize) -> FrameRef<'_> {
+        let (a, b) = (self.offsets[i], self.offsets[i + 1]);
+        FrameRef { xy: &self.xy[a..b], v: &self.v[a..b] }
+    }
+}
+
+/// Seconds spent per part of the sweep, accumulated over the run.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Timings {
+    pub scoring: f64,
+    pub moves: f64,
+    pub new_pattern: f64,
+    pub length_scales: f64,
+    pub alpha: f64,
+}
+
+/// What one sweep did.
+#[derive(Clone, Copy, Debug)]
+pub struct SweepStats {
+    pub moves: usize,
+    pub n_patterns: usize,
+    pub alpha: f64,
+    pub log_joint: f64,
+}
+
+#[derive(Clone, Debug)]
+struct Slot {
+    pattern: Pattern,
+    generation: u32,
+    version: u64,
+}
+
+/// A pattern as reported outside: its arena slot, stable id, size and length scales.
+#[derive(Clone, Copy, Debug)]
+pub struct PatternInfo {
+    pub slot: usize,
+    pub id: u64,
+    pub n_frames: usize,
+    pub length_scales: LengthScales,
+}
+
+/// The sampler's state and caches.
+#[derive(Clone, Debug)]
+pub struct Sampler {
+    settings: Settings,
+    data: Arc<Data>,
+    slots: Vec<Option<Slot>>,
+    generations: Vec<u32>,
+    labels: Vec<usize>,
+    alpha: f64,
+    sweep: u64,
+    next_version: u64,
+    /// `cache[frame][slot] = (pattern version, log p(frame | pattern))`.
+    cache: Vec<Vec<(u64, f64)>>,
+    pub timings: Timings,
+}
+
+impl Sampler {
+    /// A sampler with every frame unassigned; call [`Sampler::initialize`] next.
+    pub fn new(data: Data, settings: Settings) -> Result<Self> {
+        settings.validate()?;
+        let n = data.len();
+        let alpha = match settings.alpha {
+            Some(a) => a,
+            // A draw from the prior p(α) ∝ α^{-3/2} e^{-1/(2α)} (α = 1/χ²₁), kept in [0.1, 10]:
+            // only a starting point, α is sampled from then on.
+            None => {
+                let g = Gamma::new(0.5, 2.0).map_err(|e| Error::InvalidInput(e.to_string()))?;
+                let draw: f64 = g.sample(&mut stream(settings.seed, 0, Phase::Alpha, 0));
+                (1.0 / draw).clamp(0.1, 10.0)
+            }
+        };
+        Ok(Self {
+            settings,
+            data: Arc::new(data),
+            slots: Vec::new(),
+            generations: Vec::new(),
+            labels: vec![NONE; n],
+            alpha,
+            sweep: 0,
+            next_version: 1,
+            cache: vec![Vec::new(); n],
+            timings: Timings::default(),
+        })
+    }
+
+    pub fn settings(&self) -> &Settings {
+        &self.settings
+    }
+
+    pub fn data(&self) -> &Data {
+        &self.data
+    }
+
+    pub fn alpha(&self) -> f64 {
+        self.alpha
+    }
+
+    pub fn sweeps_done(&self) -> u64 {
+        self.sweep
+    }
+
+    fn fresh_version(&mut self) -> u64 {
+        self.next_version += 1;
+        self.next_version
+    }
+
+    fn live(&self) -> impl Iterator<Item = (usize, &Slot)> {
+        self.slots.iter().enumerate().filter_map(|(k, s)| s.as_ref().map(|s| (k, s)))
+    }
+
+    fn add_pattern(&mut self, pattern: Pattern) -> usize {
+        let version = self.fresh_version();
+        let k = match self.slots.iter().position(Option::is_none) {
+            Some(k) => k,
+            None => {
+                self.slots.push(None);
+                self.generations.push(0);
+                self.slots.len() - 1
+            }
+        };
+        self.generations[k] += 1;
+        self.slots[k] = Some(Slot { pattern, generation: self.generations[k], version });
+        k
+    }
+
+    /// Patterns in slot order.
+    pub fn patterns(&self) -> Vec<PatternInfo> {
+        self.live()
+            .map(|(k, s)| PatternInfo {
+                slot: k,
+                id: (u64::from(s.generation) << 32) | k as u64,
+                n_frames: s.pattern.n_frames(),
+                length_scales: s.pattern.length_scales(),
+            })
+            .collect()
+    }
+
+    /// The slot of each frame's pattern.
+    pub fn labels(&self) -> &[usize] {
+        &self.labels
+    }
+
+    /// The pattern in `slot`, if any.
+    pub fn pattern(&self, slot: usize) -> Option<&Pattern> {
+        self.slots.get(slot).and_then(|s| s.as_ref()).map(|s| &s.pattern)
+    }
+
+    fn pattern_params(&self, ls: LengthScales) -> GpParams {
+        self.settings.base.with_length_scales(ls)
+    }
+
+    /// Sequential initialisation: frames join one at a time by the same conditional, seeing only
+    /// the frames placed before them.
+    pub fn initialize(&mut self, stop: &dyn Fn() -> bool) -> Result<()> {
+        for i in 0..self.data.len() {
+            if self.labels[i] != NONE {
+                continue;
+            }
+            if i % 8 == 0 && stop() {
+                return Err(Error::Interrupted);
+            }
+            let mut rng = stream(self.settings.seed, 0, Phase::Init, i as u64);
+            self.update_frame(i, &mut rng)?;
+        }
+        Ok(())
+    }
+
+    /// Set a state directly (a loaded model, or a chosen start): `labels` as group numbers
+    /// (any integers; equal numbers share a pattern) and the length scales of each group.
+    pub fn set_state(&mut self, labels: &[usize], length_scales: &[LengthScales], alpha: f64) -> Result<()> {
+        if labels.len() != self.data.len() {
+            return Err(Error::Shape(format!("{} labels for {} frames", labels.len(), self.data.len())));
+        }
+        if let Some(&bad) = labels.iter().find(|&&l| l >= length_scales.len()) {
+            return Err(Error::Shape(format!("label {bad} has no length scales ({} given)", length_scales.len())));
+        }
+        if !(alpha.is_finite() && alpha > 0.0) {
+            return Err(Error::InvalidInput(format!("alpha must be positive, got {alpha}")));
+        }
+        self.slots.clear();
+        self.generations.clear();
+        self.cache = vec![Vec::new(); self.data.len()];
+        self.alpha = alpha;
+        let data = Arc::clone(&self.data);
+        for (g, &ls) in length_scales.iter().enumerate() {
+            let members: Vec<(usize, FrameRef)> =
+                (0..labels.len()).filter(|&i| labels[i] == g).map(|i| (i, data.frame(i))).collect();
+            if members.is_empty() {
+                continue;
+            }
+            let k = self.add_pattern(Pattern::new(self.pattern_params(ls), &members)?);
+            for (i, _) in members {
+                self.labels[i] = k;
+            }
+        }
+        Ok(())
+    }
+
+    /// One sweep: every frame's assignment, then length scales and α.
+    pub fn sweep(&mut self, stop: &dyn Fn() -> bool) -> Result<SweepStats> {
+        if self.labels.contains(&NONE) {
+            self.initialize(stop)?;
+        }
+        self.sweep += 1;
+        let t = Instant::now();
+        self.refresh_scores()?;
+        self.timings.scoring += t.elapsed().as_secs_f64();
+        let mut moves = 0;
+        for i in 0..self.data.len() {
+            if i % 8 == 0 && stop() {
+                return Err(Error::Interrupted);
+            }
+            let mut rng = stream(self.settings.seed, self.sweep, Phase::Assign, i as u64);
+            moves += usize::from(self.update_frame(i, &mut rng)?);
+        }
+        if !self.settings.fixed_length_scales {
+            let t = Instant::now();
+            self.update_length_scales()?;
+            self.timings.length_scales += t.elapsed().as_secs_f64();
+        }
+        if self.settings.alpha.is_none() {
+            let t = Instant::now();
+            self.update_alpha();
+            self.timings.alpha += t.elapsed().as_secs_f64();
+        }
+        Ok(SweepStats { moves, n_patterns: self.live().count(), alpha: self.alpha, log_joint: self.log_joint() })
+    }
+
+    /// Score every (frame, pattern) pair whose cached score is stale, frames not in the pattern
+    /// only, in blocks of frames per triangular solve, in parallel over (pattern, block).
+    fn refresh_scores(&mut self) -> Result<()> {
+        let nslots = self.slots.len();
+        let mut jobs: Vec<(usize, Vec<usize>)> = Vec::new();
+        for (k, s) in self.live() {
+            let stale: Vec<usize> = (0..self.data.len())
+                .filter(|&i| self.labels[i] != k && self.cache[i].get(k).is_none_or(|c| c.0 != s.version))
+                .collect();
+            jobs.extend(stale.chunks(SCORE_BLOCK).map(|c| (k, c.to_vec())));
+        }
+        let results: Vec<Result<Vec<f64>>> = jobs
+            .par_iter()
+            .map(|(k, frames)| {
+                let p = &self.slots[*k].as_ref().expect("live slot").pattern;
+                let refs: Vec<FrameRef> = frames.iter().map(|&i| self.data.frame(i)).collect();
+                p.score(&refs)
+            })
+            .collect();
+        for ((k, frames), scores) in jobs.iter().zip(results) {
+            let version = self.slots[*k].as_ref().expect("live slot").version;
+            for (&i, s) in frames.iter().zip(scores?) {
+                let row = &mut self.cache[i];
+                if row.len() < nslots {
+                    row.resize(nslots, (0, 0.0));
+                }
+                row[*k] = (version, s);
+            }
+        }
+        Ok(())
+    }
+
+    /// Scores of frame `i` (not in any pattern now) against every live pattern, from the cache
+    /// where it is current.
+    fn scores_for(&mut self, i: usize) -> Result<Vec<(usize, f64)>> {
+        let data = Arc::clone(&self.data);
+        let f = data.frame(i);
+        let live: Vec<(usize, u64)> = self.live().map(|(k, s)| (k, s.version)).collect();
+        let stale: Vec<usize> = live
+            .iter()
+            .filter(|(k, v)| self.cache[i].get(*k).is_none_or(|c| c.0 != *v))
+            .map(|(k, _)| *k)
+            .collect();
+        let fresh: Vec<Result<f64>> = stale
+            .par_iter()
+            .map(|&k| Ok(self.slots[k].as_ref().expect("live slot").pattern.score(&[f])?[0]))
+            .collect();
+        let row = &mut self.cache[i];
+        if row.len() < self.slots.len() {
+            row.resize(self.slots.len(), (0, 0.0));
+        }
+        for (&k, s) in stale.iter().zip(fresh) {
+            let version = live.iter().find(|(kk, _)| *kk == k).map_or(0, |x| x.1);
+            row[k] = (version, s?);
+        }
+        Ok(live.iter().map(|&(k, _)| (k, row[k].1)).collect())
+    }
+
+    /// Algorithm 8's auxiliary patterns for frame `f`: `(length scales, log weight)` each,
+    /// weights `log(α/m) + log N(V_f ; μ, K_ff(w_j) + σ_n² I)`. A frame that was alone in its
+    /// pattern brings that pattern's length scales as the first auxiliary.
+    fn auxiliaries(
+        &self,
+        f: FrameRef<'_>,
+        own: Option<LengthScales>,
+        rng: &mut impl rand::Rng,
+    ) -> Result<Vec<(LengthScales, f64)>> {
+        if self.settings.fixed_length_scales {
+            let ls = self.settings.base.length_scales;
+            return Ok(vec![(ls, self.alpha.ln() + prior_score(f, &self.settings.base)?)]);
+        }
+        let m = self.settings.new_pattern_samples;
+        let (a, b) = self.settings.length_scale_prior;
+        let gamma = Gamma::new(a, b).map_err(|e| Error::InvalidInput(e.to_string()))?;
+        let draws: Vec<LengthScales> = (0..m)
+            .map(|j| match (j, own) {
+                (0, Some(ls)) => ls,
+                _ => LengthScales { wx: gamma.sample(rng).max(1e-12), wy: gamma.sample(rng).max(1e-12) },
+            })
+            .collect();
+        let log_w0 = (self.alpha / m as f64).ln();
+        draws
+            .into_par_iter()
+            .map(|ls| Ok((ls, log_w0 + prior_score(f, &self.pattern_params(ls))?)))
+            .collect()
+    }
+
+    /// Reassign frame `i` by its conditional; returns whether the partition changed.
+    fn update_frame(&mut self, i: usize, rng: &mut impl rand::Rng) -> Result<bool> {
+        let data = Arc::clone(&self.data);
+        let f = data.frame(i);
+        let old = self.labels[i];
+        let mut own_ls = None;
+        let mut restore_version = None;
+        let t = Instant::now();
+        if old != NONE {
+            let slot = self.slots[old].as_mut().expect("label points at a live slot");
+            if slot.pattern.n_frames() == 1 {
+                own_ls = Some(slot.pattern.length_scales());
+                self.slots[old] = None;
+            } else {
+                slot.pattern.remove(i)?;
+                restore_version = Some(slot.version);
+                let v = self.fresh_version();
+                self.slots[old].as_mut().expect("still live").version = v;
+            }
+            self.labels[i] = NONE;
+        }
+        self.timings.moves += t.elapsed().as_secs_f64();
+
+        let t = Instant::now();
+        let existing = self.scores_for(i)?;
+        self.timings.scoring += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let aux = self.auxiliaries(f, own_ls, rng)?;
+        self.timings.new_pattern += t.elapsed().as_secs_f64();
+
+        let mut logw: Vec<f64> = existing
+            .iter()
+            .map(|&(k, s)| (self.slots[k].as_ref().expect("live").pattern.n_frames() as f64).ln() + s)
+            .collect();
+        let choice = match self.settings.assignment {
+            Assignment::Gibbs => {
+                logw.extend(aux.iter().map(|a| a.1));
+                sample_log(&logw, rng)
+            }
+            Assignment::Map => {
+                let aux_w: Vec<f64> = aux.iter().map(|a| a.1).collect();
+                let new_total = log_sum_exp(&aux_w);
+                let (best, best_w) = argmax(&logw);
+                if best_w >= new_total && !logw.is_empty() { best } else { logw.len() + argmax(&aux_w).0 }
+            }
+        };
+
+        let t = Instant::now();
+        let (slot, changed) = if choice < existing.len() {
+            let k = existing[choice].0;
+            self.slots[k].as_mut().expect("live").pattern.insert(i, f)?;
+            let v = match restore_version {
+                Some(v) if k == old => v,
+                _ => self.fresh_version(),
+            };
+            self.slots[k].as_mut().expect("live").version = v;
+            (k, k != old)
+        } else {
+            let ls = aux[choice - existing.len()].0;
+            let k = self.add_pattern(Pattern::new(self.pattern_params(ls), &[(i, f)])?);
+            (k, own_ls.is_none())
+        };
+        self.labels[i] = slot;
+        self.timings.moves += t.elapsed().as_secs_f64();
+        Ok(changed)
+    }
+
+    /// Log density of one pattern's length scales (with the log-scale Jacobian) and data.
+    fn ls_log_target(&self, p: &Pattern) -> f64 {
+        let (a, b) = self.settings.length_scale_prior;
+        let ls = p.length_scales();
+        ln_gamma_pdf(ls.wx, a, b) + ln_gamma_pdf(ls.wy, a, b) + ls.wx.ln() + ls.wy.ln() + p.log_marginal()
+    }
+
+    /// Slice-sample (log w_x, log w_y) of every pattern, in parallel over patterns; the factor
+    /// at the accepted point becomes the pattern's cached factor.
+    fn update_length_scales(&mut self) -> Result<()> {
+        let keys: Vec<(usize, u64)> = self.patterns().iter().map(|p| (p.slot, p.id)).collect();
+        let sweep = self.sweep;
+        let updated: Vec<Result<Pattern>> = keys
+            .par_iter()
+            .map(|&(k, id)| {
+                let mut rng = stream(self.settings.seed, sweep, Phase::LengthScales, id);
+                let mut current = self.slots[k].as_ref().expect("live").pattern.clone();
+                let mut f0 = self.ls_log_target(&current);
+                for axis in 0..2 {
+                    let ls = current.length_scales();
+                    let x0 = if axis == 0 { ls.wx.ln() } else { ls.wy.ln() };
+                    let mut last: Option<(f64, Pattern)> = None;
+                    let (x, fx) = slice_step(x0, f0, 0.5, &mut rng, |x| {
+                        let w = x.exp();
+                        let cand = if axis == 0 { LengthScales { wx: w, ..ls } } else { LengthScales { wy: w, ..ls } };
+                        if !(w.is_finite() && w > 0.0) {
+                            return f64::NEG_INFINITY;
+                        }
+                        match current.with_length_scales(cand) {
+                            Ok(p) => {
+                                let f = self.ls_log_target(&p);
+                                last = Some((x, p));
+                                f
+                            }
+                            Err(_) => f64::NEG_INFINITY,
+                        }
+                    });
+                    if let Some((lx, p)) = last {
+                        if lx == x && x != x0 {
+                            current = p;
+                            f0 = fx;
+                        }
+                    }
+                }
+                Ok(current)
+            })
+            .collect();
+        for ((k, _), p) in keys.iter().zip(updated) {
+            let p = p?;
+            let changed = p.length_scales() != self.slots[*k].as_ref().expect("live").pattern.length_scales();
+            let v = if changed { self.fresh_version() } else { self.slots[*k].as_ref().expect("live").version };
+            let slot = self.slots[*k].as_mut().expect("live");
+            slot.pattern = p;
+            slot.version = v;
+        }
+        Ok(())
+    }
+
+    /// `log p(α | K, N)` up to a constant, on the log scale (Jacobian included).
+    fn alpha_log_target(log_alpha: f64, k: usize, n: usize) -> f64 {
+        let a = log_alpha.exp();
+        if !(a.is_finite() && a > 0.0) {
+            return f64::NEG_INFINITY;
+        }
+        (k as f64 - 1.5) * log_alpha - 0.5 / a + ln_gamma(a) - ln_gamma(n as f64 + a) + log_alpha
+    }
+
+    fn update_alpha(&mut self) {
+        let (k, n) = (self.live().count(), self.data.len());
+        let mut rng = stream(self.settings.seed, self.sweep, Phase::Alpha, 0);
+        let x0 = self.alpha.ln();
+        let f0 = Self::alpha_log_target(x0, k, n);
+        let (x, _) = slice_step(x0, f0, 1.0, &mut rng, |x| Self::alpha_log_target(x, k, n));
+        self.alpha = x.exp();
+    }
+
+    /// `log p(z, w, α, V)`: CRP prior, length-scale priors, α's prior (when sampled) and the GP
+    /// marginal likelihood of every pattern.
+    pub fn log_joint(&self) -> f64 {
+        let n = self.data.len() as f64;
+        let a = self.alpha;
+        let mut total = ln_gamma(a) - ln_gamma(n + a);
+        if self.settings.alpha.is_none() {
+            // InvGamma(1/2, 1/2) density of α.
+            total += -0.5 * (2.0 * std::f64::consts::PI).ln() - 1.5 * a.ln() - 0.5 / a;
+        }
+        let (pa, pb) = self.settings.length_scale_prior;
+        for (_, s) in self.live() {
+            total += a.ln() + ln_gamma(s.pattern.n_frames() as f64) + s.pattern.log_marginal();
+            if !self.settings.fixed_length_scales {
+                let ls = s.pattern.length_scales();
+                total += ln_gamma_pdf(ls.wx, pa, pb) + ln_gamma_pdf(ls.wy, pa, pb);
+            }
+        }
+        total
+    }
+
+    /// The normalised conditional of training frame `i` given every other frame's pattern:
+    /// one entry per live pattern (slot order; its own pattern scored without it), then "new"
+    /// (the total mass of the auxiliary patterns, drawn from the stream of the next sweep).
+    pub fn conditional_log_probs(&self, i: usize) -> Result<Vec<f64>> {
+        if i >= self.data.len() {
+            return Err(Error::InvalidInput(format!("frame {i} out of range for {} frames", self.data.len())));
+        }
+        let f = self.data.frame(i);
+        let own = self.labels[i];
+        let mut logw = Vec::new();
+        let mut own_ls = None;
+        for (k, s) in self.live() {
+            if k == own {
+                if s.pattern.n_frames() == 1 {
+                    own_ls = Some(s.pattern.length_scales());
+                    logw.push(f64::NEG_INFINITY);
+                    continue;
+                }
+                let mut p = s.pattern.clone();
+                p.remove(i)?;
+                logw.push((p.n_frames() as f64).ln() + p.score(&[f])?[0]);
+            } else {
+                logw.push((s.pattern.n_frames() as f64).ln() + s.pattern.score(&[f])?[0]);
+            }
+        }
+        let mut rng = stream(self.settings.seed, self.sweep + 1, Phase::Assign, i as u64);
+        let aux: Vec<f64> = self.auxiliaries(f, own_ls, &mut rng)?.iter().map(|a| a.1).collect();
+        logw.push(log_sum_exp(&aux));
+        let z = log_sum_exp(&logw);
+        Ok(logw.iter().map(|w| w - z).collect())
+    }
+
+    /// For frames not in the training set: `log p(V_f | D_k)` for every live pattern (rows:
+    /// frames; columns: patterns in slot order) and the new-pattern term `log E_w N(V_f; μ, K(w))`
+    /// by `new_pattern_samples` prior draws (deterministic per frame position and seed).
+    pub fn score_frames(&self, frames: &[FrameRef<'_>]) -> Result<(Vec<Vec<f64>>, Vec<f64>)> {
+        let live: Vec<&Slot> = self.live().map(|(_, s)| s).collect();
+        let per_pattern: Vec<Result<Vec<f64>>> = live.par_iter().map(|s| s.pattern.score(frames)).collect();
+        let cols: Vec<Vec<f64>> = per_pattern.into_iter().collect::<Result<_>>()?;
+        let new: Vec<Result<f64>> = frames
+            .par_iter()
+            .enumerate()
+            .map(|(j, f)| {
+                let mut rng = stream(self.settings.seed, u64::MAX, Phase::Predict, j as u64);
+                let aux = self.auxiliaries(*f, None, &mut rng)?;
+                let w: Vec<f64> = aux.iter().map(|a| a.1).collect();
+                Ok(log_sum_exp(&w) - self.alpha.ln())
+            })
+            .collect();
+        let new: Vec<f64> = new.into_iter().collect::<Result<_>>()?;
+        let rows = (0..frames.len()).map(|j| cols.iter().map(|c| c[j]).collect()).collect();
+        Ok((rows, new))
+    }
+}
+
+fn argmax(v: &[f64]) -> (usize, f64) {
+    v.iter().enumerate().fold((0, f64::NEG_INFINITY), |best, (i, &x)| if x > best.1 { (i, x) } else { best })
+}
+
+/// Draw an index with probability proportional to `exp(logw)`.
+fn sample_log(logw: &[f64], rng: &mut impl rand::Rng) -> usize {
+    let m = logw.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let w: Vec<f64> = logw.iter().map(|x| (x - m).exp()).collect();
+    let total: f64 = w.iter().sum();
+    let mut u = rng.random::<f64>() * total;
+    for (i, wi) in w.iter().enumerate() {
+        u -= wi;
+        if u < 0.0 {
+            return i;
+        }
+    }
+    w.iter().rposition(|&x| x > 0.0).unwrap_or(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two obvious patterns: vehicles moving +y and vehicles moving +x, 30 frames each.
+    fn two_patterns() -> Data {
+        let mut s = 7u64;
+        let mut u = move || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut xy, mut v, mut offsets) = (Vec::new(), Vec::new(), vec![0]);
+        for i in 0..60 {
+            for _ in 0..4 {
+                let p = [u() * 40.0, u() * 40.0];
+                xy.push(p);
+                v.push(if i % 2 == 0 { [0.3 * u(), 10.0 + u()] } else { [10.0 + u(), 0.3 * u()] });
+            }
+            offsets.push(xy.len());
+        }
+        Data::new(xy, v, offsets).unwrap()
+    }
+
+    fn settings(assignment: Assignment, seed: u64) -> Settings {
+        Settings {
+            assignment,
+            base: GpParams::new((10.0, 10.0), (25.0, 25.0), 1.0, (5.0, 5.0)).unwrap(),
+            fixed_length_scales: false,
+            length_scale_prior: (10.0, 1.0),
+            alpha: None,
+            new_pattern_samples: 10,
+            seed,
+        }
+    }
+
+    fn run(assignment: Assignment, seed: u64, threads: usize) -> (Vec<usize>, Vec<f64>) {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| {
+            let mut s = Sampler::new(two_patterns(), settings(assignment, seed)).unwrap();
+            let mut trace = Vec::new();
+            for _ in 0..5 {
+                trace.push(s.sweep(&|| false).unwrap().log_joint);
+            }
+            (s.labels().to_vec(), trace)
+        })
+    }
+
+    #[test]
+    fn separates_two_obvious_patterns_in_both_modes() {
+        for mode in [Assignment::Gibbs, Assignment::Map] {
+            let (labels, _) = run(mode, 1, 1);
+            for i in (0..60).step_by(2) {
+                assert_eq!(labels[i], labels[0], "{mode:?}: frame {i}");
+                assert_eq!(labels[i + 1], labels[1], "{mode:?}: frame {}", i + 1);
+            }
+            assert_ne!(labels[0], labels[1]);
+        }
+    }
+
+    #[test]
+    fn same_seed_same_chain_whatever_the_thread_count() {
+        let a = run(Assignment::Gibbs, 3, 1);
+        let b = run(Assignment::Gibbs, 3, 2);
+        assert_eq!(a, b);
+        let c = run(Assignment::Gibbs, 4, 2);
+        assert_ne!(a.1, c.1);
+    }
+
+    #[test]
+    fn cached_scores_equal_fresh_scores() {
+        let mut s = Sampler::new(two_patterns(), settings(Assignment::Gibbs, 5)).unwrap();
+        for _ in 0..2 {
+            s.sweep(&|| false).unwrap();
+        }
+        let data = Arc::clone(&s.data);
+        for i in 0..data.len() {
+            for (k, slot) in s.live() {
+                if s.labels[i] == k || s.cache[i].get(k).is_none_or(|c| c.0 != slot.version) {
+                    continue;
+                }
+                let fresh = slot.pattern.score(&[data.frame(i)]).unwrap()[0];
+                assert!((s.cache[i][k].1 - fresh).abs() < 1e-8 * fresh.abs().max(1.0));
+            }
+        }
+    }
+
+    #[test]
+    fn bad_settings_are_errors() {
+        let mut st = settings(Assignment::Gibbs, 0);
+        st.alpha = Some(-1.0);
+        assert!(Sampler::new(two_patterns(), st.clone()).is_err());
+        st.alpha = None;
+        st.new_pattern_samples = 0;
+        assert!(Sampler::new(two_patterns(), st).is_err());
+        assert!(Data::new(vec![[0.0, 0.0]], vec![[0.0, 0.0]], vec![0, 0, 1]).is_err());
+    }
+}

@@ -1,0 +1,302 @@
+//! One motion pattern: its frames' points in factor order, its length scales, and per output
+//! group a growable Cholesky factor of `σ² R + σ_n² I` with the whitened residuals `z = L⁻¹(v − μ)`.
+//!
+//! Scoring a frame against a pattern is the append trial (algorithms.md §2.2): with
+//! `V = L⁻¹ K(X_k, X_i)` and `S = K_ii + σ_n² I − VᵀV`, the GP predictive density of the frame is
+//! `N(r ; 0, S)` with `r = v_i − μ − Vᵀ z`. The same `V` and `chol S` are the new factor rows.
+
+use faer::linalg::matmul::matmul;
+use faer::{Accum, MatMut, MatRef, Par};
+
+use crate::error::Result;
+use crate::factor::GrowFactor;
+use crate::gp::{GpParams, LN_2PI, centered, factor};
+use crate::kernel::{self, LengthScales, Point};
+use crate::linalg::Chol;
+
+/// A frame's vehicles: positions and velocities, row for row.
+#[derive(Clone, Copy, Debug)]
+pub struct FrameRef<'a> {
+    pub xy: &'a [Point],
+    pub v: &'a [[f64; 2]],
+}
+
+#[derive(Clone, Debug)]
+struct Group {
+    outs: &'static [usize],
+    signal_var: f64,
+    factor: GrowFactor,
+    /// `L⁻¹ (v_d − μ_d)` for each output `d` of the group, column-major `n x outs.len()`.
+    z: Vec<f64>,
+}
+
+/// A motion pattern and its cached factorisation.
+#[derive(Clone, Debug)]
+pub struct Pattern {
+    pub params: GpParams,
+    /// Training frames in factor order, with the row where each starts.
+    pub frames: Vec<usize>,
+    sizes: Vec<usize>,
+    xy: Vec<Point>,
+    v: Vec<[f64; 2]>,
+    groups: Vec<Group>,
+}
+
+impl Pattern {
+    /// Build and factor a pattern from scratch.
+    pub fn new(params: GpParams, members: &[(usize, FrameRef<'_>)]) -> Result<Self> {
+        let mut p = Self {
+            params,
+            frames: members.iter().map(|m| m.0).collect(),
+            sizes: members.iter().map(|m| m.1.xy.len()).collect(),
+            xy: members.iter().flat_map(|m| m.1.xy.iter().copied()).collect(),
+            v: members.iter().flat_map(|m| m.1.v.iter().copied()).collect(),
+            groups: Vec::new(),
+        };
+        p.refactor()?;
+        Ok(p)
+    }
+
+    /// The same frames under other length scales (a fresh factorisation).
+    pub fn with_length_scales(&self, ls: LengthScales) -> Result<Self> {
+        let mut p = Self { params: self.params.with_length_scales(ls), groups: Vec::new(), ..self.clone_data() };
+        p.refactor()?;
+        Ok(p)
+    }
+
+    fn clone_data(&self) -> Self {
+        Self {
+            params: self.params,
+            frames: self.frames.clone(),
+            sizes: self.sizes.clone(),
+            xy: self.xy.clone(),
+            v: self.v.clone(),
+            groups: Vec::new(),
+        }
+    }
+
+    fn refactor(&mut self) -> Result<()> {
+        let n = self.xy.len();
+        self.groups.clear();
+        for outs in self.params.groups() {
+            let s2 = self.params.signal_var[outs[0]];
+            let chol = factor(&self.xy, &self.params, s2, Par::Seq)?;
+            let mut z = centered(&self.v, outs, self.params.mean);
+            chol.solve_lower(&mut z, Par::Seq);
+            self.groups.push(Group { outs, signal_var: s2, factor: GrowFactor::from_dense(&chol.l, n), z });
+        }
+        Ok(())
+    }
+
+    pub fn n_frames(&self) -> usize {
+        self.frames.len()
+    }
+
+    pub fn n_points(&self) -> usize {
+        self.xy.len()
+    }
+
+    pub fn length_scales(&self) -> LengthScales {
+        self.params.length_scales
+    }
+
+    pub fn points(&self) -> (&[Point], &[[f64; 2]]) {
+        (&self.xy, &self.v)
+    }
+
+    /// `log p(D_k)`: the GP marginal likelihood of all the pattern's velocities.
+    pub fn log_marginal(&self) -> f64 {
+        let n = self.xy.len() as f64;
+        let mut total = -n * LN_2PI;
+        for g in &self.groups {
+            total -= 0.5 * g.z.iter().map(|x| x * x).sum::<f64>() + 0.5 * g.outs.len() as f64 * g.factor.log_det();
+        }
+        total
+    }
+
+    /// `log p(V_f | D_k)` for each frame `f`, from one batched triangular solve.
+    pub fn score(&self, frames: &[FrameRef<'_>]) -> Result<Vec<f64>> {
+        let n = self.xy.len();
+        let pts: Vec<Point> = frames.iter().flat_map(|f| f.xy.iter().copied()).collect();
+        let total_m = pts.len();
+        let mut out: Vec<f64> = frames.iter().map(|f| -(f.xy.len() as f64) * LN_2PI).collect();
+        for g in &self.groups {
+            let ls = self.params.length_scales;
+            let mut vbuf = kernel::cross(&self.xy, &pts, ls, g.signal_var, false);
+            g.factor.solve_lower(&mut vbuf, Par::Seq);
+            let vall = MatRef::from_column_major_slice(&vbuf, n, total_m);
+            let z = MatRef::from_column_major_slice(&g.z, n, g.outs.len());
+            let mut col = 0;
+            for (f, o) in frames.iter().zip(out.iter_mut()) {
+                let m = f.xy.len();
+                let v = vall.subcols(col, m);
+                col += m;
+                let (logdet, quad) = schur_terms(f, v, z, g, &self.params)?;
+                *o -= 0.5 * quad + 0.5 * g.outs.len() as f64 * logdet;
+            }
+        }
+        Ok(out)
+    }
+
+    /// Append frame `id` (not already here) as the last rows of every factor.
+    pub fn insert(&mut self, id: usize, f: FrameRef<'_>) -> Result<()> {
+        let (n, m) = (self.xy.len(), f.xy.len());
+        for g in &mut self.groups {
+            let ls = self.params.length_scales;
+            let mut vbuf = kernel::cross(&self.xy, f.xy, ls, g.signal_var, false);
+            g.factor.solve_lower(&mut vbuf, Par::Seq);
+            let v = MatRef::from_column_major_slice(&vbuf, n, m);
+            let k = g.outs.len();
+            let s = schur(&f, v, g.signal_var, &self.params);
+            let r = small_chol(s, m)?;
+            // New whitened residuals: z_new = R⁻¹ (v_f − μ − Vᵀ z).
+            let mut rz = residual(&f, v, MatRef::from_column_major_slice(&g.z, n, k), g.outs, &self.params);
+            r.solve_lower(&mut rz, Par::Seq);
+            let mut z = Vec::with_capacity((n + m) * k);
+            for c in 0..k {
+                z.extend_from_slice(&g.z[c * n..(c + 1) * n]);
+                z.extend_from_slice(&rz[c * m..(c + 1) * m]);
+            }
+            g.z = z;
+            g.factor.append(&vbuf, &r.l, m);
+        }
+        self.frames.push(id);
+        self.sizes.push(m);
+        self.xy.extend_from_slice(f.xy);
+        self.v.extend_from_slice(f.v);
+        Ok(())
+    }
+
+    /// Remove frame `id`; returns false if it is not here.
+    pub fn remove(&mut self, id: usize) -> Result<bool> {
+        let Some(pos) = self.frames.iter().position(|&f| f == id) else { return Ok(false) };
+        let start: usize = self.sizes[..pos].iter().sum();
+        let l = self.sizes[pos];
+        self.frames.remove(pos);
+        self.sizes.remove(pos);
+        self.xy.drain(start..start + l);
+        self.v.drain(start..start + l);
+        if self.xy.is_empty() {
+            self.groups.clear();
+            return Ok(true);
+        }
+        let mut stable = true;
+        for g in &mut self.groups {
+            stable &= g.factor.delete(start, l);
+        }
+        if !stable {
+            self.refactor()?;
+            return Ok(true);
+        }
+        // The leading part of z is unchanged; re-whiten the rest (n² work, far below the update).
+        let n = self.xy.len();
+        for g in &mut self.groups {
+            let mut z = centered(&self.v, g.outs, self.params.mean);
+            g.factor.solve_lower(&mut z, Par::Seq);
+            g.z = z;
+            debug_assert_eq!(g.z.len(), n * g.outs.len());
+        }
+        Ok(true)
+    }
+}
+
+/// `S = σ² R(X_f, X_f) + σ_n² I − VᵀV` (m x m, column-major).
+fn schur(f: &FrameRef<'_>, v: MatRef<'_, f64>, s2: f64, p: &GpParams) -> Vec<f64> {
+    let m = f.xy.len();
+    let mut s = kernel::gram(f.xy, p.length_scales, s2, p.noise_var, false);
+    if v.nrows() > 0 {
+        matmul(MatMut::from_column_major_slice_mut(&mut s, m, m), Accum::Add, v.transpose(), v, -1.0, Par::Seq);
+    }
+    s
+}
+
+/// `r = v_f − μ − Vᵀ z` for the outputs of a group (m x k, column-major).
+fn residual(f: &FrameRef<'_>, v: MatRef<'_, f64>, z: MatRef<'_, f64>, outs: &[usize], p: &GpParams) -> Vec<f64> {
+    let m = f.xy.len();
+    let mut r = centered(f.v, outs, p.mean);
+    if v.nrows() > 0 {
+        matmul(MatMut::from_column_major_slice_mut(&mut r, m, outs.len()), Accum::Add, v.transpose(), z, -1.0, Par::Seq);
+    }
+    r
+}
+
+fn small_chol(s: Vec<f64>, m: usize) -> Result<Chol> {
+    Chol::factor(m, "predictive", Par::Seq, || s.clone())
+}
+
+/// `(log |S|, ‖chol(S)⁻¹ r‖²)` for one frame and one output group.
+fn schur_terms(
+    f: &FrameRef<'_>,
+    v: MatRef<'_, f64>,
+    z: MatRef<'_, f64>,
+    g: &Group,
+    p: &GpParams,
+) -> Result<(f64, f64)> {
+    let m = f.xy.len();
+    let r = small_chol(schur(f, v, g.signal_var, p), m)?;
+    let mut res = residual(f, v, z, g.outs, p);
+    r.solve_lower(&mut res, Par::Seq);
+    Ok((r.log_det(), res.iter().map(|x| x * x).sum()))
+}
+
+/// `log N(V_f ; μ, σ² R_ff + σ_n² I)` under length scales `ls`: the prior predictive of a frame
+/// (the new-pattern term of Algorithm 8).
+pub fn prior_score(f: FrameRef<'_>, params: &GpParams) -> Result<f64> {
+    crate::gp::log_marginal_likelihood(f.xy, f.v, params, Par::Seq)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gp;
+
+    fn frames(seed: u64, count: usize) -> Vec<(Vec<Point>, Vec<[f64; 2]>)> {
+        let mut s = seed;
+        let mut u = move || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        (0..count)
+            .map(|_| {
+                let l = 2 + (u() * 6.0) as usize;
+                let xy: Vec<Point> = (0..l).map(|_| [u() * 30.0, u() * 100.0]).collect();
+                let v = xy.iter().map(|p| [(p[1] / 20.0).sin() + u(), 20.0 + p[0] / 5.0 + u()]).collect();
+                (xy, v)
+            })
+            .collect()
+    }
+
+    fn refs(fs: &[(Vec<Point>, Vec<[f64; 2]>)]) -> Vec<FrameRef<'_>> {
+        fs.iter().map(|(xy, v)| FrameRef { xy, v }).collect()
+    }
+
+    #[test]
+    fn incremental_updates_match_fresh_factors() {
+        for p in [
+            GpParams::new((6.0, 30.0), (1.5, 1.5), 0.7, (0.2, 20.0)).unwrap(),
+            GpParams::new((6.0, 30.0), (1.5, 9.0), 0.7, (0.2, 20.0)).unwrap(),
+        ] {
+            let fs = frames(3, 12);
+            let r = refs(&fs);
+            let members: Vec<(usize, FrameRef)> = (0..6).map(|i| (i, r[i])).collect();
+            let mut pat = Pattern::new(p, &members).unwrap();
+            for i in 6..12 {
+                pat.insert(i, r[i]).unwrap();
+            }
+            for id in [0, 7, 3, 11] {
+                assert!(pat.remove(id).unwrap());
+            }
+            let ids = pat.frames.clone();
+            let fresh_members: Vec<(usize, FrameRef)> = ids.iter().map(|&i| (i, r[i])).collect();
+            let fresh = Pattern::new(p, &fresh_members).unwrap();
+            assert!((pat.log_marginal() - fresh.log_marginal()).abs() < 1e-9 * fresh.log_marginal().abs());
+            // Scores of the removed frames equal the predictive density from scratch.
+            let (xy, v) = fresh.points();
+            let got = pat.score(&[r[0], r[7], r[11]]).unwrap();
+            for (k, &i) in [0usize, 7, 11].iter().enumerate() {
+                let want = gp::log_predictive(xy, v, r[i].xy, r[i].v, &p, Par::Seq).unwrap();
+                assert!((got[k] - want).abs() < 1e-9 * want.abs(), "{} vs {want}", got[k]);
+            }
+        }
+    }
+}
