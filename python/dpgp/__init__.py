@@ -15,12 +15,18 @@ from .exceptions import (
     NotPositiveDefiniteError,
     ShapeError,
 )
+from .distributions import EmpiricalDistributions
 from .frames import Frame, Frames, read_frames
+from .framing import FramingSummary, make_frames, resample_tracks
 from .gp import GPParams
+from .metrics import adjusted_rand_index
+from .model import DPGP
+from .tracks import read_ngsim, read_tracks
 
 __version__: str = _core.__version__
 
 __all__ = [
+    "DPGP",
     "DataFormatError",
     "DpgpError",
     "Frame",
@@ -33,4 +39,11 @@ __all__ = [
     "ShapeError",
     "gp",
     "read_frames",
+    "EmpiricalDistributions",
+    "FramingSummary",
+    "make_frames",
+    "read_ngsim",
+    "read_tracks",
+    "resample_tracks",
+    "adjusted_rand_index",
 ]

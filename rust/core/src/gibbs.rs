@@ -368,27 +368,23 @@ impl Sampler {
         Ok(())
     }
 
-    /// Scores of frame `i` (not in any pattern now) against every live pattern, from the cache
+    /// Scores of frame `i` against every live pattern except `skip` (its own), from the cache
     /// where it is current.
-    fn scores_for(&mut self, i: usize) -> Result<Vec<(usize, f64)>> {
+    fn scores_for(&mut self, i: usize, skip: usize) -> Result<Vec<(usize, f64)>> {
         let data = Arc::clone(&self.data);
         let f = data.frame(i);
-        let live: Vec<(usize, u64)> = self.live().map(|(k, s)| (k, s.version)).collect();
-        let stale: Vec<usize> = live
-            .iter()
-            .filter(|(k, v)| self.cache[i].get(*k).is_none_or(|c| c.0 != *v))
-            .map(|(k, _)| *k)
-            .collect();
+        let live: Vec<(usize, u64)> = self.live().filter(|(k, _)| *k != skip).map(|(k, s)| (k, s.version)).collect();
+        let stale: Vec<(usize, u64)> =
+            live.iter().copied().filter(|&(k, v)| self.cache[i].get(k).is_none_or(|c| c.0 != v)).collect();
         let fresh: Vec<Result<f64>> = stale
             .par_iter()
-            .map(|&k| Ok(self.slots[k].as_ref().expect("live slot").pattern.score(&[f])?[0]))
+            .map(|&(k, _)| Ok(self.slots[k].as_ref().expect("live slot").pattern.score(&[f])?[0]))
             .collect();
         let row = &mut self.cache[i];
         if row.len() < self.slots.len() {
             row.resize(self.slots.len(), (0, 0.0));
         }
-        for (&k, s) in stale.iter().zip(fresh) {
-            let version = live.iter().find(|(kk, _)| *kk == k).map_or(0, |x| x.1);
+        for (&(k, version), s) in stale.iter().zip(fresh) {
             row[k] = (version, s?);
         }
         Ok(live.iter().map(|&(k, _)| (k, row[k].1)).collect())
@@ -423,40 +419,48 @@ impl Sampler {
             .collect()
     }
 
+    /// Take frame `i` out of pattern `k` (dropping the pattern if it was its only frame).
+    fn detach_frame(&mut self, i: usize, k: usize) -> Result<()> {
+        let slot = self.slots[k].as_mut().expect("label points at a live slot");
+        if slot.pattern.n_frames() == 1 {
+            self.slots[k] = None;
+        } else {
+            slot.pattern.remove(i)?;
+            let v = self.fresh_version();
+            self.slots[k].as_mut().expect("still live").version = v;
+        }
+        self.labels[i] = NONE;
+        Ok(())
+    }
+
     /// Reassign frame `i` by its conditional; returns whether the partition changed.
+    ///
+    /// The frame's own pattern is scored by leave-one-block-out without touching its factor, so
+    /// a frame that stays (most of them, after burn-in) costs no factor update at all.
     fn update_frame(&mut self, i: usize, rng: &mut impl rand::Rng) -> Result<bool> {
         let data = Arc::clone(&self.data);
         let f = data.frame(i);
         let old = self.labels[i];
-        let mut own_ls = None;
-        let mut restore_version = None;
         let t = Instant::now();
-        if old != NONE {
-            let slot = self.slots[old].as_mut().expect("label points at a live slot");
-            if slot.pattern.n_frames() == 1 {
-                own_ls = Some(slot.pattern.length_scales());
-                self.slots[old] = None;
-            } else {
-                slot.pattern.remove(i)?;
-                restore_version = Some(slot.version);
-                let v = self.fresh_version();
-                self.slots[old].as_mut().expect("still live").version = v;
-            }
-            self.labels[i] = NONE;
+        let (own_ls, own_score) = match self.slots.get(old).and_then(|s| s.as_ref()) {
+            None => (None, None),
+            Some(s) if s.pattern.n_frames() == 1 => (Some(s.pattern.length_scales()), None),
+            Some(s) => (None, s.pattern.loo_score(i)?.map(|v| (s.pattern.n_frames() as f64 - 1.0).ln() + v)),
+        };
+        let mut candidates: Vec<(usize, f64)> = self
+            .scores_for(i, old)?
+            .into_iter()
+            .map(|(k, s)| (k, (self.slots[k].as_ref().expect("live").pattern.n_frames() as f64).ln() + s))
+            .collect();
+        if let Some(w) = own_score {
+            candidates.push((old, w));
         }
-        self.timings.moves += t.elapsed().as_secs_f64();
-
-        let t = Instant::now();
-        let existing = self.scores_for(i)?;
         self.timings.scoring += t.elapsed().as_secs_f64();
         let t = Instant::now();
         let aux = self.auxiliaries(f, own_ls, rng)?;
         self.timings.new_pattern += t.elapsed().as_secs_f64();
 
-        let mut logw: Vec<f64> = existing
-            .iter()
-            .map(|&(k, s)| (self.slots[k].as_ref().expect("live").pattern.n_frames() as f64).ln() + s)
-            .collect();
+        let mut logw: Vec<f64> = candidates.iter().map(|c| c.1).collect();
         let choice = match self.settings.assignment {
             Assignment::Gibbs => {
                 logw.extend(aux.iter().map(|a| a.1));
@@ -464,28 +468,36 @@ impl Sampler {
             }
             Assignment::Map => {
                 let aux_w: Vec<f64> = aux.iter().map(|a| a.1).collect();
-                let new_total = log_sum_exp(&aux_w);
                 let (best, best_w) = argmax(&logw);
-                if best_w >= new_total && !logw.is_empty() { best } else { logw.len() + argmax(&aux_w).0 }
+                if !logw.is_empty() && best_w >= log_sum_exp(&aux_w) { best } else { logw.len() + argmax(&aux_w).0 }
             }
         };
 
         let t = Instant::now();
-        let (slot, changed) = if choice < existing.len() {
-            let k = existing[choice].0;
-            self.slots[k].as_mut().expect("live").pattern.insert(i, f)?;
-            let v = match restore_version {
-                Some(v) if k == old => v,
-                _ => self.fresh_version(),
-            };
-            self.slots[k].as_mut().expect("live").version = v;
-            (k, k != old)
+        let changed = if choice < candidates.len() {
+            let k = candidates[choice].0;
+            if k != old {
+                if old != NONE {
+                    self.detach_frame(i, old)?;
+                }
+                self.slots[k].as_mut().expect("live").pattern.insert(i, f)?;
+                let v = self.fresh_version();
+                self.slots[k].as_mut().expect("live").version = v;
+                self.labels[i] = k;
+            }
+            k != old
         } else {
-            let ls = aux[choice - existing.len()].0;
-            let k = self.add_pattern(Pattern::new(self.pattern_params(ls), &[(i, f)])?);
-            (k, own_ls.is_none())
+            let j = choice - candidates.len();
+            // A singleton that draws its own length scales (auxiliary 0) keeps its pattern.
+            if !(own_ls.is_some() && j == 0) {
+                if old != NONE {
+                    self.detach_frame(i, old)?;
+                }
+                let k = self.add_pattern(Pattern::new(self.pattern_params(aux[j].0), &[(i, f)])?);
+                self.labels[i] = k;
+            }
+            own_ls.is_none()
         };
-        self.labels[i] = slot;
         self.timings.moves += t.elapsed().as_secs_f64();
         Ok(changed)
     }

@@ -40,6 +40,8 @@ pub struct Pattern {
     xy: Vec<Point>,
     v: Vec<[f64; 2]>,
     groups: Vec<Group>,
+    /// Per group, `K⁻¹ (v − μ)` (n x outputs), computed on first use after each change.
+    weights: std::sync::OnceLock<Vec<Vec<f64>>>,
 }
 
 impl Pattern {
@@ -52,6 +54,7 @@ impl Pattern {
             xy: members.iter().flat_map(|m| m.1.xy.iter().copied()).collect(),
             v: members.iter().flat_map(|m| m.1.v.iter().copied()).collect(),
             groups: Vec::new(),
+            weights: Default::default(),
         };
         p.refactor()?;
         Ok(p)
@@ -72,11 +75,13 @@ impl Pattern {
             xy: self.xy.clone(),
             v: self.v.clone(),
             groups: Vec::new(),
+            weights: Default::default(),
         }
     }
 
     fn refactor(&mut self) -> Result<()> {
         let n = self.xy.len();
+        self.weights = Default::default();
         self.groups.clear();
         for outs in self.params.groups() {
             let s2 = self.params.signal_var[outs[0]];
@@ -138,9 +143,61 @@ impl Pattern {
         Ok(out)
     }
 
+    /// `log p(V_f | D_k \\ f)` for a member frame, without touching the factor: leave-one-block-out
+    /// (R&W §5.4.2 for a block). With `P = K⁻¹`, `a = K⁻¹(v − μ)` and `I` the frame's rows,
+    /// the conditional is `N(v_I ; v_I − P_II⁻¹ a_I, P_II⁻¹)`, so its log density is
+    /// `−½ a_Iᵀ P_II⁻¹ a_I + ½ log|P_II| − (l/2) log 2π`. `P_II = WᵀW` with `W = L⁻¹ E_I`, which
+    /// is zero above row `p`: a forward solve of the trailing block only.
+    pub fn loo_score(&self, id: usize) -> Result<Option<f64>> {
+        let Some(pos) = self.frames.iter().position(|&f| f == id) else { return Ok(None) };
+        let (p, l, n) = (self.sizes[..pos].iter().sum::<usize>(), self.sizes[pos], self.xy.len());
+        if n == l {
+            return Ok(None);
+        }
+        let weights = self.weights.get_or_init(|| {
+            self.groups
+                .iter()
+                .map(|g| {
+                    let mut a = g.z.clone();
+                    let k = g.outs.len();
+                    faer::linalg::triangular_solve::solve_upper_triangular_in_place(
+                        g.factor.mat().transpose(),
+                        MatMut::from_column_major_slice_mut(&mut a, n, k),
+                        Par::Seq,
+                    );
+                    a
+                })
+                .collect()
+        });
+        let mut total = -(l as f64) * LN_2PI;
+        for (g, a) in self.groups.iter().zip(weights) {
+            let m = n - p;
+            let mut w = vec![0.0; m * l];
+            for c in 0..l {
+                w[c * m + c] = 1.0;
+            }
+            let trailing = g.factor.mat().submatrix(p, p, m, m);
+            faer::linalg::triangular_solve::solve_lower_triangular_in_place(
+                trailing,
+                MatMut::from_column_major_slice_mut(&mut w, m, l),
+                Par::Seq,
+            );
+            let wr = MatRef::from_column_major_slice(&w, m, l);
+            let mut pii = vec![0.0; l * l];
+            matmul(MatMut::from_column_major_slice_mut(&mut pii, l, l), Accum::Replace, wr.transpose(), wr, 1.0, Par::Seq);
+            let c = small_chol(pii, l)?;
+            let k = g.outs.len();
+            let mut ai: Vec<f64> = (0..k).flat_map(|col| a[col * n + p..col * n + p + l].iter().copied()).collect();
+            c.solve_lower(&mut ai, Par::Seq);
+            total += -0.5 * ai.iter().map(|x| x * x).sum::<f64>() + 0.5 * k as f64 * c.log_det();
+        }
+        Ok(Some(total))
+    }
+
     /// Append frame `id` (not already here) as the last rows of every factor.
     pub fn insert(&mut self, id: usize, f: FrameRef<'_>) -> Result<()> {
         let (n, m) = (self.xy.len(), f.xy.len());
+        self.weights = Default::default();
         for g in &mut self.groups {
             let ls = self.params.length_scales;
             let mut vbuf = kernel::cross(&self.xy, f.xy, ls, g.signal_var, false);
@@ -172,6 +229,7 @@ impl Pattern {
         let Some(pos) = self.frames.iter().position(|&f| f == id) else { return Ok(false) };
         let start: usize = self.sizes[..pos].iter().sum();
         let l = self.sizes[pos];
+        self.weights = Default::default();
         self.frames.remove(pos);
         self.sizes.remove(pos);
         self.xy.drain(start..start + l);
@@ -297,6 +355,16 @@ mod tests {
                 let want = gp::log_predictive(xy, v, r[i].xy, r[i].v, &p, Par::Seq).unwrap();
                 assert!((got[k] - want).abs() < 1e-9 * want.abs(), "{} vs {want}", got[k]);
             }
+            // Leave-one-block-out of every member equals the predictive given the others.
+            for &i in &ids {
+                let others: Vec<(usize, FrameRef)> = ids.iter().filter(|&&j| j != i).map(|&j| (j, r[j])).collect();
+                let rest = Pattern::new(p, &others).unwrap();
+                let (oxy, ov) = rest.points();
+                let want = gp::log_predictive(oxy, ov, r[i].xy, r[i].v, &p, Par::Seq).unwrap();
+                let got = pat.loo_score(i).unwrap().unwrap();
+                assert!((got - want).abs() < 1e-8 * want.abs(), "loo {i}: {got} vs {want}");
+            }
+            assert!(pat.loo_score(0).unwrap().is_none());
         }
     }
 }

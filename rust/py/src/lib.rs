@@ -4,6 +4,7 @@
 mod convert;
 mod errors;
 mod gp;
+mod sampler;
 
 #[pyo3::pymodule(gil_used = false)]
 mod _core {
@@ -11,6 +12,8 @@ mod _core {
 
     #[pymodule_export]
     use super::gp::{check_params, log_marginal_likelihood, log_predictive, posterior};
+    #[pymodule_export]
+    use super::sampler::PySampler;
 
     #[pymodule_init]
     fn init(m: &Bound<'_, PyModule>) -> PyResult<()> {

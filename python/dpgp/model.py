@@ -1,0 +1,283 @@
+"""The DP-GP estimator: a Dirichlet-process mixture of Gaussian-process velocity fields, fitted by
+collapsed Gibbs sampling in the Rust core. Follows scikit-learn's conventions: settings in
+``__init__``, ``fit`` returns ``self``, learned state ends in ``_``."""
+
+from __future__ import annotations
+
+import time
+import warnings
+from typing import Any
+
+import numpy as np
+
+from . import _core
+from .exceptions import InvalidInputError, NotFittedError, ShapeError
+from .frames import Frames, read_frames
+from .gp import GPParams, _pair
+from .metrics import adjusted_rand_index, canonical_labels
+
+_ASSIGNMENTS = ("gibbs", "map")
+_LIKELIHOODS = ("exact",)
+
+
+class DPGP:
+    """Dirichlet-process mixture of GP motion patterns.
+
+    Parameters
+    ----------
+    iterations : Gibbs sweeps after the sequential initialisation.
+    assignment : ``"gibbs"`` draws each frame's pattern from its conditional (a true collapsed
+        Gibbs sampler); ``"map"`` takes the most probable one (the paper's Algorithm 1).
+    likelihood : ``"exact"`` (the full GP; reduced-rank approximations are planned).
+    length_scale_prior : ``(shape, scale)`` of the Gamma prior of each length scale, in data units.
+    length_scales : ``None`` samples ``(w_x, w_y)`` per pattern; a pair fixes them for all patterns.
+    noise_var : observation noise variance σ_n² (velocity units squared).
+    signal_var, mean : per-output signal variance and mean; ``None`` takes the variance and mean
+        of the training velocities.
+    alpha : DP concentration; ``None`` samples it (starting from a draw of its prior).
+    new_pattern_samples : auxiliary patterns of Neal's Algorithm 8 for the new-pattern term.
+    seed : the run is a function of (data, settings, seed), whatever ``n_threads``.
+    n_threads : worker threads (``None``: all cores).
+    progress : show a progress bar.
+    n_iter_no_change : stop early once K is unchanged and the adjusted Rand index between
+        consecutive sweeps is at least ``ari_tol`` for this many sweeps (``None``: run all sweeps).
+    store_labels : keep the labels after every sweep in ``label_trace_``.
+    """
+
+    def __init__(
+        self,
+        iterations: int = 100,
+        assignment: str = "gibbs",
+        likelihood: str = "exact",
+        length_scale_prior: tuple[float, float] = (10.0, 1.0),
+        length_scales: tuple[float, float] | None = None,
+        noise_var: float = 1.0,
+        signal_var: float | tuple[float, float] | None = None,
+        mean: float | tuple[float, float] | None = None,
+        alpha: float | None = None,
+        new_pattern_samples: int = 100,
+        seed: int = 0,
+        n_threads: int | None = None,
+        progress: bool = True,
+        n_iter_no_change: int | None = None,
+        ari_tol: float = 0.99,
+        store_labels: bool = False,
+    ) -> None:
+        self.iterations = iterations
+        self.assignment = assignment
+        self.likelihood = likelihood
+        self.length_scale_prior = length_scale_prior
+        self.length_scales = length_scales
+        self.noise_var = noise_var
+        self.signal_var = signal_var
+        self.mean = mean
+        self.alpha = alpha
+        self.new_pattern_samples = new_pattern_samples
+        self.seed = seed
+        self.n_threads = n_threads
+        self.progress = progress
+        self.n_iter_no_change = n_iter_no_change
+        self.ari_tol = ari_tol
+        self.store_labels = store_labels
+
+    # --- scikit-learn conventions ---------------------------------------------------------------
+    def get_params(self, deep: bool = True) -> dict[str, Any]:
+        import inspect
+
+        return {name: getattr(self, name) for name in inspect.signature(type(self).__init__).parameters if name != "self"}
+
+    def set_params(self, **params: Any) -> DPGP:
+        valid = self.get_params()
+        for key, value in params.items():
+            if key not in valid:
+                raise InvalidInputError(f"unknown parameter {key!r}; valid: {sorted(valid)}")
+            setattr(self, key, value)
+        return self
+
+    def __repr__(self) -> str:
+        defaults = type(self)().get_params()
+        changed = {k: v for k, v in self.get_params().items() if not _same(v, defaults[k])}
+        return f"DPGP({', '.join(f'{k}={v!r}' for k, v in changed.items())})"
+
+    # --- fitting ----------------------------------------------------------------------------------
+    def _check_settings(self) -> None:
+        if self.assignment not in _ASSIGNMENTS:
+            raise InvalidInputError(f"assignment must be one of {_ASSIGNMENTS}, got {self.assignment!r}")
+        if self.likelihood not in _LIKELIHOODS:
+            raise InvalidInputError(
+                f"likelihood must be one of {_LIKELIHOODS}, got {self.likelihood!r} (reduced-rank likelihoods are planned)"
+            )
+        if not (isinstance(self.iterations, (int, np.integer)) and self.iterations >= 0):
+            raise InvalidInputError(f"iterations must be a non-negative integer, got {self.iterations!r}")
+        if not (isinstance(self.new_pattern_samples, (int, np.integer)) and self.new_pattern_samples >= 1):
+            raise InvalidInputError(f"new_pattern_samples must be a positive integer, got {self.new_pattern_samples!r}")
+        if self.n_threads is not None and not (isinstance(self.n_threads, (int, np.integer)) and self.n_threads >= 1):
+            raise InvalidInputError(f"n_threads must be a positive integer or None, got {self.n_threads!r}")
+        if self.n_iter_no_change is not None and not self.n_iter_no_change >= 1:
+            raise InvalidInputError(f"n_iter_no_change must be a positive integer or None, got {self.n_iter_no_change!r}")
+
+    def fit(self, frames: Frames | Any, y: None = None) -> DPGP:
+        """Fit the mixture to training frames (a :class:`~dpgp.Frames` or a framed DataFrame)."""
+        self._check_settings()
+        frames = _as_frames(frames)
+        signal_var = frames.v.var(axis=0) if self.signal_var is None else _pair("signal_var", self.signal_var)
+        mean = frames.v.mean(axis=0) if self.mean is None else _pair("mean", self.mean)
+        if np.any(np.asarray(signal_var) <= 0):
+            raise InvalidInputError(
+                f"the training velocities have zero variance in an output ({tuple(signal_var)}); pass signal_var="
+            )
+        a, b = _pair("length_scale_prior", self.length_scale_prior)
+        ls0 = (a * b, a * b) if self.length_scales is None else _pair("length_scales", self.length_scales)
+        self.params_ = GPParams(ls0, tuple(signal_var), self.noise_var, tuple(mean))
+        self._sampler = _core.Sampler(
+            frames.xy,
+            frames.v,
+            frames.offsets,
+            self.assignment,
+            self.params_.as_tuple(),
+            self.length_scales is not None,
+            (a, b),
+            None if self.alpha is None else float(self.alpha),
+            int(self.new_pattern_samples),
+            int(self.seed) & 0xFFFF_FFFF_FFFF_FFFF,
+            self.n_threads,
+        )
+        self.frames_ = frames
+        self.history_: dict[str, list] = {k: [] for k in ("n_patterns", "alpha", "log_joint", "moves", "ari", "seconds")}
+        traces: list[np.ndarray] = []
+        self.converged_ = False
+        self.n_iter_ = 0
+        try:
+            t = time.perf_counter()
+            self._sampler.initialize()
+            self.init_seconds_ = time.perf_counter() - t
+            previous = np.asarray(self._sampler.labels())
+            stable = 0
+            bar = _progress(self.iterations, self.progress)
+            for _ in range(self.iterations):
+                t = time.perf_counter()
+                moves, k, alpha, log_joint = self._sampler.sweep()
+                seconds = time.perf_counter() - t
+                labels = np.asarray(self._sampler.labels())
+                ari = adjusted_rand_index(previous, labels)
+                for key, val in zip(self.history_, (k, alpha, log_joint, moves, ari, seconds)):
+                    self.history_[key].append(val)
+                if self.store_labels:
+                    traces.append(canonical_labels(labels))
+                self.n_iter_ += 1
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix(K=k, alpha=f"{alpha:.3g}", moved=moves)
+                same_k = len(self.history_["n_patterns"]) > 1 and self.history_["n_patterns"][-2] == k
+                stable = stable + 1 if (same_k and ari >= self.ari_tol) else 0
+                previous = labels
+                if self.n_iter_no_change is not None and stable >= self.n_iter_no_change:
+                    self.converged_ = True
+                    break
+        except KeyboardInterrupt:
+            warnings.warn(
+                f"fit interrupted after {self.n_iter_} sweeps; the model keeps the state reached", stacklevel=2
+            )
+        finally:
+            if "bar" in locals() and bar is not None:
+                bar.close()
+        if self.store_labels:
+            self.label_trace_ = np.array(traces, dtype=np.int64).reshape(len(traces), len(frames))
+        self._sync()
+        return self
+
+    def _sync(self) -> None:
+        """Read the sampler's state into the public attributes, patterns by decreasing size."""
+        patterns = self._sampler.patterns()  # (slot, id, n_frames, wx, wy)
+        order = sorted(range(len(patterns)), key=lambda j: (-patterns[j][2], patterns[j][0]))
+        self._slots = np.array([patterns[j][0] for j in order], dtype=np.int64)
+        self._slot_order = np.array(order, dtype=np.int64)  # core slot-order index of each pattern
+        slot_to_label = {int(s): k for k, s in enumerate(self._slots)}
+        self.labels_ = np.array([slot_to_label[int(s)] for s in self._sampler.labels()], dtype=np.int64)
+        self.n_patterns_ = len(self._slots)
+        counts = np.array([patterns[j][2] for j in order], dtype=np.float64)
+        self.weights_ = counts / counts.sum()
+        self.length_scales_ = np.array([[patterns[j][3], patterns[j][4]] for j in order]).reshape(-1, 2)
+        self.pattern_ids_ = np.array([patterns[j][1] for j in order], dtype=np.uint64)
+        self.alpha_ = float(self._sampler.alpha())
+        self.log_joint_ = float(self._sampler.log_joint())
+        self.timings_ = dict(self._sampler.timings())
+
+    # --- using the fit ----------------------------------------------------------------------------
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "labels_"):
+            raise NotFittedError("this DPGP is not fitted yet; call fit(frames) first")
+
+    def _log_scores(self, frames: Frames) -> tuple[np.ndarray, np.ndarray]:
+        """log p(V_f | D_k) for each frame and pattern (labels_ order), and the new-pattern term."""
+        per_slot, new = self._sampler.score_frames(frames.xy, frames.v, frames.offsets)
+        scores = np.asarray(per_slot, dtype=np.float64).reshape(len(frames), -1)[:, self._slot_order]
+        return scores, np.asarray(new, dtype=np.float64)
+
+    def _log_joint_terms(self, frames: Frames) -> np.ndarray:
+        """(N, K+1): log [prior weight × likelihood] of each pattern, then of a new pattern."""
+        self._check_fitted()
+        frames = _as_frames(frames)
+        scores, new = self._log_scores(frames)
+        n = len(self.labels_)
+        log_prior = np.log(np.r_[self.weights_ * n, self.alpha_]) - np.log(n + self.alpha_)
+        return np.column_stack([scores, new]) + log_prior
+
+    def predict_proba(self, frames: Frames | Any) -> np.ndarray:
+        """Posterior probability of each pattern for each frame: shape (N, K+1), the last column
+        being "a new pattern"."""
+        t = self._log_joint_terms(frames)
+        t -= t.max(axis=1, keepdims=True)
+        p = np.exp(t)
+        return p / p.sum(axis=1, keepdims=True)
+
+    def predict(self, frames: Frames | Any) -> np.ndarray:
+        """The most probable existing pattern (index into ``weights_``) of each frame."""
+        return np.argmax(self._log_joint_terms(frames)[:, :-1], axis=1)
+
+    def score_samples(self, frames: Frames | Any) -> np.ndarray:
+        """log p(velocities of each frame | model, positions): the DP mixture of GP predictives."""
+        t = self._log_joint_terms(frames)
+        m = t.max(axis=1, keepdims=True)
+        return (m + np.log(np.exp(t - m).sum(axis=1, keepdims=True)))[:, 0]
+
+    def velocity_field(self, k: int, xy: object) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior mean and variance (each (n, 2)) of pattern ``k``'s velocity field at ``xy``."""
+        self._check_fitted()
+        from ._arrays import as_pairs
+
+        if not 0 <= k < self.n_patterns_:
+            raise InvalidInputError(f"pattern {k} does not exist; the model has {self.n_patterns_} (0..{self.n_patterns_ - 1})")
+        return self._sampler.posterior(int(self._slots[k]), as_pairs("xy", xy))
+
+    def conditional_log_probs(self, i: int) -> np.ndarray:
+        """Normalised log conditional of training frame ``i`` given every other frame's pattern:
+        (K+1,), patterns in ``labels_`` order (its own scored without it) and then "new"."""
+        self._check_fitted()
+        if not 0 <= i < len(self.labels_):
+            raise InvalidInputError(f"frame {i} out of range for {len(self.labels_)} training frames")
+        lp = np.asarray(self._sampler.conditional_log_probs(int(i)))
+        return np.r_[lp[:-1][self._slot_order], lp[-1]]
+
+
+def _same(a: object, b: object) -> bool:
+    try:
+        return bool(np.all(a == b)) if not (a is None) ^ (b is None) else False
+    except Exception:
+        return False
+
+
+def _as_frames(frames: Any) -> Frames:
+    if isinstance(frames, Frames):
+        return frames
+    if hasattr(frames, "columns"):
+        return read_frames(frames)
+    raise ShapeError(f"expected dpgp.Frames or a framed DataFrame, got {type(frames).__name__}")
+
+
+def _progress(total: int, enabled: bool):
+    if not enabled:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc="dpgp sweeps", unit="sweep")

@@ -1,0 +1,237 @@
+//! The `Sampler` class: a DP-GP Gibbs sampler owned by Python, run on its own rayon pool with
+//! the GIL released, and stoppable with Ctrl-C between frames.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Mutex, mpsc};
+use std::time::Duration;
+
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::convert::{pairs, to_numpy};
+use crate::errors::{CoreError, CoreResult};
+use crate::gp::{ParamTuple, params};
+use dpgp_core::Error;
+use dpgp_core::gibbs::{Assignment, Data, Sampler, Settings};
+use dpgp_core::kernel::LengthScales;
+use dpgp_core::pattern::FrameRef;
+
+#[pyclass(module = "dpgp._core", name = "Sampler")]
+pub struct PySampler {
+    inner: Mutex<Sampler>,
+    pool: rayon::ThreadPool,
+}
+
+fn offsets_vec(name: &str, o: &PyReadonlyArray1<'_, i64>) -> CoreResult<Vec<usize>> {
+    o.as_array()
+        .iter()
+        .map(|&x| usize::try_from(x).map_err(|_| CoreError(Error::Shape(format!("{name} must be non-negative")))))
+        .collect()
+}
+
+/// Frames as views into flat arrays.
+fn frame_refs<'a>(xy: &'a [[f64; 2]], v: &'a [[f64; 2]], offsets: &[usize]) -> CoreResult<Vec<FrameRef<'a>>> {
+    if xy.len() != v.len() || offsets.first() != Some(&0) || offsets.last() != Some(&xy.len()) {
+        return Err(CoreError(Error::Shape("offsets must run from 0 to the number of rows of xy and v".into())));
+    }
+    if offsets.windows(2).any(|w| w[1] <= w[0]) {
+        return Err(CoreError(Error::Shape("every frame must hold at least one vehicle".into())));
+    }
+    Ok(offsets.windows(2).map(|w| FrameRef { xy: &xy[w[0]..w[1]], v: &v[w[0]..w[1]] }).collect())
+}
+
+impl PySampler {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Sampler> {
+        // A panic inside a sweep cannot leave the state half-written in a way we could repair,
+        // but the data stays memory-safe; keep serving it.
+        self.inner.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Run `work` on the pool with the GIL released, polling Ctrl-C on this (the main) thread.
+    fn run<T: Send>(
+        &self,
+        py: Python<'_>,
+        work: impl FnOnce(&mut Sampler, &dyn Fn() -> bool) -> dpgp_core::Result<T> + Send,
+    ) -> PyResult<T> {
+        let stop = AtomicBool::new(false);
+        let mut interrupt: Option<PyErr> = None;
+        let result = py.detach(|| {
+            std::thread::scope(|s| {
+                let (tx, rx) = mpsc::channel();
+                let stop_ref = &stop;
+                let handle = s.spawn(move || {
+                    let mut guard = self.lock();
+                    let sampler: &mut Sampler = &mut guard;
+                    let r = self.pool.install(|| work(sampler, &|| stop_ref.load(Ordering::Relaxed)));
+                    let _ = tx.send(());
+                    r
+                });
+                while rx.recv_timeout(Duration::from_millis(50)).is_err() {
+                    if handle.is_finished() {
+                        break;
+                    }
+                    if let Err(e) = Python::attach(|py| py.check_signals()) {
+                        stop.store(true, Ordering::Relaxed);
+                        interrupt.get_or_insert(e);
+                    }
+                }
+                handle.join()
+            })
+        });
+        match result {
+            Ok(Ok(v)) => Ok(v),
+            Ok(Err(Error::Interrupted)) => Err(interrupt.unwrap_or_else(|| CoreError(Error::Interrupted).into())),
+            Ok(Err(e)) => Err(CoreError(e).into()),
+            Err(_) => Err(pyo3::exceptions::PyRuntimeError::new_err("internal error: the sampler thread panicked")),
+        }
+    }
+}
+
+#[pymethods]
+impl PySampler {
+    #[new]
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (xy, v, offsets, assignment, params_, fixed_length_scales, length_scale_prior, alpha, new_pattern_samples, seed, n_threads))]
+    fn new(
+        py: Python<'_>,
+        xy: PyReadonlyArray2<'_, f64>,
+        v: PyReadonlyArray2<'_, f64>,
+        offsets: PyReadonlyArray1<'_, i64>,
+        assignment: &str,
+        params_: ParamTuple,
+        fixed_length_scales: bool,
+        length_scale_prior: (f64, f64),
+        alpha: Option<f64>,
+        new_pattern_samples: usize,
+        seed: u64,
+        n_threads: Option<usize>,
+    ) -> PyResult<Self> {
+        let assignment = match assignment {
+            "gibbs" => Assignment::Gibbs,
+            "map" => Assignment::Map,
+            other => {
+                return Err(CoreError(Error::InvalidInput(format!(
+                    "assignment must be 'gibbs' or 'map', got {other:?}"
+                )))
+                .into());
+            }
+        };
+        let (xy, v) = (pairs("xy", &xy)?, pairs("v", &v)?);
+        let offsets = offsets_vec("offsets", &offsets)?;
+        let data = Data::new(xy.to_vec(), v.to_vec(), offsets).map_err(CoreError)?;
+        let settings = Settings {
+            assignment,
+            base: params(params_)?,
+            fixed_length_scales,
+            length_scale_prior,
+            alpha,
+            new_pattern_samples,
+            seed,
+        };
+        let sampler = py.detach(|| Sampler::new(data, settings)).map_err(CoreError)?;
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(n_threads.unwrap_or(0))
+            .build()
+            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(format!("could not start threads: {e}")))?;
+        Ok(Self { inner: Mutex::new(sampler), pool })
+    }
+
+    /// Place every unassigned frame by the sequential CRP conditional.
+    fn initialize(&self, py: Python<'_>) -> PyResult<()> {
+        self.run(py, |s, stop| s.initialize(stop))
+    }
+
+    /// One sweep; returns (moves, K, alpha, log_joint).
+    fn sweep(&self, py: Python<'_>) -> PyResult<(usize, usize, f64, f64)> {
+        self.run(py, |s, stop| s.sweep(stop).map(|r| (r.moves, r.n_patterns, r.alpha, r.log_joint)))
+    }
+
+    /// The arena slot of each frame's pattern.
+    fn labels<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<usize>> {
+        self.lock().labels().to_vec().into_pyarray(py)
+    }
+
+    /// (slot, stable id, n_frames, w_x, w_y) for each pattern, in slot order.
+    fn patterns(&self) -> Vec<(usize, u64, usize, f64, f64)> {
+        self.lock()
+            .patterns()
+            .into_iter()
+            .map(|p| (p.slot, p.id, p.n_frames, p.length_scales.wx, p.length_scales.wy))
+            .collect()
+    }
+
+    fn alpha(&self) -> f64 {
+        self.lock().alpha()
+    }
+
+    fn log_joint(&self) -> f64 {
+        self.lock().log_joint()
+    }
+
+    /// Seconds spent per part of the sweep so far.
+    fn timings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let t = self.lock().timings;
+        let d = PyDict::new(py);
+        d.set_item("scoring", t.scoring)?;
+        d.set_item("moves", t.moves)?;
+        d.set_item("new_pattern", t.new_pattern)?;
+        d.set_item("length_scales", t.length_scales)?;
+        d.set_item("alpha", t.alpha)?;
+        Ok(d)
+    }
+
+    /// Normalised conditional log-probabilities of training frame `i` (patterns in slot order, then new).
+    fn conditional_log_probs(&self, py: Python<'_>, i: usize) -> PyResult<Vec<f64>> {
+        self.run(py, |s, _| s.conditional_log_probs(i))
+    }
+
+    /// For new frames: (log p(V_f | D_k) per frame and pattern in slot order, new-pattern term).
+    #[allow(clippy::type_complexity)]
+    fn score_frames<'py>(
+        &self,
+        py: Python<'py>,
+        xy: PyReadonlyArray2<'py, f64>,
+        v: PyReadonlyArray2<'py, f64>,
+        offsets: PyReadonlyArray1<'py, i64>,
+    ) -> PyResult<(Vec<Vec<f64>>, Vec<f64>)> {
+        let (xy, v) = (pairs("xy", &xy)?, pairs("v", &v)?);
+        let offsets = offsets_vec("offsets", &offsets)?;
+        let frames = frame_refs(xy, v, &offsets)?;
+        self.run(py, |s, _| s.score_frames(&frames))
+    }
+
+    /// Posterior mean and variance of pattern `slot`'s velocity field at `query_xy`.
+    #[allow(clippy::type_complexity)]
+    fn posterior<'py>(
+        &self,
+        py: Python<'py>,
+        slot: usize,
+        query_xy: PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
+        let q = pairs("query_xy", &query_xy)?;
+        let (mean, var) = self.run(py, |s, _| {
+            let p = s.pattern(slot).ok_or_else(|| Error::InvalidInput(format!("no pattern in slot {slot}")))?;
+            let (xy, v) = p.points();
+            dpgp_core::gp::posterior(xy, v, q, &p.params, faer::Par::Seq)
+        })?;
+        Ok((to_numpy(py, mean), to_numpy(py, var)))
+    }
+
+    /// Set the state: a group number per frame, the length scales of each group, and alpha.
+    fn set_state(
+        &self,
+        py: Python<'_>,
+        labels: PyReadonlyArray1<'_, i64>,
+        length_scales: PyReadonlyArray2<'_, f64>,
+        alpha: f64,
+    ) -> PyResult<()> {
+        let labels = offsets_vec("labels", &labels)?;
+        let ls: Vec<LengthScales> = pairs("length_scales", &length_scales)?
+            .iter()
+            .map(|w| LengthScales::new(w[0], w[1]))
+            .collect::<dpgp_core::Result<_>>()
+            .map_err(CoreError)?;
+        self.run(py, |s, _| s.set_state(&labels, &ls, alpha))
+    }
+}
