@@ -56,7 +56,8 @@ class Frames:
     (synthetic data), else ``None``.
     """
 
-    __slots__ = ("ids", "offsets", "xy", "v", "labels")
+    # summary: what dpgp.make_frames left out and why (a dpgp.FramingSummary), else None
+    __slots__ = ("ids", "offsets", "xy", "v", "labels", "summary")
 
     def __init__(
         self,
@@ -80,6 +81,7 @@ class Frames:
         self.xy = np.ascontiguousarray(xy, dtype=np.float64)
         self.v = np.ascontiguousarray(v, dtype=np.float64)
         self.labels = None if labels is None else np.asarray(labels)
+        self.summary = None
 
     @classmethod
     def from_arrays(

@@ -1,0 +1,584 @@
+"""From a tracks table to frames: resample every track to a regular time grid, derive velocity
+vectors, crop to a region of interest, and group the vehicles present at each grid time.
+
+Everything is vectorised over the whole table (no Python loop over tracks or frames), so that
+tens of millions of rows frame in seconds. A track is cut into *segments* wherever its samples
+are more than ``max_gap`` apart; nothing is interpolated, differenced or smoothed across a
+segment boundary.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .exceptions import DataFormatError, InvalidInputError
+from .frames import Frames
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+FT_TO_M = 0.3048
+_UNITS = {"ft->m": FT_TO_M, "feet->metres": FT_TO_M, "feet->meters": FT_TO_M, "m->ft": 1 / FT_TO_M}
+_GRID_EPS = 1e-6  # a sample within 1e-6 dt of a grid time counts as on it (float rounding)
+_CHUNK = 1 << 18  # rows per batch in the smoothing solve (bounds its memory)
+_BATCH = 1 << 20  # rows (plus grid points) per batch of the resampling
+
+
+@dataclass(frozen=True)
+class FramingSummary:
+    """What :func:`make_frames` did, and every vehicle-time it left out and why.
+
+    Counts of *segments* refer to pieces of tracks between gaps longer than ``max_gap``.
+    ``roi`` is in the output units (after ``units`` conversion). ``print(summary)`` gives a
+    readable report.
+    """
+
+    dt: float
+    max_gap: float
+    roi: tuple[float, float, float, float] | None
+    units: str | None
+    velocity: str  # "columns" (the table's vx, vy) or "diff" (central differences)
+    smoothing: tuple[int, int] | None
+    n_rows: int  # input rows
+    n_tracks: int
+    n_segments: int
+    n_gaps: int  # gaps longer than max_gap, where a track was cut
+    n_gap_times: int  # grid times inside those gaps: not interpolated
+    n_segments_between_grid_times: int  # segments whose time span holds no grid time
+    n_rows_between_grid_times: int  # ... and their rows
+    n_single_sample_segments: int  # one sample, no velocity to difference: left out (diff only)
+    n_unsmoothed_segments: int  # shorter than the smoothing window: plain differences
+    n_resampled: int  # vehicle-times on the grid
+    n_outside_roi: int  # ... of which outside the ROI
+    n_points: int  # vehicle observations in the frames
+    n_frames: int
+    n_empty_frames: int  # grid times with no vehicle in the ROI: dropped
+    n_scenes: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def __str__(self) -> str:
+        roi = "none" if self.roi is None else "x [{:g}, {:g}], y [{:g}, {:g}]".format(*self.roi)
+        lines = [
+            f"{self.n_frames} frames, {self.n_points} vehicle observations "
+            f"(dt {self.dt:g} s, ROI {roi}, units {self.units or 'as in the table'}, "
+            f"velocity from {self.velocity}{', smoothed ' + str(self.smoothing) if self.smoothing else ''})",
+            f"input: {self.n_rows} rows, {self.n_tracks} tracks"
+            + (f", {self.n_scenes} scenes" if self.n_scenes > 1 else "")
+            + f"; cut at {self.n_gaps} gaps longer than {self.max_gap:g} s into {self.n_segments} segments",
+            f"resampled: {self.n_resampled} vehicle-times; {self.n_outside_roi} outside the ROI",
+            "left out:",
+            f"  {self.n_empty_frames} empty frames (grid times with no vehicle in the ROI)",
+            f"  {self.n_gap_times} vehicle-times inside gaps (not interpolated)",
+            f"  {self.n_segments_between_grid_times} segments ({self.n_rows_between_grid_times} rows) "
+            "too short to reach a grid time",
+            f"  {self.n_single_sample_segments} single-sample segments (no velocity to difference)",
+        ]
+        if self.n_unsmoothed_segments:
+            lines.append(f"note: {self.n_unsmoothed_segments} segments shorter than the smoothing window were not smoothed")
+        return "\n".join(lines)
+
+
+def make_frames(
+    tracks: Any,
+    roi: tuple[float, float, float, float] | None = None,
+    dt: float = 0.5,
+    velocity: str = "auto",
+    smoothing: tuple[int, int] | None = None,
+    units: str | float | None = None,
+    *,
+    max_gap: float | None = None,
+) -> Frames:
+    """Frames from a tracks table: one frame per grid time with every vehicle in the ROI.
+
+    Parameters
+    ----------
+    tracks
+        A tracks table (pandas or polars) with columns ``track, t, x, y`` and optionally
+        ``vx, vy`` and ``scene`` — what :func:`dpgp.read_tracks` and :func:`dpgp.read_ngsim`
+        return. Inside a track, rows must be in increasing time order.
+    roi
+        ``(x_min, x_max, y_min, y_max)`` in the *table's* units (before ``units`` conversion),
+        edges included; ``None`` keeps everything.
+    dt
+        Grid step in seconds. Grid times are the multiples of ``dt``; a track is sampled at
+        those inside its time span, by linear interpolation between its two neighbouring
+        samples — never outside the span, never across a gap longer than ``max_gap``.
+    velocity
+        ``"auto"``: the table's ``vx, vy`` if it has them, else ``"diff"``. ``"columns"``:
+        require ``vx, vy``. ``"diff"``: differentiate positions at the table's own sampling
+        rate (three-point central differences, second-order one-sided at a segment's ends,
+        exact for quadratic motion; a two-sample segment gets the chord's slope), then
+        interpolate to the grid. Velocities are vectors ``(vx, vy)``, not speeds.
+    smoothing
+        ``(window, order)``: Savitzky–Golay smoothing at the table's sampling rate — a
+        least-squares polynomial of ``order`` over ``window`` (odd) consecutive samples, in
+        time, so uneven sampling is handled; positions take its value, derived velocities its
+        slope. Segments shorter than ``window`` are left unsmoothed (counted in the summary).
+    units
+        ``None`` (keep), ``"ft->m"`` (NGSIM feet to metres) or ``"m->ft"``, or a number to
+        multiply positions and velocities by.
+    max_gap
+        Longest time between two samples of a track that is still interpolated, in seconds.
+        Default ``2 * dt``.
+
+    Returns
+    -------
+    Frames
+        Frame ids are the grid times in seconds (``(scene, time)`` tuples when the table has a
+        ``scene`` column). ``frames.summary`` is a :class:`FramingSummary` that counts every
+        vehicle-time left out and empty frame dropped.
+    """
+    res = _resample(tracks, roi, dt, velocity, smoothing, units, max_gap)
+    k, scene = res["k"], res["scene"]
+    # Frames in order of (scene, grid time); inside a frame, vehicles in track order.
+    order = np.argsort(k, kind="stable") if scene is None else np.lexsort((k, scene))
+    ks = k[order]
+    new = np.empty(len(ks), dtype=bool)
+    new[:1] = True
+    np.not_equal(ks[1:], ks[:-1], out=new[1:])
+    if scene is not None:
+        ss = scene[order]
+        new[1:] |= ss[1:] != ss[:-1]
+    starts = np.flatnonzero(new)
+    times = np.round(ks[starts] * res["dt"], 9)
+    if scene is None:
+        ids: np.ndarray = times
+    else:
+        labels = res["scene_labels"][ss[starts]]
+        ids = np.empty(len(starts), dtype=object)
+        ids[:] = list(zip(labels.tolist(), times.tolist()))
+    n_slots = res["n_slots"]
+    xy = np.column_stack([res["x"][order], res["y"][order]])
+    v = np.column_stack([res["vx"][order], res["vy"][order]])
+    frames = Frames(ids, np.r_[starts, len(ks)], xy, v)
+    summary = FramingSummary(
+        **res["counts"],
+        n_points=len(ks),
+        n_frames=len(starts),
+        n_empty_frames=n_slots - len(starts),
+    )
+    frames.summary = summary
+    return frames
+
+
+def resample_tracks(
+    tracks: Any,
+    dt: float = 0.5,
+    velocity: str = "auto",
+    smoothing: tuple[int, int] | None = None,
+    units: str | float | None = None,
+    *,
+    max_gap: float | None = None,
+    roi: tuple[float, float, float, float] | None = None,
+) -> pd.DataFrame:
+    """The resampled tracks behind :func:`make_frames`, as a table.
+
+    Same arguments as :func:`make_frames`. Returns one row per vehicle-time on the grid:
+    ``track, t, x, y, vx, vy`` (and ``scene``), sorted by track then time, with the
+    :class:`FramingSummary` (without the frame counts) in ``table.attrs["dpgp_summary"]``.
+    """
+    import pandas as pd
+
+    res = _resample(tracks, roi, dt, velocity, smoothing, units, max_gap)
+    out = pd.DataFrame(
+        {
+            "track": res["track_labels"][res["track"]],
+            "t": np.round(res["k"] * res["dt"], 9),
+            "x": res["x"],
+            "y": res["y"],
+            "vx": res["vx"],
+            "vy": res["vy"],
+        }
+    )
+    if res["scene"] is not None:
+        out["scene"] = res["scene_labels"][res["scene"]]
+    out.attrs["dpgp_summary"] = dict(res["counts"])
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# the engine
+# ---------------------------------------------------------------------------------------------
+
+def _resample(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, units: Any, max_gap: Any) -> dict[str, Any]:
+    dt = _positive("dt", dt, "seconds between frames")
+    max_gap = 2.0 * dt if max_gap is None else _positive("max_gap", max_gap, "seconds")
+    roi = _check_roi(roi)
+    scale, units_name = _check_units(units)
+    if velocity not in ("auto", "columns", "diff"):
+        raise InvalidInputError(f"velocity must be 'auto', 'columns' or 'diff', got {velocity!r}")
+    smoothing = _check_smoothing(smoothing)
+
+    cols = _columns(tracks)
+    has_v = "vx" in cols and "vy" in cols
+    if velocity == "columns" and not has_v:
+        raise DataFormatError("velocity='columns' needs vx and vy columns in the table; use velocity='diff'")
+    mode = "columns" if (velocity == "auto" and has_v) or velocity == "columns" else "diff"
+
+    tr, track_labels = _track_codes(cols["track"])
+    t = _floats(cols, "t")
+    x, y = _floats(cols, "x"), _floats(cols, "y")
+    vx = vy = None
+    if mode == "columns":
+        vx, vy = _floats(cols, "vx", hint="use velocity='diff' to derive velocities from positions"), _floats(cols, "vy", hint="use velocity='diff' to derive velocities from positions")
+    sc, scene_labels = (None, None) if "scene" not in cols else _track_codes(cols["scene"])
+    n = len(t)
+    if n == 0:
+        raise DataFormatError("the tracks table has no rows")
+
+    # Rows of a track must be contiguous; if the table is interleaved (e.g. sorted by time),
+    # group them, keeping each track's own row order. Only track, time (and scene) are
+    # reordered here; positions and velocities are gathered batch by batch (memory).
+    chg = tr[1:] != tr[:-1]
+    block_ids = tr[np.flatnonzero(np.r_[True, chg])]
+    del chg
+    n_tracks = len(np.unique(block_ids))
+    perm = None
+    if n_tracks != len(block_ids):
+        perm = np.argsort(tr, kind="stable")
+        tr, t = tr[perm], t[perm]
+        if sc is not None:
+            sc = sc[perm]
+    del block_ids
+
+    starts, n_gaps = _segment_starts(tr, t, sc, max_gap, track_labels)
+    ends = np.r_[starts[1:], n]
+    seg_len = ends - starts
+    seg_track = tr[starts]
+
+    s0, s1 = t[starts], t[ends - 1]
+    k0 = np.ceil(s0 / dt - _GRID_EPS).astype(np.int64)
+    k1 = np.floor(s1 / dt + _GRID_EPS).astype(np.int64)
+    cont = seg_track[1:] == seg_track[:-1]
+    n_gap_times = int(np.maximum(k0[1:] - k1[:-1] - 1, 0)[cont].sum())
+    cnt = np.maximum(k1 - k0 + 1, 0)
+    between = cnt == 0
+    single = (seg_len == 1) & ~between if mode == "diff" else np.zeros(len(starts), dtype=bool)
+    cnt[single] = 0
+    G = int(cnt.sum())
+    seg_scene = None if sc is None else sc[starts]
+    counts = dict(
+        dt=dt, max_gap=max_gap, units=units_name, velocity=mode, smoothing=smoothing,
+        roi=None if roi is None else tuple(float(r * scale) for r in roi),
+        n_rows=n, n_tracks=n_tracks, n_segments=len(starts), n_gaps=n_gaps, n_gap_times=n_gap_times,
+        n_segments_between_grid_times=int(between.sum()), n_rows_between_grid_times=int(seg_len[between].sum()),
+        n_single_sample_segments=int(single.sum()),
+        n_unsmoothed_segments=0 if smoothing is None else int(((seg_len < smoothing[0]) & (cnt > 0)).sum()),
+        n_resampled=G, n_scenes=1 if sc is None else len(np.unique(seg_scene)),
+    )
+    if G == 0:
+        raise InvalidInputError(
+            f"no track reaches a grid time: dt={dt:g} s is longer than every track's time span "
+            f"(and max_gap={max_gap:g} s cuts tracks at longer gaps); use a smaller dt or a larger max_gap"
+        )
+
+    # Resample in batches of whole segments, so that temporaries stay small however long the
+    # table: each batch holds about _BATCH grid points plus rows.
+    cost = np.cumsum(cnt + seg_len)
+    cuts = np.searchsorted(cost, np.arange(_BATCH, int(cost[-1]), _BATCH), side="left")
+    bounds = np.unique(np.r_[0, cuts + 1, len(starts)])
+    bounds = bounds[bounds <= len(starts)]
+    parts = []
+    for sa, sb in zip(bounds[:-1], bounds[1:]):
+        r0, r1 = int(starts[sa]), int(ends[sb - 1])
+        rows = slice(r0, r1) if perm is None else perm[r0:r1]
+        part = _resample_batch(
+            t[r0:r1], x[rows], y[rows], None if vx is None else vx[rows], None if vy is None else vy[rows],
+            starts[sa:sb] - r0, ends[sa:sb] - r0, k0[sa:sb], cnt[sa:sb], dt, mode, smoothing, roi,
+        )
+        part["seg"] += sa
+        parts.append(part)
+    out = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+    seg_g = out.pop("seg")
+    if len(seg_g) == 0:
+        raise InvalidInputError(
+            "no vehicle enters the ROI x [{:g}, {:g}], y [{:g}, {:g}]".format(*roi)
+            + f": the data span x [{x.min():g}, {x.max():g}], y [{y.min():g}, {y.max():g}]"
+            " (the ROI is in the table's units, before any units conversion)"
+        )
+    counts["n_outside_roi"] = G - len(seg_g)
+    if scale != 1.0:
+        for key in ("x", "y", "vx", "vy"):
+            out[key] *= scale
+    # Grid times from the first to the last one any segment reaches, per scene.
+    has = cnt > 0
+    if seg_scene is None:
+        n_slots = int(k1[has].max() - k0[has].min() + 1)
+    else:
+        sid, lo_k, hi_k = seg_scene[has], k0[has], k1[has]
+        order = np.argsort(sid, kind="stable")
+        sid, lo_k, hi_k = sid[order], lo_k[order], hi_k[order]
+        b = np.flatnonzero(np.r_[True, sid[1:] != sid[:-1]])
+        n_slots = int((np.maximum.reduceat(hi_k, b) - np.minimum.reduceat(lo_k, b) + 1).sum())
+    return dict(
+        dt=dt, track=seg_track[seg_g], track_labels=track_labels,
+        scene=None if seg_scene is None else seg_scene[seg_g], scene_labels=scene_labels,
+        n_slots=n_slots, counts=counts, **out,
+    )
+
+
+def _segment_starts(tr: np.ndarray, t: np.ndarray, sc: np.ndarray | None, max_gap: float, labels: np.ndarray) -> tuple[np.ndarray, int]:
+    """First row of every segment: a new one at each track change or gap > max_gap.
+
+    Raises if time does not increase inside a track, or a track changes scene. Works through the
+    rows in batches to keep its temporaries small.
+    """
+    n = len(t)
+    found = [np.zeros(1, dtype=np.int64)]
+    n_gaps = 0
+    limit = max_gap * (1 + 1e-9)
+    for a in range(1, n, _BATCH):
+        b = min(a + _BATCH, n)
+        same = tr[a:b] == tr[a - 1 : b - 1]
+        step = t[a:b] - t[a - 1 : b - 1]
+        back = same & (step <= 0)
+        if back.any():
+            i = a - 1 + int(np.flatnonzero(back)[0])
+            what = "repeats" if t[i + 1] == t[i] else "goes backwards"
+            raise InvalidInputError(
+                f"time {what} inside track {_label(labels[tr[i]])}: t={t[i + 1]:g} s follows t={t[i]:g} s; "
+                "sort the table by track and time (tracks.sort_values(['track', 't'])) if the rows are "
+                "only out of order, else fix the track ids"
+            )
+        if sc is not None:
+            cross = same & (sc[a:b] != sc[a - 1 : b - 1])
+            if cross.any():
+                i = a - 1 + int(np.flatnonzero(cross)[0])
+                raise InvalidInputError(f"track {_label(labels[tr[i]])} spans two scenes; give each scene its own track ids")
+        gap = same & (step > limit)
+        n_gaps += int(gap.sum())
+        found.append(np.flatnonzero(~same | gap) + a)
+    return np.concatenate(found), n_gaps
+
+
+def _resample_batch(
+    t: np.ndarray, x: np.ndarray, y: np.ndarray, vx: np.ndarray | None, vy: np.ndarray | None,
+    starts: np.ndarray, ends: np.ndarray, k0: np.ndarray, cnt: np.ndarray, dt: float, mode: str,
+    smoothing: tuple[int, int] | None, roi: tuple[float, float, float, float] | None,
+) -> dict[str, np.ndarray]:
+    """Resample consecutive segments at their grid times; the arrays hold just their rows,
+    ``starts/ends`` index into them."""
+    G = int(cnt.sum())
+    seg = np.repeat(np.arange(len(starts)), cnt)
+    k = np.arange(G, dtype=np.int64)
+    k -= np.repeat(np.cumsum(cnt) - cnt - k0, cnt)
+    tg = k * dt
+    # The sample at or before each grid time, by one search: lay the segments end to end on one
+    # increasing axis (each shifted to begin at its own base), so that searchsorted sees them all.
+    s0, s1 = t[starts], t[ends - 1]
+    shift = np.cumsum(np.r_[0.0, (s1 - s0)[:-1] + 1.0 + dt]) - s0
+    key = np.repeat(shift, ends - starts)
+    key += t
+    j = np.searchsorted(key, shift[seg] + tg, side="right") - 1
+    del key
+    lo, hi = starts[seg], ends[seg]
+    np.clip(j, lo, np.maximum(hi - 2, lo), out=j)
+    j1 = np.minimum(j + 1, hi - 1)
+    den = t[j1] - t[j]
+    w = np.divide(tg - t[j], den, out=np.zeros(G), where=den > 0)
+    np.clip(w, 0.0, 1.0, out=w)  # never extrapolate beyond a segment's first or last sample
+    del den, tg
+
+    short = None if smoothing is None else (hi - lo) < smoothing[0]
+    if short is None or short.all():
+        gx, gy = _lerp(x[j], x[j1], w), _lerp(y[j], y[j1], w)
+        if mode == "diff":
+            gvx, gvy = (_lerp(a, b, w) for a, b in zip(_diff_velocity(t, (x, y), j, lo, hi), _diff_velocity(t, (x, y), j1, lo, hi)))
+    else:
+        px0, py0, dvx0, dvy0 = _smoothed(t, x, y, j, lo, hi, smoothing, short)
+        px1, py1, dvx1, dvy1 = _smoothed(t, x, y, j1, lo, hi, smoothing, short)
+        gx, gy = _lerp(px0, px1, w), _lerp(py0, py1, w)
+        gvx, gvy = _lerp(dvx0, dvx1, w), _lerp(dvy0, dvy1, w)
+    if mode == "columns":
+        gvx, gvy = _lerp(vx[j], vx[j1], w), _lerp(vy[j], vy[j1], w)
+    out = {"seg": seg, "k": k, "x": gx, "y": gy, "vx": gvx, "vy": gvy}
+    if roi is not None:
+        inside = (gx >= roi[0]) & (gx <= roi[1]) & (gy >= roi[2]) & (gy <= roi[3])
+        if not inside.all():
+            out = {key: arr[inside] for key, arr in out.items()}
+    return out
+
+
+def _label(v: Any) -> str:
+    return repr(v.item() if isinstance(v, np.generic) else v)
+
+
+def _lerp(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
+    out = b - a
+    out *= w
+    out += a
+    return out
+
+
+def _diff_velocity(t: np.ndarray, ps: tuple[np.ndarray, ...], i: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list[np.ndarray]:
+    """d/dt of each position array at rows ``i``, inside segments ``[lo, hi)``.
+
+    The derivative at t_i of the quadratic through three neighbouring samples (a, a+1, a+2),
+    chosen centred on i where possible: the central difference inside a segment, the
+    second-order one-sided difference at its ends, for any (uneven) spacing. A two-sample
+    segment gets the chord's slope.
+    """
+    a = np.clip(i - 1, lo, np.maximum(hi - 3, lo))
+    three = hi - lo >= 3
+    b = np.minimum(a + 1, hi - 1)
+    c = np.where(three, a + 2, b)
+    te, ta, tb, tc = t[i], t[a], t[b], t[c]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        wa = ((te - tb) + (te - tc)) / ((ta - tb) * (ta - tc))
+        wb = ((te - ta) + (te - tc)) / ((tb - ta) * (tb - tc))
+        wc = ((te - ta) + (te - tb)) / ((tc - ta) * (tc - tb))
+        chord = 1.0 / (tb - ta)
+    out = []
+    with np.errstate(invalid="ignore"):  # the branch np.where does not take may hold inf * 0
+        for p in ps:
+            pa, pb = p[a], p[b]
+            out.append(np.where(three, wa * pa + wb * pb + wc * p[c], (pb - pa) * chord))
+    return out
+
+
+def _smoothed(
+    t: np.ndarray, x: np.ndarray, y: np.ndarray, i: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+    smoothing: tuple[int, int], short: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Savitzky–Golay value and slope at rows ``i``: a least-squares polynomial fitted, in time,
+    to ``window`` consecutive samples of the segment, centred on i where the segment allows.
+    Rows of segments shorter than the window (``short``) get raw positions and differences."""
+    window, order = smoothing
+    px, py = x[i].copy(), y[i].copy()
+    vx, vy = _diff_velocity(t, (x, y), i, lo, hi)
+    long_rows = np.flatnonzero(~short)
+    pw = np.arange(order + 1)
+    hank = pw[:, None] + pw[None, :]
+    for c0 in range(0, len(long_rows), _CHUNK):
+        rows = long_rows[c0 : c0 + _CHUNK]
+        ii, l, h = i[rows], lo[rows], hi[rows]
+        start = np.clip(ii - window // 2, l, h - window)
+        te = t[ii]
+        # time in units of half the window's span keeps the powers near 1 (conditioning)
+        scale = (t[start + window - 1] - t[start]) / 2.0
+        S = np.zeros((len(rows), 2 * order + 1))
+        B = np.zeros((2, len(rows), order + 1))
+        x0, y0 = x[ii], y[ii]  # positions relative to the centre: large coordinates lose nothing
+        for m in range(window):
+            jj = start + m
+            tau = (t[jj] - te) / scale
+            dx, dy = x[jj] - x0, y[jj] - y0
+            p = np.ones_like(tau)
+            for q in range(2 * order + 1):
+                S[:, q] += p
+                if q <= order:
+                    B[0, :, q] += p * dx
+                    B[1, :, q] += p * dy
+                p = p * tau
+        coef = np.linalg.solve(S[:, hank][None], B[..., None])[..., 0]
+        px[rows] = x0 + coef[0, :, 0]
+        py[rows] = y0 + coef[1, :, 0]
+        vx[rows] = coef[0, :, 1] / scale
+        vy[rows] = coef[1, :, 1] / scale
+    return px, py, vx, vy
+
+
+# ---------------------------------------------------------------------------------------------
+# argument checks
+# ---------------------------------------------------------------------------------------------
+
+def _columns(tracks: Any) -> dict[str, np.ndarray]:
+    """The canonical columns of a pandas or polars tracks table, as numpy arrays (no copy)."""
+    names = getattr(tracks, "columns", None)
+    if names is None or not hasattr(tracks, "__getitem__"):
+        raise DataFormatError(
+            f"make_frames takes a tracks table (a DataFrame), got {type(tracks).__name__}; "
+            "build one with dpgp.read_tracks or dpgp.read_ngsim"
+        )
+    names = list(names)
+    missing = [c for c in ("track", "t", "x", "y") if c not in names]
+    if missing:
+        raise DataFormatError(
+            f"the tracks table has no column(s) {missing} (it has {names}); make_frames needs "
+            "track, t, x, y — load the data with dpgp.read_tracks(df, id=..., t=..., x=..., y=...) first"
+        )
+    return {c: tracks[c].to_numpy() for c in ("track", "t", "x", "y", "vx", "vy", "scene") if c in names}
+
+
+def _floats(cols: dict[str, np.ndarray], name: str, hint: str = "drop or fill those rows first") -> np.ndarray:
+    try:
+        arr = np.asarray(cols[name], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DataFormatError(f"column {name!r} must be numeric") from None
+    bad = ~np.isfinite(arr)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InvalidInputError(
+            f"column {name!r} has {int(bad.sum())} NaN or infinite value(s), first at row {i}; {hint}"
+        )
+    return arr
+
+
+def _track_codes(col: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Integer codes of an id column and the labels they stand for."""
+    if col.dtype.kind in "iu":
+        lo = int(col.min()) if len(col) else 0
+        codes = col.astype(np.int64, copy=False)
+        if lo >= 0 and int(col.max()) < 4 * len(col) + 1024:
+            return codes, np.arange(int(col.max()) + 1 if len(col) else 0)  # ids are their own labels
+    import pandas as pd
+
+    if pd.isna(col).any():
+        raise InvalidInputError("the track (or scene) column has missing values; every row needs an id")
+    codes, labels = pd.factorize(col, sort=True)
+    return codes.astype(np.int64, copy=False), np.asarray(labels)
+
+
+def _positive(name: str, value: Any, what: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{name} must be a positive number ({what}), got {value!r}") from None
+    if not (v > 0 and np.isfinite(v)):
+        raise InvalidInputError(f"{name} must be a positive number ({what}), got {value!r}")
+    return v
+
+
+def _check_roi(roi: Any) -> tuple[float, float, float, float] | None:
+    if roi is None:
+        return None
+    try:
+        r = tuple(float(v) for v in roi)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"roi must be (x_min, x_max, y_min, y_max), got {roi!r}") from None
+    if len(r) != 4 or not all(np.isfinite(r)) or not (r[0] < r[1] and r[2] < r[3]):
+        raise InvalidInputError(f"roi must be four finite numbers (x_min, x_max, y_min, y_max) with min < max, got {roi!r}")
+    return r  # type: ignore[return-value]
+
+
+def _check_units(units: Any) -> tuple[float, str | None]:
+    if units is None:
+        return 1.0, None
+    if isinstance(units, str):
+        key = units.replace(" ", "").lower()
+        if key in _UNITS:
+            return _UNITS[key], key
+        raise InvalidInputError(f"units must be None, 'ft->m', 'm->ft' or a positive factor, got {units!r}")
+    return _positive("units", units, "a factor applied to positions and velocities"), f"x{float(units):g}"
+
+
+def _check_smoothing(smoothing: Any) -> tuple[int, int] | None:
+    if smoothing is None:
+        return None
+    try:
+        window, order = (int(v) for v in smoothing)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"smoothing must be (window, order), got {smoothing!r}") from None
+    if window < 3 or window % 2 == 0 or not 1 <= order < window:
+        raise InvalidInputError(
+            f"smoothing (window, order) needs an odd window >= 3 and 1 <= order < window, got {smoothing!r}"
+        )
+    return window, order
+
+
+__all__ = ["FramingSummary", "make_frames", "resample_tracks", "FT_TO_M"]
