@@ -16,3 +16,4 @@ pub mod rng;
 pub mod slice;
 pub mod special;
 pub mod gibbs;
+pub mod small;

@@ -12,7 +12,7 @@ use crate::error::Result;
 use crate::factor::GrowFactor;
 use crate::gp::{GpParams, LN_2PI, centered, factor};
 use crate::kernel::{self, LengthScales, Point};
-use crate::linalg::Chol;
+use crate::small;
 
 /// A frame's vehicles: positions and velocities, row for row.
 #[derive(Clone, Copy, Debug)]
@@ -125,9 +125,9 @@ impl Pattern {
         let pts: Vec<Point> = frames.iter().flat_map(|f| f.xy.iter().copied()).collect();
         let total_m = pts.len();
         let mut out: Vec<f64> = frames.iter().map(|f| -(f.xy.len() as f64) * LN_2PI).collect();
+        let corr = kernel::cross(&self.xy, &pts, self.params.length_scales, 1.0, false);
         for g in &self.groups {
-            let ls = self.params.length_scales;
-            let mut vbuf = kernel::cross(&self.xy, &pts, ls, g.signal_var, false);
+            let mut vbuf: Vec<f64> = corr.iter().map(|c| c * g.signal_var).collect();
             g.factor.solve_lower(&mut vbuf, Par::Seq);
             let vall = MatRef::from_column_major_slice(&vbuf, n, total_m);
             let z = MatRef::from_column_major_slice(&g.z, n, g.outs.len());
@@ -143,6 +143,62 @@ impl Pattern {
         Ok(out)
     }
 
+    /// Per output group, `K⁻¹ (v − μ)` (n x outputs): cached until the pattern changes.
+    fn weights(&self) -> &Vec<Vec<f64>> {
+        let n = self.xy.len();
+        self.weights.get_or_init(|| {
+            self.groups
+                .iter()
+                .map(|g| {
+                    let mut a = g.z.clone();
+                    faer::linalg::triangular_solve::solve_upper_triangular_in_place(
+                        g.factor.mat().transpose(),
+                        MatMut::from_column_major_slice_mut(&mut a, n, g.outs.len()),
+                        Par::Seq,
+                    );
+                    a
+                })
+                .collect()
+        })
+    }
+
+    /// Posterior mean velocity at `q`: `μ + σ² R(q, X) K⁻¹ (v − μ)` per output.
+    pub fn predict_mean(&self, q: &[Point]) -> Vec<[f64; 2]> {
+        let n = self.xy.len();
+        let corr = kernel::cross(&self.xy, q, self.params.length_scales, 1.0, false);
+        let mut out = vec![self.params.mean; q.len()];
+        for (g, a) in self.groups.iter().zip(self.weights()) {
+            for (c, &d) in g.outs.iter().enumerate() {
+                let ad = &a[c * n..(c + 1) * n];
+                for (j, o) in out.iter_mut().enumerate() {
+                    let col = &corr[j * n..(j + 1) * n];
+                    o[d] += g.signal_var * col.iter().zip(ad).map(|(x, y)| x * y).sum::<f64>();
+                }
+            }
+        }
+        out
+    }
+
+    /// Joint posterior of the latent field at `q`: the mean per point and, per output, the
+    /// `m x m` covariance `σ² R_qq − Vᵀ V` (column-major), `V = L⁻¹ σ² R(X, q)`.
+    pub fn predict_joint(&self, q: &[Point]) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
+        let (n, m) = (self.xy.len(), q.len());
+        let corr = kernel::cross(&self.xy, q, self.params.length_scales, 1.0, false);
+        let rqq = kernel::cross(q, q, self.params.length_scales, 1.0, false);
+        let mut cov = [Vec::new(), Vec::new()];
+        for g in &self.groups {
+            let mut v: Vec<f64> = corr.iter().map(|c| c * g.signal_var).collect();
+            g.factor.solve_lower(&mut v, Par::Seq);
+            let mut c: Vec<f64> = rqq.iter().map(|x| x * g.signal_var).collect();
+            let vr = MatRef::from_column_major_slice(&v, n, m);
+            matmul(MatMut::from_column_major_slice_mut(&mut c, m, m), Accum::Add, vr.transpose(), vr, -1.0, Par::Seq);
+            for &d in g.outs {
+                cov[d] = c.clone();
+            }
+        }
+        (self.predict_mean(q), cov)
+    }
+
     /// `log p(V_f | D_k \\ f)` for a member frame, without touching the factor: leave-one-block-out
     /// (R&W §5.4.2 for a block). With `P = K⁻¹`, `a = K⁻¹(v − μ)` and `I` the frame's rows,
     /// the conditional is `N(v_I ; v_I − P_II⁻¹ a_I, P_II⁻¹)`, so its log density is
@@ -154,21 +210,7 @@ impl Pattern {
         if n == l {
             return Ok(None);
         }
-        let weights = self.weights.get_or_init(|| {
-            self.groups
-                .iter()
-                .map(|g| {
-                    let mut a = g.z.clone();
-                    let k = g.outs.len();
-                    faer::linalg::triangular_solve::solve_upper_triangular_in_place(
-                        g.factor.mat().transpose(),
-                        MatMut::from_column_major_slice_mut(&mut a, n, k),
-                        Par::Seq,
-                    );
-                    a
-                })
-                .collect()
-        });
+        let weights = self.weights();
         let mut total = -(l as f64) * LN_2PI;
         for (g, a) in self.groups.iter().zip(weights) {
             let m = n - p;
@@ -185,11 +227,10 @@ impl Pattern {
             let wr = MatRef::from_column_major_slice(&w, m, l);
             let mut pii = vec![0.0; l * l];
             matmul(MatMut::from_column_major_slice_mut(&mut pii, l, l), Accum::Replace, wr.transpose(), wr, 1.0, Par::Seq);
-            let c = small_chol(pii, l)?;
             let k = g.outs.len();
-            let mut ai: Vec<f64> = (0..k).flat_map(|col| a[col * n + p..col * n + p + l].iter().copied()).collect();
-            c.solve_lower(&mut ai, Par::Seq);
-            total += -0.5 * ai.iter().map(|x| x * x).sum::<f64>() + 0.5 * k as f64 * c.log_det();
+            let ai: Vec<f64> = (0..k).flat_map(|col| a[col * n + p..col * n + p + l].iter().copied()).collect();
+            let (log_det_pii, quad) = small::gaussian_terms(pii, l, ai)?;
+            total += -0.5 * quad + 0.5 * k as f64 * log_det_pii;
         }
         Ok(Some(total))
     }
@@ -204,18 +245,18 @@ impl Pattern {
             g.factor.solve_lower(&mut vbuf, Par::Seq);
             let v = MatRef::from_column_major_slice(&vbuf, n, m);
             let k = g.outs.len();
-            let s = schur(&f, v, g.signal_var, &self.params);
-            let r = small_chol(s, m)?;
+            let mut r = schur(&f, v, g.signal_var, &self.params);
+            small::cholesky(&mut r, m)?;
             // New whitened residuals: z_new = R⁻¹ (v_f − μ − Vᵀ z).
             let mut rz = residual(&f, v, MatRef::from_column_major_slice(&g.z, n, k), g.outs, &self.params);
-            r.solve_lower(&mut rz, Par::Seq);
+            small::solve_lower(&r, m, &mut rz);
             let mut z = Vec::with_capacity((n + m) * k);
             for c in 0..k {
                 z.extend_from_slice(&g.z[c * n..(c + 1) * n]);
                 z.extend_from_slice(&rz[c * m..(c + 1) * m]);
             }
             g.z = z;
-            g.factor.append(&vbuf, &r.l, m);
+            g.factor.append(&vbuf, &r, m);
         }
         self.frames.push(id);
         self.sizes.push(m);
@@ -278,10 +319,6 @@ fn residual(f: &FrameRef<'_>, v: MatRef<'_, f64>, z: MatRef<'_, f64>, outs: &[us
     r
 }
 
-fn small_chol(s: Vec<f64>, m: usize) -> Result<Chol> {
-    Chol::factor(m, "predictive", Par::Seq, || s.clone())
-}
-
 /// `(log |S|, ‖chol(S)⁻¹ r‖²)` for one frame and one output group.
 fn schur_terms(
     f: &FrameRef<'_>,
@@ -290,17 +327,25 @@ fn schur_terms(
     g: &Group,
     p: &GpParams,
 ) -> Result<(f64, f64)> {
-    let m = f.xy.len();
-    let r = small_chol(schur(f, v, g.signal_var, p), m)?;
-    let mut res = residual(f, v, z, g.outs, p);
-    r.solve_lower(&mut res, Par::Seq);
-    Ok((r.log_det(), res.iter().map(|x| x * x).sum()))
+    small::gaussian_terms(schur(f, v, g.signal_var, p), f.xy.len(), residual(f, v, z, g.outs, p))
 }
 
-/// `log N(V_f ; μ, σ² R_ff + σ_n² I)` under length scales `ls`: the prior predictive of a frame
+/// `log N(V_f ; μ, σ² R_ff + σ_n² I)` summed over both outputs: the prior predictive of a frame
 /// (the new-pattern term of Algorithm 8).
-pub fn prior_score(f: FrameRef<'_>, params: &GpParams) -> Result<f64> {
-    crate::gp::log_marginal_likelihood(f.xy, f.v, params, Par::Seq)
+pub fn prior_score(f: FrameRef<'_>, p: &GpParams) -> Result<f64> {
+    let m = f.xy.len();
+    let corr = kernel::cross(f.xy, f.xy, p.length_scales, 1.0, false);
+    let mut total = -(m as f64) * LN_2PI;
+    for outs in p.groups() {
+        let s2 = p.signal_var[outs[0]];
+        let mut a: Vec<f64> = corr.iter().map(|c| c * s2).collect();
+        for i in 0..m {
+            a[i * m + i] += p.noise_var;
+        }
+        let (log_det, quad) = small::gaussian_terms(a, m, centered(f.v, outs, p.mean))?;
+        total -= 0.5 * quad + 0.5 * outs.len() as f64 * log_det;
+    }
+    Ok(total)
 }
 
 #[cfg(test)]
@@ -365,6 +410,17 @@ mod tests {
                 assert!((got - want).abs() < 1e-8 * want.abs(), "loo {i}: {got} vs {want}");
             }
             assert!(pat.loo_score(0).unwrap().is_none());
+            let q: Vec<Point> = vec![[3.0, 40.0], [20.0, 70.0], [29.0, 5.0]];
+            let (mean, cov) = pat.predict_joint(&q);
+            let (gm, gv) = gp::posterior(xy, v, &q, &p, Par::Seq).unwrap();
+            for j in 0..3 {
+                for d in 0..2 {
+                    assert!((mean[j][d] - gm[j][d]).abs() < 1e-9 * gm[j][d].abs().max(1.0));
+                    assert!((cov[d][j * 3 + j] - gv[j][d]).abs() < 1e-9);
+                }
+            }
+            let want = gp::log_marginal_likelihood(r[3].xy, r[3].v, &p, Par::Seq).unwrap();
+            assert!((prior_score(r[3], &p).unwrap() - want).abs() < 1e-10 * want.abs());
         }
     }
 }
