@@ -5,7 +5,7 @@ Multi-Vehicle Interaction Scenarios Using Gaussian Random Field"), fitted by col
 sampling in a Rust core.
 """
 
-from . import _core, gp
+from . import _core, datasets, gp
 from .exceptions import (
     DataFormatError,
     DpgpError,
@@ -37,6 +37,7 @@ __all__ = [
     "NotFittedError",
     "NotPositiveDefiniteError",
     "ShapeError",
+    "datasets",
     "gp",
     "read_frames",
     "EmpiricalDistributions",

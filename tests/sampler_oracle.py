@@ -1,0 +1,207 @@
+"""A plain numpy/scipy implementation of the DP-GP sampler's target, written from the formulas
+(design.md §2) independently of the Rust core: the oracle the sampler is tested against.
+
+With the length scales w fixed for every pattern and the concentration α fixed, the posterior
+over partitions z of the N frames is
+
+    p(z | V) ∝ α^K · Π_k Γ(n_k) · Π_k p(D_k | w),
+
+n_k the number of frames in pattern k and p(D_k | w) the GP marginal likelihood of all rows of
+its frames. The collapsed conditional of frame i given the others' labels is, up to a constant,
+log n_k^{-i} + log p(V_i | D_k \\ i) for an existing pattern and log α + log p(V_i | w) for a new
+one (Neal's Algorithm 8 with w fixed: every auxiliary pattern has the same prior likelihood).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from math import lgamma
+
+import numpy as np
+from scipy.special import logsumexp
+
+import gp_oracle
+
+
+@dataclass(frozen=True)
+class Params:
+    """What gp_oracle reads: ``length_scales``, ``signal_var``, ``noise_var``, ``mean``."""
+
+    length_scales: tuple[float, float]
+    signal_var: tuple[float, float]
+    noise_var: float = 1.0
+    mean: tuple[float, float] = (0.0, 0.0)
+
+
+def default_params(frames, length_scales, noise_var=1.0, signal_var=None, mean=None) -> Params:
+    """The estimator's defaults: variance (ddof=0) and mean of each output over all rows."""
+    sv = np.var(frames.v, axis=0) if signal_var is None else np.broadcast_to(signal_var, 2)
+    mu = frames.v.mean(axis=0) if mean is None else np.broadcast_to(mean, 2)
+    return Params(tuple(map(float, length_scales)), tuple(map(float, sv)), float(noise_var), tuple(map(float, mu)))
+
+
+# --- partitions and labels --------------------------------------------------------------------
+def set_partitions(n: int) -> np.ndarray:
+    """Every partition of n items as a canonical label vector (restricted growth string),
+    shape (Bell(n), n), in lexicographic order."""
+    out: list[list[int]] = []
+
+    def grow(prefix: list[int], k: int) -> None:
+        if len(prefix) == n:
+            out.append(prefix.copy())
+            return
+        for c in range(k + 1):
+            prefix.append(c)
+            grow(prefix, max(k, c + 1))
+            prefix.pop()
+
+    grow([], 0)
+    return np.array(out, dtype=np.int64).reshape(len(out), n)
+
+
+def canonical(labels) -> np.ndarray:
+    """Relabel in order of first appearance: the first item gets 0, the next new label 1, ..."""
+    labels = np.asarray(labels)
+    _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
+    rank = np.empty(len(first), dtype=np.int64)
+    rank[np.argsort(first)] = np.arange(len(first))
+    return rank[inverse.reshape(labels.shape)]
+
+
+def adjusted_rand_index(a, b) -> float:
+    """Hubert & Arabie's adjusted Rand index of two labelings of the same items."""
+    a, b = np.asarray(a), np.asarray(b)
+    if a.shape != b.shape or a.ndim != 1:
+        raise ValueError(f"labelings must be 1-d of equal length, got {a.shape} and {b.shape}")
+    _, ai = np.unique(a, return_inverse=True)
+    _, bi = np.unique(b, return_inverse=True)
+    table = np.zeros((ai.max() + 1, bi.max() + 1), dtype=np.int64)
+    np.add.at(table, (ai, bi), 1)
+
+    def pairs(x):
+        return float(np.sum(x * (x - 1)) / 2)
+
+    index, sa, sb = pairs(table), pairs(table.sum(axis=1)), pairs(table.sum(axis=0))
+    total = len(a) * (len(a) - 1) / 2
+    expected = sa * sb / total if total else 0.0
+    top = (sa + sb) / 2
+    if top == expected:  # both labelings trivial in the same way (one group, or all singletons)
+        return 1.0
+    return (index - expected) / (top - expected)
+
+
+# --- the target ---------------------------------------------------------------------------------
+def _rows(frames, members) -> tuple[np.ndarray, np.ndarray]:
+    idx = np.concatenate([np.arange(frames.offsets[j], frames.offsets[j + 1]) for j in members])
+    return frames.xy[idx], frames.v[idx]
+
+
+def log_partition_weight(frames, labels, p: Params, alpha: float) -> float:
+    """log [α^K Π_k Γ(n_k) p(D_k | w)]: the unnormalised log posterior of a partition."""
+    labels = np.asarray(labels)
+    total = 0.0
+    for k in np.unique(labels):
+        members = np.flatnonzero(labels == k)
+        xy, v = _rows(frames, members)
+        total += np.log(alpha) + lgamma(len(members)) + gp_oracle.log_marginal_likelihood(xy, v, p)
+    return total
+
+
+def partition_posterior(frames, p: Params, alpha: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(partitions (B, N), log_probs (B,))``: the exact posterior over every partition."""
+    parts = set_partitions(len(frames))
+    logw = np.array([log_partition_weight(frames, z, p, alpha) for z in parts])
+    return parts, logw - logsumexp(logw)
+
+
+def unnormalised_conditional(frames, labels, i: int, p: Params, alpha: float) -> np.ndarray:
+    """``(K+1,)``: log n_k^{-i} + log p(V_i | D_k \\ i) for k = 0..K-1 (``labels`` take the values
+    0..K-1), then log α + log p(V_i | w) for a new pattern. -inf where n_k^{-i} = 0."""
+    labels = np.asarray(labels)
+    K = int(labels.max()) + 1
+    fi = frames[i]
+    out = np.empty(K + 1)
+    for k in range(K):
+        others = np.flatnonzero((labels == k) & (np.arange(len(labels)) != i))
+        if len(others) == 0:
+            out[k] = -np.inf
+            continue
+        xy, v = _rows(frames, others)
+        out[k] = np.log(len(others)) + gp_oracle.log_predictive(xy, v, fi.xy, fi.v, p)
+    out[K] = np.log(alpha) + gp_oracle.log_marginal_likelihood(fi.xy, fi.v, p)
+    return out
+
+
+def conditional_log_probs(frames, labels, i: int, p: Params, alpha: float) -> np.ndarray:
+    """The normalised collapsed conditional of frame i (the layout of ``DPGP.conditional_log_probs``)."""
+    u = unnormalised_conditional(frames, labels, i, p, alpha)
+    return u - logsumexp(u)
+
+
+def total_variation(p, q) -> float:
+    return 0.5 * float(np.sum(np.abs(np.asarray(p) - np.asarray(q))))
+
+
+def empirical_partition_probs(trace, parts: np.ndarray) -> np.ndarray:
+    """Frequencies of each partition of ``parts`` (canonical rows) among the rows of ``trace``."""
+    trace = np.asarray([canonical(row) for row in np.asarray(trace)])
+    index = {tuple(z): j for j, z in enumerate(parts)}
+    counts = np.zeros(len(parts))
+    for row in trace:
+        counts[index[tuple(row)]] += 1
+    return counts / len(trace)
+
+
+# --- a tiny problem whose posterior is spread over many partitions ----------------------------
+def tiny_problem(n: int = 5, seed: int = 3):
+    """``(frames, params, alpha)``: n frames of 2-3 vehicles in a 6 m square, from two loosely
+    different fields, so the posterior spreads over many partitions (for n = 5: largest
+    probability 0.11, 35 of the 52 partitions above 1%, 0.49 from the CRP prior in total
+    variation)."""
+    import dpgp
+
+    rng = np.random.default_rng(seed)
+    rows = []
+    for i in range(n):
+        l = (2, 3)[i % 2]
+        shift = 1.5 * (i % 2)
+        x, y = rng.uniform(0, 6, l), rng.uniform(0, 6, l)
+        vx, vy = 1.0 + shift + rng.normal(0, 1, l), -0.5 + 0.5 * shift + rng.normal(0, 1, l)
+        rows.append(np.column_stack([np.full(l, i), x, y, vx, vy]))
+    a = np.vstack(rows)
+    frames = dpgp.Frames.from_arrays(a[:, 0].astype(int), a[:, 1], a[:, 2], a[:, 3], a[:, 4])
+    return frames, Params((3.0, 4.0), (1.0, 2.0), 1.0, (1.0, 0.0)), 1.0
+
+
+def reference_gibbs(frames, p: Params, alpha: float, sweeps: int, seed: int = 0) -> np.ndarray:
+    """A collapsed Gibbs chain for a few frames (n ≤ ~10) with w and α fixed, from the ratio of
+    marginal likelihoods of every subset (computed once): ``(sweeps, n)`` canonical labels.
+    Used to check the oracle and to calibrate how close a correct chain gets in a given length."""
+    import math
+    import random
+
+    n = len(frames)
+    lml = [0.0] * (1 << n)
+    for m in range(1, 1 << n):
+        xy, v = _rows(frames, [j for j in range(n) if m >> j & 1])
+        lml[m] = gp_oracle.log_marginal_likelihood(xy, v, p)
+    rnd = random.Random(seed)
+    z = [0] * n
+    trace = np.empty((sweeps, n), dtype=np.int64)
+    for s in range(sweeps):
+        for i in range(n):
+            masks: dict[int, int] = {}
+            for j in range(n):
+                if j != i:
+                    masks[z[j]] = masks.get(z[j], 0) | (1 << j)
+            keys = list(masks)
+            u = [math.log(bin(masks[k]).count("1")) + lml[masks[k] | 1 << i] - lml[masks[k]] for k in keys]
+            u.append(math.log(alpha) + lml[1 << i])
+            top = max(u)
+            w = [math.exp(x - top) for x in u]
+            c = rnd.choices(range(len(u)), weights=w)[0]
+            z[i] = keys[c] if c < len(keys) else max(z) + 1
+            seen: dict[int, int] = {}
+            z = [seen.setdefault(x, len(seen)) for x in z]
+        trace[s] = z
+    return trace
