@@ -184,6 +184,10 @@ class DPGP:
         if self.store_labels:
             self.label_trace_ = np.array(traces, dtype=np.int64).reshape(len(traces), len(frames))
         self._sync()
+        # Refactor every pattern in canonical order (patterns by size, frames by index), which is
+        # also what loading a saved model does: both then compute with identical factors.
+        self._sampler.set_state(self.labels_, self.length_scales_, self.alpha_)
+        self._sync()
         return self
 
     def _sync(self) -> None:
