@@ -315,6 +315,11 @@ def test_gaps_are_not_interpolated_and_are_counted():
     wide = dpgp.make_frames(tracks, dt=0.5, max_gap=3.5)
     assert len(wide) == 13 and wide.summary.n_gap_times == 0
     assert np.allclose(wide.xy[:, 0], wide.ids * 10)
+    # the default follows the data's own sampling: 1 Hz samples are bridged, a 5 s hole is not
+    t = np.r_[np.arange(0.0, 10.0), np.arange(15.0, 20.0)]
+    coarse = dpgp.make_frames(pd.DataFrame({"track": 0, "t": t, "x": t, "y": 0.0}), dt=0.5)
+    assert coarse.summary.max_gap == 2.0 and coarse.summary.n_gaps == 1
+    assert len(coarse) == 19 + 9 and np.allclose(coarse.xy[:, 0], coarse.ids)
 
 
 def test_single_samples_and_short_fragments_are_reported():

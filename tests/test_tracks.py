@@ -58,6 +58,12 @@ def test_peachtree_loads_with_its_quirks(peachtree):
     assert np.array_equal(df["y"].to_numpy(), raw["Local_Y"].to_numpy())
 
 
+def test_a_tracks_table_reads_back_unchanged(peachtree):
+    again = dpgp.read_tracks(peachtree)
+    assert list(again.columns) == list(peachtree.columns)
+    assert again.drop(columns="Location").equals(peachtree.drop(columns="Location"))
+
+
 def test_peachtree_reused_vehicle_ids_are_split(peachtree):
     df = peachtree
     # 223 Vehicle_IDs, 229 trips: Vehicle_ID 70 (and five more) names two unrelated vehicles,

@@ -124,7 +124,8 @@ def make_frames(
         multiply positions and velocities by.
     max_gap
         Longest time between two samples of a track that is still interpolated, in seconds.
-        Default ``2 * dt``.
+        Default: twice the larger of ``dt`` and the table's typical (median) sampling step,
+        so that a missing sample or two is bridged but not a vehicle's absence.
 
     Returns
     -------
@@ -136,7 +137,8 @@ def make_frames(
     res = _resample(tracks, roi, dt, velocity, smoothing, units, max_gap)
     k, scene = res["k"], res["scene"]
     # Frames in order of (scene, grid time); inside a frame, vehicles in track order.
-    order = np.argsort(k, kind="stable") if scene is None else np.lexsort((k, scene))
+    keys = (res["track"], k) if scene is None else (res["track"], k, scene)
+    order = np.lexsort(keys)
     ks = k[order]
     new = np.empty(len(ks), dtype=bool)
     new[:1] = True
@@ -185,18 +187,21 @@ def resample_tracks(
     import pandas as pd
 
     res = _resample(tracks, roi, dt, velocity, smoothing, units, max_gap)
+    tr = res["track"]
+    # rows come out in the table's order of tracks; sort them by track if that was not
+    order = slice(None) if np.all(tr[1:] >= tr[:-1]) else np.lexsort((res["k"], tr))
     out = pd.DataFrame(
         {
-            "track": res["track_labels"][res["track"]],
-            "t": np.round(res["k"] * res["dt"], 9),
-            "x": res["x"],
-            "y": res["y"],
-            "vx": res["vx"],
-            "vy": res["vy"],
+            "track": res["track_labels"][tr[order]],
+            "t": np.round(res["k"][order] * res["dt"], 9),
+            "x": res["x"][order],
+            "y": res["y"][order],
+            "vx": res["vx"][order],
+            "vy": res["vy"][order],
         }
     )
     if res["scene"] is not None:
-        out["scene"] = res["scene_labels"][res["scene"]]
+        out["scene"] = res["scene_labels"][res["scene"][order]]
     out.attrs["dpgp_summary"] = dict(res["counts"])
     return out
 
@@ -207,7 +212,8 @@ def resample_tracks(
 
 def _resample(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, units: Any, max_gap: Any) -> dict[str, Any]:
     dt = _positive("dt", dt, "seconds between frames")
-    max_gap = 2.0 * dt if max_gap is None else _positive("max_gap", max_gap, "seconds")
+    if max_gap is not None:
+        max_gap = _positive("max_gap", max_gap, "seconds")
     roi = _check_roi(roi)
     scale, units_name = _check_units(units)
     if velocity not in ("auto", "columns", "diff"):
@@ -225,7 +231,8 @@ def _resample(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, uni
     x, y = _floats(cols, "x"), _floats(cols, "y")
     vx = vy = None
     if mode == "columns":
-        vx, vy = _floats(cols, "vx", hint="use velocity='diff' to derive velocities from positions"), _floats(cols, "vy", hint="use velocity='diff' to derive velocities from positions")
+        hint = "use velocity='diff' to derive velocities from positions"
+        vx, vy = _floats(cols, "vx", hint=hint), _floats(cols, "vy", hint=hint)
     sc, scene_labels = (None, None) if "scene" not in cols else _track_codes(cols["scene"])
     n = len(t)
     if n == 0:
@@ -245,6 +252,8 @@ def _resample(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, uni
         if sc is not None:
             sc = sc[perm]
     del block_ids
+    if max_gap is None:
+        max_gap = 2.0 * max(dt, _typical_step(tr, t))
 
     starts, n_gaps = _segment_starts(tr, t, sc, max_gap, track_labels)
     ends = np.r_[starts[1:], n]
@@ -320,6 +329,14 @@ def _resample(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, uni
         scene=None if seg_scene is None else seg_scene[seg_g], scene_labels=scene_labels,
         n_slots=n_slots, counts=counts, **out,
     )
+
+
+def _typical_step(tr: np.ndarray, t: np.ndarray) -> float:
+    """The median time between consecutive samples of a track, from up to a million of them."""
+    n = len(t)
+    i = np.arange(0, n - 1, max(1, (n - 1) // 1_000_000))
+    i = i[tr[i] == tr[i + 1]]
+    return float(np.median(t[i + 1] - t[i])) if len(i) else 0.0
 
 
 def _segment_starts(tr: np.ndarray, t: np.ndarray, sc: np.ndarray | None, max_gap: float, labels: np.ndarray) -> tuple[np.ndarray, int]:

@@ -145,7 +145,8 @@ def read_ngsim(path: str | os.PathLike, *, split_gap: float = 1.0) -> pd.DataFra
         raise DataFormatError(
             f"{path}: {int(clash.sum())} pair(s) of different rows for the same vehicle trip at the same "
             f"frame, first Vehicle_ID {df['Vehicle_ID'].iat[i]} at Frame_ID {frame[i]:.0f}; "
-            "remove the conflicting rows"
+            "remove the conflicting rows (a file that joins several recordings, such as the three "
+            "US-101 periods, must be split into one file per recording first)"
         )
     jump = same & (step * NGSIM_FRAME_SECONDS > split_gap)
     report["trips_split_at_time_jumps"] = int(jump.sum())
@@ -412,6 +413,8 @@ def _build_tracks(df: pd.DataFrame, cols: dict[str, Any], time_scale: float, sor
         used.add(cols["t"])
     if cols.get("scene") == "scene":
         used.add("scene")
+    if id_cols == ["track"] and np.array_equal(df["track"].to_numpy(), codes):
+        used.add("track")  # already a tracks table: its numbering is unchanged
     rest = [c for c in df.columns if c not in used]
     body = df[rest] if order is None else df[rest].take(order)
     body = body.reset_index(drop=True)
