@@ -69,6 +69,29 @@ def log_predictive(train_xy, train_v, xy, v, w, s2, sn2, mu) -> float:
     return total
 
 
+def existing_scores(frames, members, ws, i, s2, sn2, mu) -> np.ndarray:
+    """log n_k + log p(V_i | D_k) for every pattern k (``members[k]``: its frames, without i)."""
+    rows = lambda j: np.arange(frames.offsets[j], frames.offsets[j + 1])  # noqa: E731
+    xy, v = frames.xy[rows(i)], frames.v[rows(i)]
+    out = np.empty(len(members))
+    for k, mem in enumerate(members):
+        r = np.concatenate([rows(j) for j in mem])
+        out[k] = np.log(len(mem)) + log_predictive(frames.xy[r], frames.v[r], xy, v, ws[k], s2, sn2, mu)
+    return out
+
+
+def check_against_dpgp(m, frames, i: int = 0) -> float:
+    """Largest difference between numpy's and dpgp's conditional of frame i over the existing
+    patterns (both renormalised over them; "new" differs by its random auxiliary draws)."""
+    labels, K = np.asarray(m.labels_), m.n_patterns_
+    members = [[j for j in np.flatnonzero(labels == k) if j != i] for k in range(K)]
+    keep = [k for k in range(K) if members[k]]
+    u = existing_scores(frames, [members[k] for k in keep], np.asarray(m.length_scales_)[keep], i,
+                        np.var(frames.v, axis=0), 1.0, frames.v.mean(axis=0))
+    got = np.asarray(m.conditional_log_probs(i))[keep]
+    return float(np.max(np.abs((u - logsumexp(u)) - (got - logsumexp(got)))))
+
+
 def numpy_sweep(frames, labels, ws, alpha, prior=(10.0, 1.0), n_aux=10, assignment="gibbs",
                 noise_var=1.0, limit=None, seed=0):
     """One collapsed-Gibbs sweep over frames 0..limit-1; returns (labels, ws, seconds).
@@ -90,9 +113,7 @@ def numpy_sweep(frames, labels, ws, alpha, prior=(10.0, 1.0), n_aux=10, assignme
             del members[k0], ws[k0]
             labels[labels > k0] -= 1
         u = np.empty(len(ws) + 1)
-        for k, mem in enumerate(members):
-            r = np.concatenate([rows[j] for j in mem])
-            u[k] = np.log(len(mem)) + log_predictive(frames.xy[r], frames.v[r], xy, v, ws[k], s2, noise_var, mu)
+        u[:-1] = existing_scores(frames, members, ws, i, s2, noise_var, mu)
         aux_ll = np.array([log_prior_lik(xy, v, w, s2, noise_var, mu) for w in aux])
         u[-1] = np.log(alpha) - np.log(n_aux) + logsumexp(aux_ll)
         k = int(np.argmax(u)) if assignment == "map" else int(rng.choice(len(u), p=np.exp(u - logsumexp(u))))
@@ -146,6 +167,8 @@ def main() -> None:
         m.fit(frames)
         dpgp_sweep = report_fit(m, time.perf_counter() - t)
         labels, ws, alpha = np.asarray(m.labels_), np.asarray(m.length_scales_), float(m.alpha_)
+        print(f"  numpy vs dpgp conditional of frame 0 over existing patterns: max |diff| "
+              f"{check_against_dpgp(m, frames):.2e} nats")
     else:
         print("dpgp: skipped" + ("" if hasattr(dpgp, "DPGP") else " (dpgp.DPGP does not exist yet)"))
         K = min(args.init_patterns, N)
