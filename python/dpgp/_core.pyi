@@ -18,3 +18,29 @@ def log_predictive(
 def posterior(
     train_xy: NDArray[np.float64], train_v: NDArray[np.float64], query_xy: NDArray[np.float64], p: ParamTuple
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+
+# Rollouts (rust/py/src/simulate.rs). Each returns (positions (R, 2), velocities (R, 2),
+# in_roi (R,), low_data (R,)), rows grouped by rollout, then time, then vehicle.
+RolloutArrays = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]
+
+def rollouts(
+    sampler: object,
+    slots: list[int],
+    start: NDArray[np.float64],
+    offsets: NDArray[np.int64],
+    dt: float,
+    steps: int,
+    method: str,
+    roi: tuple[float, float, float, float] | None = None,
+    seeds: list[int] | None = None,
+    low_data: float | None = None,
+) -> RolloutArrays: ...
+def integrate_affine(
+    start: NDArray[np.float64],
+    a: tuple[tuple[float, float], tuple[float, float]],
+    b: tuple[float, float],
+    dt: float,
+    steps: int,
+    method: str,
+    roi: tuple[float, float, float, float] | None = None,
+) -> RolloutArrays: ...

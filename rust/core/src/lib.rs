@@ -17,3 +17,4 @@ pub mod slice;
 pub mod special;
 pub mod gibbs;
 pub mod small;
+pub mod simulate;

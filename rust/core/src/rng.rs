@@ -13,6 +13,7 @@ pub enum Phase {
     LengthScales = 3,
     Alpha = 4,
     Predict = 5,
+    Simulate = 6,
 }
 
 fn splitmix(mut x: u64) -> u64 {

@@ -5,6 +5,7 @@ mod convert;
 mod errors;
 mod gp;
 mod sampler;
+mod simulate;
 
 #[pyo3::pymodule(gil_used = false)]
 mod _core {
@@ -14,6 +15,8 @@ mod _core {
     use super::gp::{check_params, log_marginal_likelihood, log_predictive, posterior};
     #[pymodule_export]
     use super::sampler::PySampler;
+    #[pymodule_export]
+    use super::simulate::{integrate_affine, rollouts};
 
     #[pymodule_init]
     fn init(m: &Bound<'_, PyModule>) -> PyResult<()> {

@@ -49,7 +49,7 @@ impl PySampler {
     }
 
     /// Run `work` on the pool with the GIL released, polling Ctrl-C on this (the main) thread.
-    fn run<T: Send>(
+    pub(crate) fn run<T: Send>(
         &self,
         py: Python<'_>,
         work: impl FnOnce(&mut Sampler, &dyn Fn() -> bool) -> dpgp_core::Result<T> + Send,

@@ -1,0 +1,457 @@
+//! Rollouts: many vehicles moved together through a velocity field by forward Euler or
+//! classical RK4 (design.md §3, "Simulate").
+//!
+//! A vehicle moves while it is inside the region of interest; the step that carries it out
+//! records the first position outside, and from then on it stands still (velocity 0,
+//! `in_roi` false). A [`Field`] gives velocities in batches (one call per stage for all moving
+//! vehicles) and, once per step, a velocity offset held over the step and low-data flags.
+//! [`PatternField`] is a fitted pattern's GP: its posterior mean, or in stochastic mode a joint
+//! draw from the latent posterior of all moving vehicles, and flags where the posterior
+//! variance exceeds a fraction of the prior variance (the field there is mostly the prior).
+
+use rand_distr::{Distribution, StandardNormal};
+
+use crate::error::{Error, Result};
+use crate::kernel::Point;
+use crate::pattern::Pattern;
+use crate::rng::{Phase, stream};
+use crate::small;
+
+/// Rollout rows (steps + 1 times vehicles) above which we refuse rather than risk running out
+/// of memory on a typo (2^28 rows is 4 GiB of positions).
+const MAX_ROWS: usize = 1 << 28;
+
+/// The integration scheme.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// Forward Euler (the paper's): global error O(dt).
+    Euler,
+    /// Classical fourth-order Runge-Kutta: global error O(dt⁴) in a smooth field.
+    Rk4,
+}
+
+impl Method {
+    pub fn parse(name: &str) -> Result<Self> {
+        match name.to_ascii_lowercase().as_str() {
+            "euler" => Ok(Self::Euler),
+            "rk4" => Ok(Self::Rk4),
+            _ => Err(Error::InvalidInput(format!("method must be 'euler' or 'rk4', got {name:?}"))),
+        }
+    }
+}
+
+/// The rectangle `[x_min, x_max] x [y_min, y_max]` (edges inside).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Roi {
+    pub x_min: f64,
+    pub x_max: f64,
+    pub y_min: f64,
+    pub y_max: f64,
+}
+
+impl Roi {
+    pub fn new(x_min: f64, x_max: f64, y_min: f64, y_max: f64) -> Result<Self> {
+        let ok = [x_min, x_max, y_min, y_max].iter().all(|v| v.is_finite()) && x_min < x_max && y_min < y_max;
+        if !ok {
+            return Err(Error::InvalidInput(format!(
+                "roi must be (x_min, x_max, y_min, y_max) with finite min < max, got ({x_min}, {x_max}, {y_min}, {y_max})"
+            )));
+        }
+        Ok(Self { x_min, x_max, y_min, y_max })
+    }
+
+    /// A rectangle that holds every finite point.
+    pub fn everywhere() -> Self {
+        Self { x_min: f64::MIN, x_max: f64::MAX, y_min: f64::MIN, y_max: f64::MAX }
+    }
+
+    pub fn contains(&self, p: Point) -> bool {
+        p[0] >= self.x_min && p[0] <= self.x_max && p[1] >= self.y_min && p[1] <= self.y_max
+    }
+}
+
+/// How to integrate.
+#[derive(Clone, Copy, Debug)]
+pub struct Options {
+    /// Time step (seconds).
+    pub dt: f64,
+    pub steps: usize,
+    pub method: Method,
+    pub roi: Roi,
+}
+
+impl Options {
+    fn validate(&self, vehicles: usize) -> Result<()> {
+        if !(self.dt.is_finite() && self.dt > 0.0) {
+            return Err(Error::InvalidInput(format!("dt must be a positive number of seconds, got {}", self.dt)));
+        }
+        if (self.steps.saturating_add(1)).saturating_mul(vehicles.max(1)) > MAX_ROWS {
+            return Err(Error::InvalidInput(format!(
+                "{} steps of {vehicles} vehicles is more than {MAX_ROWS} rows; simulate fewer steps",
+                self.steps
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// What a field says about the moving vehicles at the start of one step.
+#[derive(Clone, Debug, Default)]
+pub struct StepInfo {
+    /// Added to every stage's velocity during the step (a stochastic draw's deviation from the mean).
+    pub offset: Vec<[f64; 2]>,
+    /// The vehicle is where the field has little data.
+    pub low_data: Vec<bool>,
+}
+
+/// A velocity field the integrator queries in batches.
+pub trait Field {
+    /// Velocities at the points `q`, one per point.
+    fn velocity(&mut self, q: &[Point]) -> Result<Vec<[f64; 2]>>;
+
+    /// Called once per recorded time `step` with the moving vehicles' positions. Default: no
+    /// offset and nothing flagged (a deterministic, everywhere-supported field).
+    fn step_start(&mut self, _step: usize, q: &[Point]) -> Result<StepInfo> {
+        Ok(StepInfo { offset: vec![[0.0; 2]; q.len()], low_data: vec![false; q.len()] })
+    }
+}
+
+/// Any closure from positions to velocities is a deterministic field.
+impl<F: FnMut(&[Point]) -> Result<Vec<[f64; 2]>>> Field for F {
+    fn velocity(&mut self, q: &[Point]) -> Result<Vec<[f64; 2]>> {
+        self(q)
+    }
+}
+
+/// Positions and velocities of every vehicle at every recorded time (`steps + 1` times,
+/// time-major: row `t * vehicles + j`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Rollout {
+    pub vehicles: usize,
+    pub steps: usize,
+    pub positions: Vec<Point>,
+    /// The velocity each vehicle moves with at that time (for RK4, the first stage's); 0 once stopped.
+    pub velocities: Vec<[f64; 2]>,
+    pub in_roi: Vec<bool>,
+    pub low_data: Vec<bool>,
+}
+
+/// Move the vehicles starting at `start` through `field`.
+pub fn integrate(start: &[Point], opts: &Options, field: &mut dyn Field) -> Result<Rollout> {
+    opts.validate(start.len())?;
+    crate::error::check_finite("start positions", start.as_flattened())?;
+    let (l, dt) = (start.len(), opts.dt);
+    let rows = (opts.steps + 1) * l;
+    let mut out = Rollout {
+        vehicles: l,
+        steps: opts.steps,
+        positions: Vec::with_capacity(rows),
+        velocities: vec![[0.0; 2]; rows],
+        in_roi: Vec::with_capacity(rows),
+        low_data: vec![false; rows],
+    };
+    out.positions.extend_from_slice(start);
+    out.in_roi.extend(start.iter().map(|&p| opts.roi.contains(p)));
+    for t in 0..=opts.steps {
+        let row = t * l;
+        let active: Vec<usize> = (0..l).filter(|&j| out.in_roi[row + j]).collect();
+        let x: Vec<Point> = active.iter().map(|&j| out.positions[row + j]).collect();
+        let mut next = out.positions[row..row + l].to_vec();
+        if !active.is_empty() {
+            let info = field.step_start(t, &x)?;
+            check_len("step offset", info.offset.len(), x.len())?;
+            check_len("low-data flags", info.low_data.len(), x.len())?;
+            let off = info.offset;
+            let eval = |field: &mut dyn Field, q: &[Point]| -> Result<Vec<[f64; 2]>> {
+                let v = field.velocity(q)?;
+                check_len("field velocities", v.len(), q.len())?;
+                Ok(v.iter().zip(&off).map(|(v, o)| [v[0] + o[0], v[1] + o[1]]).collect())
+            };
+            let k1 = eval(field, &x)?;
+            for (a, &j) in active.iter().enumerate() {
+                out.velocities[row + j] = k1[a];
+                out.low_data[row + j] = info.low_data[a];
+            }
+            if t == opts.steps {
+                break;
+            }
+            let step: Vec<[f64; 2]> = match opts.method {
+                Method::Euler => k1,
+                Method::Rk4 => {
+                    let k2 = eval(field, &shifted(&x, &k1, 0.5 * dt))?;
+                    let k3 = eval(field, &shifted(&x, &k2, 0.5 * dt))?;
+                    let k4 = eval(field, &shifted(&x, &k3, dt))?;
+                    (0..x.len())
+                        .map(|a| {
+                            let f = |d: usize| (k1[a][d] + 2.0 * k2[a][d] + 2.0 * k3[a][d] + k4[a][d]) / 6.0;
+                            [f(0), f(1)]
+                        })
+                        .collect()
+                }
+            };
+            for (a, &j) in active.iter().enumerate() {
+                next[j] = [x[a][0] + dt * step[a][0], x[a][1] + dt * step[a][1]];
+            }
+        } else if t == opts.steps {
+            break;
+        }
+        for (j, p) in next.iter().enumerate() {
+            let moving = out.in_roi[row + j];
+            out.in_roi.push(moving && p[0].is_finite() && p[1].is_finite() && opts.roi.contains(*p));
+        }
+        out.positions.extend_from_slice(&next);
+    }
+    // Every vehicle had left: the remaining times repeat the last positions, standing still.
+    while out.positions.len() < rows {
+        let last = out.positions.len() - l;
+        out.positions.extend_from_within(last..last + l);
+        out.in_roi.extend(std::iter::repeat_n(false, l));
+    }
+    Ok(out)
+}
+
+fn shifted(x: &[Point], k: &[[f64; 2]], h: f64) -> Vec<Point> {
+    x.iter().zip(k).map(|(p, v)| [p[0] + h * v[0], p[1] + h * v[1]]).collect()
+}
+
+fn check_len(what: &str, got: usize, want: usize) -> Result<()> {
+    if got != want {
+        return Err(Error::Shape(format!("{what}: {got} values for {want} vehicles")));
+    }
+    Ok(())
+}
+
+/// A fitted pattern's GP as a field.
+pub struct PatternField<'a> {
+    pattern: &'a Pattern,
+    /// `Some(seed)`: stochastic mode.
+    seed: Option<u64>,
+    /// Flag a point when its latent posterior variance exceeds this fraction of the prior
+    /// signal variance in either output; `None` computes no flags.
+    low_data: Option<f64>,
+}
+
+impl<'a> PatternField<'a> {
+    pub fn new(pattern: &'a Pattern, seed: Option<u64>, low_data: Option<f64>) -> Result<Self> {
+        if let Some(f) = low_data {
+            if !(f.is_finite() && f >= 0.0) {
+                return Err(Error::InvalidInput(format!(
+                    "the low-data threshold is a fraction of the prior variance (>= 0), got {f}"
+                )));
+            }
+        }
+        Ok(Self { pattern, seed, low_data })
+    }
+}
+
+impl Field for PatternField<'_> {
+    fn velocity(&mut self, q: &[Point]) -> Result<Vec<[f64; 2]>> {
+        Ok(self.pattern.predict_mean(q))
+    }
+
+    fn step_start(&mut self, step: usize, q: &[Point]) -> Result<StepInfo> {
+        let m = q.len();
+        let mut info = StepInfo { offset: vec![[0.0; 2]; m], low_data: vec![false; m] };
+        if self.seed.is_none() && self.low_data.is_none() {
+            return Ok(info);
+        }
+        // The latent covariance costs n² m (a triangular solve per vehicle); it gives both the
+        // variances for the flags and the matrix to draw from.
+        let (_, mut cov) = self.pattern.predict_joint(q);
+        let s2 = self.pattern.params.signal_var;
+        if let Some(f) = self.low_data {
+            for (j, flag) in info.low_data.iter_mut().enumerate() {
+                *flag = (0..2).any(|d| cov[d][j * m + j] > f * s2[d]);
+            }
+        }
+        if let Some(seed) = self.seed {
+            let mut rng = stream(seed, step as u64, Phase::Simulate, 0);
+            let shared = cov[0] == cov[1];
+            for d in 0..2 {
+                if d == 0 || !shared {
+                    // Rounding can leave the exact PSD posterior slightly indefinite, and
+                    // vehicles on top of each other make it singular: the jittered Cholesky copes.
+                    small::cholesky(&mut cov[d], m)?;
+                } else {
+                    cov[1] = cov[0].clone();
+                }
+                let z: Vec<f64> = (0..m).map(|_| StandardNormal.sample(&mut rng)).collect();
+                let l = &cov[d];
+                for i in 0..m {
+                    info.offset[i][d] = (0..=i).map(|c| l[c * m + i] * z[c]).sum();
+                }
+            }
+        }
+        Ok(info)
+    }
+}
+
+/// Roll the vehicles at `start` through `pattern`: its posterior mean, or with `seed` joint
+/// posterior draws at every step; flags per [`PatternField`].
+pub fn rollout(
+    pattern: &Pattern,
+    start: &[Point],
+    opts: &Options,
+    seed: Option<u64>,
+    low_data: Option<f64>,
+) -> Result<Rollout> {
+    integrate(start, opts, &mut PatternField::new(pattern, seed, low_data)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gp::GpParams;
+    use crate::pattern::FrameRef;
+
+    fn opts(dt: f64, steps: usize, method: Method) -> Options {
+        Options { dt, steps, method, roi: Roi::everywhere() }
+    }
+
+    fn rotation(q: &[Point]) -> Result<Vec<[f64; 2]>> {
+        Ok(q.iter().map(|p| [-p[1], p[0]]).collect())
+    }
+
+    fn max_error(r: &Rollout, exact: impl Fn(f64, Point) -> Point, start: &[Point], dt: f64) -> f64 {
+        let mut worst: f64 = 0.0;
+        for t in 0..=r.steps {
+            for (j, &s) in start.iter().enumerate() {
+                let (p, e) = (r.positions[t * r.vehicles + j], exact(t as f64 * dt, s));
+                worst = worst.max((p[0] - e[0]).hypot(p[1] - e[1]));
+            }
+        }
+        worst
+    }
+
+    #[test]
+    fn constant_field_is_exact_for_both_methods() {
+        let start = [[0.0, 0.0], [3.0, -2.0], [-1.5, 7.25]];
+        for method in [Method::Euler, Method::Rk4] {
+            let r =
+                integrate(&start, &opts(0.1, 50, method), &mut |q: &[Point]| Ok(vec![[2.0, -0.5]; q.len()])).unwrap();
+            let err = max_error(&r, |t, s| [s[0] + 2.0 * t, s[1] - 0.5 * t], &start, 0.1);
+            assert!(err < 1e-12, "{method:?}: {err}");
+            assert!(r.in_roi.iter().all(|&b| b) && r.velocities.iter().all(|v| *v == [2.0, -0.5]));
+        }
+    }
+
+    /// Error at dt and dt/2, dt/4: the observed order log2(e(h)/e(h/2)).
+    fn orders(method: Method) -> Vec<f64> {
+        let start = [[1.0, 0.0], [0.0, 2.0], [-0.5, -0.5]];
+        let exact = |t: f64, s: Point| [s[0] * t.cos() - s[1] * t.sin(), s[0] * t.sin() + s[1] * t.cos()];
+        let errs: Vec<f64> = [0.1f64, 0.05, 0.025, 0.0125]
+            .iter()
+            .map(|&dt| {
+                let steps = (2.0 / dt).round() as usize; // to t = 2: a third of a turn
+                let r = integrate(&start, &opts(dt, steps, method), &mut rotation).unwrap();
+                max_error(&r, exact, &start, dt)
+            })
+            .collect();
+        errs.windows(2).map(|w| (w[0] / w[1]).log2()).collect()
+    }
+
+    #[test]
+    fn euler_converges_at_first_order_and_rk4_at_fourth() {
+        eprintln!("observed orders: Euler {:?}, RK4 {:?}", orders(Method::Euler), orders(Method::Rk4));
+        for p in orders(Method::Euler) {
+            assert!((p - 1.0).abs() < 0.1, "Euler order {p}");
+        }
+        for p in orders(Method::Rk4) {
+            assert!((p - 4.0).abs() < 0.15, "RK4 order {p}");
+        }
+    }
+
+    #[test]
+    fn rk4_is_accurate_on_a_full_turn() {
+        let start = [[1.0, 0.0]];
+        let steps = 200;
+        let dt = std::f64::consts::TAU / steps as f64;
+        let r = integrate(&start, &opts(dt, steps, Method::Rk4), &mut rotation).unwrap();
+        let end = r.positions[steps];
+        assert!((end[0] - 1.0).abs() < 1e-7 && end[1].abs() < 1e-7, "{end:?}");
+    }
+
+    #[test]
+    fn vehicles_stop_when_they_leave_the_roi() {
+        let roi = Roi::new(-10.0, 10.0, -10.0, 10.0).unwrap();
+        let o = Options { dt: 1.0, steps: 8, method: Method::Euler, roi };
+        let start = [[0.0, 0.0], [5.0, 0.0], [20.0, 0.0]];
+        let r = integrate(&start, &o, &mut |q: &[Point]| Ok(vec![[2.0, 0.0]; q.len()])).unwrap();
+        let row = |t: usize, j: usize| t * 3 + j;
+        // Vehicle 1 is at x = 9 after 2 steps, 11 (outside) after 3, then stands still.
+        assert!(r.in_roi[row(2, 1)] && !r.in_roi[row(3, 1)]);
+        for t in 3..=8 {
+            assert_eq!(r.positions[row(t, 1)], [11.0, 0.0]);
+            assert_eq!(r.velocities[row(t, 1)], [0.0, 0.0]);
+        }
+        assert_eq!(r.velocities[row(2, 1)], [2.0, 0.0]);
+        assert!(r.in_roi[row(5, 0)] && !r.in_roi[row(6, 0)] && r.positions[row(8, 0)] == [12.0, 0.0]);
+        // Starting outside: never moves.
+        assert!((0..=8).all(|t| !r.in_roi[row(t, 2)] && r.positions[row(t, 2)] == [20.0, 0.0]));
+        assert_eq!(r.positions.len(), 27);
+    }
+
+    #[test]
+    fn bad_input_is_an_error() {
+        let mut f = |q: &[Point]| Ok(vec![[1.0, 0.0]; q.len()]);
+        assert!(integrate(&[[0.0, 0.0]], &opts(0.0, 3, Method::Euler), &mut f).is_err());
+        assert!(integrate(&[[f64::NAN, 0.0]], &opts(0.1, 3, Method::Euler), &mut f).is_err());
+        assert!(integrate(&[[0.0, 0.0]], &opts(0.1, usize::MAX, Method::Euler), &mut f).is_err());
+        let mut short = |_: &[Point]| Ok(vec![]);
+        assert!(matches!(integrate(&[[0.0, 0.0]], &opts(0.1, 3, Method::Euler), &mut short), Err(Error::Shape(_))));
+        assert!(Roi::new(1.0, 0.0, 0.0, 1.0).is_err());
+        assert!(Method::parse("midpoint").is_err());
+        assert_eq!(Method::parse("RK4").unwrap(), Method::Rk4);
+        let empty = integrate(&[], &opts(0.1, 3, Method::Rk4), &mut f).unwrap();
+        assert!(empty.positions.is_empty());
+    }
+
+    /// A pattern whose data all move at `c`, with prior mean `c`: its posterior mean is exactly
+    /// `c` everywhere, and its variance is small near the data and the prior's far away.
+    fn constant_pattern(c: [f64; 2]) -> Pattern {
+        let xy: Vec<Point> = (0..40).map(|i| [(i % 8) as f64 * 2.0, (i / 8) as f64 * 2.0]).collect();
+        let v = vec![c; xy.len()];
+        let p = GpParams::new((3.0, 3.0), (4.0, 4.0), 0.05, (c[0], c[1])).unwrap();
+        let frames: Vec<(usize, FrameRef)> =
+            (0..5).map(|f| (f, FrameRef { xy: &xy[f * 8..f * 8 + 8], v: &v[f * 8..f * 8 + 8] })).collect();
+        Pattern::new(p, &frames).unwrap()
+    }
+
+    #[test]
+    fn pattern_rollout_follows_its_mean_and_flags_low_data() {
+        let pat = constant_pattern([1.0, 0.5]);
+        let start = [[2.0, 2.0], [100.0, 100.0]];
+        let o = opts(0.5, 10, Method::Rk4);
+        let r = rollout(&pat, &start, &o, None, Some(0.5)).unwrap();
+        let err = max_error(&r, |t, s| [s[0] + t, s[1] + 0.5 * t], &start, 0.5);
+        assert!(err < 1e-9, "{err}");
+        assert!(!r.low_data[0], "inside the data");
+        assert!(r.low_data[1], "far from the data");
+        let none = rollout(&pat, &start, &o, None, None).unwrap();
+        assert!(none.low_data.iter().all(|&b| !b) && none.positions == r.positions);
+    }
+
+    #[test]
+    fn stochastic_rollouts_are_seeded_draws_of_the_posterior() {
+        let pat = constant_pattern([0.0, 0.0]);
+        let o = opts(0.1, 400, Method::Euler);
+        // Far from the data the posterior is the prior: independent N(0, 4) per output.
+        let start = [[1e4, 1e4], [-1e4, 1e4]];
+        let a = rollout(&pat, &start, &o, Some(7), None).unwrap();
+        let b = rollout(&pat, &start, &o, Some(7), None).unwrap();
+        let c = rollout(&pat, &start, &o, Some(8), None).unwrap();
+        assert_eq!(a, b);
+        assert_ne!(a.positions, c.positions);
+        let vx: Vec<f64> = a.velocities.iter().map(|v| v[0]).collect();
+        let n = vx.len() as f64;
+        let mean = vx.iter().sum::<f64>() / n;
+        let var = vx.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / n;
+        assert!(mean.abs() < 0.3 && (var - 4.0).abs() < 0.8, "mean {mean} var {var}");
+        // Near the data the draws hug the mean: the posterior variance is tiny.
+        let near = rollout(&pat, &[[4.0, 4.0]], &opts(0.1, 1, Method::Euler), Some(7), None).unwrap();
+        assert!(near.velocities[0][0].abs() < 0.5, "{:?}", near.velocities[0]);
+        // Two vehicles at one spot: a singular covariance, handled by jitter.
+        let same = rollout(&pat, &[[50.0, 50.0], [50.0, 50.0]], &opts(0.1, 3, Method::Rk4), Some(1), None).unwrap();
+        assert!(same.positions.iter().all(|p| p[0].is_finite()));
+    }
+}
