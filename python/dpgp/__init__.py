@@ -5,7 +5,7 @@ Multi-Vehicle Interaction Scenarios Using Gaussian Random Field"), fitted by col
 sampling in a Rust core.
 """
 
-from . import _core, datasets, gp
+from . import _core, datasets, gp, plot
 from .exceptions import (
     DataFormatError,
     DpgpError,
@@ -21,6 +21,8 @@ from .framing import FramingSummary, make_frames, resample_tracks
 from .gp import GPParams
 from .metrics import adjusted_rand_index
 from .model import DPGP
+from .scenarios import Scenarios
+from .simulation import Simulation
 from .tracks import read_ngsim, read_tracks
 
 __version__: str = _core.__version__
@@ -39,6 +41,9 @@ __all__ = [
     "ShapeError",
     "datasets",
     "gp",
+    "plot",
+    "Scenarios",
+    "Simulation",
     "read_frames",
     "EmpiricalDistributions",
     "FramingSummary",

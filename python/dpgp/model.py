@@ -263,6 +263,58 @@ class DPGP:
         lp = np.asarray(self._sampler.conditional_log_probs(int(i)))
         return np.r_[lp[:-1][self._slot_order], lp[-1]]
 
+    # --- simulation, scenarios and model files (dpgp/simulation.py, scenarios.py, io.py) ----------
+    def simulate(
+        self,
+        frame: Any,
+        pattern: int | None = None,
+        steps: int = 100,
+        dt: float | None = None,
+        method: str = "euler",
+        stochastic: bool = False,
+        seed: int | None = None,
+        *,
+        roi: tuple[float, float, float, float] | None = None,
+        low_data_threshold: float | None = 0.5,
+    ) -> Any:
+        """Roll the vehicles of ``frame`` (a training frame's index, a :class:`Frame`, or an
+        ``(l, 2)``/``(l, 4)`` array) forward through pattern ``pattern`` (default: a training
+        frame's own, else the frame's MAP pattern) by ``method`` ``"euler"`` or ``"rk4"``; with
+        ``stochastic``, velocities are drawn jointly from the posterior at every step (seeded
+        by ``seed``). ``dt`` defaults to the frames' time step (else 0.5 s), ``roi`` to the
+        training ROI; vehicles stop when they leave it. Steps where a vehicle's posterior
+        variance exceeds ``low_data_threshold`` times the prior's are flagged in ``low_data``.
+        Returns a :class:`dpgp.simulation.Simulation`."""
+        from .simulation import simulate
+
+        return simulate(self, frame, pattern, steps, dt, method, stochastic, seed, roi, low_data_threshold)
+
+    def sample_scenarios(
+        self, n: int, steps: int = 100, pattern: int | None = None, seed: int | None = None, **options: Any
+    ) -> Any:
+        """Generate ``n`` scenarios: a pattern by weight (or ``pattern``), a vehicle count from φ,
+        positions from the pattern's own position histogram (else ψ), velocities drawn from its
+        GP, then a stochastic rollout of ``steps`` steps. ``options``: ``dt``, ``method``,
+        ``stochastic``, ``roi``, ``low_data_threshold``. Returns :class:`dpgp.scenarios.Scenarios`
+        (``to_pandas``, ``to_csv``, ``to_sumo``)."""
+        from .scenarios import sample_scenarios
+
+        return sample_scenarios(self, n, steps, pattern, seed, **options)
+
+    def save(self, path: Any) -> None:
+        """Write the fitted model to ``path`` (a versioned ``.npz``, no pickle; see :mod:`dpgp.io`)."""
+        from .io import save
+
+        save(self, path)
+
+    @classmethod
+    def load(cls, path: Any) -> DPGP:
+        """Read a model written by :meth:`save`; :class:`~dpgp.ModelFileError` if the file is
+        truncated, corrupted, not a model file or from a newer dpgp."""
+        from .io import load
+
+        return load(cls, path)
+
 
 def _same(a: object, b: object) -> bool:
     try:

@@ -1,0 +1,276 @@
+"""Model files: a fitted :class:`~dpgp.DPGP` saved as a numpy ``.npz`` archive that executes no
+code on load (``allow_pickle=False``; no pickle anywhere).
+
+Format ``dpgp-model``, version 1. A zip archive (``numpy.savez_compressed``; every member is
+CRC-checked on read) of these arrays:
+
+==================  ======================  ===================================================
+name                dtype, shape            content
+==================  ======================  ===================================================
+``metadata``        str, ()                 JSON, below
+``frame_ids``       int, float or str (N,)  the training frames' ids
+``frame_offsets``   int64 (N+1,)            row where each frame starts
+``frame_xy``        float64 (n, 2)          positions, one row per vehicle observation
+``frame_v``         float64 (n, 2)          velocities
+``frame_labels``    (N,), optional          ground-truth labels the frames carried
+``labels``          int64 (N,)              fitted pattern of each frame (patterns by size)
+``length_scales``   float64 (K, 2)          ``(w_x, w_y)`` per pattern
+``pattern_ids``     uint64 (K,)             the sampler's stable pattern ids
+``label_trace``     int64 (sweeps, N), opt.  labels per sweep (``store_labels=True``)
+==================  ======================  ===================================================
+
+``metadata`` holds ``format`` (``"dpgp-model"``), ``format_version``, ``dpgp_version``,
+``settings`` (``DPGP.get_params()``), ``params`` (the global GP parameters), ``alpha``,
+``history`` (per-sweep lists), ``n_iter``, ``converged``, ``init_seconds``, ``timings``,
+``log_joint``, ``frames_summary`` (what ``make_frames`` did, with ``dt`` and ``roi``, or null)
+and ``distributions`` (φ and ψ, ``EmpiricalDistributions.to_dict`` as lists).
+
+Loading rebuilds the sampler from the frames, labels, length scales and α exactly as ``fit``
+leaves it (every pattern factored in canonical order), so a loaded model predicts, simulates and
+plots bit for bit as the saved one. A reader refuses files of a newer ``format_version``; a
+writer bumps it whenever a reader of the previous version would misread the file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import zipfile
+import zlib
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from . import _core
+from .exceptions import DpgpError, ModelFileError
+
+if TYPE_CHECKING:
+    from .model import DPGP
+
+FORMAT = "dpgp-model"
+FORMAT_VERSION = 1
+
+_REQUIRED = ("metadata", "frame_ids", "frame_offsets", "frame_xy", "frame_v", "labels", "length_scales")
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _ids_array(ids: np.ndarray) -> np.ndarray:
+    """Frame ids as an array numpy stores without pickle (object ids become strings)."""
+    ids = np.asarray(ids)
+    return ids.astype(str) if ids.dtype.kind == "O" else ids
+
+
+def save(model: DPGP, path: str | os.PathLike) -> None:
+    """Write ``model`` to ``path`` atomically: a temporary file beside it, then ``os.replace``,
+    so an interrupted or failed save leaves any previous file intact."""
+    model._check_fitted()
+    from . import __version__
+    from .scenarios import distributions
+
+    frames = model.frames_
+    summary = getattr(frames, "summary", None)
+    meta = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "dpgp_version": __version__,
+        "settings": model.get_params(),
+        "params": {
+            "length_scales": model.params_.length_scales,
+            "signal_var": model.params_.signal_var,
+            "noise_var": model.params_.noise_var,
+            "mean": model.params_.mean,
+        },
+        "alpha": model.alpha_,
+        "n_patterns": model.n_patterns_,
+        "history": getattr(model, "history_", {}),
+        "n_iter": getattr(model, "n_iter_", None),
+        "converged": getattr(model, "converged_", None),
+        "init_seconds": getattr(model, "init_seconds_", None),
+        "timings": getattr(model, "timings_", {}),
+        "log_joint": getattr(model, "log_joint_", None),
+        "frames_summary": None if summary is None else summary.to_dict(),
+        "distributions": distributions(model).to_dict(),
+    }
+    arrays: dict[str, np.ndarray] = {
+        "metadata": np.array(json.dumps(_jsonable(meta))),
+        "frame_ids": _ids_array(frames.ids),
+        "frame_offsets": np.asarray(frames.offsets, dtype=np.int64),
+        "frame_xy": frames.xy,
+        "frame_v": frames.v,
+        "labels": np.asarray(model.labels_, dtype=np.int64),
+        "length_scales": np.asarray(model.length_scales_, dtype=np.float64),
+        "pattern_ids": np.asarray(model.pattern_ids_, dtype=np.uint64),
+    }
+    if frames.labels is not None:
+        arrays["frame_labels"] = _ids_array(frames.labels)
+    if getattr(model, "label_trace_", None) is not None:
+        arrays["label_trace"] = np.asarray(model.label_trace_, dtype=np.int64)
+    path = os.fspath(path)
+    directory = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=".dpgp-", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez_compressed(fh, **arrays)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, _file_mode(path))
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def _file_mode(path: str) -> int:
+    """The mode a plain ``open(path, "w")`` would give (mkstemp's is 0600), or the old file's."""
+    try:
+        return os.stat(path).st_mode & 0o777
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
+def _read(path: str) -> dict[str, np.ndarray]:
+    """Every array of the archive, read eagerly so that corruption surfaces here."""
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"no such model file: {path}")
+    try:
+        npz = np.load(path, allow_pickle=False)
+        if not isinstance(npz, np.lib.npyio.NpzFile):
+            raise ModelFileError(f"{path} is a single numpy array, not a dpgp model file (.npz archive)")
+        with npz:
+            missing = [k for k in _REQUIRED if k not in npz.files]
+            if missing:
+                raise ModelFileError(f"{path} is not a dpgp model file: it lacks {missing}")
+            return {k: npz[k] for k in npz.files}
+    except ModelFileError:
+        raise
+    except ValueError as e:
+        if "pickle" in str(e):
+            raise ModelFileError(
+                f"{path} is not a dpgp model file: not an .npz archive (numpy would read it as pickled data, "
+                "which dpgp never writes and will not load)"
+            ) from None
+        raise ModelFileError(f"{path} is not a dpgp model file (not a readable .npz archive): {e}") from None
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, KeyError) as e:
+        raise ModelFileError(f"{path} is truncated or corrupted ({type(e).__name__}: {e})") from None
+
+
+def _meta(path: str, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
+    raw = arrays["metadata"]
+    if raw.dtype.kind != "U" or raw.shape != ():
+        raise ModelFileError(f"{path}: the metadata entry is not a JSON string")
+    try:
+        meta = json.loads(str(raw))
+    except json.JSONDecodeError as e:
+        raise ModelFileError(f"{path}: the metadata is not valid JSON ({e})") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise ModelFileError(f"{path} is not a dpgp model file (format {meta.get('format') if isinstance(meta, dict) else None!r})")
+    version = meta.get("format_version")
+    if not isinstance(version, int) or version < 1:
+        raise ModelFileError(f"{path}: invalid format_version {version!r}")
+    if version > FORMAT_VERSION:
+        raise ModelFileError(
+            f"{path} was written by dpgp {meta.get('dpgp_version', '?')} in model-file format version {version}; "
+            f"this dpgp reads versions up to {FORMAT_VERSION}: upgrade dpgp to load it"
+        )
+    return meta
+
+
+def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
+    """The JSON metadata of a model file (format, versions, settings, history, φ/ψ), checked
+    like :func:`load` does but without rebuilding the model."""
+    path = os.fspath(path)
+    return _meta(path, _read(path))
+
+
+def load(cls: type[DPGP], path: str | os.PathLike) -> DPGP:
+    """Read a model written by :func:`save`; raise :class:`~dpgp.ModelFileError` if the file
+    is truncated, corrupted, not a model file, or of a newer format version."""
+    path = os.fspath(path)
+    arrays = _read(path)
+    meta = _meta(path, arrays)
+    try:
+        return _build(cls, meta, arrays)
+    except ModelFileError:
+        raise
+    except (DpgpError, KeyError, TypeError, ValueError, IndexError) as e:
+        raise ModelFileError(f"{path}: inconsistent model file ({type(e).__name__}: {e})") from None
+
+
+def _build(cls: type[DPGP], meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> DPGP:
+    from .distributions import EmpiricalDistributions
+    from .frames import Frames
+    from .framing import FramingSummary
+    from .gp import GPParams
+
+    settings = meta["settings"]
+    model = cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in settings.items()})
+    model._check_settings()
+    labels_file = arrays.get("frame_labels")
+    frames = Frames(arrays["frame_ids"], arrays["frame_offsets"], arrays["frame_xy"], arrays["frame_v"], labels_file)
+    if meta.get("frames_summary") is not None:
+        s = dict(meta["frames_summary"])
+        for key in ("roi", "smoothing"):
+            if s.get(key) is not None:
+                s[key] = tuple(s[key])
+        frames.summary = FramingSummary(**s)
+    labels = np.asarray(arrays["labels"], dtype=np.int64)
+    ls = np.asarray(arrays["length_scales"], dtype=np.float64)
+    if labels.shape != (len(frames),) or ls.ndim != 2 or ls.shape[1] != 2:
+        raise ModelFileError(f"labels {labels.shape} and length_scales {ls.shape} do not fit {len(frames)} frames")
+    if len(labels) and (labels.min() < 0 or labels.max() >= len(ls) or len(np.unique(labels)) != len(ls)):
+        raise ModelFileError("labels do not name exactly the patterns the file holds")
+    p = meta["params"]
+    model.params_ = GPParams(tuple(p["length_scales"]), tuple(p["signal_var"]), p["noise_var"], tuple(p["mean"]))
+    a, b = (float(v) for v in model.length_scale_prior)
+    # The same constructor call as DPGP.fit; set_state then factors every pattern in the
+    # canonical order fit ends with, so every later computation is bitwise the same.
+    model._sampler = _core.Sampler(
+        frames.xy,
+        frames.v,
+        frames.offsets,
+        model.assignment,
+        model.params_.as_tuple(),
+        model.length_scales is not None,
+        (a, b),
+        None if model.alpha is None else float(model.alpha),
+        int(model.new_pattern_samples),
+        int(model.seed) & 0xFFFF_FFFF_FFFF_FFFF,
+        model.n_threads,
+    )
+    model.frames_ = frames
+    model._sampler.set_state(labels, ls, float(meta["alpha"]))
+    model._sync()
+    if not np.array_equal(model.labels_, labels):
+        raise ModelFileError("the patterns are not stored in decreasing order of size; the file was not written by dpgp")
+    if "pattern_ids" in arrays and len(arrays["pattern_ids"]) == model.n_patterns_:
+        model.pattern_ids_ = np.asarray(arrays["pattern_ids"], dtype=np.uint64)
+    model.history_ = {k: list(v) for k, v in meta.get("history", {}).items()}
+    model.n_iter_ = meta.get("n_iter")
+    model.converged_ = meta.get("converged")
+    model.init_seconds_ = meta.get("init_seconds")
+    model.timings_ = dict(meta.get("timings") or model.timings_)
+    if "label_trace" in arrays:
+        model.label_trace_ = np.asarray(arrays["label_trace"], dtype=np.int64)
+    if meta.get("distributions") is not None:
+        model._distributions = (frames, EmpiricalDistributions.from_dict(meta["distributions"]))
+    return model
+
+
+__all__ = ["save", "load", "read_metadata", "FORMAT", "FORMAT_VERSION"]

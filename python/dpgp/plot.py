@@ -1,0 +1,246 @@
+"""Figures of a fitted model (the paper's Figs. 3 and 4), a convergence trace, and animations.
+
+Every function draws with matplotlib's object API on ``ax`` when given, else on a new
+:class:`matplotlib.figure.Figure` that belongs to no GUI (so it works headless and in scripts
+without leaking pyplot state); it returns that Axes (or Figure), which notebooks display and
+``.figure.savefig(path)`` writes. Nothing here calls ``plt.show``.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .exceptions import InvalidInputError
+from .simulation import LOW_DATA_THRESHOLD, Simulation, default_roi
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+    from .model import DPGP
+    from .scenarios import Scenarios
+
+_FIELD = "#1f4e99"  # arrows where the pattern has data
+_SPARSE = "#b0b0b0"  # arrows in low-data regions
+
+
+def _axes(ax: Axes | None, figsize: tuple[float, float] = (6.0, 5.0)) -> Axes:
+    if ax is not None:
+        return ax
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=figsize, layout="constrained").add_subplot()
+
+
+def _frame_roi(ax: Axes, roi: tuple[float, float, float, float]) -> None:
+    x0, x1, y0, y1 = roi
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ratio = (y1 - y0) / (x1 - x0)
+    if 0.25 <= ratio <= 4:  # equal axes unless the ROI is a long strip (a highway)
+        ax.set_aspect("equal")
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
+
+
+def _pattern(model: DPGP, k: Any) -> int:
+    model._check_fitted()
+    if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or not 0 <= k < model.n_patterns_:
+        raise InvalidInputError(f"pattern must be an index 0..{model.n_patterns_ - 1}, got {k!r}")
+    return int(k)
+
+
+def _grid(grid: Any) -> tuple[int, int]:
+    g = np.atleast_1d(np.asarray(grid))
+    if g.shape == (1,):
+        g = np.r_[g, g]
+    if g.shape != (2,) or g.dtype.kind not in "iu" or np.any(g < 2):
+        raise InvalidInputError(f"grid must be a whole number >= 2 or a pair (nx, ny), got {grid!r}")
+    return int(g[0]), int(g[1])
+
+
+def _key(ax: Axes, arrows: Any, speed: np.ndarray) -> None:
+    """A reference arrow: quiver scales arrows to the largest, so say how long a speed is."""
+    u = float(np.max(speed)) if len(speed) else 0.0
+    if u > 0:
+        u = float(f"{u:.1g}")
+        ax.quiverkey(arrows, 0.97, 1.025, u, f"speed {u:g}", labelpos="W", color="k", fontproperties={"size": "small"})
+
+
+def weights(model: DPGP, ax: Axes | None = None) -> Axes:
+    """Mixture weights of the patterns in decreasing order, as bars (the paper's Fig. 3)."""
+    model._check_fitted()
+    ax = _axes(ax, (7.0, 3.5))
+    w = np.sort(model.weights_)[::-1]
+    ax.bar(np.arange(len(w)), w, color=_FIELD)
+    ax.set_xlabel("motion pattern (by size)")
+    ax.set_ylabel("weight")
+    ax.set_title(f"{len(w)} motion patterns, α = {model.alpha_:.3g}")
+    ax.set_xlim(-0.6, len(w) - 0.4)
+    return ax
+
+
+def field_grid(model: DPGP, grid: Any = 20, roi: tuple[float, float, float, float] | None = None) -> tuple[np.ndarray, int, int]:
+    """The ``nx x ny`` grid points (row-major in y, then x) over ``roi`` (default: the model's)."""
+    nx, ny = _grid(grid)
+    x0, x1, y0, y1 = default_roi(model) if roi is None else roi
+    gx, gy = np.meshgrid(np.linspace(x0, x1, nx), np.linspace(y0, y1, ny))
+    return np.column_stack([gx.ravel(), gy.ravel()]), nx, ny
+
+
+def _relative_variance(model: DPGP, var: np.ndarray) -> np.ndarray:
+    """Posterior over prior variance, the larger of the two outputs: 0 at data, 1 far away."""
+    return (var / np.asarray(model.params_.signal_var)).max(axis=1)
+
+
+def velocity_field(
+    model: DPGP,
+    k: int,
+    grid: Any = 20,
+    ax: Axes | None = None,
+    roi: tuple[float, float, float, float] | None = None,
+    low_data_threshold: float = LOW_DATA_THRESHOLD,
+    show_data: bool = False,
+) -> Axes:
+    """Pattern ``k``'s posterior mean velocity as one arrow per grid point (``grid`` = n or
+    ``(nx, ny)``), over grey shading of the posterior variance relative to the prior's (dark:
+    no data); arrows where it exceeds ``low_data_threshold`` are drawn pale (the paper's Fig. 4a).
+    ``show_data`` adds the pattern's observed positions."""
+    k = _pattern(model, k)
+    roi = default_roi(model) if roi is None else roi
+    q, nx, ny = field_grid(model, grid, roi)
+    mean, var = model.velocity_field(k, q)
+    rel = _relative_variance(model, var)
+    ax = _axes(ax)
+    ax.imshow(
+        rel.reshape(ny, nx), origin="lower", extent=roi, cmap="Greys", vmin=0.0, vmax=1.5,
+        interpolation="bilinear", aspect="auto", alpha=0.6,
+    )  # fmt: skip
+    colors = np.where(rel > low_data_threshold, _SPARSE, _FIELD)
+    arrows = ax.quiver(q[:, 0], q[:, 1], mean[:, 0], mean[:, 1], color=colors, angles="xy", pivot="mid")
+    _key(ax, arrows, np.hypot(mean[:, 0], mean[:, 1]))
+    if show_data:
+        xy = model.frames_.xy[np.repeat(model.labels_ == k, model.frames_.sizes)]
+        ax.scatter(xy[:, 0], xy[:, 1], s=2, c="tab:orange", alpha=0.5, label="observations")
+    _frame_roi(ax, roi)
+    ax.set_title(f"pattern {k} (weight {model.weights_[k]:.2f}): mean velocity", loc="left", fontsize="medium")
+    return ax
+
+
+def frames(model: DPGP, k: int, ax: Axes | None = None, max_frames: int | None = 30) -> Axes:
+    """The observed frames assigned to pattern ``k`` (the paper's Fig. 4c-d): each vehicle's
+    velocity as an arrow, coloured by frame; at most ``max_frames`` frames (None: all)."""
+    k = _pattern(model, k)
+    members = np.flatnonzero(model.labels_ == k)
+    if max_frames is not None:
+        members = members[:max_frames]
+    sub = model.frames_[members]
+    ax = _axes(ax)
+    arrows = ax.quiver(
+        sub.xy[:, 0], sub.xy[:, 1], sub.v[:, 0], sub.v[:, 1], sub.frame_of_row, cmap="viridis",
+        angles="xy", pivot="tail",
+    )  # fmt: skip
+    _key(ax, arrows, np.hypot(sub.v[:, 0], sub.v[:, 1]))
+    _frame_roi(ax, default_roi(model))
+    ax.set_title(f"pattern {k}: {len(members)} of its {int((model.labels_ == k).sum())} frames", loc="left", fontsize="medium")
+    return ax
+
+
+def simulation(
+    model: DPGP,
+    frame: Any,
+    k: int | None = None,
+    ax: Axes | None = None,
+    result: Simulation | None = None,
+    steps: int = 40,
+    grid: Any = 15,
+    **simulate_options: Any,
+) -> Axes:
+    """A simulated frame (the paper's Fig. 4b): the pattern's field in the background, each
+    vehicle's start (circle) and its trajectory while in the ROI, low-data steps marked ``x``.
+    ``result`` draws an existing :class:`~dpgp.simulation.Simulation` instead of running one."""
+    sim = result if result is not None else model.simulate(frame, pattern=k, steps=steps, **simulate_options)
+    ax = _axes(ax)
+    roi = default_roi(model)
+    q, _, _ = field_grid(model, grid, roi)
+    mean, _ = model.velocity_field(sim.pattern, q)
+    ax.quiver(q[:, 0], q[:, 1], mean[:, 0], mean[:, 1], color="0.75", angles="xy", pivot="mid")
+    for j in range(sim.n_vehicles):
+        inside = sim.in_roi[:, j]
+        last = min(int(inside.sum()), sim.steps)  # include the first position outside
+        path = sim.positions[: last + 1, j]
+        ax.plot(path[:, 0], path[:, 1], "-", color="tab:blue", lw=1.2)
+    ax.plot(sim.positions[0, :, 0], sim.positions[0, :, 1], "o", color="tab:red", ms=4, label="start")
+    low = sim.low_data & sim.in_roi
+    if low.any():
+        ax.plot(sim.positions[..., 0][low], sim.positions[..., 1][low], "x", color="k", ms=4, label="low data")
+    _frame_roi(ax, roi)
+    ax.set_title(f"simulation through pattern {sim.pattern}: {sim.steps} {sim.method} steps of {sim.dt:g} s")
+    ax.legend(loc="upper right", fontsize="small")
+    return ax
+
+
+def trace(model: DPGP) -> Figure:
+    """Number of patterns, α and the log joint density over the sweeps (convergence check)."""
+    model._check_fitted()
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7.0, 6.0), layout="constrained")
+    axes = fig.subplots(3, 1, sharex=True)
+    h = model.history_
+    sweeps = np.arange(1, len(h.get("n_patterns", [])) + 1)
+    for ax, key, label in zip(axes, ("n_patterns", "alpha", "log_joint"), ("K", "α", "log joint")):
+        ax.plot(sweeps, h.get(key, []), "-", marker="." if len(sweeps) < 60 else None)
+        ax.set_ylabel(label)
+    axes[-1].set_xlabel("sweep")
+    axes[0].set_title("Gibbs trace")
+    return fig
+
+
+def animate(
+    result: Simulation | Scenarios,
+    path: str | os.PathLike,
+    model: DPGP | None = None,
+    scenario: int = 0,
+    fps: float = 8.0,
+    dpi: int = 80,
+    tail: int = 6,
+) -> Figure:
+    """Write a simulation (or scenario ``scenario`` of generated scenarios) as a GIF at ``path``:
+    vehicles as dots with a short ``tail``, over the pattern's field when ``model`` is given."""
+    from matplotlib.animation import PillowWriter
+    from matplotlib.figure import Figure
+
+    sim = result if isinstance(result, Simulation) else result[scenario]
+    fig = Figure(figsize=(5.0, 5.0), layout="constrained")
+    ax = fig.add_subplot()
+    roi = tuple(sim.roi)
+    if not np.all(np.isfinite(roi)):
+        lo, hi = sim.positions.reshape(-1, 2).min(axis=0), sim.positions.reshape(-1, 2).max(axis=0)
+        roi = (lo[0] - 1, hi[0] + 1, lo[1] - 1, hi[1] + 1)
+    if model is not None:
+        q, _, _ = field_grid(model, 15, roi)
+        mean, _ = model.velocity_field(sim.pattern, q)
+        ax.quiver(q[:, 0], q[:, 1], mean[:, 0], mean[:, 1], color="0.8", angles="xy", pivot="mid")
+    _frame_roi(ax, roi)  # type: ignore[arg-type]
+    tails = [ax.plot([], [], "-", color="tab:blue", lw=1, alpha=0.6)[0] for _ in range(sim.n_vehicles)]
+    (dots,) = ax.plot([], [], "o", color="tab:red", ms=5)
+    label = ax.set_title("")
+    writer = PillowWriter(fps=fps)
+    with writer.saving(fig, os.fspath(path), dpi):
+        for t in range(sim.steps + 1):
+            inside = sim.in_roi[t]
+            dots.set_data(sim.positions[t, inside, 0], sim.positions[t, inside, 1])
+            for j, line in enumerate(tails):
+                seg = slice(max(0, t - tail), t + 1)
+                keep = sim.in_roi[seg, j]
+                line.set_data(sim.positions[seg, j, 0][keep], sim.positions[seg, j, 1][keep])
+            label.set_text(f"t = {sim.t[t]:.1f} s, {int(inside.sum())} vehicles")
+            writer.grab_frame()
+    return fig
+
+
+__all__ = ["weights", "velocity_field", "frames", "simulation", "trace", "animate", "field_grid"]

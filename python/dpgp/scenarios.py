@@ -1,0 +1,225 @@
+"""Generating new multi-vehicle scenarios from a fitted model (design.md §3, "Generate").
+
+A scenario is: a pattern drawn by its weight, a vehicle count drawn from φ (the training frames'
+vehicle-count distribution), positions drawn from the pattern's own position distribution (a ψ
+histogram of its frames' positions; the global ψ when it holds fewer than
+:data:`MIN_OWN_POSITIONS`), velocities drawn jointly from the pattern's GP at those positions,
+then a rollout (:mod:`dpgp.simulation`) that keeps drawing velocities from the pattern's
+posterior at every step (``stochastic=True``, the default) or follows its mean.
+
+Export: a CSV table ``scenario, vehicle, t, x, y, vx, vy`` and SUMO floating-car data (FCD) XML,
+the trajectory format of the SUMO simulator and its tools (see :meth:`Scenarios.to_sumo`).
+"""
+
+from __future__ import annotations
+
+import gzip
+import os
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .distributions import EmpiricalDistributions
+from .exceptions import InvalidInputError
+from .simulation import LOW_DATA_THRESHOLD, Simulation, _check, _check_pattern, default_dt, default_roi, rollouts
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from .model import DPGP
+
+MIN_OWN_POSITIONS = 20  # fewer positions than this in a pattern: draw from the global ψ
+DEFAULT_BINS = (20, 20)  # ψ grid over the ROI
+
+_COLUMNS = ["scenario", "vehicle", "t", "x", "y", "vx", "vy"]
+
+
+@dataclass(frozen=True, eq=False)
+class Scenarios:
+    """Generated scenarios: ``scenarios[i]`` is the :class:`~dpgp.simulation.Simulation` of
+    scenario ``i``; ``patterns`` and ``counts`` give each one's pattern and vehicle count."""
+
+    simulations: list[Simulation]
+    patterns: np.ndarray
+    counts: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.simulations)
+
+    def __getitem__(self, i: int) -> Simulation:
+        return self.simulations[i]
+
+    def __iter__(self):  # type: ignore[no-untyped-def]
+        return iter(self.simulations)
+
+    @property
+    def dt(self) -> float:
+        return self.simulations[0].dt if self.simulations else float("nan")
+
+    def to_pandas(self) -> pd.DataFrame:
+        """``scenario, vehicle, t, x, y, vx, vy``: one row per vehicle and time while the vehicle
+        is inside the ROI (a vehicle that has left is gone, as in recorded data)."""
+        import pandas as pd
+
+        parts = []
+        for s, sim in enumerate(self.simulations):
+            T, l = sim.in_roi.shape
+            keep = sim.in_roi.ravel()
+            parts.append(
+                {
+                    "scenario": np.full(int(keep.sum()), s, dtype=np.int64),
+                    "vehicle": np.tile(np.arange(l, dtype=np.int64), T)[keep],
+                    "t": np.repeat(sim.t, l)[keep],
+                    "x": sim.positions[..., 0].ravel()[keep],
+                    "y": sim.positions[..., 1].ravel()[keep],
+                    "vx": sim.velocities[..., 0].ravel()[keep],
+                    "vy": sim.velocities[..., 1].ravel()[keep],
+                }
+            )
+        if not parts:
+            return pd.DataFrame({c: np.array([], dtype=np.float64) for c in _COLUMNS})
+        return pd.DataFrame({c: np.concatenate([p[c] for p in parts]) for c in _COLUMNS})
+
+    def to_csv(self, path: str | os.PathLike) -> None:
+        """Write :meth:`to_pandas` as CSV (full float precision)."""
+        self.to_pandas().to_csv(path, index=False, float_format="%.17g")
+
+    def to_sumo(self, path: str | os.PathLike, vtype: str = "DEFAULT_VEHTYPE") -> None:
+        """Write SUMO floating-car data (``<fcd-export>``; gzip if ``path`` ends in ``.gz``).
+
+        Vehicle ids are ``s{scenario}_v{vehicle}``. Scenario ``s`` is shifted in time by
+        ``s * (steps + 1) * dt`` so that scenarios follow one another on one regular time grid
+        (framing the file again gives frames that each hold one scenario). ``speed`` and
+        ``angle`` (degrees clockwise from north, +y) carry the velocity, as SUMO writes them.
+        ``dpgp.read_tracks(path)`` reads the file back.
+        """
+        df = self.to_pandas()
+        steps = self.simulations[0].steps if self.simulations else 0
+        dt = self.dt if steps else 1.0
+        step = np.rint(df["t"].to_numpy() / dt).astype(np.int64) if steps else np.zeros(len(df), np.int64)
+        tick = df["scenario"].to_numpy() * (steps + 1) + step
+        order = np.lexsort((df["vehicle"].to_numpy(), tick))
+        vx, vy = df["vx"].to_numpy()[order], df["vy"].to_numpy()[order]
+        speed = np.hypot(vx, vy)
+        angle = np.degrees(np.arctan2(vx, vy)) % 360.0
+        ids = [f"s{s}_v{v}" for s, v in zip(df["scenario"].to_numpy()[order], df["vehicle"].to_numpy()[order])]
+        x, y, tick = df["x"].to_numpy()[order], df["y"].to_numpy()[order], tick[order]
+        lines = [
+            '<?xml version="1.0" encoding="UTF-8"?>',
+            "<!-- generated by dpgp: scenarios sampled from a DP-GP motion-pattern model -->",
+            '<fcd-export xmlns:xsi="http://www.w3.org/2001/XMLSchema-instance" '
+            'xsi:noNamespaceSchemaLocation="http://sumo.dlr.de/xsd/fcd_file.xsd">',
+        ]
+        starts = np.flatnonzero(np.r_[True, tick[1:] != tick[:-1]]) if len(tick) else np.array([], int)
+        bounds = np.r_[starts, len(tick)]
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            lines.append(f'    <timestep time="{tick[a] * dt:.6f}">')
+            lines.extend(
+                f'        <vehicle id="{ids[i]}" x="{x[i]:.6f}" y="{y[i]:.6f}" angle="{angle[i]:.6f}" '
+                f'type="{vtype}" speed="{speed[i]:.6f}"/>'
+                for i in range(a, b)
+            )
+            lines.append("    </timestep>")
+        lines.append("</fcd-export>\n")
+        text = "\n".join(lines).encode("utf-8")
+        opener = gzip.open if os.fspath(path).endswith(".gz") else open
+        with opener(path, "wb") as fh:
+            fh.write(text)
+
+    def save(self, path: str | os.PathLike, format: str | None = None) -> None:
+        """Write ``"csv"`` or ``"sumo"`` (default: SUMO for ``.xml``/``.xml.gz``, else CSV)."""
+        fmt = format or ("sumo" if os.fspath(path).lower().endswith((".xml", ".xml.gz")) else "csv")
+        if fmt == "csv":
+            self.to_csv(path)
+        elif fmt == "sumo":
+            self.to_sumo(path)
+        else:
+            raise InvalidInputError(f"format must be 'csv' or 'sumo', got {format!r}")
+
+    def __repr__(self) -> str:
+        return f"Scenarios({len(self)} scenarios, {int(self.counts.sum())} vehicles, patterns {np.bincount(self.patterns).tolist()})"
+
+
+def distributions(model: DPGP, bins: Any = DEFAULT_BINS) -> EmpiricalDistributions:
+    """φ and ψ of the model's training frames over :func:`~dpgp.simulation.default_roi` (kept
+    on the model, and in its model file, so that generation does not recompute them)."""
+    cached = getattr(model, "_distributions", None)
+    if cached is not None and cached[0] is model.frames_ and (bins is None or cached[1].bins == _pair(bins)):
+        return cached[1]
+    d = EmpiricalDistributions.from_frames(model.frames_, roi=_padded(default_roi(model), model), bins=bins or DEFAULT_BINS)
+    model._distributions = (model.frames_, d)
+    return d
+
+
+def _pair(bins: Any) -> tuple[int, int]:
+    b = np.atleast_1d(bins)
+    return (int(b[0]), int(b[-1]))
+
+
+def _padded(roi: tuple[float, float, float, float], model: DPGP) -> tuple[float, float, float, float]:
+    """The ROI, widened to hold every training position (ψ must cover them all)."""
+    x0, x1, y0, y1 = model.frames_.bounds()
+    r = (min(roi[0], x0), max(roi[1], x1), min(roi[2], y0), max(roi[3], y1))
+    if r[0] == r[1] or r[2] == r[3]:
+        r = (r[0] - 0.5, r[1] + 0.5, r[2] - 0.5, r[3] + 0.5)
+    return r
+
+
+def pattern_positions(model: DPGP, k: int, psi: EmpiricalDistributions) -> EmpiricalDistributions:
+    """Pattern ``k``'s own position distribution (its frames' positions on ψ's grid), or ψ
+    itself when the pattern holds fewer than :data:`MIN_OWN_POSITIONS` positions."""
+    rows = np.repeat(model.labels_ == k, model.frames_.sizes)
+    if rows.sum() < MIN_OWN_POSITIONS:
+        return psi
+    frames = model.frames_[np.flatnonzero(model.labels_ == k)]
+    return EmpiricalDistributions.from_frames(frames, roi=psi.roi, bins=psi.bins)
+
+
+def sample_scenarios(
+    model: DPGP,
+    n: int,
+    steps: int = 100,
+    pattern: int | None = None,
+    seed: int | None = None,
+    *,
+    dt: float | None = None,
+    method: str = "euler",
+    stochastic: bool = True,
+    roi: tuple[float, float, float, float] | None = None,
+    low_data_threshold: float | None = LOW_DATA_THRESHOLD,
+) -> Scenarios:
+    """Generate ``n`` scenarios; see :meth:`dpgp.DPGP.sample_scenarios`."""
+    model._check_fitted()
+    if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 0:
+        raise InvalidInputError(f"n must be a whole number >= 0, got {n!r}")
+    dt = default_dt(model) if dt is None else dt
+    steps, method, thr = _check(steps, method, dt, low_data_threshold)
+    if seed is not None and (isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0):
+        raise InvalidInputError(f"seed must be a whole number >= 0 or None, got {seed!r}")
+    rng = np.random.default_rng(seed)
+    if pattern is None:
+        patterns = rng.choice(model.n_patterns_, size=n, p=model.weights_).astype(np.int64)
+    else:
+        patterns = np.full(n, _check_pattern(model, pattern), dtype=np.int64)
+    psi = distributions(model)
+    counts = psi.sample_counts(n, rng)
+    own = {int(k): pattern_positions(model, int(k), psi) for k in np.unique(patterns)}
+    starts = [own[int(k)].sample_positions(int(c), rng) for k, c in zip(patterns, counts)]
+    # The rollout's first recorded velocities are the GP draw at the sampled positions.
+    seeds = [int(s) for s in rng.integers(0, 2**63, size=n, dtype=np.uint64)] if stochastic else None
+    sims = rollouts(
+        model,
+        patterns.tolist(),
+        starts,
+        steps=steps,
+        dt=float(dt),
+        method=method,
+        seeds=seeds,
+        roi=default_roi(model) if roi is None else roi,
+        low_data_threshold=thr,
+    )
+    return Scenarios(sims, patterns, counts)
+
+
+__all__ = ["Scenarios", "sample_scenarios", "distributions", "pattern_positions", "MIN_OWN_POSITIONS"]
