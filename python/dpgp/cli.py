@@ -1,52 +1,346 @@
-"""The ``dpgp`` command line."""
+"""The ``dpgp`` command line: fit a model to traffic data, inspect it, plot it, simulate frames
+and generate scenarios; ``dpgp demo`` runs all of it on built-in synthetic data.
+
+Errors print one line (``dpgp: error: ...``) and exit with status 1; bad arguments exit 2.
+"""
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import time
 from pathlib import Path
+from typing import Any
 
 from .exceptions import DpgpError
 
+_PRESETS = ("sumo", "highd", "ind", "interaction", "eth_ucy")
+_FORMATS = ("auto", "frames", "tracks", "ngsim", *_PRESETS)
+_PLOTS = ("weights", "trace", "field", "frames", "simulation", "animation")
 
-def _demo(args: argparse.Namespace) -> int:
+
+# --- input -------------------------------------------------------------------------------------
+def _sniff(path: str) -> str:
+    """Guess the input format from the file name and its header."""
+    lower = path.lower()
+    if lower.endswith((".xml", ".xml.gz")):
+        return "sumo"
+    import pandas as pd
+
+    if lower.endswith(".parquet"):
+        cols = list(pd.read_parquet(path).columns)
+    else:
+        try:
+            cols = list(pd.read_csv(path, sep=None, engine="python", nrows=5, encoding="utf-8-sig").columns)
+        except (pd.errors.ParserError, UnicodeDecodeError, pd.errors.EmptyDataError) as e:
+            raise ValueError(f"{path}: cannot read a header to detect the format ({e}); pass --format") from None
+    names = {str(c).strip().lower() for c in cols}
+    if {"vehicle_id", "frame_id", "local_x", "local_y"} <= names:
+        return "ngsim"
+    if "timestep_time" in names:
+        return "sumo"
+    track_ids = {"track", "track_id", "id", "trackid", "vehicle_id", "agent_id", "object_id", "ped_id", "trackid"}
+    frame_ids = {"frame", "frame_idx", "frame_id", "frameid", "frame_index"}
+    if names & frame_ids and not names & track_ids:
+        return "frames"
+    return "tracks"
+
+
+def load_frames(path: str, fmt: str = "auto", roi: Any = None, dt: float | None = None, units: str | None = None):
+    """Frames from a file: already framed (``frame, x, y, vx, vy``) or trajectories to frame."""
     import numpy as np
 
-    from . import gp
+    from . import make_frames, read_frames, read_ngsim, read_tracks
+    from .framing import FramingSummary
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(args.seed)
-    # A two-lane highway stretch: vehicles drift towards the right lane as y grows.
-    xy = np.column_stack([rng.uniform(0, 24, 300), rng.uniform(0, 200, 300)])
-    v = np.column_stack([np.where(xy[:, 0] < 12, 0.8, 0.0), 30 - 5 * (xy[:, 0] > 12)]) + rng.normal(0, 0.5, (300, 2))
-    p = gp.GPParams((6.0, 40.0), signal_var=tuple(v.var(axis=0)), noise_var=0.25, mean=tuple(v.mean(axis=0)))
-    print(f"log marginal likelihood of 300 synthetic vehicles: {gp.log_marginal_likelihood(xy, v, p):.2f}")
-    gx, gy = np.meshgrid(np.linspace(0, 24, 12), np.linspace(0, 200, 25))
-    q = np.column_stack([gx.ravel(), gy.ravel()])
-    mean, var = gp.posterior(xy, v, q, p)
-    import matplotlib
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"no such file: {path}")
+    fmt = _sniff(path) if fmt == "auto" else fmt
+    if fmt != "frames":
+        tracks = read_ngsim(path) if fmt == "ngsim" else read_tracks(path, preset=None if fmt == "tracks" else fmt)
+        return make_frames(tracks, roi=roi, dt=0.5 if dt is None else dt, units=units)
+    frames = read_frames(path)
+    if units is not None:
+        raise ValueError("--units applies to trajectories that are framed here, not to framed input")
+    if roi is not None:
+        x0, x1, y0, y1 = roi
+        keep = (frames.xy[:, 0] >= x0) & (frames.xy[:, 0] <= x1) & (frames.xy[:, 1] >= y0) & (frames.xy[:, 1] <= y1)
+        if not keep.any():
+            raise ValueError(f"no vehicle of {path} lies inside the ROI {tuple(roi)}")
+        fid = np.repeat(frames.ids, frames.sizes)[keep]
+        n_before = len(frames)
+        frames = type(frames).from_arrays(fid, *frames.xy[keep].T, *frames.v[keep].T)
+        dropped = n_before - len(frames)
+    if roi is not None or dt is not None:
+        # Record the time step and ROI so that simulations and plots of the model default to them.
+        frames.summary = FramingSummary(
+            dt=0.5 if dt is None else float(dt), max_gap=0.0, roi=None if roi is None else tuple(map(float, roi)),
+            units=None, velocity="columns", smoothing=None, n_rows=frames.n_points, n_tracks=0, n_segments=0,
+            n_gaps=0, n_gap_times=0, n_segments_between_grid_times=0, n_rows_between_grid_times=0,
+            n_single_sample_segments=0, n_unsmoothed_segments=0, n_resampled=frames.n_points, n_outside_roi=0,
+            n_points=frames.n_points, n_frames=len(frames), n_empty_frames=dropped if roi is not None else 0, n_scenes=1,
+        )  # fmt: skip
+    return frames
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(4, 8))
-    ax.scatter(xy[:, 0], xy[:, 1], s=4, c="0.6", label="observations")
-    ax.quiver(q[:, 0], q[:, 1], mean[:, 0], mean[:, 1], np.sqrt(var.sum(axis=1)), cmap="viridis")
-    ax.set(xlabel="x", ylabel="y", title="GP posterior mean velocity")
-    path = out / "gp_field.png"
-    fig.savefig(path, dpi=100, bbox_inches="tight")
-    print(f"wrote {path}")
+# --- commands ----------------------------------------------------------------------------------
+def _fit(args: argparse.Namespace) -> int:
+    from . import DPGP
+
+    frames = load_frames(args.data, args.format, args.roi, args.dt, args.units)
+    if args.max_frames is not None:
+        frames = frames[: args.max_frames]
+    print(f"{args.data}: {frames!r}")
+    model = DPGP(
+        iterations=args.iterations, assignment=args.assignment, seed=args.seed, alpha=args.alpha,
+        n_threads=args.threads, progress=args.progress,
+    )  # fmt: skip
+    t = time.perf_counter()
+    model.fit(frames)
+    print(f"fitted {model.n_patterns_} patterns in {time.perf_counter() - t:.1f} s ({model.n_iter_} sweeps, α = {model.alpha_:.3g})")
+    model.save(args.output)
+    print(f"wrote {args.output}")
     return 0
 
 
+def _info(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from . import DPGP
+    from .io import read_metadata
+    from .simulation import default_dt, default_roi
+
+    meta = read_metadata(args.model)
+    model = DPGP.load(args.model)
+    f = model.frames_
+    w = model.weights_
+    top = min(len(w), args.top)
+    lines = [
+        f"{args.model}: {meta['format']} format {meta['format_version']}, written by dpgp {meta.get('dpgp_version', '?')}",
+        f"training data: {len(f)} frames, {f.n_points} vehicle observations ({f.sizes.min()}-{f.sizes.max()} per frame)",
+        "ROI: x [{:g}, {:g}], y [{:g}, {:g}]; dt {:g} s".format(*default_roi(model), default_dt(model)),
+        f"patterns: {model.n_patterns_}; α = {model.alpha_:.4g}; log joint = {model.log_joint_:.6g}",
+        f"sweeps: {model.n_iter_}" + (" (stopped early: converged)" if model.converged_ else ""),
+        f"largest {top} patterns (frames, weight, length scales w_x, w_y):",
+    ]
+    counts = np.bincount(model.labels_, minlength=model.n_patterns_)
+    for k in range(top):
+        wx, wy = model.length_scales_[k]
+        lines.append(f"  {k:>4}: {counts[k]:>6} frames  {w[k]:.3f}  ({wx:.3g}, {wy:.3g})")
+    if model.n_patterns_ > top:
+        lines.append(f"  ... and {model.n_patterns_ - top} more")
+    p = model.params_
+    lines.append(
+        f"GP: signal variance ({p.signal_var[0]:.4g}, {p.signal_var[1]:.4g}), noise variance {p.noise_var:.4g}, "
+        f"mean ({p.mean[0]:.4g}, {p.mean[1]:.4g})"
+    )
+    settings = {k: v for k, v in model.get_params().items() if k not in ("progress",)}
+    lines.append("settings: " + ", ".join(f"{k}={v!r}" for k, v in settings.items()))
+    print("\n".join(lines))
+    return 0
+
+
+def write_figures(model, out: Path, kinds: list[str], n_patterns: int, frame: int | None, steps: int, dpi: int) -> list[Path]:
+    """Write the chosen figures of ``model`` into ``out``; returns the paths written."""
+    import numpy as np
+
+    from . import plot
+
+    out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+
+    def save(fig, name: str) -> None:
+        path = out / name
+        fig.savefig(path, dpi=dpi)
+        written.append(path)
+
+    if frame is None:
+        frame = int(np.flatnonzero(model.labels_ == 0)[0])  # a frame of the largest pattern
+    ks = range(min(n_patterns, model.n_patterns_))
+    if "weights" in kinds:
+        save(plot.weights(model).figure, "weights.png")
+    if "trace" in kinds:
+        save(plot.trace(model), "trace.png")
+    for k in ks:
+        if "field" in kinds:
+            save(plot.velocity_field(model, k).figure, f"field_{k}.png")
+        if "frames" in kinds:
+            save(plot.frames(model, k).figure, f"frames_{k}.png")
+    if "simulation" in kinds or "animation" in kinds:
+        sim = model.simulate(frame, steps=steps)
+        if "simulation" in kinds:
+            save(plot.simulation(model, frame, result=sim).figure, "simulation.png")
+        if "animation" in kinds:
+            path = out / "simulation.gif"
+            plot.animate(sim, path, model=model)
+            written.append(path)
+    return written
+
+
+def _plot(args: argparse.Namespace) -> int:
+    from . import DPGP
+
+    model = DPGP.load(args.model)
+    kinds = list(_PLOTS) if "all" in args.kind else args.kind
+    for path in write_figures(model, Path(args.out), kinds, args.patterns, args.frame, args.steps, args.dpi):
+        print(f"wrote {path}")
+    return 0
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from . import DPGP
+
+    model = DPGP.load(args.model)
+    sim = model.simulate(
+        args.frame, pattern=args.pattern, steps=args.steps, dt=args.dt, method=args.method,
+        stochastic=args.stochastic, seed=args.seed,
+    )  # fmt: skip
+    sim.to_pandas().to_csv(args.output, index=False, float_format="%.17g")
+    print(sim)
+    print(f"wrote {args.output}")
+    return 0
+
+
+def _generate(args: argparse.Namespace) -> int:
+    from . import DPGP
+
+    model = DPGP.load(args.model)
+    scen = model.sample_scenarios(
+        args.n, steps=args.steps, pattern=args.pattern, seed=args.seed, dt=args.dt, method=args.method,
+        stochastic=not args.mean,
+    )  # fmt: skip
+    scen.save(args.output, format=args.format)
+    print(scen)
+    print(f"wrote {args.output}")
+    return 0
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from . import DPGP, adjusted_rand_index, datasets
+
+    t0 = time.perf_counter()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    frames = datasets.synthetic("intersection", n_frames=args.frames, seed=args.seed)
+    truth = len(datasets.patterns("intersection"))
+    print(f"synthetic four-way intersection: {frames!r}, {truth} true motion patterns")
+    model = DPGP(iterations=args.iterations, seed=args.seed, progress=args.progress).fit(frames)
+    ari = adjusted_rand_index(frames.labels, model.labels_)
+    print(f"found {model.n_patterns_} patterns (true: {truth}); adjusted Rand index against the truth {ari:.3f}")
+    model.save(out / "model.npz")
+    print(f"wrote {out / 'model.npz'}")
+    for path in write_figures(model, out, list(_PLOTS), model.n_patterns_, None, args.steps, 100):
+        print(f"wrote {path}")
+    print(f"done in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+# --- parser ------------------------------------------------------------------------------------
+class _Help(argparse.ArgumentDefaultsHelpFormatter):
+    """Show a default only where it says something (not None, not already in the text)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        quiet = action.default is None or action.default is False or action.default == argparse.SUPPRESS
+        if "default" in text or quiet or action.required:
+            return text
+        return super()._get_help_string(action) or text
+
+
+def _roi(text: str) -> float:
+    return float(text)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="dpgp", description="Learn motion patterns from traffic data.")
-    sub = parser.add_subparsers(dest="command", required=True)
-    demo = sub.add_parser("demo", help="run on built-in synthetic data and write figures")
-    demo.add_argument("--out", default="dpgp-demo", help="directory for the figures (default: ./dpgp-demo)")
-    demo.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
-    demo.set_defaults(func=_demo)
+    parser = argparse.ArgumentParser(
+        prog="dpgp",
+        description="Learn multi-vehicle motion patterns from traffic data (a Dirichlet-process mixture of "
+        "Gaussian-process velocity fields) and use them: simulate frames, generate scenarios.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    fmt = _Help
+
+    p = sub.add_parser("fit", help="fit a model to traffic data and save it", formatter_class=fmt,
+                       description="Fit a DP-GP model to framed data (frame, x, y, vx, vy) or to trajectories, "
+                       "which are framed first (resampled to --dt, cropped to --roi).")  # fmt: skip
+    p.add_argument("data", help="CSV/TSV/Parquet table or SUMO FCD XML")
+    p.add_argument("-o", "--output", required=True, help="model file to write (.npz)")
+    p.add_argument("--format", choices=_FORMATS, default="auto",
+                   help="input kind: 'frames' (already framed), 'tracks' (any trajectory table), 'ngsim', or a "
+                   "read_tracks preset; 'auto' decides from the file name and header")  # fmt: skip
+    p.add_argument("--roi", nargs=4, type=_roi, metavar=("X_MIN", "X_MAX", "Y_MIN", "Y_MAX"),
+                   help="region of interest; vehicles outside it are dropped (default: keep all)")  # fmt: skip
+    p.add_argument("--dt", type=float, help="time step in seconds between frames (default 0.5 for trajectories)")
+    p.add_argument("--units", help="convert trajectory units, e.g. 'ft->m' for NGSIM (default: keep)")
+    p.add_argument("--iterations", type=int, default=100, help="Gibbs sweeps after the initialisation")
+    p.add_argument("--assignment", choices=("gibbs", "map"), default="gibbs",
+                   help="'gibbs' samples each frame's pattern; 'map' takes the most probable (the paper's)")  # fmt: skip
+    p.add_argument("--alpha", type=float, help="fix the DP concentration (default: sampled)")
+    p.add_argument("--max-frames", type=int, help="use only the first N frames")
+    p.add_argument("--threads", type=int, help="worker threads (default: all cores)")
+    p.add_argument("--seed", type=int, default=0, help="random seed; a fit is a function of data, settings and seed")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True, help="show a progress bar")
+    p.set_defaults(func=_fit)
+
+    p = sub.add_parser("info", help="summarise a model file", formatter_class=fmt,
+                       description="Print what a model file holds: data, patterns, weights, settings.")  # fmt: skip
+    p.add_argument("model", help="model file written by 'dpgp fit'")
+    p.add_argument("--top", type=int, default=10, help="list this many of the largest patterns")
+    p.set_defaults(func=_info)
+
+    p = sub.add_parser("plot", help="write a model's figures as PNG (and a GIF)", formatter_class=fmt,
+                       description="Write figures: mixture weights, Gibbs trace, velocity fields and observed "
+                       "frames of the largest patterns, a simulated frame and its animation.")  # fmt: skip
+    p.add_argument("model", help="model file written by 'dpgp fit'")
+    p.add_argument("--out", required=True, help="directory for the figures (created if needed)")
+    p.add_argument("--kind", nargs="+", choices=(*_PLOTS, "all"), default=["all"], help="which figures")
+    p.add_argument("--patterns", type=int, default=3, help="field and frames figures for this many largest patterns")
+    p.add_argument("--frame", type=int, help="training frame to simulate (default: one of the largest pattern)")
+    p.add_argument("--steps", type=int, default=40, help="steps of the simulation")
+    p.add_argument("--dpi", type=int, default=100, help="resolution of the PNG files")
+    p.set_defaults(func=_plot)
+
+    p = sub.add_parser("simulate", help="roll a frame's vehicles forward and write the trajectories", formatter_class=fmt,
+                       description="Move the vehicles of a training frame through a pattern's velocity field; "
+                       "write one row per step and vehicle (step, t, vehicle, x, y, vx, vy, in_roi, low_data).")  # fmt: skip
+    p.add_argument("model", help="model file written by 'dpgp fit'")
+    p.add_argument("--frame", type=int, required=True, help="index of the training frame (0-based)")
+    p.add_argument("-o", "--output", required=True, help="CSV file to write")
+    p.add_argument("--pattern", type=int, help="pattern to follow (default: the frame's own)")
+    p.add_argument("--steps", type=int, default=100, help="number of time steps")
+    p.add_argument("--dt", type=float, help="time step in seconds (default: the training frames', else 0.5)")
+    p.add_argument("--method", choices=("euler", "rk4"), default="euler", help="integration scheme")
+    p.add_argument("--stochastic", action="store_true", help="draw velocities from the posterior at every step")
+    p.add_argument("--seed", type=int, help="seed of the stochastic draws (default: random)")
+    p.set_defaults(func=_simulate)
+
+    p = sub.add_parser("generate", help="generate new scenarios and write them as CSV or SUMO FCD", formatter_class=fmt,
+                       description="Draw scenarios: a pattern by weight, a vehicle count from the data's count "
+                       "distribution, positions from the pattern's data, velocities from its GP, then a rollout.")  # fmt: skip
+    p.add_argument("model", help="model file written by 'dpgp fit'")
+    p.add_argument("-n", type=int, required=True, help="number of scenarios")
+    p.add_argument("-o", "--output", required=True, help="file to write")
+    p.add_argument("--format", choices=("csv", "sumo"),
+                   help="'csv' (scenario, vehicle, t, x, y, vx, vy) or 'sumo' (FCD XML); default from the extension")  # fmt: skip
+    p.add_argument("--steps", type=int, default=100, help="number of time steps per scenario")
+    p.add_argument("--pattern", type=int, help="draw every scenario from this pattern (default: by weight)")
+    p.add_argument("--dt", type=float, help="time step in seconds (default: the training frames', else 0.5)")
+    p.add_argument("--method", choices=("euler", "rk4"), default="euler", help="integration scheme")
+    p.add_argument("--mean", action="store_true", help="follow the posterior mean instead of drawing velocities")
+    p.add_argument("--seed", type=int, help="random seed (default: random)")
+    p.set_defaults(func=_generate)
+
+    p = sub.add_parser("demo", help="fit built-in synthetic data and write every figure", formatter_class=fmt,
+                       description="Fit the synthetic four-way intersection (dpgp.datasets.synthetic) and write the "
+                       "model, the paper's figures as PNG and an animated simulation as GIF into --out.")  # fmt: skip
+    p.add_argument("--out", default="dpgp-demo", help="output directory")
+    p.add_argument("--frames", type=int, default=120, help="number of synthetic frames")
+    p.add_argument("--iterations", type=int, default=10, help="Gibbs sweeps")
+    p.add_argument("--steps", type=int, default=40, help="steps of the simulated frame")
+    p.add_argument("--seed", type=int, default=0, help="seed of the data and the fit")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True, help="show a progress bar")
+    p.set_defaults(func=_demo)
     return parser
 
 
@@ -54,9 +348,13 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args))
-    except (DpgpError, OSError) as e:
-        print(f"dpgp: error: {e}", file=sys.stderr)
+    except (DpgpError, OSError, ValueError) as e:
+        msg = " ".join(str(e).split()) or type(e).__name__
+        print(f"dpgp: error: {msg}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print("dpgp: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

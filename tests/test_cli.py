@@ -1,0 +1,166 @@
+"""The ``dpgp`` command: every subcommand end to end in a temporary directory, --help for each,
+and errors as one line with a non-zero exit status (no traceback)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import dpgp
+from dpgp.cli import main
+
+COMMANDS = ("fit", "info", "plot", "simulate", "generate", "demo")
+
+
+@pytest.fixture(scope="module")
+def model_file(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cli")
+    data = d / "frames.csv"
+    dpgp.datasets.synthetic("intersection", n_frames=36, seed=8).to_pandas().to_csv(data, index=False)
+    out = d / "model.npz"
+    assert main(["fit", str(data), "-o", str(out), "--iterations", "2", "--seed", "3", "--no-progress"]) == 0
+    return out
+
+
+def _tracks(path) -> None:
+    """Twelve vehicles on straight lines for 20 s at 10 Hz: northbound fast, eastbound slow."""
+    rows = []
+    t = np.arange(0, 20, 0.1)
+    for v in range(12):
+        start = v * 1.5
+        if v % 2:
+            x, y = np.full_like(t, 3.0), -50 + 8.0 * (t - start)
+        else:
+            x, y = -50 + 4.0 * (t - start), np.full_like(t, -3.0)
+        keep = t >= start
+        rows.append(pd.DataFrame({"track": v, "t": t[keep], "x": x[keep], "y": y[keep]}))
+    pd.concat(rows).to_csv(path, index=False)
+
+
+def test_fit_writes_a_model(model_file, capsys):
+    model = dpgp.DPGP.load(model_file)
+    assert len(model.frames_) == 36 and model.n_iter_ == 2 and model.seed == 3 and not model.progress
+
+
+def test_fit_frames_raw_tracks_with_roi_and_dt(tmp_path, capsys):
+    _tracks(tmp_path / "tracks.csv")
+    out = tmp_path / "m.npz"
+    code = main(["fit", str(tmp_path / "tracks.csv"), "-o", str(out), "--roi", "-50", "50", "-50", "50", "--dt", "1.0",
+                 "--iterations", "1", "--assignment", "map", "--no-progress"])  # fmt: skip
+    assert code == 0
+    model = dpgp.DPGP.load(out)
+    assert model.frames_.summary.dt == 1.0 and model.frames_.summary.roi == (-50.0, 50.0, -50.0, 50.0)
+    assert model.assignment == "map"
+    np.testing.assert_allclose(np.diff(np.unique(model.frames_.ids)), 1.0)  # frames every --dt seconds
+    assert model.frames_.xy.min() >= -50 and model.frames_.xy.max() <= 50
+    assert "fitted" in capsys.readouterr().out
+
+
+def test_fit_framed_input_with_roi_and_dt(tmp_path):
+    data = tmp_path / "frames.csv"
+    dpgp.datasets.synthetic("highway", n_frames=20, seed=1).to_pandas().to_csv(data, index=False)
+    out = tmp_path / "m.npz"
+    assert main(["fit", str(data), "-o", str(out), "--format", "frames", "--roi", "0", "16", "0", "100", "--dt", "0.1",
+                 "--iterations", "1", "--no-progress"]) == 0  # fmt: skip
+    model = dpgp.DPGP.load(out)
+    assert model.frames_.xy[:, 1].max() <= 100 and model.frames_.summary.dt == 0.1
+    assert model.simulate(0, steps=2).dt == pytest.approx(0.1)
+
+
+def test_info(model_file, capsys):
+    assert main(["info", str(model_file), "--top", "2"]) == 0
+    out = capsys.readouterr().out
+    model = dpgp.DPGP.load(model_file)
+    assert "dpgp-model format 1" in out and "36 frames" in out
+    assert f"patterns: {model.n_patterns_}" in out and "settings:" in out
+
+
+def test_plot(model_file, tmp_path, capsys):
+    out = tmp_path / "figs"
+    assert main(["plot", str(model_file), "--out", str(out), "--kind", "weights", "field", "animation",
+                 "--patterns", "2", "--steps", "5", "--dpi", "40"]) == 0  # fmt: skip
+    written = sorted(p.name for p in out.iterdir())
+    assert written == ["field_0.png", "field_1.png", "simulation.gif", "weights.png"]
+    assert all((out / n).stat().st_size > 1000 for n in written)
+    assert capsys.readouterr().out.count("wrote") == 4
+
+
+def test_simulate(model_file, tmp_path, capsys):
+    out = tmp_path / "sim.csv"
+    assert main(["simulate", str(model_file), "--frame", "4", "-o", str(out), "--steps", "6", "--method", "rk4"]) == 0
+    df = pd.read_csv(out)
+    model = dpgp.DPGP.load(model_file)
+    sim = model.simulate(4, steps=6, method="rk4")
+    assert len(df) == 7 * len(model.frames_[4])
+    np.testing.assert_array_equal(df["x"].to_numpy().reshape(7, -1), sim.positions[..., 0])
+    out2 = tmp_path / "sim2.csv"
+    assert main(["simulate", str(model_file), "--frame", "4", "-o", str(out2), "--steps", "3", "--stochastic", "--seed", "1"]) == 0
+    assert pd.read_csv(out2)["low_data"].dtype == bool
+
+
+def test_generate_csv_and_sumo(model_file, tmp_path):
+    csv = tmp_path / "scen.csv"
+    assert main(["generate", str(model_file), "-n", "3", "-o", str(csv), "--steps", "5", "--seed", "2"]) == 0
+    df = pd.read_csv(csv)
+    assert list(df.columns) == ["scenario", "vehicle", "t", "x", "y", "vx", "vy"]
+    assert set(df["scenario"]) <= {0, 1, 2} and len(df) > 0
+    xml = tmp_path / "scen.out"
+    assert main(["generate", str(model_file), "-n", "3", "-o", str(xml), "--format", "sumo", "--steps", "5",
+                 "--seed", "2", "--pattern", "0"]) == 0  # fmt: skip
+    tracks = dpgp.read_tracks(xml, preset="sumo")
+    assert tracks["id"].str.match(r"s\d+_v\d+").all()
+    # a generated SUMO file is valid input for a new fit
+    assert main(["fit", str(xml), "-o", str(tmp_path / "again.npz"), "--format", "sumo", "--iterations", "1", "--no-progress"]) == 0
+
+
+def test_demo(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--frames", "24", "--iterations", "2", "--steps", "6", "--no-progress"]) == 0
+    names = {p.name for p in out.iterdir()}
+    assert {"model.npz", "weights.png", "trace.png", "simulation.png", "simulation.gif", "field_0.png", "frames_0.png"} <= names
+    printed = capsys.readouterr().out
+    assert all(f"wrote {out / n}" in printed for n in names)
+    assert "true: 4" in printed
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_help(command, capsys):
+    with pytest.raises(SystemExit) as e:
+        main([command, "--help"])
+    assert e.value.code == 0
+    text = capsys.readouterr().out
+    assert text.startswith(f"usage: dpgp {command}")
+    expected = {"fit": "--iterations", "info": "--top", "plot": "--kind", "simulate": "--frame",
+                "generate": "--format", "demo": "--frames"}  # fmt: skip
+    assert expected[command] in text
+
+
+def _error(capsys, argv) -> str:
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("dpgp: error: ") and err.count("\n") == 1 and "Traceback" not in err
+    return err
+
+
+def test_errors_are_one_line(model_file, tmp_path, capsys):
+    assert "no such file" in _error(capsys, ["fit", str(tmp_path / "missing.csv"), "-o", str(tmp_path / "m.npz")])
+    bad = tmp_path / "bad.csv"
+    bad.write_text("a,b\n1,2\n")
+    _error(capsys, ["fit", str(bad), "-o", str(tmp_path / "m.npz"), "--format", "frames", "--no-progress"])
+    (tmp_path / "broken.npz").write_bytes(model_file.read_bytes()[:500])
+    assert "truncated or corrupted" in _error(capsys, ["info", str(tmp_path / "broken.npz")])
+    assert "out of range" in _error(capsys, ["simulate", str(model_file), "--frame", "999", "-o", str(tmp_path / "s.csv")])
+    _error(capsys, ["generate", str(model_file), "-n", "-2", "-o", str(tmp_path / "g.csv")])
+    _error(capsys, ["simulate", str(model_file), "--frame", "0", "-o", str(tmp_path / "no" / "dir" / "s.csv")])
+    assert not (tmp_path / "m.npz").exists()
+
+
+def test_console_entry_point_reports_errors_without_traceback(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "dpgp.cli", "info", str(tmp_path / "nope.npz")], capture_output=True, text=True)
+    assert r.returncode == 1 and r.stderr.startswith("dpgp: error:") and "Traceback" not in r.stderr
+    r = subprocess.run([sys.executable, "-m", "dpgp.cli", "frobnicate"], capture_output=True, text=True)
+    assert r.returncode == 2 and "invalid choice" in r.stderr
