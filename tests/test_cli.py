@@ -50,9 +50,10 @@ def test_fit_frames_raw_tracks_with_roi_and_dt(tmp_path, capsys):
     _tracks(tmp_path / "tracks.csv")
     out = tmp_path / "m.npz"
     code = main(["fit", str(tmp_path / "tracks.csv"), "-o", str(out), "--roi", "-50", "50", "-50", "50", "--dt", "1.0",
-                 "--iterations", "1", "--assignment", "map", "--no-progress"])  # fmt: skip
+                 "--iterations", "1", "--assignment", "map", "--max-frames", "15", "--no-progress"])  # fmt: skip
     assert code == 0
     model = dpgp.DPGP.load(out)
+    assert len(model.frames_) == 15
     assert model.frames_.summary.dt == 1.0 and model.frames_.summary.roi == (-50.0, 50.0, -50.0, 50.0)
     assert model.assignment == "map"
     np.testing.assert_allclose(np.diff(np.unique(model.frames_.ids)), 1.0)  # frames every --dt seconds

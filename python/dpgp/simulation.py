@@ -7,6 +7,16 @@ core. A vehicle that leaves the region of interest stops there. Steps where a ve
 the pattern has little data — its posterior variance above ``low_data_threshold`` times the prior
 variance, in either output — are flagged, because the field there is mostly the prior (the paper
 notes that extrapolated fields give unreasonable trajectories).
+
+In stochastic mode the draw at a step's start positions is held over the step: Euler moves with
+it; RK4 adds its deviation from the mean to every stage (so RK4 integrates the mean field
+accurately and the noise enters as in Euler-Maruyama). Draws at successive steps are
+independent given the positions; they are joint across the vehicles of one step.
+
+Cost: following the mean is ``n m`` per step for a pattern of ``n`` observations and ``m``
+moving vehicles. The low-data flags and the stochastic draws need the posterior covariance,
+``n² m`` per step; pass ``low_data_threshold=None`` for fast deterministic rollouts of large
+patterns.
 """
 
 from __future__ import annotations
