@@ -265,6 +265,13 @@ impl Field for PatternField<'_> {
             }
         }
         if let Some(seed) = self.seed {
+            // A floor of 1e-10 of the prior variance on the diagonal: the exact posterior is PSD,
+            // but with rounding a variance near a dense cluster of data can come out ≤ 0.
+            for (d, c) in cov.iter_mut().enumerate() {
+                for j in 0..m {
+                    c[j * m + j] += 1e-10 * s2[d];
+                }
+            }
             let mut rng = stream(seed, step as u64, Phase::Simulate, 0);
             let shared = cov[0] == cov[1];
             for d in 0..2 {
