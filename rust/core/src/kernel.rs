@@ -8,7 +8,7 @@
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
-use crate::vexp::exp_nonpos_in_place;
+use crate::vexp::exp_nonpos;
 
 /// A position in the plane.
 pub type Point = [f64; 2];
@@ -43,18 +43,34 @@ impl LengthScales {
 }
 
 /// Fill one column: `col[i] = scale * r(a[i], q)`.
-#[inline]
-fn fill_column(a: &[Point], q: Point, ls: LengthScales, scale: f64, col: &mut [f64]) {
-    let (ix, iy) = ls.inv2();
+#[inline(always)]
+fn fill_column_generic(a: &[Point], q: Point, ix: f64, iy: f64, scale: f64, col: &mut [f64]) {
     for (c, p) in col.iter_mut().zip(a) {
         let dx = p[0] - q[0];
         let dy = p[1] - q[1];
-        *c = -(dx * dx).mul_add(ix, dy * dy * iy);
+        *c = scale * exp_nonpos(-(dx * dx * ix + dy * dy * iy));
     }
-    exp_nonpos_in_place(col);
-    if scale != 1.0 {
-        col.iter_mut().for_each(|c| *c *= scale);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn fill_column_avx2(a: &[Point], q: Point, ix: f64, iy: f64, scale: f64, col: &mut [f64]) {
+    fill_column_generic(a, q, ix, iy, scale, col)
+}
+
+/// Fill one column: `col[i] = scale * r(a[i], q)`, vectorised where the CPU allows.
+#[inline]
+fn fill_column(a: &[Point], q: Point, ls: LengthScales, scale: f64, col: &mut [f64]) {
+    let (ix, iy) = ls.inv2();
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+            // SAFETY: the required CPU features were detected at run time.
+            unsafe { fill_column_avx2(a, q, ix, iy, scale, col) };
+            return;
+        }
     }
+    fill_column_generic(a, q, ix, iy, scale, col)
 }
 
 /// `scale * R(a, b)` as a column-major `a.len() x b.len()` buffer.

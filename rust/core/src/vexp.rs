@@ -12,8 +12,9 @@ const LN2_LO: f64 = 1.908_214_929_270_587_7e-10;
 const SHIFTER: f64 = 6_755_399_441_055_744.0;
 const MIN_ARG: f64 = -708.0;
 
+/// `exp(x)` for `x <= 0`; inline into loops compiled with AVX2+FMA so that they vectorise.
 #[inline(always)]
-fn exp_nonpos(x: f64) -> f64 {
+pub(crate) fn exp_nonpos(x: f64) -> f64 {
     let xc = if x < MIN_ARG { MIN_ARG } else { x };
     let t = xc.mul_add(LOG2E, SHIFTER);
     let k = t - SHIFTER;

@@ -173,6 +173,7 @@ impl PySampler {
     fn timings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let t = self.lock().timings;
         let d = PyDict::new(py);
+        d.set_item("refresh", t.refresh)?;
         d.set_item("scoring", t.scoring)?;
         d.set_item("moves", t.moves)?;
         d.set_item("new_pattern", t.new_pattern)?;
