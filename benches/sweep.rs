@@ -74,6 +74,7 @@ fn bench(c: &mut Criterion) {
         length_scale_prior: (10.0, 1.0),
         alpha: None,
         new_pattern_samples: 100,
+        length_scale_fraction: 1.0,
         seed: 0,
     };
     let mut sampler = Sampler::new(data, settings).unwrap();

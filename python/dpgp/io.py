@@ -238,22 +238,9 @@ def _build(cls: type[DPGP], meta: dict[str, Any], arrays: dict[str, np.ndarray])
         raise ModelFileError("labels do not name exactly the patterns the file holds")
     p = meta["params"]
     model.params_ = GPParams(tuple(p["length_scales"]), tuple(p["signal_var"]), p["noise_var"], tuple(p["mean"]))
-    a, b = (float(v) for v in model.length_scale_prior)
-    # The same constructor call as DPGP.fit; set_state then factors every pattern in the
-    # canonical order fit ends with, so every later computation is bitwise the same.
-    model._sampler = _core.Sampler(
-        frames.xy,
-        frames.v,
-        frames.offsets,
-        model.assignment,
-        model.params_.as_tuple(),
-        model.length_scales is not None,
-        (a, b),
-        None if model.alpha is None else float(model.alpha),
-        int(model.new_pattern_samples),
-        int(model.seed) & 0xFFFF_FFFF_FFFF_FFFF,
-        model.n_threads,
-    )
+    # The sampler fit builds; set_state then factors every pattern in the canonical order fit
+    # ends with, so every later computation is bitwise the same.
+    model._sampler = model._new_sampler(frames)
     model.frames_ = frames
     model._sampler.set_state(labels, ls, float(meta["alpha"]))
     model._sync()

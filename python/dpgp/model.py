@@ -36,6 +36,10 @@ class DPGP:
         of the training velocities.
     alpha : DP concentration; ``None`` samples it (starting from a draw of its prior).
     new_pattern_samples : auxiliary patterns of Neal's Algorithm 8 for the new-pattern term.
+    length_scale_fraction : share of the patterns whose length scales are slice-sampled each
+        sweep, drawn at random per pattern and sweep (1.0: all, every sweep). Lower values keep
+        the cached scores of the others and make sweeps much cheaper; the chain still targets
+        the same posterior.
     seed : the run is a function of (data, settings, seed), whatever ``n_threads``.
     n_threads : worker threads (``None``: all cores).
     progress : show a progress bar.
@@ -56,6 +60,7 @@ class DPGP:
         mean: float | tuple[float, float] | None = None,
         alpha: float | None = None,
         new_pattern_samples: int = 100,
+        length_scale_fraction: float = 1.0,
         seed: int = 0,
         n_threads: int | None = None,
         progress: bool = True,
@@ -73,6 +78,7 @@ class DPGP:
         self.mean = mean
         self.alpha = alpha
         self.new_pattern_samples = new_pattern_samples
+        self.length_scale_fraction = length_scale_fraction
         self.seed = seed
         self.n_threads = n_threads
         self.progress = progress
@@ -129,19 +135,7 @@ class DPGP:
         a, b = _pair("length_scale_prior", self.length_scale_prior)
         ls0 = (a * b, a * b) if self.length_scales is None else _pair("length_scales", self.length_scales)
         self.params_ = GPParams(ls0, tuple(signal_var), self.noise_var, tuple(mean))
-        self._sampler = _core.Sampler(
-            frames.xy,
-            frames.v,
-            frames.offsets,
-            self.assignment,
-            self.params_.as_tuple(),
-            self.length_scales is not None,
-            (a, b),
-            None if self.alpha is None else float(self.alpha),
-            int(self.new_pattern_samples),
-            int(self.seed) & 0xFFFF_FFFF_FFFF_FFFF,
-            self.n_threads,
-        )
+        self._sampler = self._new_sampler(frames)
         self.frames_ = frames
         self.history_: dict[str, list] = {k: [] for k in ("n_patterns", "alpha", "log_joint", "moves", "ari", "seconds")}
         traces: list[np.ndarray] = []
@@ -189,6 +183,25 @@ class DPGP:
         self._sampler.set_state(self.labels_, self.length_scales_, self.alpha_)
         self._sync()
         return self
+
+    def _new_sampler(self, frames: Frames) -> _core.Sampler:
+        """A core sampler over ``frames`` with this model's settings and ``params_``; shared by
+        ``fit`` and by loading a model file, so that both compute identically."""
+        a, b = _pair("length_scale_prior", self.length_scale_prior)
+        return _core.Sampler(
+            frames.xy,
+            frames.v,
+            frames.offsets,
+            self.assignment,
+            self.params_.as_tuple(),
+            self.length_scales is not None,
+            (a, b),
+            None if self.alpha is None else float(self.alpha),
+            int(self.new_pattern_samples),
+            int(self.seed) & 0xFFFF_FFFF_FFFF_FFFF,
+            self.n_threads,
+            float(self.length_scale_fraction),
+        )
 
     def _sync(self) -> None:
         """Read the sampler's state into the public attributes, patterns by decreasing size."""

@@ -54,6 +54,10 @@ pub struct Settings {
     pub alpha: Option<f64>,
     /// Auxiliary patterns of Algorithm 8.
     pub new_pattern_samples: usize,
+    /// Share of the patterns whose length scales are resampled each sweep (chosen at random per
+    /// pattern and sweep). Below 1 the score cache of the others survives the sweep; every
+    /// pattern is still updated infinitely often, so the chain keeps the same posterior.
+    pub length_scale_fraction: f64,
     pub seed: u64,
 }
 
@@ -69,6 +73,12 @@ impl Settings {
             if !(al.is_finite() && al > 0.0) {
                 return Err(Error::InvalidInput(format!("alpha must be a positive number, got {al}")));
             }
+        }
+        if !(self.length_scale_fraction > 0.0 && self.length_scale_fraction <= 1.0) {
+            return Err(Error::InvalidInput(format!(
+                "length_scale_fraction must be in (0, 1], got {}",
+                self.length_scale_fraction
+            )));
         }
         if self.new_pattern_samples == 0 {
             return Err(Error::InvalidInput("new_pattern_samples must be at least 1".into()));
@@ -522,6 +532,9 @@ impl Sampler {
             .map(|&(k, id)| {
                 let mut rng = stream(self.settings.seed, sweep, Phase::LengthScales, id);
                 let mut current = self.slots[k].as_ref().expect("live").pattern.clone();
+                if self.settings.length_scale_fraction < 1.0 && rng.random::<f64>() >= self.settings.length_scale_fraction {
+                    return Ok(current);
+                }
                 let mut f0 = self.ls_log_target(&current);
                 for axis in 0..2 {
                     let ls = current.length_scales();
@@ -710,6 +723,7 @@ mod tests {
             length_scale_prior: (10.0, 1.0),
             alpha: None,
             new_pattern_samples: 10,
+            length_scale_fraction: 1.0,
             seed,
         }
     }

@@ -92,7 +92,7 @@ impl PySampler {
 impl PySampler {
     #[new]
     #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (xy, v, offsets, assignment, params_, fixed_length_scales, length_scale_prior, alpha, new_pattern_samples, seed, n_threads))]
+    #[pyo3(signature = (xy, v, offsets, assignment, params_, fixed_length_scales, length_scale_prior, alpha, new_pattern_samples, seed, n_threads, length_scale_fraction=1.0))]
     fn new(
         py: Python<'_>,
         xy: PyReadonlyArray2<'_, f64>,
@@ -106,6 +106,7 @@ impl PySampler {
         new_pattern_samples: usize,
         seed: u64,
         n_threads: Option<usize>,
+        length_scale_fraction: f64,
     ) -> PyResult<Self> {
         let assignment = match assignment {
             "gibbs" => Assignment::Gibbs,
@@ -127,6 +128,7 @@ impl PySampler {
             length_scale_prior,
             alpha,
             new_pattern_samples,
+            length_scale_fraction,
             seed,
         };
         let sampler = py.detach(|| Sampler::new(data, settings)).map_err(CoreError)?;
