@@ -42,7 +42,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from . import _core
 from .exceptions import DpgpError, ModelFileError
 
 if TYPE_CHECKING:
