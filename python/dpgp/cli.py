@@ -337,8 +337,8 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Fit the synthetic four-way intersection (dpgp.datasets.synthetic) and write the "
                        "model, the paper's figures as PNG and an animated simulation as GIF into --out.")  # fmt: skip
     p.add_argument("--out", default="dpgp-demo", help="output directory")
-    p.add_argument("--frames", type=int, default=120, help="number of synthetic frames")
-    p.add_argument("--iterations", type=int, default=10, help="Gibbs sweeps")
+    p.add_argument("--frames", type=int, default=200, help="number of synthetic frames")
+    p.add_argument("--iterations", type=int, default=15, help="Gibbs sweeps")
     p.add_argument("--steps", type=int, default=40, help="steps of the simulated frame")
     p.add_argument("--seed", type=int, default=0, help="seed of the data and the fit")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True, help="show a progress bar")
