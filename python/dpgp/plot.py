@@ -195,6 +195,10 @@ def trace(model: DPGP) -> Figure:
     for ax, key, label in zip(axes, ("n_patterns", "alpha", "log_joint"), ("K", "α", "log joint")):
         ax.plot(sweeps, h.get(key, []), "-", marker="." if len(sweeps) < 60 else None)
         ax.set_ylabel(label)
+    from matplotlib.ticker import MaxNLocator
+
+    axes[0].yaxis.set_major_locator(MaxNLocator(integer=True))
+    axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
     axes[-1].set_xlabel("sweep")
     axes[0].set_title("Gibbs trace")
     return fig
