@@ -30,16 +30,17 @@ def _quivers(ax: Axes) -> list[Quiver]:
 
 def _drawn(fig: Figure, dpi: int = 50) -> np.ndarray:
     buf = io.BytesIO()
-    fig.savefig(buf, format="rgba", dpi=dpi)
-    w, h = (fig.get_size_inches() * dpi).round().astype(int)
-    return np.frombuffer(buf.getvalue(), np.uint8).reshape(h, w, 4)
+    fig.savefig(buf, format="png", dpi=dpi)
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(buf.getvalue())).convert("RGBA"))
 
 
 def _not_blank(fig: Figure) -> None:
+    assert fig.canvas.manager is None, "no pyplot/GUI figure manager"
     img = _drawn(fig)
     assert img.shape[0] > 100 and img.shape[1] > 100  # (pixels at 50 dpi)
     assert len(np.unique(img.reshape(-1, 4), axis=0)) > 10, "the figure is (almost) one colour"
-    assert fig.canvas.manager is None, "no pyplot/GUI figure manager"
 
 
 def test_weights_are_decreasing_bars(model):

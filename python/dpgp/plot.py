@@ -35,15 +35,46 @@ def _axes(ax: Axes | None, figsize: tuple[float, float] = (6.0, 5.0)) -> Axes:
     return Figure(figsize=figsize, layout="constrained").add_subplot()
 
 
+def _equal(roi: tuple[float, float, float, float]) -> bool:
+    """Equal axes unless the ROI is a long strip (a highway seen whole)."""
+    return 0.25 <= (roi[3] - roi[2]) / (roi[1] - roi[0]) <= 4
+
+
+def _spatial_axes(ax: Axes | None, roi: tuple[float, float, float, float]) -> Axes:
+    """Axes for a plot of the ROI; a new figure is shaped like the ROI."""
+    ratio = (roi[3] - roi[2]) / (roi[1] - roi[0])
+    size = (float(np.clip(5.0 / ratio + 1.3, 3.5, 9.0)), 5.0) if _equal(roi) else (6.0, 5.0)
+    return _axes(ax, size)
+
+
 def _frame_roi(ax: Axes, roi: tuple[float, float, float, float]) -> None:
     x0, x1, y0, y1 = roi
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
-    ratio = (y1 - y0) / (x1 - x0)
-    if 0.25 <= ratio <= 4:  # equal axes unless the ROI is a long strip (a highway)
+    if _equal(roi):
         ax.set_aspect("equal")
     ax.set_xlabel("x")
     ax.set_ylabel("y")
+
+
+def _arrows(ax: Axes, xy: np.ndarray, v: np.ndarray, cell: tuple[float, float], key: bool, **style: Any) -> Any:
+    """A quiver in data units, scaled so that typical arrows (95th percentile) span at most 90%
+    of a ``cell = (dx, dy)`` in each direction; with ``key``, a labelled reference arrow."""
+    reach = np.maximum(np.abs(v[:, 0]) / cell[0], np.abs(v[:, 1]) / cell[1])
+    scale = float(np.quantile(reach, 0.95)) / 0.9 if len(reach) else 1.0
+    scale = scale if scale > 0 else 1.0
+    arrows = ax.quiver(xy[:, 0], xy[:, 1], v[:, 0], v[:, 1], angles="xy", scale_units="xy", scale=scale, **style)
+    speed = np.hypot(v[:, 0], v[:, 1])
+    if key and len(speed) and speed.max() > 0:
+        u = float(f"{np.quantile(speed, 0.95):.1g}")
+        k = ax.quiverkey(arrows, 0.97, 0.97, u, f"speed {u:g}", labelpos="W", color="k", coordinates="axes",
+                         fontproperties={"size": "small"})  # fmt: skip
+        k.text.set_bbox({"facecolor": "white", "alpha": 0.8, "edgecolor": "none", "pad": 1.0})
+    return arrows
+
+
+def _cell(roi: tuple[float, float, float, float], nx: int, ny: int) -> tuple[float, float]:
+    return ((roi[1] - roi[0]) / max(nx - 1, 1), (roi[3] - roi[2]) / max(ny - 1, 1))
 
 
 def _pattern(model: DPGP, k: Any) -> int:
@@ -62,12 +93,12 @@ def _grid(grid: Any) -> tuple[int, int]:
     return int(g[0]), int(g[1])
 
 
-def _key(ax: Axes, arrows: Any, speed: np.ndarray) -> None:
-    """A reference arrow: quiver scales arrows to the largest, so say how long a speed is."""
-    u = float(np.max(speed)) if len(speed) else 0.0
-    if u > 0:
-        u = float(f"{u:.1g}")
-        ax.quiverkey(arrows, 0.97, 1.025, u, f"speed {u:g}", labelpos="W", color="k", fontproperties={"size": "small"})
+def _colours(groups: np.ndarray) -> np.ndarray:
+    """One viridis colour per group (frame), as RGBA rows."""
+    from matplotlib import colormaps
+
+    g = np.unique(groups, return_inverse=True)[1]
+    return colormaps["viridis"](g / max(int(g.max()), 1))
 
 
 def weights(model: DPGP, ax: Axes | None = None) -> Axes:
@@ -114,19 +145,18 @@ def velocity_field(
     q, nx, ny = field_grid(model, grid, roi)
     mean, var = model.velocity_field(k, q)
     rel = _relative_variance(model, var)
-    ax = _axes(ax)
+    ax = _spatial_axes(ax, roi)
     ax.imshow(
         rel.reshape(ny, nx), origin="lower", extent=roi, cmap="Greys", vmin=0.0, vmax=1.5,
         interpolation="bilinear", aspect="auto", alpha=0.6,
     )  # fmt: skip
     colors = np.where(rel > low_data_threshold, _SPARSE, _FIELD)
-    arrows = ax.quiver(q[:, 0], q[:, 1], mean[:, 0], mean[:, 1], color=colors, angles="xy", pivot="mid")
-    _key(ax, arrows, np.hypot(mean[:, 0], mean[:, 1]))
+    _arrows(ax, q, mean, _cell(roi, nx, ny), True, color=colors, pivot="mid")
     if show_data:
         xy = model.frames_.xy[np.repeat(model.labels_ == k, model.frames_.sizes)]
         ax.scatter(xy[:, 0], xy[:, 1], s=2, c="tab:orange", alpha=0.5, label="observations")
     _frame_roi(ax, roi)
-    ax.set_title(f"pattern {k} (weight {model.weights_[k]:.2f}): mean velocity", loc="left", fontsize="medium")
+    ax.set_title(f"pattern {k} (weight {model.weights_[k]:.2f}): mean velocity", fontsize="medium")
     return ax
 
 
@@ -138,14 +168,11 @@ def frames(model: DPGP, k: int, ax: Axes | None = None, max_frames: int | None =
     if max_frames is not None:
         members = members[:max_frames]
     sub = model.frames_[members]
-    ax = _axes(ax)
-    arrows = ax.quiver(
-        sub.xy[:, 0], sub.xy[:, 1], sub.v[:, 0], sub.v[:, 1], sub.frame_of_row, cmap="viridis",
-        angles="xy", pivot="tail",
-    )  # fmt: skip
-    _key(ax, arrows, np.hypot(sub.v[:, 0], sub.v[:, 1]))
-    _frame_roi(ax, default_roi(model))
-    ax.set_title(f"pattern {k}: {len(members)} of its {int((model.labels_ == k).sum())} frames", loc="left", fontsize="medium")
+    roi = default_roi(model)
+    ax = _spatial_axes(ax, roi)
+    _arrows(ax, sub.xy, sub.v, _cell(roi, 20, 20), True, color=_colours(sub.frame_of_row), pivot="tail")
+    _frame_roi(ax, roi)
+    ax.set_title(f"pattern {k}: {len(members)} of its {int((model.labels_ == k).sum())} frames", fontsize="medium")
     return ax
 
 
@@ -163,11 +190,11 @@ def simulation(
     vehicle's start (circle) and its trajectory while in the ROI, low-data steps marked ``x``.
     ``result`` draws an existing :class:`~dpgp.simulation.Simulation` instead of running one."""
     sim = result if result is not None else model.simulate(frame, pattern=k, steps=steps, **simulate_options)
-    ax = _axes(ax)
     roi = default_roi(model)
-    q, _, _ = field_grid(model, grid, roi)
+    ax = _spatial_axes(ax, roi)
+    q, nx, ny = field_grid(model, grid, roi)
     mean, _ = model.velocity_field(sim.pattern, q)
-    ax.quiver(q[:, 0], q[:, 1], mean[:, 0], mean[:, 1], color="0.75", angles="xy", pivot="mid")
+    _arrows(ax, q, mean, _cell(roi, nx, ny), False, color="0.75", pivot="mid")
     for j in range(sim.n_vehicles):
         inside = sim.in_roi[:, j]
         last = min(int(inside.sum()), sim.steps)  # include the first position outside
@@ -216,19 +243,18 @@ def animate(
     """Write a simulation (or scenario ``scenario`` of generated scenarios) as a GIF at ``path``:
     vehicles as dots with a short ``tail``, over the pattern's field when ``model`` is given."""
     from matplotlib.animation import PillowWriter
-    from matplotlib.figure import Figure
 
     sim = result if isinstance(result, Simulation) else result[scenario]
-    fig = Figure(figsize=(5.0, 5.0), layout="constrained")
-    ax = fig.add_subplot()
     roi = tuple(sim.roi)
     if not np.all(np.isfinite(roi)):
         lo, hi = sim.positions.reshape(-1, 2).min(axis=0), sim.positions.reshape(-1, 2).max(axis=0)
         roi = (lo[0] - 1, hi[0] + 1, lo[1] - 1, hi[1] + 1)
+    ax = _spatial_axes(None, roi)  # type: ignore[arg-type]
+    fig: Figure = ax.figure  # type: ignore[assignment]
     if model is not None:
-        q, _, _ = field_grid(model, 15, roi)
+        q, nx, ny = field_grid(model, 15, roi)
         mean, _ = model.velocity_field(sim.pattern, q)
-        ax.quiver(q[:, 0], q[:, 1], mean[:, 0], mean[:, 1], color="0.8", angles="xy", pivot="mid")
+        _arrows(ax, q, mean, _cell(roi, nx, ny), False, color="0.8", pivot="mid")
     _frame_roi(ax, roi)  # type: ignore[arg-type]
     tails = [ax.plot([], [], "-", color="tab:blue", lw=1, alpha=0.6)[0] for _ in range(sim.n_vehicles)]
     (dots,) = ax.plot([], [], "o", color="tab:red", ms=5)
