@@ -138,7 +138,11 @@ class Scenarios:
             raise InvalidInputError(f"format must be 'csv' or 'sumo', got {format!r}")
 
     def __repr__(self) -> str:
-        return f"Scenarios({len(self)} scenarios, {int(self.counts.sum())} vehicles, patterns {np.bincount(self.patterns).tolist()})"
+        steps = self.simulations[0].steps if self.simulations else 0
+        return (
+            f"Scenarios({len(self)} scenarios of {steps} steps of {self.dt:g} s, {int(self.counts.sum())} vehicles, "
+            f"from {len(np.unique(self.patterns))} pattern(s))"
+        )
 
 
 def distributions(model: DPGP, bins: Any = DEFAULT_BINS) -> EmpiricalDistributions:
