@@ -24,7 +24,7 @@ def posterior(
 RolloutArrays = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]
 
 def rollouts(
-    sampler: object,
+    sampler: Sampler,
     slots: list[int],
     start: NDArray[np.float64],
     offsets: NDArray[np.int64],
