@@ -151,6 +151,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--skip-dpgp", action="store_true")
+    ap.add_argument("--length-scale-fraction", type=float, default=1.0,
+                    help="share of patterns whose length scales are resampled each sweep")
     args = ap.parse_args()
 
     frames = dpgp.read_frames(args.data)
@@ -162,6 +164,7 @@ def main() -> None:
     dpgp_sweep = None
     if not args.skip_dpgp and hasattr(dpgp, "DPGP"):
         m = dpgp.DPGP(iterations=args.iterations, assignment=args.assignment, seed=args.seed,
+                      length_scale_fraction=args.length_scale_fraction,
                       n_threads=args.threads, progress=True)
         t = time.perf_counter()
         m.fit(frames)

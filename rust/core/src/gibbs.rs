@@ -30,6 +30,8 @@ const NONE: usize = usize::MAX;
 const SCORE_BLOCK: usize = 64;
 /// Slice-sampling steps of log α per sweep.
 const ALPHA_STEPS: usize = 10;
+/// Auxiliary patterns scored per parallel task.
+const AUX_CHUNK: usize = 25;
 
 /// How a frame's pattern is chosen from its conditional.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -285,7 +287,7 @@ impl Sampler {
                 return Err(Error::Interrupted);
             }
             let mut rng = stream(self.settings.seed, 0, Phase::Init, i as u64);
-            self.update_frame(i, &mut rng)?;
+            self.update_frame(i, &mut rng, false)?;
         }
         Ok(())
     }
@@ -336,7 +338,7 @@ impl Sampler {
                 return Err(Error::Interrupted);
             }
             let mut rng = stream(self.settings.seed, self.sweep, Phase::Assign, i as u64);
-            moves += usize::from(self.update_frame(i, &mut rng)?);
+            moves += usize::from(self.update_frame(i, &mut rng, true)?);
         }
         if !self.settings.fixed_length_scales {
             let t = Instant::now();
@@ -384,25 +386,45 @@ impl Sampler {
     }
 
     /// Scores of frame `i` against every live pattern except `skip` (its own), from the cache
-    /// where it is current.
-    fn scores_for(&mut self, i: usize, skip: usize) -> Result<Vec<(usize, f64)>> {
+    /// where it is current. With `lookahead` (in a sweep), a stale pattern is scored in one batch
+    /// against `i` and the next frames of the sweep that will need it too, which turns many
+    /// single-frame solves into one level-3 solve; if the pattern changes again before those
+    /// frames come, their scores are simply recomputed.
+    fn scores_for(&mut self, i: usize, skip: usize, lookahead: bool) -> Result<Vec<(usize, f64)>> {
         let data = Arc::clone(&self.data);
-        let f = data.frame(i);
+        let n = data.len();
         let live: Vec<(usize, u64)> = self.live().filter(|(k, _)| *k != skip).map(|(k, s)| (k, s.version)).collect();
-        let stale: Vec<(usize, u64)> =
-            live.iter().copied().filter(|&(k, v)| self.cache[i].get(k).is_none_or(|c| c.0 != v)).collect();
-        let fresh: Vec<Result<f64>> = stale
-            .par_iter()
-            .map(|&(k, _)| Ok(self.slots[k].as_ref().expect("live slot").pattern.score(&[f])?[0]))
+        let is_stale = |j: usize, k: usize, v: u64| self.cache[j].get(k).is_none_or(|c| c.0 != v);
+        let jobs: Vec<(usize, u64, Vec<usize>)> = live
+            .iter()
+            .filter(|&&(k, v)| is_stale(i, k, v))
+            .map(|&(k, v)| {
+                let mut frames = vec![i];
+                if lookahead {
+                    let next = (i + 1..n).filter(|&j| self.labels[j] != k && is_stale(j, k, v));
+                    frames.extend(next.take(SCORE_BLOCK - 1));
+                }
+                (k, v, frames)
+            })
             .collect();
-        let row = &mut self.cache[i];
-        if row.len() < self.slots.len() {
-            row.resize(self.slots.len(), (0, 0.0));
+        let results: Vec<Result<Vec<f64>>> = jobs
+            .par_iter()
+            .map(|(k, _, frames)| {
+                let refs: Vec<FrameRef> = frames.iter().map(|&j| data.frame(j)).collect();
+                self.slots[*k].as_ref().expect("live slot").pattern.score(&refs)
+            })
+            .collect();
+        let nslots = self.slots.len();
+        for ((k, version, frames), scores) in jobs.iter().zip(results) {
+            for (&j, s) in frames.iter().zip(scores?) {
+                let row = &mut self.cache[j];
+                if row.len() < nslots {
+                    row.resize(nslots, (0, 0.0));
+                }
+                row[*k] = (*version, s);
+            }
         }
-        for (&(k, version), s) in stale.iter().zip(fresh) {
-            row[k] = (version, s?);
-        }
-        Ok(live.iter().map(|&(k, _)| (k, row[k].1)).collect())
+        Ok(live.iter().map(|&(k, _)| (k, self.cache[i][k].1)).collect())
     }
 
     /// Algorithm 8's auxiliary patterns for frame `f`: `(length scales, log weight)` each,
@@ -428,8 +450,13 @@ impl Sampler {
             })
             .collect();
         let log_w0 = (self.alpha / m as f64).ln();
-        // A few microseconds each: cheaper in order than spread over threads.
-        draws.into_iter().map(|ls| Ok((ls, log_w0 + prior_score(f, &self.pattern_params(ls))?))).collect()
+        // The draws come from one stream in order; their scores (a few µs each) are independent,
+        // so score them in parallel chunks.
+        let scored: Vec<Result<Vec<(LengthScales, f64)>>> = draws
+            .par_chunks(AUX_CHUNK)
+            .map(|chunk| chunk.iter().map(|&ls| Ok((ls, log_w0 + prior_score(f, &self.pattern_params(ls))?))).collect())
+            .collect();
+        Ok(scored.into_iter().collect::<Result<Vec<_>>>()?.concat())
     }
 
     /// Take frame `i` out of pattern `k` (dropping the pattern if it was its only frame).
@@ -450,7 +477,7 @@ impl Sampler {
     ///
     /// The frame's own pattern is scored by leave-one-block-out without touching its factor, so
     /// a frame that stays (most of them, after burn-in) costs no factor update at all.
-    fn update_frame(&mut self, i: usize, rng: &mut impl rand::Rng) -> Result<bool> {
+    fn update_frame(&mut self, i: usize, rng: &mut impl rand::Rng, lookahead: bool) -> Result<bool> {
         let data = Arc::clone(&self.data);
         let f = data.frame(i);
         let old = self.labels[i];
@@ -461,7 +488,7 @@ impl Sampler {
             Some(s) => (None, s.pattern.loo_score(i)?.map(|v| (s.pattern.n_frames() as f64 - 1.0).ln() + v)),
         };
         let mut candidates: Vec<(usize, f64)> = self
-            .scores_for(i, old)?
+            .scores_for(i, old, lookahead)?
             .into_iter()
             .map(|(k, s)| (k, (self.slots[k].as_ref().expect("live").pattern.n_frames() as f64).ln() + s))
             .collect();

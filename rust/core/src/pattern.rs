@@ -179,6 +179,29 @@ impl Pattern {
         out
     }
 
+    /// Posterior mean and variance of the latent field at each of the points `q`, from the cached
+    /// factor (queries in blocks, so memory stays `n x 1024`).
+    pub fn posterior(&self, q: &[Point]) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
+        let n = self.xy.len();
+        let mut var = Vec::with_capacity(q.len());
+        for block in q.chunks(1024) {
+            let corr = kernel::cross(&self.xy, block, self.params.length_scales, 1.0, false);
+            let mut out = vec![[0.0; 2]; block.len()];
+            for g in &self.groups {
+                let mut v: Vec<f64> = corr.iter().map(|c| c * g.signal_var).collect();
+                g.factor.solve_lower(&mut v, Par::Seq);
+                for (j, o) in out.iter_mut().enumerate() {
+                    let explained: f64 = v[j * n..(j + 1) * n].iter().map(|x| x * x).sum();
+                    for &d in g.outs {
+                        o[d] = (g.signal_var - explained).max(0.0);
+                    }
+                }
+            }
+            var.extend(out);
+        }
+        (self.predict_mean(q), var)
+    }
+
     /// Joint posterior of the latent field at `q`: the mean per point and, per output, the
     /// `m x m` covariance `σ² R_qq − Vᵀ V` (column-major), `V = L⁻¹ σ² R(X, q)`.
     pub fn predict_joint(&self, q: &[Point]) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
@@ -411,12 +434,15 @@ mod tests {
             }
             assert!(pat.loo_score(0).unwrap().is_none());
             let q: Vec<Point> = vec![[3.0, 40.0], [20.0, 70.0], [29.0, 5.0]];
+            let (pm, pv) = pat.posterior(&q);
             let (mean, cov) = pat.predict_joint(&q);
             let (gm, gv) = gp::posterior(xy, v, &q, &p, Par::Seq).unwrap();
             for j in 0..3 {
                 for d in 0..2 {
                     assert!((mean[j][d] - gm[j][d]).abs() < 1e-9 * gm[j][d].abs().max(1.0));
                     assert!((cov[d][j * 3 + j] - gv[j][d]).abs() < 1e-9);
+                    assert!((pm[j][d] - gm[j][d]).abs() < 1e-9 * gm[j][d].abs().max(1.0));
+                    assert!((pv[j][d] - gv[j][d]).abs() < 1e-9);
                 }
             }
             let want = gp::log_marginal_likelihood(r[3].xy, r[3].v, &p, Par::Seq).unwrap();

@@ -215,8 +215,8 @@ impl PySampler {
         let q = pairs("query_xy", &query_xy)?;
         let (mean, var) = self.run(py, |s, _| {
             let p = s.pattern(slot).ok_or_else(|| Error::InvalidInput(format!("no pattern in slot {slot}")))?;
-            let (xy, v) = p.points();
-            dpgp_core::gp::posterior(xy, v, q, &p.params, faer::Par::Seq)
+            dpgp_core::error::check_finite("query_xy", q.as_flattened())?;
+            Ok(p.posterior(q))
         })?;
         Ok((to_numpy(py, mean), to_numpy(py, var)))
     }
