@@ -90,9 +90,7 @@ def _fit(args: argparse.Namespace) -> int:
 
     frames = load_frames(args.data, args.format, args.roi, args.dt, args.units)
     if args.max_frames is not None:
-        summary = frames.summary
-        frames = frames[: args.max_frames]
-        frames.summary = summary  # keep dt and ROI: simulations default to them
+        frames = frames[: args.max_frames]  # a selection keeps dt and ROI for simulations
     print(f"{args.data}: {frames!r}")
     model = DPGP(
         iterations=args.iterations, assignment=args.assignment, seed=args.seed, alpha=args.alpha,

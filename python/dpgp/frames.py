@@ -133,13 +133,16 @@ class Frames:
         sizes = self.sizes[idx]
         if len(idx) == 0:
             raise ShapeError("selection is empty: a Frames needs at least one frame")
-        return Frames(
+        out = Frames(
             self.ids[idx],
             np.r_[0, np.cumsum(sizes)],
             self.xy[rows],
             self.v[rows],
             None if self.labels is None else self.labels[idx],
         )
+        # A selection keeps how the frames were made (dt, ROI, units) for the model to use.
+        out.summary = self.summary
+        return out
 
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):

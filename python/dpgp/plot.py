@@ -111,6 +111,9 @@ def weights(model: DPGP, ax: Axes | None = None) -> Axes:
     ax.set_ylabel("weight")
     ax.set_title(f"{len(w)} motion patterns, α = {model.alpha_:.3g}")
     ax.set_xlim(-0.6, len(w) - 0.4)
+    from matplotlib.ticker import MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     return ax
 
 
