@@ -13,14 +13,8 @@ from hypothesis import strategies as st
 
 import dpgp
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-
-
-def real(name: str) -> Path:
-    path = DATA / name
-    if not path.exists():
-        pytest.skip(f"real data file {path} is absent (it lives in ../shared/data beside the repo)")
-    return path
+from conftest import DATA
+from conftest import data_file as real
 
 
 @pytest.fixture(scope="module")
@@ -346,11 +340,12 @@ def test_scenes_are_framed_separately():
     assert frames.summary.n_scenes == 2
 
 
-def test_summary_survives_and_slices_drop_it(peachtree):
+def test_summary_survives_and_selections_keep_it(peachtree):
     frames = dpgp.make_frames(peachtree, dt=0.5)
     d = frames.summary.to_dict()
     assert d["dt"] == 0.5 and d["n_frames"] == len(frames)
-    assert frames[:10].summary is None and len(frames[:10]) == 10
+    # a selection keeps how its frames were made (dt, ROI) for simulations to default to
+    assert frames[:10].summary is frames.summary and len(frames[:10]) == 10
 
 
 # --- bad input ---------------------------------------------------------------------------------

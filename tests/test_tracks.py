@@ -11,14 +11,8 @@ import pytest
 
 import dpgp
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-
-
-def real(name: str) -> Path:
-    path = DATA / name
-    if not path.exists():
-        pytest.skip(f"real data file {path} is absent (it lives in ../shared/data beside the repo)")
-    return path
+from conftest import DATA
+from conftest import data_file as real
 
 
 def assert_tracks_table(df: pd.DataFrame) -> None:
