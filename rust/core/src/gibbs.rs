@@ -71,11 +71,10 @@ impl Settings {
                 "length_scale_prior must be (shape, scale) with both positive, got ({a}, {b})"
             )));
         }
-        if let Some(al) = self.alpha {
-            if !(al.is_finite() && al > 0.0) {
+        if let Some(al) = self.alpha
+            && !(al.is_finite() && al > 0.0) {
                 return Err(Error::InvalidInput(format!("alpha must be a positive number, got {al}")));
             }
-        }
         if !(self.length_scale_fraction > 0.0 && self.length_scale_fraction <= 1.0) {
             return Err(Error::InvalidInput(format!(
                 "length_scale_fraction must be in (0, 1], got {}",
@@ -582,12 +581,11 @@ impl Sampler {
                             Err(_) => f64::NEG_INFINITY,
                         }
                     });
-                    if let Some((lx, p)) = last {
-                        if lx == x && x != x0 {
+                    if let Some((lx, p)) = last
+                        && lx == x && x != x0 {
                             current = p;
                             f0 = fx;
                         }
-                    }
                 }
                 Ok(current)
             })

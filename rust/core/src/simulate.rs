@@ -233,13 +233,12 @@ pub struct PatternField<'a> {
 
 impl<'a> PatternField<'a> {
     pub fn new(pattern: &'a Pattern, seed: Option<u64>, low_data: Option<f64>) -> Result<Self> {
-        if let Some(f) = low_data {
-            if !(f.is_finite() && f >= 0.0) {
+        if let Some(f) = low_data
+            && !(f.is_finite() && f >= 0.0) {
                 return Err(Error::InvalidInput(format!(
                     "the low-data threshold is a fraction of the prior variance (>= 0), got {f}"
                 )));
             }
-        }
         Ok(Self { pattern, seed, low_data })
     }
 }

@@ -6,7 +6,7 @@
 //! are always `-(squared scaled distance) <= 0`, so only that range is needed.
 
 const LOG2E: f64 = std::f64::consts::LOG2_E;
-const LN2_HI: f64 = 6.931_471_803_691_238_2e-1;
+const LN2_HI: f64 = 6.931_471_803_691_238e-1;
 const LN2_LO: f64 = 1.908_214_929_270_587_7e-10;
 /// 1.5 * 2^52: adding it rounds to the nearest integer and leaves that integer in the low bits.
 const SHIFTER: f64 = 6_755_399_441_055_744.0;
