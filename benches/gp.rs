@@ -23,7 +23,10 @@ fn points(n: usize) -> (Vec<Point>, Vec<[f64; 2]>) {
         (s >> 11) as f64 / (1u64 << 53) as f64
     };
     let xy: Vec<Point> = (0..n).map(|_| [u() * 72.0, 1350.0 + u() * 200.0]).collect();
-    let v = xy.iter().map(|p| [(p[1] / 40.0).sin(), 30.0 + p[0] / 5.0]).collect();
+    let v = xy
+        .iter()
+        .map(|p| [(p[1] / 40.0).sin(), 30.0 + p[0] / 5.0])
+        .collect();
     (xy, v)
 }
 
@@ -47,7 +50,11 @@ fn bench(c: &mut Criterion) {
         g.throughput(Throughput::Elements((n * n * n / 3) as u64));
         g.sample_size(10);
         g.bench_with_input(BenchmarkId::new("potrf", n), &k, |b, k| {
-            b.iter_batched_ref(|| k.clone(), |a| linalg::cholesky(a, n, Par::Seq), criterion::BatchSize::LargeInput)
+            b.iter_batched_ref(
+                || k.clone(),
+                |a| linalg::cholesky(a, n, Par::Seq),
+                criterion::BatchSize::LargeInput,
+            )
         });
     }
     g.finish();

@@ -28,10 +28,22 @@ fn frames(count: usize, l: usize, seed: u64) -> Vec<(Vec<Point>, Vec<[f64; 2]>)>
     let mut g = Gen(seed);
     (0..count)
         .map(|i| {
-            let xy: Vec<Point> = (0..l).map(|_| [6.0 + 12.0 * (g.u() * 4.0).floor() + g.u(), 1350.0 + 200.0 * g.u()]).collect();
+            let xy: Vec<Point> = (0..l)
+                .map(|_| {
+                    [
+                        6.0 + 12.0 * (g.u() * 4.0).floor() + g.u(),
+                        1350.0 + 200.0 * g.u(),
+                    ]
+                })
+                .collect();
             let v = xy
                 .iter()
-                .map(|p| [if i % 2 == 1 { 2.0 } else { 0.0 } + 0.3 * g.u(), 35.0 + p[0] / 10.0 + g.u()])
+                .map(|p| {
+                    [
+                        if i % 2 == 1 { 2.0 } else { 0.0 } + 0.3 * g.u(),
+                        35.0 + p[0] / 10.0 + g.u(),
+                    ]
+                })
                 .collect();
             (xy, v)
         })
@@ -47,13 +59,21 @@ fn bench(c: &mut Criterion) {
     let l = 15;
     for n_frames in [10usize, 67, 200] {
         let train = frames(n_frames, l, 1);
-        let members: Vec<(usize, FrameRef)> = train.iter().enumerate().map(|(i, (xy, v))| (i, FrameRef { xy, v })).collect();
+        let members: Vec<(usize, FrameRef)> = train
+            .iter()
+            .enumerate()
+            .map(|(i, (xy, v))| (i, FrameRef { xy, v }))
+            .collect();
         let pattern = Pattern::new(params(), &members).unwrap();
         let test = frames(32, l, 2);
         let refs: Vec<FrameRef> = test.iter().map(|(xy, v)| FrameRef { xy, v }).collect();
         let n = pattern.n_points();
-        g.throughput(Throughput::Elements((2 * 32 * (n * n * l + n * l * l)) as u64));
-        g.bench_with_input(BenchmarkId::new("n", n), &refs, |b, refs| b.iter(|| black_box(pattern.score(refs).unwrap())));
+        g.throughput(Throughput::Elements(
+            (2 * 32 * (n * n * l + n * l * l)) as u64,
+        ));
+        g.bench_with_input(BenchmarkId::new("n", n), &refs, |b, refs| {
+            b.iter(|| black_box(pattern.score(refs).unwrap()))
+        });
     }
     g.finish();
 
@@ -79,7 +99,9 @@ fn bench(c: &mut Criterion) {
     };
     let mut sampler = Sampler::new(data, settings).unwrap();
     sampler.sweep(&|| false).unwrap();
-    g.bench_function("synthetic_300_frames", |b| b.iter(|| black_box(sampler.sweep(&|| false).unwrap())));
+    g.bench_function("synthetic_300_frames", |b| {
+        b.iter(|| black_box(sampler.sweep(&|| false).unwrap()))
+    });
     g.finish();
 }
 

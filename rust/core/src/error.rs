@@ -16,7 +16,11 @@ pub enum Error {
         "the {what} covariance matrix ({n}x{n}) is not positive definite even with jitter {jitter:.3e} \
          added to its diagonal; check for duplicated points with zero noise or extreme length scales"
     )]
-    NotPositiveDefinite { what: &'static str, n: usize, jitter: f64 },
+    NotPositiveDefinite {
+        what: &'static str,
+        n: usize,
+        jitter: f64,
+    },
     /// The caller asked the computation to stop (Ctrl-C).
     #[error("interrupted")]
     Interrupted,

@@ -4,9 +4,9 @@
 //! Storage is column-major with a leading dimension `cap` that doubles when full, so an append
 //! writes in place and a delete moves memory inside the buffer.
 
+use faer::diag::Diag;
 use faer::linalg::cholesky::llt::update::rank_r_update_clobber;
 use faer::linalg::triangular_solve::solve_lower_triangular_in_place;
-use faer::diag::Diag;
 use faer::{MatMut, MatRef, Par};
 
 /// Lower factor `L` (n x n) inside a `cap x cap` column-major buffer.
@@ -43,7 +43,8 @@ impl GrowFactor {
         let cap = need.next_power_of_two();
         let mut buf = vec![0.0; cap * cap];
         for j in 0..self.n {
-            buf[j * cap + j..j * cap + self.n].copy_from_slice(&self.buf[j * self.cap + j..j * self.cap + self.n]);
+            buf[j * cap + j..j * cap + self.n]
+                .copy_from_slice(&self.buf[j * self.cap + j..j * self.cap + self.n]);
         }
         self.cap = cap;
         self.buf = buf;
@@ -51,7 +52,9 @@ impl GrowFactor {
 
     /// `log |L Lᵀ|`.
     pub fn log_det(&self) -> f64 {
-        2.0 * (0..self.n).map(|i| self.buf[i * self.cap + i].ln()).sum::<f64>()
+        2.0 * (0..self.n)
+            .map(|i| self.buf[i * self.cap + i].ln())
+            .sum::<f64>()
     }
 
     /// Overwrite the column-major `n x k` buffer `rhs` with `L⁻¹ rhs`.
@@ -60,7 +63,11 @@ impl GrowFactor {
             return;
         }
         let k = rhs.len() / self.n;
-        solve_lower_triangular_in_place(self.mat(), MatMut::from_column_major_slice_mut(rhs, self.n, k), par);
+        solve_lower_triangular_in_place(
+            self.mat(),
+            MatMut::from_column_major_slice_mut(rhs, self.n, k),
+            par,
+        );
     }
 
     /// Append `m` rows: `vt` is `V = L⁻¹ K(X, X_new)` (n x m, column-major) and `r` the lower
@@ -108,7 +115,12 @@ impl GrowFactor {
         if m == 0 {
             return true;
         }
-        let x = MatMut::from_column_major_slice_with_stride_mut(&mut self.buf[p * cap + p..], m, m, cap);
+        let x = MatMut::from_column_major_slice_with_stride_mut(
+            &mut self.buf[p * cap + p..],
+            m,
+            m,
+            cap,
+        );
         let wm = MatMut::from_column_major_slice_mut(&mut w, m, l);
         let mut alpha = Diag::<f64>::ones(l);
         rank_r_update_clobber(x, wm, alpha.as_mut()).is_ok()

@@ -72,9 +72,12 @@ impl Settings {
             )));
         }
         if let Some(al) = self.alpha
-            && !(al.is_finite() && al > 0.0) {
-                return Err(Error::InvalidInput(format!("alpha must be a positive number, got {al}")));
-            }
+            && !(al.is_finite() && al > 0.0)
+        {
+            return Err(Error::InvalidInput(format!(
+                "alpha must be a positive number, got {al}"
+            )));
+        }
         if !(self.length_scale_fraction > 0.0 && self.length_scale_fraction <= 1.0) {
             return Err(Error::InvalidInput(format!(
                 "length_scale_fraction must be in (0, 1], got {}",
@@ -82,7 +85,9 @@ impl Settings {
             )));
         }
         if self.new_pattern_samples == 0 {
-            return Err(Error::InvalidInput("new_pattern_samples must be at least 1".into()));
+            return Err(Error::InvalidInput(
+                "new_pattern_samples must be at least 1".into(),
+            ));
         }
         Ok(())
     }
@@ -99,13 +104,21 @@ pub struct Data {
 impl Data {
     pub fn new(xy: Vec<Point>, v: Vec<[f64; 2]>, offsets: Vec<usize>) -> Result<Self> {
         if offsets.len() < 2 || offsets[0] != 0 || *offsets.last().unwrap_or(&0) != xy.len() {
-            return Err(Error::Shape("offsets must run from 0 to the number of points".into()));
+            return Err(Error::Shape(
+                "offsets must run from 0 to the number of points".into(),
+            ));
         }
         if offsets.windows(2).any(|w| w[1] <= w[0]) {
-            return Err(Error::Shape("every frame must hold at least one vehicle".into()));
+            return Err(Error::Shape(
+                "every frame must hold at least one vehicle".into(),
+            ));
         }
         if xy.len() != v.len() {
-            return Err(Error::Shape(format!("{} positions but {} velocities", xy.len(), v.len())));
+            return Err(Error::Shape(format!(
+                "{} positions but {} velocities",
+                xy.len(),
+                v.len()
+            )));
         }
         crate::error::check_finite("positions", xy.as_flattened())?;
         crate::error::check_finite("velocities", v.as_flattened())?;
@@ -122,7 +135,10 @@ impl Data {
 
     pub fn frame(&self, i: usize) -> FrameRef<'_> {
         let (a, b) = (self.offsets[i], self.offsets[i + 1]);
-        FrameRef { xy: &self.xy[a..b], v: &self.v[a..b] }
+        FrameRef {
+            xy: &self.xy[a..b],
+            v: &self.v[a..b],
+        }
     }
 }
 
@@ -231,7 +247,10 @@ impl Sampler {
     }
 
     fn live(&self) -> impl Iterator<Item = (usize, &Slot)> {
-        self.slots.iter().enumerate().filter_map(|(k, s)| s.as_ref().map(|s| (k, s)))
+        self.slots
+            .iter()
+            .enumerate()
+            .filter_map(|(k, s)| s.as_ref().map(|s| (k, s)))
     }
 
     fn add_pattern(&mut self, pattern: Pattern) -> usize {
@@ -245,7 +264,11 @@ impl Sampler {
             }
         };
         self.generations[k] += 1;
-        self.slots[k] = Some(Slot { pattern, generation: self.generations[k], version });
+        self.slots[k] = Some(Slot {
+            pattern,
+            generation: self.generations[k],
+            version,
+        });
         k
     }
 
@@ -268,7 +291,10 @@ impl Sampler {
 
     /// The pattern in `slot`, if any.
     pub fn pattern(&self, slot: usize) -> Option<&Pattern> {
-        self.slots.get(slot).and_then(|s| s.as_ref()).map(|s| &s.pattern)
+        self.slots
+            .get(slot)
+            .and_then(|s| s.as_ref())
+            .map(|s| &s.pattern)
     }
 
     fn pattern_params(&self, ls: LengthScales) -> GpParams {
@@ -293,15 +319,29 @@ impl Sampler {
 
     /// Set a state directly (a loaded model, or a chosen start): `labels` as group numbers
     /// (any integers; equal numbers share a pattern) and the length scales of each group.
-    pub fn set_state(&mut self, labels: &[usize], length_scales: &[LengthScales], alpha: f64) -> Result<()> {
+    pub fn set_state(
+        &mut self,
+        labels: &[usize],
+        length_scales: &[LengthScales],
+        alpha: f64,
+    ) -> Result<()> {
         if labels.len() != self.data.len() {
-            return Err(Error::Shape(format!("{} labels for {} frames", labels.len(), self.data.len())));
+            return Err(Error::Shape(format!(
+                "{} labels for {} frames",
+                labels.len(),
+                self.data.len()
+            )));
         }
         if let Some(&bad) = labels.iter().find(|&&l| l >= length_scales.len()) {
-            return Err(Error::Shape(format!("label {bad} has no length scales ({} given)", length_scales.len())));
+            return Err(Error::Shape(format!(
+                "label {bad} has no length scales ({} given)",
+                length_scales.len()
+            )));
         }
         if !(alpha.is_finite() && alpha > 0.0) {
-            return Err(Error::InvalidInput(format!("alpha must be positive, got {alpha}")));
+            return Err(Error::InvalidInput(format!(
+                "alpha must be positive, got {alpha}"
+            )));
         }
         self.slots.clear();
         self.generations.clear();
@@ -309,8 +349,10 @@ impl Sampler {
         self.alpha = alpha;
         let data = Arc::clone(&self.data);
         for (g, &ls) in length_scales.iter().enumerate() {
-            let members: Vec<(usize, FrameRef)> =
-                (0..labels.len()).filter(|&i| labels[i] == g).map(|i| (i, data.frame(i))).collect();
+            let members: Vec<(usize, FrameRef)> = (0..labels.len())
+                .filter(|&i| labels[i] == g)
+                .map(|i| (i, data.frame(i)))
+                .collect();
             if members.is_empty() {
                 continue;
             }
@@ -349,7 +391,12 @@ impl Sampler {
             self.update_alpha();
             self.timings.alpha += t.elapsed().as_secs_f64();
         }
-        Ok(SweepStats { moves, n_patterns: self.live().count(), alpha: self.alpha, log_joint: self.log_joint() })
+        Ok(SweepStats {
+            moves,
+            n_patterns: self.live().count(),
+            alpha: self.alpha,
+            log_joint: self.log_joint(),
+        })
     }
 
     /// Score every (frame, pattern) pair whose cached score is stale, frames not in the pattern
@@ -359,7 +406,9 @@ impl Sampler {
         let mut jobs: Vec<(usize, Vec<usize>)> = Vec::new();
         for (k, s) in self.live() {
             let stale: Vec<usize> = (0..self.data.len())
-                .filter(|&i| self.labels[i] != k && self.cache[i].get(k).is_none_or(|c| c.0 != s.version))
+                .filter(|&i| {
+                    self.labels[i] != k && self.cache[i].get(k).is_none_or(|c| c.0 != s.version)
+                })
                 .collect();
             jobs.extend(stale.chunks(SCORE_BLOCK).map(|c| (k, c.to_vec())));
         }
@@ -392,7 +441,11 @@ impl Sampler {
     fn scores_for(&mut self, i: usize, skip: usize, lookahead: bool) -> Result<Vec<(usize, f64)>> {
         let data = Arc::clone(&self.data);
         let n = data.len();
-        let live: Vec<(usize, u64)> = self.live().filter(|(k, _)| *k != skip).map(|(k, s)| (k, s.version)).collect();
+        let live: Vec<(usize, u64)> = self
+            .live()
+            .filter(|(k, _)| *k != skip)
+            .map(|(k, s)| (k, s.version))
+            .collect();
         let is_stale = |j: usize, k: usize, v: u64| self.cache[j].get(k).is_none_or(|c| c.0 != v);
         let jobs: Vec<(usize, u64, Vec<usize>)> = live
             .iter()
@@ -410,7 +463,11 @@ impl Sampler {
             .par_iter()
             .map(|(k, _, frames)| {
                 let refs: Vec<FrameRef> = frames.iter().map(|&j| data.frame(j)).collect();
-                self.slots[*k].as_ref().expect("live slot").pattern.score(&refs)
+                self.slots[*k]
+                    .as_ref()
+                    .expect("live slot")
+                    .pattern
+                    .score(&refs)
             })
             .collect();
         let nslots = self.slots.len();
@@ -437,7 +494,10 @@ impl Sampler {
     ) -> Result<Vec<(LengthScales, f64)>> {
         if self.settings.fixed_length_scales {
             let ls = self.settings.base.length_scales;
-            return Ok(vec![(ls, self.alpha.ln() + prior_score(f, &self.settings.base)?)]);
+            return Ok(vec![(
+                ls,
+                self.alpha.ln() + prior_score(f, &self.settings.base)?,
+            )]);
         }
         let m = self.settings.new_pattern_samples;
         let (a, b) = self.settings.length_scale_prior;
@@ -445,7 +505,10 @@ impl Sampler {
         let draws: Vec<LengthScales> = (0..m)
             .map(|j| match (j, own) {
                 (0, Some(ls)) => ls,
-                _ => LengthScales { wx: gamma.sample(rng).max(1e-12), wy: gamma.sample(rng).max(1e-12) },
+                _ => LengthScales {
+                    wx: gamma.sample(rng).max(1e-12),
+                    wy: gamma.sample(rng).max(1e-12),
+                },
             })
             .collect();
         let log_w0 = (self.alpha / m as f64).ln();
@@ -453,7 +516,12 @@ impl Sampler {
         // so score them in parallel chunks.
         let scored: Vec<Result<Vec<(LengthScales, f64)>>> = draws
             .par_chunks(AUX_CHUNK)
-            .map(|chunk| chunk.iter().map(|&ls| Ok((ls, log_w0 + prior_score(f, &self.pattern_params(ls))?))).collect())
+            .map(|chunk| {
+                chunk
+                    .iter()
+                    .map(|&ls| Ok((ls, log_w0 + prior_score(f, &self.pattern_params(ls))?)))
+                    .collect()
+            })
             .collect();
         Ok(scored.into_iter().collect::<Result<Vec<_>>>()?.concat())
     }
@@ -476,7 +544,12 @@ impl Sampler {
     ///
     /// The frame's own pattern is scored by leave-one-block-out without touching its factor, so
     /// a frame that stays (most of them, after burn-in) costs no factor update at all.
-    fn update_frame(&mut self, i: usize, rng: &mut impl rand::Rng, lookahead: bool) -> Result<bool> {
+    fn update_frame(
+        &mut self,
+        i: usize,
+        rng: &mut impl rand::Rng,
+        lookahead: bool,
+    ) -> Result<bool> {
         let data = Arc::clone(&self.data);
         let f = data.frame(i);
         let old = self.labels[i];
@@ -484,12 +557,22 @@ impl Sampler {
         let (own_ls, own_score) = match self.slots.get(old).and_then(|s| s.as_ref()) {
             None => (None, None),
             Some(s) if s.pattern.n_frames() == 1 => (Some(s.pattern.length_scales()), None),
-            Some(s) => (None, s.pattern.loo_score(i)?.map(|v| (s.pattern.n_frames() as f64 - 1.0).ln() + v)),
+            Some(s) => (
+                None,
+                s.pattern
+                    .loo_score(i)?
+                    .map(|v| (s.pattern.n_frames() as f64 - 1.0).ln() + v),
+            ),
         };
         let mut candidates: Vec<(usize, f64)> = self
             .scores_for(i, old, lookahead)?
             .into_iter()
-            .map(|(k, s)| (k, (self.slots[k].as_ref().expect("live").pattern.n_frames() as f64).ln() + s))
+            .map(|(k, s)| {
+                (
+                    k,
+                    (self.slots[k].as_ref().expect("live").pattern.n_frames() as f64).ln() + s,
+                )
+            })
             .collect();
         if let Some(w) = own_score {
             candidates.push((old, w));
@@ -508,7 +591,11 @@ impl Sampler {
             Assignment::Map => {
                 let aux_w: Vec<f64> = aux.iter().map(|a| a.1).collect();
                 let (best, best_w) = argmax(&logw);
-                if !logw.is_empty() && best_w >= log_sum_exp(&aux_w) { best } else { logw.len() + argmax(&aux_w).0 }
+                if !logw.is_empty() && best_w >= log_sum_exp(&aux_w) {
+                    best
+                } else {
+                    logw.len() + argmax(&aux_w).0
+                }
             }
         };
 
@@ -545,7 +632,11 @@ impl Sampler {
     fn ls_log_target(&self, p: &Pattern) -> f64 {
         let (a, b) = self.settings.length_scale_prior;
         let ls = p.length_scales();
-        ln_gamma_pdf(ls.wx, a, b) + ln_gamma_pdf(ls.wy, a, b) + ls.wx.ln() + ls.wy.ln() + p.log_marginal()
+        ln_gamma_pdf(ls.wx, a, b)
+            + ln_gamma_pdf(ls.wy, a, b)
+            + ls.wx.ln()
+            + ls.wy.ln()
+            + p.log_marginal()
     }
 
     /// Slice-sample (log w_x, log w_y) of every pattern, in parallel over patterns; the factor
@@ -558,7 +649,9 @@ impl Sampler {
             .map(|&(k, id)| {
                 let mut rng = stream(self.settings.seed, sweep, Phase::LengthScales, id);
                 let mut current = self.slots[k].as_ref().expect("live").pattern.clone();
-                if self.settings.length_scale_fraction < 1.0 && rng.random::<f64>() >= self.settings.length_scale_fraction {
+                if self.settings.length_scale_fraction < 1.0
+                    && rng.random::<f64>() >= self.settings.length_scale_fraction
+                {
                     return Ok(current);
                 }
                 let mut f0 = self.ls_log_target(&current);
@@ -568,7 +661,11 @@ impl Sampler {
                     let mut last: Option<(f64, Pattern)> = None;
                     let (x, fx) = slice_step(x0, f0, 0.5, &mut rng, |x| {
                         let w = x.exp();
-                        let cand = if axis == 0 { LengthScales { wx: w, ..ls } } else { LengthScales { wy: w, ..ls } };
+                        let cand = if axis == 0 {
+                            LengthScales { wx: w, ..ls }
+                        } else {
+                            LengthScales { wy: w, ..ls }
+                        };
                         if !(w.is_finite() && w > 0.0) {
                             return f64::NEG_INFINITY;
                         }
@@ -582,18 +679,29 @@ impl Sampler {
                         }
                     });
                     if let Some((lx, p)) = last
-                        && lx == x && x != x0 {
-                            current = p;
-                            f0 = fx;
-                        }
+                        && lx == x
+                        && x != x0
+                    {
+                        current = p;
+                        f0 = fx;
+                    }
                 }
                 Ok(current)
             })
             .collect();
         for ((k, _), p) in keys.iter().zip(updated) {
             let p = p?;
-            let changed = p.length_scales() != self.slots[*k].as_ref().expect("live").pattern.length_scales();
-            let v = if changed { self.fresh_version() } else { self.slots[*k].as_ref().expect("live").version };
+            let changed = p.length_scales()
+                != self.slots[*k]
+                    .as_ref()
+                    .expect("live")
+                    .pattern
+                    .length_scales();
+            let v = if changed {
+                self.fresh_version()
+            } else {
+                self.slots[*k].as_ref().expect("live").version
+            };
             let slot = self.slots[*k].as_mut().expect("live");
             slot.pattern = p;
             slot.version = v;
@@ -648,7 +756,10 @@ impl Sampler {
     /// (the total mass of the auxiliary patterns, drawn from the stream of the next sweep).
     pub fn conditional_log_probs(&self, i: usize) -> Result<Vec<f64>> {
         if i >= self.data.len() {
-            return Err(Error::InvalidInput(format!("frame {i} out of range for {} frames", self.data.len())));
+            return Err(Error::InvalidInput(format!(
+                "frame {i} out of range for {} frames",
+                self.data.len()
+            )));
         }
         let f = self.data.frame(i);
         let own = self.labels[i];
@@ -669,7 +780,11 @@ impl Sampler {
             }
         }
         let mut rng = stream(self.settings.seed, self.sweep + 1, Phase::Assign, i as u64);
-        let aux: Vec<f64> = self.auxiliaries(f, own_ls, &mut rng)?.iter().map(|a| a.1).collect();
+        let aux: Vec<f64> = self
+            .auxiliaries(f, own_ls, &mut rng)?
+            .iter()
+            .map(|a| a.1)
+            .collect();
         logw.push(log_sum_exp(&aux));
         let z = log_sum_exp(&logw);
         Ok(logw.iter().map(|w| w - z).collect())
@@ -680,7 +795,8 @@ impl Sampler {
     /// by `new_pattern_samples` prior draws (deterministic per frame position and seed).
     pub fn score_frames(&self, frames: &[FrameRef<'_>]) -> Result<(Vec<Vec<f64>>, Vec<f64>)> {
         let live: Vec<&Slot> = self.live().map(|(_, s)| s).collect();
-        let per_pattern: Vec<Result<Vec<f64>>> = live.par_iter().map(|s| s.pattern.score(frames)).collect();
+        let per_pattern: Vec<Result<Vec<f64>>> =
+            live.par_iter().map(|s| s.pattern.score(frames)).collect();
         let cols: Vec<Vec<f64>> = per_pattern.into_iter().collect::<Result<_>>()?;
         let new: Vec<Result<f64>> = frames
             .par_iter()
@@ -693,13 +809,19 @@ impl Sampler {
             })
             .collect();
         let new: Vec<f64> = new.into_iter().collect::<Result<_>>()?;
-        let rows = (0..frames.len()).map(|j| cols.iter().map(|c| c[j]).collect()).collect();
+        let rows = (0..frames.len())
+            .map(|j| cols.iter().map(|c| c[j]).collect())
+            .collect();
         Ok((rows, new))
     }
 }
 
 fn argmax(v: &[f64]) -> (usize, f64) {
-    v.iter().enumerate().fold((0, f64::NEG_INFINITY), |best, (i, &x)| if x > best.1 { (i, x) } else { best })
+    v.iter()
+        .enumerate()
+        .fold((0, f64::NEG_INFINITY), |best, (i, &x)| {
+            if x > best.1 { (i, x) } else { best }
+        })
 }
 
 /// Draw an index with probability proportional to `exp(logw)`.
@@ -725,7 +847,9 @@ mod tests {
     fn two_patterns() -> Data {
         let mut s = 7u64;
         let mut u = move || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (s >> 11) as f64 / (1u64 << 53) as f64
         };
         let (mut xy, mut v, mut offsets) = (Vec::new(), Vec::new(), vec![0]);
@@ -733,7 +857,11 @@ mod tests {
             for _ in 0..4 {
                 let p = [u() * 40.0, u() * 40.0];
                 xy.push(p);
-                v.push(if i % 2 == 0 { [0.3 * u(), 10.0 + u()] } else { [10.0 + u(), 0.3 * u()] });
+                v.push(if i % 2 == 0 {
+                    [0.3 * u(), 10.0 + u()]
+                } else {
+                    [10.0 + u(), 0.3 * u()]
+                });
             }
             offsets.push(xy.len());
         }
@@ -754,7 +882,10 @@ mod tests {
     }
 
     fn run(assignment: Assignment, seed: u64, threads: usize) -> (Vec<usize>, Vec<f64>) {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
         pool.install(|| {
             let mut s = Sampler::new(two_patterns(), settings(assignment, seed)).unwrap();
             let mut trace = Vec::new();
@@ -833,6 +964,9 @@ mod alpha_tests {
             draws.push(x.exp());
         }
         let mean = draws[100..].iter().sum::<f64>() / (draws.len() - 100) as f64;
-        assert!((35.0..55.0).contains(&mean), "posterior mean of alpha {mean}");
+        assert!(
+            (35.0..55.0).contains(&mean),
+            "posterior mean of alpha {mean}"
+        );
     }
 }

@@ -28,29 +28,54 @@ pub struct GpParams {
 
 impl GpParams {
     /// Validated constructor: length scales and variances must be positive and finite.
-    pub fn new(length_scales: (f64, f64), signal_var: (f64, f64), noise_var: f64, mean: (f64, f64)) -> Result<Self> {
+    pub fn new(
+        length_scales: (f64, f64),
+        signal_var: (f64, f64),
+        noise_var: f64,
+        mean: (f64, f64),
+    ) -> Result<Self> {
         let ls = LengthScales::new(length_scales.0, length_scales.1)?;
-        for (name, s) in [("signal_var[0]", signal_var.0), ("signal_var[1]", signal_var.1), ("noise_var", noise_var)] {
+        for (name, s) in [
+            ("signal_var[0]", signal_var.0),
+            ("signal_var[1]", signal_var.1),
+            ("noise_var", noise_var),
+        ] {
             if !(s.is_finite() && s > 0.0) {
-                return Err(Error::InvalidInput(format!("{name} must be a positive finite variance, got {s}")));
+                return Err(Error::InvalidInput(format!(
+                    "{name} must be a positive finite variance, got {s}"
+                )));
             }
         }
         for (name, m) in [("mean[0]", mean.0), ("mean[1]", mean.1)] {
             if !m.is_finite() {
-                return Err(Error::InvalidInput(format!("{name} must be finite, got {m}")));
+                return Err(Error::InvalidInput(format!(
+                    "{name} must be finite, got {m}"
+                )));
             }
         }
-        Ok(Self { length_scales: ls, signal_var: [signal_var.0, signal_var.1], noise_var, mean: [mean.0, mean.1] })
+        Ok(Self {
+            length_scales: ls,
+            signal_var: [signal_var.0, signal_var.1],
+            noise_var,
+            mean: [mean.0, mean.1],
+        })
     }
 
     /// The same parameters with other length scales.
     pub fn with_length_scales(&self, ls: LengthScales) -> Self {
-        Self { length_scales: ls, ..*self }
+        Self {
+            length_scales: ls,
+            ..*self
+        }
     }
 
     /// Groups of outputs that share one covariance matrix, with that matrix's signal variance.
     pub fn groups(&self) -> &'static [&'static [usize]] {
-        if self.signal_var[0] == self.signal_var[1] { &[&[0, 1]] } else { &[&[0], &[1]] }
+        if self.signal_var[0] == self.signal_var[1] {
+            &[&[0, 1]]
+        } else {
+            &[&[0], &[1]]
+        }
     }
 }
 
@@ -65,7 +90,9 @@ pub fn centered(v: &[[f64; 2]], outs: &[usize], mean: [f64; 2]) -> Vec<f64> {
 
 fn check_points(name: &str, xy: &[Point]) -> Result<()> {
     if xy.is_empty() {
-        return Err(Error::Shape(format!("{name} is empty: at least one point is needed")));
+        return Err(Error::Shape(format!(
+            "{name} is empty: at least one point is needed"
+        )));
     }
     check_finite(name, xy.as_flattened())
 }
@@ -96,7 +123,12 @@ fn sum_sq(v: &[f64]) -> f64 {
 }
 
 /// `log N(v ; μ, σ² R + σ_n² I)` summed over both outputs.
-pub fn log_marginal_likelihood(xy: &[Point], v: &[[f64; 2]], p: &GpParams, par: Par) -> Result<f64> {
+pub fn log_marginal_likelihood(
+    xy: &[Point],
+    v: &[[f64; 2]],
+    p: &GpParams,
+    par: Par,
+) -> Result<f64> {
     check_pair("xy", xy, "v", v)?;
     let n = xy.len() as f64;
     let mut total = -n * LN_2PI; // (n/2) ln 2π for each of the two outputs
@@ -135,7 +167,14 @@ pub fn log_predictive(
         let v = MatRef::from_column_major_slice(&vmat, n, m);
         // S = K** + σ_n² I − VᵀV
         let mut s = kernel::gram(test_xy, p.length_scales, s2, p.noise_var, parallel);
-        matmul(MatMut::from_column_major_slice_mut(&mut s, m, m), Accum::Add, v.transpose(), v, -1.0, par);
+        matmul(
+            MatMut::from_column_major_slice_mut(&mut s, m, m),
+            Accum::Add,
+            v.transpose(),
+            v,
+            -1.0,
+            par,
+        );
         // r = v* − μ − Vᵀ L⁻¹ (v − μ)
         let mut z = centered(train_v, outs, p.mean);
         chol.solve_lower(&mut z, par);
@@ -183,7 +222,14 @@ pub fn posterior(
             chol.solve_lower(&mut w, par);
             let wr = MatRef::from_column_major_slice(&w, n, mb);
             let mut mu = vec![0.0; mb * g];
-            matmul(MatMut::from_column_major_slice_mut(&mut mu, mb, g), Accum::Replace, wr.transpose(), zr, 1.0, par);
+            matmul(
+                MatMut::from_column_major_slice_mut(&mut mu, mb, g),
+                Accum::Replace,
+                wr.transpose(),
+                zr,
+                1.0,
+                par,
+            );
             for j in 0..mb {
                 let q = qb * 1024 + j;
                 let explained = sum_sq(&w[j * n..(j + 1) * n]);
@@ -204,11 +250,16 @@ mod tests {
     fn data(n: usize, seed: u64) -> (Vec<Point>, Vec<[f64; 2]>) {
         let mut s = seed;
         let mut u = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (s >> 11) as f64 / (1u64 << 53) as f64
         };
         let xy: Vec<Point> = (0..n).map(|_| [u() * 60.0, u() * 200.0]).collect();
-        let v: Vec<[f64; 2]> = xy.iter().map(|p| [(p[1] / 30.0).sin() + u(), 30.0 + p[0] / 10.0 + u()]).collect();
+        let v: Vec<[f64; 2]> = xy
+            .iter()
+            .map(|p| [(p[1] / 30.0).sin() + u(), 30.0 + p[0] / 10.0 + u()])
+            .collect();
         (xy, v)
     }
 
@@ -222,8 +273,12 @@ mod tests {
         for p in [params(2.0, 2.0), params(1.5, 9.0)] {
             let all = log_marginal_likelihood(&xy, &v, &p, Par::Seq).unwrap();
             let train = log_marginal_likelihood(&xy[..45], &v[..45], &p, Par::Seq).unwrap();
-            let pred = log_predictive(&xy[..45], &v[..45], &xy[45..], &v[45..], &p, Par::Seq).unwrap();
-            assert!((all - train - pred).abs() < 1e-9 * all.abs(), "{all} {train} {pred}");
+            let pred =
+                log_predictive(&xy[..45], &v[..45], &xy[45..], &v[45..], &p, Par::Seq).unwrap();
+            assert!(
+                (all - train - pred).abs() < 1e-9 * all.abs(),
+                "{all} {train} {pred}"
+            );
         }
     }
 
@@ -248,8 +303,14 @@ mod tests {
     #[test]
     fn bad_inputs_are_errors_not_panics() {
         let p = params(1.0, 1.0);
-        assert!(matches!(log_marginal_likelihood(&[], &[], &p, Par::Seq), Err(Error::Shape(_))));
-        assert!(matches!(log_marginal_likelihood(&[[0.0, 0.0]], &[], &p, Par::Seq), Err(Error::Shape(_))));
+        assert!(matches!(
+            log_marginal_likelihood(&[], &[], &p, Par::Seq),
+            Err(Error::Shape(_))
+        ));
+        assert!(matches!(
+            log_marginal_likelihood(&[[0.0, 0.0]], &[], &p, Par::Seq),
+            Err(Error::Shape(_))
+        ));
         assert!(matches!(
             log_marginal_likelihood(&[[f64::NAN, 0.0]], &[[0.0, 0.0]], &p, Par::Seq),
             Err(Error::InvalidInput(_))

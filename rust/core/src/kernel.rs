@@ -64,7 +64,8 @@ fn fill_column(a: &[Point], q: Point, ls: LengthScales, scale: f64, col: &mut [f
     let (ix, iy) = ls.inv2();
     #[cfg(target_arch = "x86_64")]
     {
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
             // SAFETY: the required CPU features were detected at run time.
             unsafe { fill_column_avx2(a, q, ix, iy, scale, col) };
             return;
@@ -115,13 +116,19 @@ mod tests {
     use super::*;
 
     fn naive(p: Point, q: Point, ls: LengthScales) -> f64 {
-        (-(p[0] - q[0]).powi(2) / (2.0 * ls.wx * ls.wx) - (p[1] - q[1]).powi(2) / (2.0 * ls.wy * ls.wy)).exp()
+        (-(p[0] - q[0]).powi(2) / (2.0 * ls.wx * ls.wx)
+            - (p[1] - q[1]).powi(2) / (2.0 * ls.wy * ls.wy))
+            .exp()
     }
 
     #[test]
     fn cross_matches_the_formula_serial_and_parallel() {
-        let a: Vec<Point> = (0..700).map(|i| [(i as f64 * 0.37).sin() * 30.0, i as f64 * 0.9]).collect();
-        let b: Vec<Point> = (0..300).map(|i| [(i as f64 * 0.11).cos() * 20.0, i as f64 * 1.7]).collect();
+        let a: Vec<Point> = (0..700)
+            .map(|i| [(i as f64 * 0.37).sin() * 30.0, i as f64 * 0.9])
+            .collect();
+        let b: Vec<Point> = (0..300)
+            .map(|i| [(i as f64 * 0.11).cos() * 20.0, i as f64 * 1.7])
+            .collect();
         let ls = LengthScales::new(4.0, 11.0).unwrap();
         let s = cross(&a, &b, ls, 2.5, false);
         let p = cross(&a, &b, ls, 2.5, true);

@@ -3,7 +3,9 @@
 //! parallelism (`Par`) is always explicit.
 
 use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::linalg::cholesky::llt::factor::{LltRegularization, cholesky_in_place, cholesky_in_place_scratch};
+use faer::linalg::cholesky::llt::factor::{
+    LltRegularization, cholesky_in_place, cholesky_in_place_scratch,
+};
 use faer::linalg::triangular_solve::solve_lower_triangular_in_place;
 use faer::{MatMut, MatRef, Par};
 
@@ -14,7 +16,11 @@ const JITTER_STEPS: [f64; 4] = [1e-10, 1e-8, 1e-6, 1e-4];
 
 /// Choose faer's parallelism for a matrix of order `n` when not already inside a parallel loop.
 pub fn par_for(n: usize) -> Par {
-    if n >= 768 && rayon::current_num_threads() > 1 { Par::rayon(0) } else { Par::Seq }
+    if n >= 768 && rayon::current_num_threads() > 1 {
+        Par::rayon(0)
+    } else {
+        Par::Seq
+    }
 }
 
 /// Factor the column-major `n x n` matrix in `a` in place (lower triangle).
@@ -23,9 +29,15 @@ pub fn cholesky(a: &mut [f64], n: usize, par: Par) -> std::result::Result<(), us
     let mut buf = MemBuffer::new(req);
     let stack = MemStack::new(&mut buf);
     let mat = MatMut::from_column_major_slice_mut(a, n, n);
-    cholesky_in_place(mat, LltRegularization::default(), par, stack, Default::default())
-        .map(|_| ())
-        .map_err(|faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index }| index)
+    cholesky_in_place(
+        mat,
+        LltRegularization::default(),
+        par,
+        stack,
+        Default::default(),
+    )
+    .map(|_| ())
+    .map_err(|faer::linalg::cholesky::llt::factor::LltError::NonPositivePivot { index }| index)
 }
 
 /// A lower Cholesky factor `L` with `L L^T = A + jitter * I`, stored column-major.
@@ -41,7 +53,12 @@ pub struct Chol {
 impl Chol {
     /// Factor the matrix that `build` writes into an `n x n` column-major buffer, adding
     /// growing diagonal jitter if it is not numerically positive definite.
-    pub fn factor(n: usize, what: &'static str, par: Par, build: impl Fn() -> Vec<f64>) -> Result<Self> {
+    pub fn factor(
+        n: usize,
+        what: &'static str,
+        par: Par,
+        build: impl Fn() -> Vec<f64>,
+    ) -> Result<Self> {
         let mut l = build();
         debug_assert_eq!(l.len(), n * n);
         if cholesky(&mut l, n, par).is_ok() {
@@ -68,7 +85,9 @@ impl Chol {
 
     /// `log |A| = 2 sum log L_ii`.
     pub fn log_det(&self) -> f64 {
-        2.0 * (0..self.n).map(|i| self.l[i * self.n + i].ln()).sum::<f64>()
+        2.0 * (0..self.n)
+            .map(|i| self.l[i * self.n + i].ln())
+            .sum::<f64>()
     }
 
     /// Overwrite the column-major `n x k` buffer `rhs` with `L^{-1} rhs`.

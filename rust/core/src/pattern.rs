@@ -51,7 +51,10 @@ impl Pattern {
             params,
             frames: members.iter().map(|m| m.0).collect(),
             sizes: members.iter().map(|m| m.1.xy.len()).collect(),
-            xy: members.iter().flat_map(|m| m.1.xy.iter().copied()).collect(),
+            xy: members
+                .iter()
+                .flat_map(|m| m.1.xy.iter().copied())
+                .collect(),
             v: members.iter().flat_map(|m| m.1.v.iter().copied()).collect(),
             groups: Vec::new(),
             weights: Default::default(),
@@ -62,7 +65,11 @@ impl Pattern {
 
     /// The same frames under other length scales (a fresh factorisation).
     pub fn with_length_scales(&self, ls: LengthScales) -> Result<Self> {
-        let mut p = Self { params: self.params.with_length_scales(ls), groups: Vec::new(), ..self.clone_data() };
+        let mut p = Self {
+            params: self.params.with_length_scales(ls),
+            groups: Vec::new(),
+            ..self.clone_data()
+        };
         p.refactor()?;
         Ok(p)
     }
@@ -88,7 +95,12 @@ impl Pattern {
             let chol = factor(&self.xy, &self.params, s2, Par::Seq)?;
             let mut z = centered(&self.v, outs, self.params.mean);
             chol.solve_lower(&mut z, Par::Seq);
-            self.groups.push(Group { outs, signal_var: s2, factor: GrowFactor::from_dense(&chol.l, n), z });
+            self.groups.push(Group {
+                outs,
+                signal_var: s2,
+                factor: GrowFactor::from_dense(&chol.l, n),
+                z,
+            });
         }
         Ok(())
     }
@@ -114,7 +126,8 @@ impl Pattern {
         let n = self.xy.len() as f64;
         let mut total = -n * LN_2PI;
         for g in &self.groups {
-            total -= 0.5 * g.z.iter().map(|x| x * x).sum::<f64>() + 0.5 * g.outs.len() as f64 * g.factor.log_det();
+            total -= 0.5 * g.z.iter().map(|x| x * x).sum::<f64>()
+                + 0.5 * g.outs.len() as f64 * g.factor.log_det();
         }
         total
     }
@@ -124,7 +137,10 @@ impl Pattern {
         let n = self.xy.len();
         let pts: Vec<Point> = frames.iter().flat_map(|f| f.xy.iter().copied()).collect();
         let total_m = pts.len();
-        let mut out: Vec<f64> = frames.iter().map(|f| -(f.xy.len() as f64) * LN_2PI).collect();
+        let mut out: Vec<f64> = frames
+            .iter()
+            .map(|f| -(f.xy.len() as f64) * LN_2PI)
+            .collect();
         let corr = kernel::cross(&self.xy, &pts, self.params.length_scales, 1.0, false);
         for g in &self.groups {
             let mut vbuf: Vec<f64> = corr.iter().map(|c| c * g.signal_var).collect();
@@ -214,7 +230,14 @@ impl Pattern {
             g.factor.solve_lower(&mut v, Par::Seq);
             let mut c: Vec<f64> = rqq.iter().map(|x| x * g.signal_var).collect();
             let vr = MatRef::from_column_major_slice(&v, n, m);
-            matmul(MatMut::from_column_major_slice_mut(&mut c, m, m), Accum::Add, vr.transpose(), vr, -1.0, Par::Seq);
+            matmul(
+                MatMut::from_column_major_slice_mut(&mut c, m, m),
+                Accum::Add,
+                vr.transpose(),
+                vr,
+                -1.0,
+                Par::Seq,
+            );
             for &d in g.outs {
                 cov[d] = c.clone();
             }
@@ -228,8 +251,14 @@ impl Pattern {
     /// `−½ a_Iᵀ P_II⁻¹ a_I + ½ log|P_II| − (l/2) log 2π`. `P_II = WᵀW` with `W = L⁻¹ E_I`, which
     /// is zero above row `p`: a forward solve of the trailing block only.
     pub fn loo_score(&self, id: usize) -> Result<Option<f64>> {
-        let Some(pos) = self.frames.iter().position(|&f| f == id) else { return Ok(None) };
-        let (p, l, n) = (self.sizes[..pos].iter().sum::<usize>(), self.sizes[pos], self.xy.len());
+        let Some(pos) = self.frames.iter().position(|&f| f == id) else {
+            return Ok(None);
+        };
+        let (p, l, n) = (
+            self.sizes[..pos].iter().sum::<usize>(),
+            self.sizes[pos],
+            self.xy.len(),
+        );
         if n == l {
             return Ok(None);
         }
@@ -249,9 +278,18 @@ impl Pattern {
             );
             let wr = MatRef::from_column_major_slice(&w, m, l);
             let mut pii = vec![0.0; l * l];
-            matmul(MatMut::from_column_major_slice_mut(&mut pii, l, l), Accum::Replace, wr.transpose(), wr, 1.0, Par::Seq);
+            matmul(
+                MatMut::from_column_major_slice_mut(&mut pii, l, l),
+                Accum::Replace,
+                wr.transpose(),
+                wr,
+                1.0,
+                Par::Seq,
+            );
             let k = g.outs.len();
-            let ai: Vec<f64> = (0..k).flat_map(|col| a[col * n + p..col * n + p + l].iter().copied()).collect();
+            let ai: Vec<f64> = (0..k)
+                .flat_map(|col| a[col * n + p..col * n + p + l].iter().copied())
+                .collect();
             let (log_det_pii, quad) = small::gaussian_terms(pii, l, ai)?;
             total += -0.5 * quad + 0.5 * k as f64 * log_det_pii;
         }
@@ -271,7 +309,13 @@ impl Pattern {
             let mut r = schur(&f, v, g.signal_var, &self.params);
             small::cholesky(&mut r, m)?;
             // New whitened residuals: z_new = R⁻¹ (v_f − μ − Vᵀ z).
-            let mut rz = residual(&f, v, MatRef::from_column_major_slice(&g.z, n, k), g.outs, &self.params);
+            let mut rz = residual(
+                &f,
+                v,
+                MatRef::from_column_major_slice(&g.z, n, k),
+                g.outs,
+                &self.params,
+            );
             small::solve_lower(&r, m, &mut rz);
             let mut z = Vec::with_capacity((n + m) * k);
             for c in 0..k {
@@ -290,7 +334,9 @@ impl Pattern {
 
     /// Remove frame `id`; returns false if it is not here.
     pub fn remove(&mut self, id: usize) -> Result<bool> {
-        let Some(pos) = self.frames.iter().position(|&f| f == id) else { return Ok(false) };
+        let Some(pos) = self.frames.iter().position(|&f| f == id) else {
+            return Ok(false);
+        };
         let start: usize = self.sizes[..pos].iter().sum();
         let l = self.sizes[pos];
         self.weights = Default::default();
@@ -327,17 +373,37 @@ fn schur(f: &FrameRef<'_>, v: MatRef<'_, f64>, s2: f64, p: &GpParams) -> Vec<f64
     let m = f.xy.len();
     let mut s = kernel::gram(f.xy, p.length_scales, s2, p.noise_var, false);
     if v.nrows() > 0 {
-        matmul(MatMut::from_column_major_slice_mut(&mut s, m, m), Accum::Add, v.transpose(), v, -1.0, Par::Seq);
+        matmul(
+            MatMut::from_column_major_slice_mut(&mut s, m, m),
+            Accum::Add,
+            v.transpose(),
+            v,
+            -1.0,
+            Par::Seq,
+        );
     }
     s
 }
 
 /// `r = v_f − μ − Vᵀ z` for the outputs of a group (m x k, column-major).
-fn residual(f: &FrameRef<'_>, v: MatRef<'_, f64>, z: MatRef<'_, f64>, outs: &[usize], p: &GpParams) -> Vec<f64> {
+fn residual(
+    f: &FrameRef<'_>,
+    v: MatRef<'_, f64>,
+    z: MatRef<'_, f64>,
+    outs: &[usize],
+    p: &GpParams,
+) -> Vec<f64> {
     let m = f.xy.len();
     let mut r = centered(f.v, outs, p.mean);
     if v.nrows() > 0 {
-        matmul(MatMut::from_column_major_slice_mut(&mut r, m, outs.len()), Accum::Add, v.transpose(), z, -1.0, Par::Seq);
+        matmul(
+            MatMut::from_column_major_slice_mut(&mut r, m, outs.len()),
+            Accum::Add,
+            v.transpose(),
+            z,
+            -1.0,
+            Par::Seq,
+        );
     }
     r
 }
@@ -350,7 +416,11 @@ fn schur_terms(
     g: &Group,
     p: &GpParams,
 ) -> Result<(f64, f64)> {
-    small::gaussian_terms(schur(f, v, g.signal_var, p), f.xy.len(), residual(f, v, z, g.outs, p))
+    small::gaussian_terms(
+        schur(f, v, g.signal_var, p),
+        f.xy.len(),
+        residual(f, v, z, g.outs, p),
+    )
 }
 
 /// `log N(V_f ; μ, σ² R_ff + σ_n² I)` summed over both outputs: the prior predictive of a frame
@@ -379,14 +449,19 @@ mod tests {
     fn frames(seed: u64, count: usize) -> Vec<(Vec<Point>, Vec<[f64; 2]>)> {
         let mut s = seed;
         let mut u = move || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (s >> 11) as f64 / (1u64 << 53) as f64
         };
         (0..count)
             .map(|_| {
                 let l = 2 + (u() * 6.0) as usize;
                 let xy: Vec<Point> = (0..l).map(|_| [u() * 30.0, u() * 100.0]).collect();
-                let v = xy.iter().map(|p| [(p[1] / 20.0).sin() + u(), 20.0 + p[0] / 5.0 + u()]).collect();
+                let v = xy
+                    .iter()
+                    .map(|p| [(p[1] / 20.0).sin() + u(), 20.0 + p[0] / 5.0 + u()])
+                    .collect();
                 (xy, v)
             })
             .collect()
@@ -415,22 +490,36 @@ mod tests {
             let ids = pat.frames.clone();
             let fresh_members: Vec<(usize, FrameRef)> = ids.iter().map(|&i| (i, r[i])).collect();
             let fresh = Pattern::new(p, &fresh_members).unwrap();
-            assert!((pat.log_marginal() - fresh.log_marginal()).abs() < 1e-9 * fresh.log_marginal().abs());
+            assert!(
+                (pat.log_marginal() - fresh.log_marginal()).abs()
+                    < 1e-9 * fresh.log_marginal().abs()
+            );
             // Scores of the removed frames equal the predictive density from scratch.
             let (xy, v) = fresh.points();
             let got = pat.score(&[r[0], r[7], r[11]]).unwrap();
             for (k, &i) in [0usize, 7, 11].iter().enumerate() {
                 let want = gp::log_predictive(xy, v, r[i].xy, r[i].v, &p, Par::Seq).unwrap();
-                assert!((got[k] - want).abs() < 1e-9 * want.abs(), "{} vs {want}", got[k]);
+                assert!(
+                    (got[k] - want).abs() < 1e-9 * want.abs(),
+                    "{} vs {want}",
+                    got[k]
+                );
             }
             // Leave-one-block-out of every member equals the predictive given the others.
             for &i in &ids {
-                let others: Vec<(usize, FrameRef)> = ids.iter().filter(|&&j| j != i).map(|&j| (j, r[j])).collect();
+                let others: Vec<(usize, FrameRef)> = ids
+                    .iter()
+                    .filter(|&&j| j != i)
+                    .map(|&j| (j, r[j]))
+                    .collect();
                 let rest = Pattern::new(p, &others).unwrap();
                 let (oxy, ov) = rest.points();
                 let want = gp::log_predictive(oxy, ov, r[i].xy, r[i].v, &p, Par::Seq).unwrap();
                 let got = pat.loo_score(i).unwrap().unwrap();
-                assert!((got - want).abs() < 1e-8 * want.abs(), "loo {i}: {got} vs {want}");
+                assert!(
+                    (got - want).abs() < 1e-8 * want.abs(),
+                    "loo {i}: {got} vs {want}"
+                );
             }
             assert!(pat.loo_score(0).unwrap().is_none());
             let q: Vec<Point> = vec![[3.0, 40.0], [20.0, 70.0], [29.0, 5.0]];

@@ -35,7 +35,9 @@ impl Method {
         match name.to_ascii_lowercase().as_str() {
             "euler" => Ok(Self::Euler),
             "rk4" => Ok(Self::Rk4),
-            _ => Err(Error::InvalidInput(format!("method must be 'euler' or 'rk4', got {name:?}"))),
+            _ => Err(Error::InvalidInput(format!(
+                "method must be 'euler' or 'rk4', got {name:?}"
+            ))),
         }
     }
 }
@@ -51,18 +53,30 @@ pub struct Roi {
 
 impl Roi {
     pub fn new(x_min: f64, x_max: f64, y_min: f64, y_max: f64) -> Result<Self> {
-        let ok = [x_min, x_max, y_min, y_max].iter().all(|v| v.is_finite()) && x_min < x_max && y_min < y_max;
+        let ok = [x_min, x_max, y_min, y_max].iter().all(|v| v.is_finite())
+            && x_min < x_max
+            && y_min < y_max;
         if !ok {
             return Err(Error::InvalidInput(format!(
                 "roi must be (x_min, x_max, y_min, y_max) with finite min < max, got ({x_min}, {x_max}, {y_min}, {y_max})"
             )));
         }
-        Ok(Self { x_min, x_max, y_min, y_max })
+        Ok(Self {
+            x_min,
+            x_max,
+            y_min,
+            y_max,
+        })
     }
 
     /// A rectangle that holds every finite point.
     pub fn everywhere() -> Self {
-        Self { x_min: f64::MIN, x_max: f64::MAX, y_min: f64::MIN, y_max: f64::MAX }
+        Self {
+            x_min: f64::MIN,
+            x_max: f64::MAX,
+            y_min: f64::MIN,
+            y_max: f64::MAX,
+        }
     }
 
     pub fn contains(&self, p: Point) -> bool {
@@ -83,7 +97,10 @@ pub struct Options {
 impl Options {
     fn validate(&self, vehicles: usize) -> Result<()> {
         if !(self.dt.is_finite() && self.dt > 0.0) {
-            return Err(Error::InvalidInput(format!("dt must be a positive number of seconds, got {}", self.dt)));
+            return Err(Error::InvalidInput(format!(
+                "dt must be a positive number of seconds, got {}",
+                self.dt
+            )));
         }
         if (self.steps.saturating_add(1)).saturating_mul(vehicles.max(1)) > MAX_ROWS {
             return Err(Error::InvalidInput(format!(
@@ -112,7 +129,10 @@ pub trait Field {
     /// Called once per recorded time `step` with the moving vehicles' positions. Default: no
     /// offset and nothing flagged (a deterministic, everywhere-supported field).
     fn step_start(&mut self, _step: usize, q: &[Point]) -> Result<StepInfo> {
-        Ok(StepInfo { offset: vec![[0.0; 2]; q.len()], low_data: vec![false; q.len()] })
+        Ok(StepInfo {
+            offset: vec![[0.0; 2]; q.len()],
+            low_data: vec![false; q.len()],
+        })
     }
 }
 
@@ -151,7 +171,8 @@ pub fn integrate(start: &[Point], opts: &Options, field: &mut dyn Field) -> Resu
         low_data: vec![false; rows],
     };
     out.positions.extend_from_slice(start);
-    out.in_roi.extend(start.iter().map(|&p| opts.roi.contains(p)));
+    out.in_roi
+        .extend(start.iter().map(|&p| opts.roi.contains(p)));
     for t in 0..=opts.steps {
         let row = t * l;
         let active: Vec<usize> = (0..l).filter(|&j| out.in_roi[row + j]).collect();
@@ -165,7 +186,10 @@ pub fn integrate(start: &[Point], opts: &Options, field: &mut dyn Field) -> Resu
             let eval = |field: &mut dyn Field, q: &[Point]| -> Result<Vec<[f64; 2]>> {
                 let v = field.velocity(q)?;
                 check_len("field velocities", v.len(), q.len())?;
-                Ok(v.iter().zip(&off).map(|(v, o)| [v[0] + o[0], v[1] + o[1]]).collect())
+                Ok(v.iter()
+                    .zip(&off)
+                    .map(|(v, o)| [v[0] + o[0], v[1] + o[1]])
+                    .collect())
             };
             let k1 = eval(field, &x)?;
             for (a, &j) in active.iter().enumerate() {
@@ -183,7 +207,9 @@ pub fn integrate(start: &[Point], opts: &Options, field: &mut dyn Field) -> Resu
                     let k4 = eval(field, &shifted(&x, &k3, dt))?;
                     (0..x.len())
                         .map(|a| {
-                            let f = |d: usize| (k1[a][d] + 2.0 * k2[a][d] + 2.0 * k3[a][d] + k4[a][d]) / 6.0;
+                            let f = |d: usize| {
+                                (k1[a][d] + 2.0 * k2[a][d] + 2.0 * k3[a][d] + k4[a][d]) / 6.0
+                            };
                             [f(0), f(1)]
                         })
                         .collect()
@@ -197,7 +223,8 @@ pub fn integrate(start: &[Point], opts: &Options, field: &mut dyn Field) -> Resu
         }
         for (j, p) in next.iter().enumerate() {
             let moving = out.in_roi[row + j];
-            out.in_roi.push(moving && p[0].is_finite() && p[1].is_finite() && opts.roi.contains(*p));
+            out.in_roi
+                .push(moving && p[0].is_finite() && p[1].is_finite() && opts.roi.contains(*p));
         }
         out.positions.extend_from_slice(&next);
     }
@@ -211,12 +238,17 @@ pub fn integrate(start: &[Point], opts: &Options, field: &mut dyn Field) -> Resu
 }
 
 fn shifted(x: &[Point], k: &[[f64; 2]], h: f64) -> Vec<Point> {
-    x.iter().zip(k).map(|(p, v)| [p[0] + h * v[0], p[1] + h * v[1]]).collect()
+    x.iter()
+        .zip(k)
+        .map(|(p, v)| [p[0] + h * v[0], p[1] + h * v[1]])
+        .collect()
 }
 
 fn check_len(what: &str, got: usize, want: usize) -> Result<()> {
     if got != want {
-        return Err(Error::Shape(format!("{what}: {got} values for {want} vehicles")));
+        return Err(Error::Shape(format!(
+            "{what}: {got} values for {want} vehicles"
+        )));
     }
     Ok(())
 }
@@ -234,12 +266,17 @@ pub struct PatternField<'a> {
 impl<'a> PatternField<'a> {
     pub fn new(pattern: &'a Pattern, seed: Option<u64>, low_data: Option<f64>) -> Result<Self> {
         if let Some(f) = low_data
-            && !(f.is_finite() && f >= 0.0) {
-                return Err(Error::InvalidInput(format!(
-                    "the low-data threshold is a fraction of the prior variance (>= 0), got {f}"
-                )));
-            }
-        Ok(Self { pattern, seed, low_data })
+            && !(f.is_finite() && f >= 0.0)
+        {
+            return Err(Error::InvalidInput(format!(
+                "the low-data threshold is a fraction of the prior variance (>= 0), got {f}"
+            )));
+        }
+        Ok(Self {
+            pattern,
+            seed,
+            low_data,
+        })
     }
 }
 
@@ -250,7 +287,10 @@ impl Field for PatternField<'_> {
 
     fn step_start(&mut self, step: usize, q: &[Point]) -> Result<StepInfo> {
         let m = q.len();
-        let mut info = StepInfo { offset: vec![[0.0; 2]; m], low_data: vec![false; m] };
+        let mut info = StepInfo {
+            offset: vec![[0.0; 2]; m],
+            low_data: vec![false; m],
+        };
         if self.seed.is_none() && self.low_data.is_none() {
             return Ok(info);
         }
@@ -301,7 +341,11 @@ pub fn rollout(
     seed: Option<u64>,
     low_data: Option<f64>,
 ) -> Result<Rollout> {
-    integrate(start, opts, &mut PatternField::new(pattern, seed, low_data)?)
+    integrate(
+        start,
+        opts,
+        &mut PatternField::new(pattern, seed, low_data)?,
+    )
 }
 
 #[cfg(test)]
@@ -311,14 +355,24 @@ mod tests {
     use crate::pattern::FrameRef;
 
     fn opts(dt: f64, steps: usize, method: Method) -> Options {
-        Options { dt, steps, method, roi: Roi::everywhere() }
+        Options {
+            dt,
+            steps,
+            method,
+            roi: Roi::everywhere(),
+        }
     }
 
     fn rotation(q: &[Point]) -> Result<Vec<[f64; 2]>> {
         Ok(q.iter().map(|p| [-p[1], p[0]]).collect())
     }
 
-    fn max_error(r: &Rollout, exact: impl Fn(f64, Point) -> Point, start: &[Point], dt: f64) -> f64 {
+    fn max_error(
+        r: &Rollout,
+        exact: impl Fn(f64, Point) -> Point,
+        start: &[Point],
+        dt: f64,
+    ) -> f64 {
         let mut worst: f64 = 0.0;
         for t in 0..=r.steps {
             for (j, &s) in start.iter().enumerate() {
@@ -333,8 +387,10 @@ mod tests {
     fn constant_field_is_exact_for_both_methods() {
         let start = [[0.0, 0.0], [3.0, -2.0], [-1.5, 7.25]];
         for method in [Method::Euler, Method::Rk4] {
-            let r =
-                integrate(&start, &opts(0.1, 50, method), &mut |q: &[Point]| Ok(vec![[2.0, -0.5]; q.len()])).unwrap();
+            let r = integrate(&start, &opts(0.1, 50, method), &mut |q: &[Point]| {
+                Ok(vec![[2.0, -0.5]; q.len()])
+            })
+            .unwrap();
             let err = max_error(&r, |t, s| [s[0] + 2.0 * t, s[1] - 0.5 * t], &start, 0.1);
             assert!(err < 1e-12, "{method:?}: {err}");
             assert!(r.in_roi.iter().all(|&b| b) && r.velocities.iter().all(|v| *v == [2.0, -0.5]));
@@ -344,7 +400,12 @@ mod tests {
     /// Error at dt and dt/2, dt/4: the observed order log2(e(h)/e(h/2)).
     fn orders(method: Method) -> Vec<f64> {
         let start = [[1.0, 0.0], [0.0, 2.0], [-0.5, -0.5]];
-        let exact = |t: f64, s: Point| [s[0] * t.cos() - s[1] * t.sin(), s[0] * t.sin() + s[1] * t.cos()];
+        let exact = |t: f64, s: Point| {
+            [
+                s[0] * t.cos() - s[1] * t.sin(),
+                s[0] * t.sin() + s[1] * t.cos(),
+            ]
+        };
         let errs: Vec<f64> = [0.1f64, 0.05, 0.025, 0.0125]
             .iter()
             .map(|&dt| {
@@ -358,7 +419,11 @@ mod tests {
 
     #[test]
     fn euler_converges_at_first_order_and_rk4_at_fourth() {
-        eprintln!("observed orders: Euler {:?}, RK4 {:?}", orders(Method::Euler), orders(Method::Rk4));
+        eprintln!(
+            "observed orders: Euler {:?}, RK4 {:?}",
+            orders(Method::Euler),
+            orders(Method::Rk4)
+        );
         for p in orders(Method::Euler) {
             assert!((p - 1.0).abs() < 0.1, "Euler order {p}");
         }
@@ -374,13 +439,21 @@ mod tests {
         let dt = std::f64::consts::TAU / steps as f64;
         let r = integrate(&start, &opts(dt, steps, Method::Rk4), &mut rotation).unwrap();
         let end = r.positions[steps];
-        assert!((end[0] - 1.0).abs() < 1e-7 && end[1].abs() < 1e-7, "{end:?}");
+        assert!(
+            (end[0] - 1.0).abs() < 1e-7 && end[1].abs() < 1e-7,
+            "{end:?}"
+        );
     }
 
     #[test]
     fn vehicles_stop_when_they_leave_the_roi() {
         let roi = Roi::new(-10.0, 10.0, -10.0, 10.0).unwrap();
-        let o = Options { dt: 1.0, steps: 8, method: Method::Euler, roi };
+        let o = Options {
+            dt: 1.0,
+            steps: 8,
+            method: Method::Euler,
+            roi,
+        };
         let start = [[0.0, 0.0], [5.0, 0.0], [20.0, 0.0]];
         let r = integrate(&start, &o, &mut |q: &[Point]| Ok(vec![[2.0, 0.0]; q.len()])).unwrap();
         let row = |t: usize, j: usize| t * 3 + j;
@@ -391,7 +464,9 @@ mod tests {
             assert_eq!(r.velocities[row(t, 1)], [0.0, 0.0]);
         }
         assert_eq!(r.velocities[row(2, 1)], [2.0, 0.0]);
-        assert!(r.in_roi[row(5, 0)] && !r.in_roi[row(6, 0)] && r.positions[row(8, 0)] == [12.0, 0.0]);
+        assert!(
+            r.in_roi[row(5, 0)] && !r.in_roi[row(6, 0)] && r.positions[row(8, 0)] == [12.0, 0.0]
+        );
         // Starting outside: never moves.
         assert!((0..=8).all(|t| !r.in_roi[row(t, 2)] && r.positions[row(t, 2)] == [20.0, 0.0]));
         assert_eq!(r.positions.len(), 27);
@@ -404,7 +479,10 @@ mod tests {
         assert!(integrate(&[[f64::NAN, 0.0]], &opts(0.1, 3, Method::Euler), &mut f).is_err());
         assert!(integrate(&[[0.0, 0.0]], &opts(0.1, usize::MAX, Method::Euler), &mut f).is_err());
         let mut short = |_: &[Point]| Ok(vec![]);
-        assert!(matches!(integrate(&[[0.0, 0.0]], &opts(0.1, 3, Method::Euler), &mut short), Err(Error::Shape(_))));
+        assert!(matches!(
+            integrate(&[[0.0, 0.0]], &opts(0.1, 3, Method::Euler), &mut short),
+            Err(Error::Shape(_))
+        ));
         assert!(Roi::new(1.0, 0.0, 0.0, 1.0).is_err());
         assert!(Method::parse("midpoint").is_err());
         assert_eq!(Method::parse("RK4").unwrap(), Method::Rk4);
@@ -415,11 +493,22 @@ mod tests {
     /// A pattern whose data all move at `c`, with prior mean `c`: its posterior mean is exactly
     /// `c` everywhere, and its variance is small near the data and the prior's far away.
     fn constant_pattern(c: [f64; 2]) -> Pattern {
-        let xy: Vec<Point> = (0..40).map(|i| [(i % 8) as f64 * 2.0, (i / 8) as f64 * 2.0]).collect();
+        let xy: Vec<Point> = (0..40)
+            .map(|i| [(i % 8) as f64 * 2.0, (i / 8) as f64 * 2.0])
+            .collect();
         let v = vec![c; xy.len()];
         let p = GpParams::new((3.0, 3.0), (4.0, 4.0), 0.05, (c[0], c[1])).unwrap();
-        let frames: Vec<(usize, FrameRef)> =
-            (0..5).map(|f| (f, FrameRef { xy: &xy[f * 8..f * 8 + 8], v: &v[f * 8..f * 8 + 8] })).collect();
+        let frames: Vec<(usize, FrameRef)> = (0..5)
+            .map(|f| {
+                (
+                    f,
+                    FrameRef {
+                        xy: &xy[f * 8..f * 8 + 8],
+                        v: &v[f * 8..f * 8 + 8],
+                    },
+                )
+            })
+            .collect();
         Pattern::new(p, &frames).unwrap()
     }
 
@@ -452,12 +541,33 @@ mod tests {
         let n = vx.len() as f64;
         let mean = vx.iter().sum::<f64>() / n;
         let var = vx.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / n;
-        assert!(mean.abs() < 0.3 && (var - 4.0).abs() < 0.8, "mean {mean} var {var}");
+        assert!(
+            mean.abs() < 0.3 && (var - 4.0).abs() < 0.8,
+            "mean {mean} var {var}"
+        );
         // Near the data the draws hug the mean: the posterior variance is tiny.
-        let near = rollout(&pat, &[[4.0, 4.0]], &opts(0.1, 1, Method::Euler), Some(7), None).unwrap();
-        assert!(near.velocities[0][0].abs() < 0.5, "{:?}", near.velocities[0]);
+        let near = rollout(
+            &pat,
+            &[[4.0, 4.0]],
+            &opts(0.1, 1, Method::Euler),
+            Some(7),
+            None,
+        )
+        .unwrap();
+        assert!(
+            near.velocities[0][0].abs() < 0.5,
+            "{:?}",
+            near.velocities[0]
+        );
         // Two vehicles at one spot: a singular covariance, handled by jitter.
-        let same = rollout(&pat, &[[50.0, 50.0], [50.0, 50.0]], &opts(0.1, 3, Method::Rk4), Some(1), None).unwrap();
+        let same = rollout(
+            &pat,
+            &[[50.0, 50.0], [50.0, 50.0]],
+            &opts(0.1, 3, Method::Rk4),
+            Some(1),
+            None,
+        )
+        .unwrap();
         assert!(same.positions.iter().all(|p| p[0].is_finite()));
     }
 }

@@ -48,7 +48,11 @@ pub fn cholesky(a: &mut [f64], m: usize) -> Result<()> {
             return Ok(());
         }
     }
-    Err(Error::NotPositiveDefinite { what: "frame", n: m, jitter })
+    Err(Error::NotPositiveDefinite {
+        what: "frame",
+        n: m,
+        jitter,
+    })
 }
 
 /// `b <- L⁻¹ b` for the `m x k` right-hand side `b`.

@@ -50,7 +50,10 @@ mod tests {
         // ln Γ(n) = ln (n-1)!, ln Γ(1/2) = ln √π, and a value from tables.
         let mut fact = 1.0f64;
         for n in 1..30 {
-            assert!((ln_gamma(n as f64) - fact.ln()).abs() < 1e-12 * fact.ln().abs().max(1.0), "n={n}");
+            assert!(
+                (ln_gamma(n as f64) - fact.ln()).abs() < 1e-12 * fact.ln().abs().max(1.0),
+                "n={n}"
+            );
             fact *= n as f64;
         }
         assert!((ln_gamma(0.5) - std::f64::consts::PI.sqrt().ln()).abs() < 1e-14);

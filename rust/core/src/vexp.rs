@@ -55,7 +55,8 @@ fn exp_slice_avx2(v: &mut [f64]) {
 pub fn exp_nonpos_in_place(v: &mut [f64]) {
     #[cfg(target_arch = "x86_64")]
     {
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
             // SAFETY: the required CPU features were detected at run time.
             unsafe { exp_slice_avx2(v) };
             return;
@@ -70,7 +71,9 @@ mod tests {
 
     #[test]
     fn matches_libm_to_a_few_ulp() {
-        let mut xs: Vec<f64> = (0..200_001).map(|i| -(i as f64) * 708.0 / 200_000.0).collect();
+        let mut xs: Vec<f64> = (0..200_001)
+            .map(|i| -(i as f64) * 708.0 / 200_000.0)
+            .collect();
         xs.extend([0.0, -1e-300, -1e-12, -0.5, -0.34657359, -700.5]);
         let mut ys = xs.clone();
         exp_nonpos_in_place(&mut ys);

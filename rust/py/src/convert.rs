@@ -17,7 +17,9 @@ pub fn pairs<'a>(name: &str, a: &'a PyReadonlyArray2<'_, f64>) -> CoreResult<&'a
         ))));
     }
     let flat = a.as_slice().map_err(|_| {
-        CoreError(Error::Shape(format!("{name} must be C-contiguous (use numpy.ascontiguousarray)")))
+        CoreError(Error::Shape(format!(
+            "{name} must be C-contiguous (use numpy.ascontiguousarray)"
+        )))
     })?;
     Ok(flat.as_chunks::<2>().0)
 }
@@ -26,5 +28,7 @@ pub fn pairs<'a>(name: &str, a: &'a PyReadonlyArray2<'_, f64>) -> CoreResult<&'a
 pub fn to_numpy<'py>(py: Python<'py>, v: Vec<[f64; 2]>) -> Bound<'py, PyArray2<f64>> {
     let n = v.len();
     let flat: Vec<f64> = v.into_flattened();
-    Array2::from_shape_vec((n, 2), flat).expect("length is 2n by construction").into_pyarray(py)
+    Array2::from_shape_vec((n, 2), flat)
+        .expect("length is 2n by construction")
+        .into_pyarray(py)
 }

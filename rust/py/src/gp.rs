@@ -44,7 +44,16 @@ pub fn log_predictive(
     let (txy, tv) = (pairs("train_xy", &train_xy)?, pairs("train_v", &train_v)?);
     let (sxy, sv) = (pairs("test_xy", &test_xy)?, pairs("test_v", &test_v)?);
     let p = params(p)?;
-    py.detach(|| Ok(gp::log_predictive(txy, tv, sxy, sv, &p, par_for(txy.len().max(sxy.len())))?))
+    py.detach(|| {
+        Ok(gp::log_predictive(
+            txy,
+            tv,
+            sxy,
+            sv,
+            &p,
+            par_for(txy.len().max(sxy.len())),
+        )?)
+    })
 }
 
 #[pyfunction]

@@ -26,19 +26,36 @@ pub struct PySampler {
 fn offsets_vec(name: &str, o: &PyReadonlyArray1<'_, i64>) -> CoreResult<Vec<usize>> {
     o.as_array()
         .iter()
-        .map(|&x| usize::try_from(x).map_err(|_| CoreError(Error::Shape(format!("{name} must be non-negative")))))
+        .map(|&x| {
+            usize::try_from(x)
+                .map_err(|_| CoreError(Error::Shape(format!("{name} must be non-negative"))))
+        })
         .collect()
 }
 
 /// Frames as views into flat arrays.
-fn frame_refs<'a>(xy: &'a [[f64; 2]], v: &'a [[f64; 2]], offsets: &[usize]) -> CoreResult<Vec<FrameRef<'a>>> {
+fn frame_refs<'a>(
+    xy: &'a [[f64; 2]],
+    v: &'a [[f64; 2]],
+    offsets: &[usize],
+) -> CoreResult<Vec<FrameRef<'a>>> {
     if xy.len() != v.len() || offsets.first() != Some(&0) || offsets.last() != Some(&xy.len()) {
-        return Err(CoreError(Error::Shape("offsets must run from 0 to the number of rows of xy and v".into())));
+        return Err(CoreError(Error::Shape(
+            "offsets must run from 0 to the number of rows of xy and v".into(),
+        )));
     }
     if offsets.windows(2).any(|w| w[1] <= w[0]) {
-        return Err(CoreError(Error::Shape("every frame must hold at least one vehicle".into())));
+        return Err(CoreError(Error::Shape(
+            "every frame must hold at least one vehicle".into(),
+        )));
     }
-    Ok(offsets.windows(2).map(|w| FrameRef { xy: &xy[w[0]..w[1]], v: &v[w[0]..w[1]] }).collect())
+    Ok(offsets
+        .windows(2)
+        .map(|w| FrameRef {
+            xy: &xy[w[0]..w[1]],
+            v: &v[w[0]..w[1]],
+        })
+        .collect())
 }
 
 impl PySampler {
@@ -63,7 +80,9 @@ impl PySampler {
                 let handle = s.spawn(move || {
                     let mut guard = self.lock();
                     let sampler: &mut Sampler = &mut guard;
-                    let r = self.pool.install(|| work(sampler, &|| stop_ref.load(Ordering::Relaxed)));
+                    let r = self
+                        .pool
+                        .install(|| work(sampler, &|| stop_ref.load(Ordering::Relaxed)));
                     let _ = tx.send(());
                     r
                 });
@@ -81,9 +100,13 @@ impl PySampler {
         });
         match result {
             Ok(Ok(v)) => Ok(v),
-            Ok(Err(Error::Interrupted)) => Err(interrupt.unwrap_or_else(|| CoreError(Error::Interrupted).into())),
+            Ok(Err(Error::Interrupted)) => {
+                Err(interrupt.unwrap_or_else(|| CoreError(Error::Interrupted).into()))
+            }
             Ok(Err(e)) => Err(CoreError(e).into()),
-            Err(_) => Err(pyo3::exceptions::PyRuntimeError::new_err("internal error: the sampler thread panicked")),
+            Err(_) => Err(pyo3::exceptions::PyRuntimeError::new_err(
+                "internal error: the sampler thread panicked",
+            )),
         }
     }
 }
@@ -131,12 +154,19 @@ impl PySampler {
             length_scale_fraction,
             seed,
         };
-        let sampler = py.detach(|| Sampler::new(data, settings)).map_err(CoreError)?;
+        let sampler = py
+            .detach(|| Sampler::new(data, settings))
+            .map_err(CoreError)?;
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(n_threads.unwrap_or(0))
             .build()
-            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(format!("could not start threads: {e}")))?;
-        Ok(Self { inner: Mutex::new(sampler), pool })
+            .map_err(|e| {
+                pyo3::exceptions::PyRuntimeError::new_err(format!("could not start threads: {e}"))
+            })?;
+        Ok(Self {
+            inner: Mutex::new(sampler),
+            pool,
+        })
     }
 
     /// Place every unassigned frame by the sequential CRP conditional.
@@ -146,7 +176,10 @@ impl PySampler {
 
     /// One sweep; returns (moves, K, alpha, log_joint).
     fn sweep(&self, py: Python<'_>) -> PyResult<(usize, usize, f64, f64)> {
-        self.run(py, |s, stop| s.sweep(stop).map(|r| (r.moves, r.n_patterns, r.alpha, r.log_joint)))
+        self.run(py, |s, stop| {
+            s.sweep(stop)
+                .map(|r| (r.moves, r.n_patterns, r.alpha, r.log_joint))
+        })
     }
 
     /// The arena slot of each frame's pattern.
@@ -159,7 +192,15 @@ impl PySampler {
         self.lock()
             .patterns()
             .into_iter()
-            .map(|p| (p.slot, p.id, p.n_frames, p.length_scales.wx, p.length_scales.wy))
+            .map(|p| {
+                (
+                    p.slot,
+                    p.id,
+                    p.n_frames,
+                    p.length_scales.wx,
+                    p.length_scales.wy,
+                )
+            })
             .collect()
     }
 
@@ -214,7 +255,9 @@ impl PySampler {
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
         let q = pairs("query_xy", &query_xy)?;
         let (mean, var) = self.run(py, |s, _| {
-            let p = s.pattern(slot).ok_or_else(|| Error::InvalidInput(format!("no pattern in slot {slot}")))?;
+            let p = s
+                .pattern(slot)
+                .ok_or_else(|| Error::InvalidInput(format!("no pattern in slot {slot}")))?;
             dpgp_core::error::check_finite("query_xy", q.as_flattened())?;
             Ok(p.posterior(q))
         })?;

@@ -15,15 +15,29 @@ use dpgp_core::simulate::{Method, Options, Roi, Rollout, integrate, rollout};
 /// Rollouts run in parallel in chunks of this many, with a Ctrl-C check between chunks.
 const CHUNK: usize = 64;
 
-type Arrays<'py> =
-    (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<bool>>, Bound<'py, PyArray1<bool>>);
+type Arrays<'py> = (
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray1<bool>>,
+    Bound<'py, PyArray1<bool>>,
+);
 
-fn options(dt: f64, steps: usize, method: &str, roi: Option<(f64, f64, f64, f64)>) -> CoreResult<Options> {
+fn options(
+    dt: f64,
+    steps: usize,
+    method: &str,
+    roi: Option<(f64, f64, f64, f64)>,
+) -> CoreResult<Options> {
     let roi = match roi {
         Some((a, b, c, d)) => Roi::new(a, b, c, d)?,
         None => Roi::everywhere(),
     };
-    Ok(Options { dt, steps, method: Method::parse(method)?, roi })
+    Ok(Options {
+        dt,
+        steps,
+        method: Method::parse(method)?,
+        roi,
+    })
 }
 
 /// Rollouts concatenated in order, each time-major, as numpy arrays.
@@ -35,7 +49,12 @@ fn arrays(py: Python<'_>, rollouts: Vec<Rollout>) -> Arrays<'_> {
         inside.extend(r.in_roi);
         low.extend(r.low_data);
     }
-    (to_numpy(py, pos), to_numpy(py, vel), inside.into_pyarray(py), low.into_pyarray(py))
+    (
+        to_numpy(py, pos),
+        to_numpy(py, vel),
+        inside.into_pyarray(py),
+        low.into_pyarray(py),
+    )
 }
 
 /// Roll out groups of vehicles, group `i` (rows `offsets[i]..offsets[i+1]` of `start`) through
@@ -62,7 +81,10 @@ pub fn rollouts<'py>(
     let offsets: Vec<usize> = offsets
         .as_array()
         .iter()
-        .map(|&o| usize::try_from(o).map_err(|_| CoreError(Error::Shape("offsets must be non-negative".into()))))
+        .map(|&o| {
+            usize::try_from(o)
+                .map_err(|_| CoreError(Error::Shape("offsets must be non-negative".into())))
+        })
         .collect::<CoreResult<_>>()?;
     if offsets.len() != slots.len() + 1
         || offsets.first() != Some(&0)
@@ -70,13 +92,19 @@ pub fn rollouts<'py>(
         || offsets.windows(2).any(|w| w[1] < w[0])
     {
         return Err(CoreError(Error::Shape(
-            "offsets must rise from 0 to the number of start positions, one more entry than slots".into(),
+            "offsets must rise from 0 to the number of start positions, one more entry than slots"
+                .into(),
         ))
         .into());
     }
     if let Some(s) = &seeds {
         if s.len() != slots.len() {
-            return Err(CoreError(Error::Shape(format!("{} seeds for {} rollouts", s.len(), slots.len()))).into());
+            return Err(CoreError(Error::Shape(format!(
+                "{} seeds for {} rollouts",
+                s.len(),
+                slots.len()
+            )))
+            .into());
         }
     }
     let rollouts = sampler.run(py, |s, stop| {
@@ -88,9 +116,9 @@ pub fn rollouts<'py>(
             let done: Vec<Rollout> = chunk
                 .par_iter()
                 .map(|&i| {
-                    let p = s
-                        .pattern(slots[i])
-                        .ok_or_else(|| Error::InvalidInput(format!("no pattern in slot {}", slots[i])))?;
+                    let p = s.pattern(slots[i]).ok_or_else(|| {
+                        Error::InvalidInput(format!("no pattern in slot {}", slots[i]))
+                    })?;
                     let seed = seeds.as_ref().map(|v| v[i]);
                     rollout(p, &start[offsets[i]..offsets[i + 1]], &opts, seed, low_data)
                 })
@@ -120,8 +148,17 @@ pub fn integrate_affine<'py>(
     let opts = options(dt, steps, method, roi)?;
     let start: &[Point] = pairs("start", &start)?;
     let mut field = |q: &[Point]| -> dpgp_core::Result<Vec<[f64; 2]>> {
-        Ok(q.iter().map(|p| [a[0][0] * p[0] + a[0][1] * p[1] + b[0], a[1][0] * p[0] + a[1][1] * p[1] + b[1]]).collect())
+        Ok(q.iter()
+            .map(|p| {
+                [
+                    a[0][0] * p[0] + a[0][1] * p[1] + b[0],
+                    a[1][0] * p[0] + a[1][1] * p[1] + b[1],
+                ]
+            })
+            .collect())
     };
-    let r = py.detach(|| integrate(start, &opts, &mut field)).map_err(CoreError)?;
+    let r = py
+        .detach(|| integrate(start, &opts, &mut field))
+        .map_err(CoreError)?;
     Ok(arrays(py, vec![r]))
 }
