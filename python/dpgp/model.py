@@ -252,11 +252,21 @@ class DPGP:
         """The most probable existing pattern (index into ``weights_``) of each frame."""
         return np.argmax(self._log_joint_terms(frames)[:, :-1], axis=1)
 
-    def score_samples(self, frames: Frames | Any) -> np.ndarray:
-        """log p(velocities of each frame | model, positions): the DP mixture of GP predictives."""
+    def score_samples(self, frames: Frames | Any, positions: bool = True) -> np.ndarray:
+        """log p(frame | model) per frame, the paper's frame likelihood under the fitted mixture:
+        ``log φ(l) + Σ_j log ψ(x_j, y_j) + log Σ_k π_k p(V | X, D_k)`` with π the DP's predictive
+        weights (a new pattern included). ``positions=False`` leaves out the φ and ψ terms (the
+        density of the velocities given the positions)."""
+        frames = _as_frames(frames)
         t = self._log_joint_terms(frames)
         m = t.max(axis=1, keepdims=True)
-        return (m + np.log(np.exp(t - m).sum(axis=1, keepdims=True)))[:, 0]
+        out = (m + np.log(np.exp(t - m).sum(axis=1, keepdims=True)))[:, 0]
+        if positions:
+            from .scenarios import distributions
+
+            d = distributions(self)
+            out = out + np.array([d.log_frame_density(f.xy) for f in frames])
+        return out
 
     def velocity_field(self, k: int, xy: object) -> tuple[np.ndarray, np.ndarray]:
         """Posterior mean and variance (each (n, 2)) of pattern ``k``'s velocity field at ``xy``."""

@@ -1,0 +1,88 @@
+"""The fitted model's predictive quantities against the numpy oracle, and estimator conventions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.special import logsumexp
+
+import dpgp
+from dpgp import GPParams
+from gp_oracle import log_marginal_likelihood as ref_lml
+from gp_oracle import log_predictive as ref_pred
+
+WS = (6.0, 9.0)
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    train = dpgp.datasets.synthetic("intersection", n_frames=60, seed=2)
+    test = dpgp.datasets.synthetic("intersection", n_frames=6, seed=9)
+    model = dpgp.DPGP(iterations=4, length_scales=WS, seed=0, progress=False).fit(train)
+    return model, train, test
+
+
+def oracle_terms(model, train, test):
+    """(frames, K+1) log prior weight + log likelihood, from the formulas."""
+    p = GPParams(WS, tuple(train.v.var(axis=0)), 1.0, tuple(train.v.mean(axis=0)))
+    n, a = len(train), model.alpha_
+    rows = []
+    for f in test:
+        terms = []
+        for k in range(model.n_patterns_):
+            members = train[np.flatnonzero(model.labels_ == k)]
+            terms.append(np.log(len(members) / (n + a)) + ref_pred(members.xy, members.v, f.xy, f.v, p))
+        terms.append(np.log(a / (n + a)) + ref_lml(f.xy, f.v, p))  # fixed w: Algorithm 8's mass
+        rows.append(terms)
+    return np.array(rows)
+
+
+def test_predict_proba_and_score_samples_match_the_formulas(fitted):
+    model, train, test = fitted
+    terms = oracle_terms(model, train, test)
+    want_p = np.exp(terms - logsumexp(terms, axis=1, keepdims=True))
+    np.testing.assert_allclose(model.predict_proba(test), want_p, rtol=1e-8, atol=1e-12)
+    np.testing.assert_array_equal(model.predict(test), np.argmax(terms[:, :-1], axis=1))
+    velocity_part = logsumexp(terms, axis=1)
+    np.testing.assert_allclose(model.score_samples(test, positions=False), velocity_part, rtol=1e-9)
+    full = model.score_samples(test)
+    d = model._distributions[1]
+    np.testing.assert_allclose(full - velocity_part, [d.log_frame_density(f.xy) for f in test], rtol=1e-9)
+
+
+def test_velocity_field_matches_the_gp_posterior(fitted):
+    model, train, _ = fitted
+    p = GPParams(WS, tuple(train.v.var(axis=0)), 1.0, tuple(train.v.mean(axis=0)))
+    members = train[np.flatnonzero(model.labels_ == 1)]
+    q = np.random.default_rng(0).uniform(-50, 50, (200, 2))
+    mean, var = model.velocity_field(1, q)
+    ref_mean, ref_var = dpgp.gp.posterior(members.xy, members.v, q, p)
+    np.testing.assert_allclose(mean, ref_mean, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(var, ref_var, rtol=1e-9, atol=1e-9)
+
+
+def test_estimator_conventions_and_errors(fitted):
+    model, train, _ = fitted
+    assert model.get_params()["length_scales"] == WS
+    assert "length_scales=(6.0, 9.0)" in repr(model)
+    with pytest.raises(dpgp.NotFittedError):
+        dpgp.DPGP().predict(train)
+    with pytest.raises(dpgp.InvalidInputError, match="assignment must be one of"):
+        dpgp.DPGP(assignment="greedy").fit(train)
+    with pytest.raises(dpgp.InvalidInputError, match="length_scale_fraction"):
+        dpgp.DPGP(length_scale_fraction=0.0, progress=False).fit(train)
+    with pytest.raises(dpgp.InvalidInputError, match="pattern 99 does not exist"):
+        model.velocity_field(99, [[0.0, 0.0]])
+    with pytest.raises(dpgp.InvalidInputError, match="unknown parameter"):
+        dpgp.DPGP().set_params(iters=3)
+
+
+def test_length_scale_fraction_keeps_the_chain_valid_and_deterministic():
+    frames = dpgp.datasets.synthetic("highway", n_frames=80, seed=4)
+    a, b = (
+        dpgp.DPGP(iterations=6, length_scale_fraction=0.3, seed=1, n_threads=t, progress=False).fit(frames)
+        for t in (1, 2)
+    )
+    np.testing.assert_array_equal(a.labels_, b.labels_)
+    assert a.history_["log_joint"] == b.history_["log_joint"]
+    assert dpgp.adjusted_rand_index(a.labels_, frames.labels) >= 0.9
