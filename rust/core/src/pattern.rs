@@ -368,20 +368,18 @@ impl Pattern {
     }
 }
 
+/// `dst -= Vᵀ x` for a column-major `dst` of `V.ncols()` rows (a no-op for an empty pattern).
+fn sub_vt_times(dst: &mut [f64], v: MatRef<'_, f64>, x: MatRef<'_, f64>) {
+    if v.nrows() > 0 {
+        let d = MatMut::from_column_major_slice_mut(dst, v.ncols(), x.ncols());
+        matmul(d, Accum::Add, v.transpose(), x, -1.0, Par::Seq);
+    }
+}
+
 /// `S = σ² R(X_f, X_f) + σ_n² I − VᵀV` (m x m, column-major).
 fn schur(f: &FrameRef<'_>, v: MatRef<'_, f64>, s2: f64, p: &GpParams) -> Vec<f64> {
-    let m = f.xy.len();
     let mut s = kernel::gram(f.xy, p.length_scales, s2, p.noise_var, false);
-    if v.nrows() > 0 {
-        matmul(
-            MatMut::from_column_major_slice_mut(&mut s, m, m),
-            Accum::Add,
-            v.transpose(),
-            v,
-            -1.0,
-            Par::Seq,
-        );
-    }
+    sub_vt_times(&mut s, v, v);
     s
 }
 
@@ -393,18 +391,8 @@ fn residual(
     outs: &[usize],
     p: &GpParams,
 ) -> Vec<f64> {
-    let m = f.xy.len();
     let mut r = centered(f.v, outs, p.mean);
-    if v.nrows() > 0 {
-        matmul(
-            MatMut::from_column_major_slice_mut(&mut r, m, outs.len()),
-            Accum::Add,
-            v.transpose(),
-            z,
-            -1.0,
-            Par::Seq,
-        );
-    }
+    sub_vt_times(&mut r, v, z);
     r
 }
 
