@@ -272,6 +272,16 @@ impl Sampler {
         k
     }
 
+    /// Slot `k`, which the caller knows to be live (a frame's label or a list of live slots
+    /// names it): an internal invariant, not something input can break.
+    fn live_slot(&self, k: usize) -> &Slot {
+        self.slots[k].as_ref().expect("a live pattern slot")
+    }
+
+    fn live_slot_mut(&mut self, k: usize) -> &mut Slot {
+        self.slots[k].as_mut().expect("a live pattern slot")
+    }
+
     /// Patterns in slot order.
     pub fn patterns(&self) -> Vec<PatternInfo> {
         self.live()
@@ -415,13 +425,13 @@ impl Sampler {
         let results: Vec<Result<Vec<f64>>> = jobs
             .par_iter()
             .map(|(k, frames)| {
-                let p = &self.slots[*k].as_ref().expect("live slot").pattern;
+                let p = &self.live_slot(*k).pattern;
                 let refs: Vec<FrameRef> = frames.iter().map(|&i| self.data.frame(i)).collect();
                 p.score(&refs)
             })
             .collect();
         for ((k, frames), scores) in jobs.iter().zip(results) {
-            let version = self.slots[*k].as_ref().expect("live slot").version;
+            let version = self.live_slot(*k).version;
             for (&i, s) in frames.iter().zip(scores?) {
                 let row = &mut self.cache[i];
                 if row.len() < nslots {
@@ -463,11 +473,7 @@ impl Sampler {
             .par_iter()
             .map(|(k, _, frames)| {
                 let refs: Vec<FrameRef> = frames.iter().map(|&j| data.frame(j)).collect();
-                self.slots[*k]
-                    .as_ref()
-                    .expect("live slot")
-                    .pattern
-                    .score(&refs)
+                self.live_slot(*k).pattern.score(&refs)
             })
             .collect();
         let nslots = self.slots.len();
@@ -528,13 +534,13 @@ impl Sampler {
 
     /// Take frame `i` out of pattern `k` (dropping the pattern if it was its only frame).
     fn detach_frame(&mut self, i: usize, k: usize) -> Result<()> {
-        let slot = self.slots[k].as_mut().expect("label points at a live slot");
+        let slot = self.live_slot_mut(k);
         if slot.pattern.n_frames() == 1 {
             self.slots[k] = None;
         } else {
             slot.pattern.remove(i)?;
             let v = self.fresh_version();
-            self.slots[k].as_mut().expect("still live").version = v;
+            self.live_slot_mut(k).version = v;
         }
         self.labels[i] = NONE;
         Ok(())
@@ -567,12 +573,7 @@ impl Sampler {
         let mut candidates: Vec<(usize, f64)> = self
             .scores_for(i, old, lookahead)?
             .into_iter()
-            .map(|(k, s)| {
-                (
-                    k,
-                    (self.slots[k].as_ref().expect("live").pattern.n_frames() as f64).ln() + s,
-                )
-            })
+            .map(|(k, s)| (k, (self.live_slot(k).pattern.n_frames() as f64).ln() + s))
             .collect();
         if let Some(w) = own_score {
             candidates.push((old, w));
@@ -606,9 +607,9 @@ impl Sampler {
                 if old != NONE {
                     self.detach_frame(i, old)?;
                 }
-                self.slots[k].as_mut().expect("live").pattern.insert(i, f)?;
+                self.live_slot_mut(k).pattern.insert(i, f)?;
                 let v = self.fresh_version();
-                self.slots[k].as_mut().expect("live").version = v;
+                self.live_slot_mut(k).version = v;
                 self.labels[i] = k;
             }
             k != old
@@ -648,7 +649,7 @@ impl Sampler {
             .par_iter()
             .map(|&(k, id)| {
                 let mut rng = stream(self.settings.seed, sweep, Phase::LengthScales, id);
-                let mut current = self.slots[k].as_ref().expect("live").pattern.clone();
+                let mut current = self.live_slot(k).pattern.clone();
                 if self.settings.length_scale_fraction < 1.0
                     && rng.random::<f64>() >= self.settings.length_scale_fraction
                 {
@@ -691,18 +692,13 @@ impl Sampler {
             .collect();
         for ((k, _), p) in keys.iter().zip(updated) {
             let p = p?;
-            let changed = p.length_scales()
-                != self.slots[*k]
-                    .as_ref()
-                    .expect("live")
-                    .pattern
-                    .length_scales();
+            let changed = p.length_scales() != self.live_slot(*k).pattern.length_scales();
             let v = if changed {
                 self.fresh_version()
             } else {
-                self.slots[*k].as_ref().expect("live").version
+                self.live_slot(*k).version
             };
-            let slot = self.slots[*k].as_mut().expect("live");
+            let slot = self.live_slot_mut(*k);
             slot.pattern = p;
             slot.version = v;
         }
@@ -840,133 +836,9 @@ fn sample_log(logw: &[f64], rng: &mut impl rand::Rng) -> usize {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Two obvious patterns: vehicles moving +y and vehicles moving +x, 30 frames each.
-    fn two_patterns() -> Data {
-        let mut s = 7u64;
-        let mut u = move || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
-        let (mut xy, mut v, mut offsets) = (Vec::new(), Vec::new(), vec![0]);
-        for i in 0..60 {
-            for _ in 0..4 {
-                let p = [u() * 40.0, u() * 40.0];
-                xy.push(p);
-                v.push(if i % 2 == 0 {
-                    [0.3 * u(), 10.0 + u()]
-                } else {
-                    [10.0 + u(), 0.3 * u()]
-                });
-            }
-            offsets.push(xy.len());
-        }
-        Data::new(xy, v, offsets).unwrap()
-    }
-
-    fn settings(assignment: Assignment, seed: u64) -> Settings {
-        Settings {
-            assignment,
-            base: GpParams::new((10.0, 10.0), (25.0, 25.0), 1.0, (5.0, 5.0)).unwrap(),
-            fixed_length_scales: false,
-            length_scale_prior: (10.0, 1.0),
-            alpha: None,
-            new_pattern_samples: 10,
-            length_scale_fraction: 1.0,
-            seed,
-        }
-    }
-
-    fn run(assignment: Assignment, seed: u64, threads: usize) -> (Vec<usize>, Vec<f64>) {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| {
-            let mut s = Sampler::new(two_patterns(), settings(assignment, seed)).unwrap();
-            let mut trace = Vec::new();
-            for _ in 0..5 {
-                trace.push(s.sweep(&|| false).unwrap().log_joint);
-            }
-            (s.labels().to_vec(), trace)
-        })
-    }
-
-    #[test]
-    fn separates_two_obvious_patterns_in_both_modes() {
-        for mode in [Assignment::Gibbs, Assignment::Map] {
-            let (labels, _) = run(mode, 1, 1);
-            for i in (0..60).step_by(2) {
-                assert_eq!(labels[i], labels[0], "{mode:?}: frame {i}");
-                assert_eq!(labels[i + 1], labels[1], "{mode:?}: frame {}", i + 1);
-            }
-            assert_ne!(labels[0], labels[1]);
-        }
-    }
-
-    #[test]
-    fn same_seed_same_chain_whatever_the_thread_count() {
-        let a = run(Assignment::Gibbs, 3, 1);
-        let b = run(Assignment::Gibbs, 3, 2);
-        assert_eq!(a, b);
-        let c = run(Assignment::Gibbs, 4, 2);
-        assert_ne!(a.1, c.1);
-    }
-
-    #[test]
-    fn cached_scores_equal_fresh_scores() {
-        let mut s = Sampler::new(two_patterns(), settings(Assignment::Gibbs, 5)).unwrap();
-        for _ in 0..2 {
-            s.sweep(&|| false).unwrap();
-        }
-        let data = Arc::clone(&s.data);
-        for i in 0..data.len() {
-            for (k, slot) in s.live() {
-                if s.labels[i] == k || s.cache[i].get(k).is_none_or(|c| c.0 != slot.version) {
-                    continue;
-                }
-                let fresh = slot.pattern.score(&[data.frame(i)]).unwrap()[0];
-                assert!((s.cache[i][k].1 - fresh).abs() < 1e-8 * fresh.abs().max(1.0));
-            }
-        }
-    }
-
-    #[test]
-    fn bad_settings_are_errors() {
-        let mut st = settings(Assignment::Gibbs, 0);
-        st.alpha = Some(-1.0);
-        assert!(Sampler::new(two_patterns(), st.clone()).is_err());
-        st.alpha = None;
-        st.new_pattern_samples = 0;
-        assert!(Sampler::new(two_patterns(), st).is_err());
-        assert!(Data::new(vec![[0.0, 0.0]], vec![[0.0, 0.0]], vec![0, 0, 1]).is_err());
-    }
-}
+#[path = "tests/gibbs.rs"]
+mod tests;
 
 #[cfg(test)]
-mod alpha_tests {
-    use super::*;
-
-    #[test]
-    fn alpha_slice_sampler_targets_its_posterior() {
-        // p(α | K=136, N=1000) has its mode near α ≈ 42 and most mass in 30–60.
-        let (k, n) = (136, 1000);
-        let mut x = 311f64.ln();
-        let mut fx = Sampler::alpha_log_target(x, k, n);
-        let mut draws = Vec::new();
-        for sweep in 0..3000 {
-            let mut rng = stream(9, sweep, Phase::Alpha, 0);
-            (x, fx) = slice_step(x, fx, 1.0, &mut rng, |y| Sampler::alpha_log_target(y, k, n));
-            draws.push(x.exp());
-        }
-        let mean = draws[100..].iter().sum::<f64>() / (draws.len() - 100) as f64;
-        assert!(
-            (35.0..55.0).contains(&mean),
-            "posterior mean of alpha {mean}"
-        );
-    }
-}
+#[path = "tests/gibbs_alpha_tests.rs"]
+mod alpha_tests;

@@ -42,29 +42,5 @@ pub fn log_sum_exp(v: &[f64]) -> f64 {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn ln_gamma_known_values() {
-        // ln Γ(n) = ln (n-1)!, ln Γ(1/2) = ln √π, and a value from tables.
-        let mut fact = 1.0f64;
-        for n in 1..30 {
-            assert!(
-                (ln_gamma(n as f64) - fact.ln()).abs() < 1e-12 * fact.ln().abs().max(1.0),
-                "n={n}"
-            );
-            fact *= n as f64;
-        }
-        assert!((ln_gamma(0.5) - std::f64::consts::PI.sqrt().ln()).abs() < 1e-14);
-        assert!((ln_gamma(0.1) - 2.252_712_651_734_206).abs() < 1e-13);
-        // Reference values from scipy.special.gammaln.
-        assert!((ln_gamma(1000.5) - 5_908.674_175_848_678).abs() < 1e-12 * 5_908.7);
-    }
-
-    #[test]
-    fn log_sum_exp_is_stable() {
-        assert!((log_sum_exp(&[1000.0, 1000.0]) - (1000.0 + 2f64.ln())).abs() < 1e-12);
-        assert_eq!(log_sum_exp(&[f64::NEG_INFINITY]), f64::NEG_INFINITY);
-    }
-}
+#[path = "tests/special.rs"]
+mod tests;

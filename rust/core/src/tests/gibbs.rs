@@ -1,0 +1,104 @@
+use super::*;
+
+/// Two obvious patterns: vehicles moving +y and vehicles moving +x, 30 frames each.
+fn two_patterns() -> Data {
+    let mut s = 7u64;
+    let mut u = move || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let (mut xy, mut v, mut offsets) = (Vec::new(), Vec::new(), vec![0]);
+    for i in 0..60 {
+        for _ in 0..4 {
+            let p = [u() * 40.0, u() * 40.0];
+            xy.push(p);
+            v.push(if i % 2 == 0 {
+                [0.3 * u(), 10.0 + u()]
+            } else {
+                [10.0 + u(), 0.3 * u()]
+            });
+        }
+        offsets.push(xy.len());
+    }
+    Data::new(xy, v, offsets).unwrap()
+}
+
+fn settings(assignment: Assignment, seed: u64) -> Settings {
+    Settings {
+        assignment,
+        base: GpParams::new((10.0, 10.0), (25.0, 25.0), 1.0, (5.0, 5.0)).unwrap(),
+        fixed_length_scales: false,
+        length_scale_prior: (10.0, 1.0),
+        alpha: None,
+        new_pattern_samples: 10,
+        length_scale_fraction: 1.0,
+        seed,
+    }
+}
+
+fn run(assignment: Assignment, seed: u64, threads: usize) -> (Vec<usize>, Vec<f64>) {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap();
+    pool.install(|| {
+        let mut s = Sampler::new(two_patterns(), settings(assignment, seed)).unwrap();
+        let mut trace = Vec::new();
+        for _ in 0..5 {
+            trace.push(s.sweep(&|| false).unwrap().log_joint);
+        }
+        (s.labels().to_vec(), trace)
+    })
+}
+
+#[test]
+fn separates_two_obvious_patterns_in_both_modes() {
+    for mode in [Assignment::Gibbs, Assignment::Map] {
+        let (labels, _) = run(mode, 1, 1);
+        for i in (0..60).step_by(2) {
+            assert_eq!(labels[i], labels[0], "{mode:?}: frame {i}");
+            assert_eq!(labels[i + 1], labels[1], "{mode:?}: frame {}", i + 1);
+        }
+        assert_ne!(labels[0], labels[1]);
+    }
+}
+
+#[test]
+fn same_seed_same_chain_whatever_the_thread_count() {
+    let a = run(Assignment::Gibbs, 3, 1);
+    let b = run(Assignment::Gibbs, 3, 2);
+    assert_eq!(a, b);
+    let c = run(Assignment::Gibbs, 4, 2);
+    assert_ne!(a.1, c.1);
+}
+
+#[test]
+fn cached_scores_equal_fresh_scores() {
+    let mut s = Sampler::new(two_patterns(), settings(Assignment::Gibbs, 5)).unwrap();
+    for _ in 0..2 {
+        s.sweep(&|| false).unwrap();
+    }
+    let data = Arc::clone(&s.data);
+    for i in 0..data.len() {
+        for (k, slot) in s.live() {
+            if s.labels[i] == k || s.cache[i].get(k).is_none_or(|c| c.0 != slot.version) {
+                continue;
+            }
+            let fresh = slot.pattern.score(&[data.frame(i)]).unwrap()[0];
+            assert!((s.cache[i][k].1 - fresh).abs() < 1e-8 * fresh.abs().max(1.0));
+        }
+    }
+}
+
+#[test]
+fn bad_settings_are_errors() {
+    let mut st = settings(Assignment::Gibbs, 0);
+    st.alpha = Some(-1.0);
+    assert!(Sampler::new(two_patterns(), st.clone()).is_err());
+    st.alpha = None;
+    st.new_pattern_samples = 0;
+    assert!(Sampler::new(two_patterns(), st).is_err());
+    assert!(Data::new(vec![[0.0, 0.0]], vec![[0.0, 0.0]], vec![0, 0, 1]).is_err());
+}

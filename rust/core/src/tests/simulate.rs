@@ -1,0 +1,213 @@
+use super::*;
+use crate::gp::GpParams;
+use crate::pattern::FrameRef;
+
+fn opts(dt: f64, steps: usize, method: Method) -> Options {
+    Options {
+        dt,
+        steps,
+        method,
+        roi: Roi::everywhere(),
+    }
+}
+
+fn rotation(q: &[Point]) -> Result<Vec<[f64; 2]>> {
+    Ok(q.iter().map(|p| [-p[1], p[0]]).collect())
+}
+
+fn max_error(r: &Rollout, exact: impl Fn(f64, Point) -> Point, start: &[Point], dt: f64) -> f64 {
+    let mut worst: f64 = 0.0;
+    for t in 0..=r.steps {
+        for (j, &s) in start.iter().enumerate() {
+            let (p, e) = (r.positions[t * r.vehicles + j], exact(t as f64 * dt, s));
+            worst = worst.max((p[0] - e[0]).hypot(p[1] - e[1]));
+        }
+    }
+    worst
+}
+
+#[test]
+fn constant_field_is_exact_for_both_methods() {
+    let start = [[0.0, 0.0], [3.0, -2.0], [-1.5, 7.25]];
+    for method in [Method::Euler, Method::Rk4] {
+        let r = integrate(&start, &opts(0.1, 50, method), &mut |q: &[Point]| {
+            Ok(vec![[2.0, -0.5]; q.len()])
+        })
+        .unwrap();
+        let err = max_error(&r, |t, s| [s[0] + 2.0 * t, s[1] - 0.5 * t], &start, 0.1);
+        assert!(err < 1e-12, "{method:?}: {err}");
+        assert!(r.in_roi.iter().all(|&b| b) && r.velocities.iter().all(|v| *v == [2.0, -0.5]));
+    }
+}
+
+/// Error at dt and dt/2, dt/4: the observed order log2(e(h)/e(h/2)).
+fn orders(method: Method) -> Vec<f64> {
+    let start = [[1.0, 0.0], [0.0, 2.0], [-0.5, -0.5]];
+    let exact = |t: f64, s: Point| {
+        [
+            s[0] * t.cos() - s[1] * t.sin(),
+            s[0] * t.sin() + s[1] * t.cos(),
+        ]
+    };
+    let errs: Vec<f64> = [0.1f64, 0.05, 0.025, 0.0125]
+        .iter()
+        .map(|&dt| {
+            let steps = (2.0 / dt).round() as usize; // to t = 2: a third of a turn
+            let r = integrate(&start, &opts(dt, steps, method), &mut rotation).unwrap();
+            max_error(&r, exact, &start, dt)
+        })
+        .collect();
+    errs.windows(2).map(|w| (w[0] / w[1]).log2()).collect()
+}
+
+#[test]
+fn euler_converges_at_first_order_and_rk4_at_fourth() {
+    eprintln!(
+        "observed orders: Euler {:?}, RK4 {:?}",
+        orders(Method::Euler),
+        orders(Method::Rk4)
+    );
+    for p in orders(Method::Euler) {
+        assert!((p - 1.0).abs() < 0.1, "Euler order {p}");
+    }
+    for p in orders(Method::Rk4) {
+        assert!((p - 4.0).abs() < 0.15, "RK4 order {p}");
+    }
+}
+
+#[test]
+fn rk4_is_accurate_on_a_full_turn() {
+    let start = [[1.0, 0.0]];
+    let steps = 200;
+    let dt = std::f64::consts::TAU / steps as f64;
+    let r = integrate(&start, &opts(dt, steps, Method::Rk4), &mut rotation).unwrap();
+    let end = r.positions[steps];
+    assert!(
+        (end[0] - 1.0).abs() < 1e-7 && end[1].abs() < 1e-7,
+        "{end:?}"
+    );
+}
+
+#[test]
+fn vehicles_stop_when_they_leave_the_roi() {
+    let roi = Roi::new(-10.0, 10.0, -10.0, 10.0).unwrap();
+    let o = Options {
+        dt: 1.0,
+        steps: 8,
+        method: Method::Euler,
+        roi,
+    };
+    let start = [[0.0, 0.0], [5.0, 0.0], [20.0, 0.0]];
+    let r = integrate(&start, &o, &mut |q: &[Point]| Ok(vec![[2.0, 0.0]; q.len()])).unwrap();
+    let row = |t: usize, j: usize| t * 3 + j;
+    // Vehicle 1 is at x = 9 after 2 steps, 11 (outside) after 3, then stands still.
+    assert!(r.in_roi[row(2, 1)] && !r.in_roi[row(3, 1)]);
+    for t in 3..=8 {
+        assert_eq!(r.positions[row(t, 1)], [11.0, 0.0]);
+        assert_eq!(r.velocities[row(t, 1)], [0.0, 0.0]);
+    }
+    assert_eq!(r.velocities[row(2, 1)], [2.0, 0.0]);
+    assert!(r.in_roi[row(5, 0)] && !r.in_roi[row(6, 0)] && r.positions[row(8, 0)] == [12.0, 0.0]);
+    // Starting outside: never moves.
+    assert!((0..=8).all(|t| !r.in_roi[row(t, 2)] && r.positions[row(t, 2)] == [20.0, 0.0]));
+    assert_eq!(r.positions.len(), 27);
+}
+
+#[test]
+fn bad_input_is_an_error() {
+    let mut f = |q: &[Point]| Ok(vec![[1.0, 0.0]; q.len()]);
+    assert!(integrate(&[[0.0, 0.0]], &opts(0.0, 3, Method::Euler), &mut f).is_err());
+    assert!(integrate(&[[f64::NAN, 0.0]], &opts(0.1, 3, Method::Euler), &mut f).is_err());
+    assert!(integrate(&[[0.0, 0.0]], &opts(0.1, usize::MAX, Method::Euler), &mut f).is_err());
+    let mut short = |_: &[Point]| Ok(vec![]);
+    assert!(matches!(
+        integrate(&[[0.0, 0.0]], &opts(0.1, 3, Method::Euler), &mut short),
+        Err(Error::Shape(_))
+    ));
+    assert!(Roi::new(1.0, 0.0, 0.0, 1.0).is_err());
+    assert!(Method::parse("midpoint").is_err());
+    assert_eq!(Method::parse("RK4").unwrap(), Method::Rk4);
+    let empty = integrate(&[], &opts(0.1, 3, Method::Rk4), &mut f).unwrap();
+    assert!(empty.positions.is_empty());
+}
+
+/// A pattern whose data all move at `c`, with prior mean `c`: its posterior mean is exactly
+/// `c` everywhere, and its variance is small near the data and the prior's far away.
+fn constant_pattern(c: [f64; 2]) -> Pattern {
+    let xy: Vec<Point> = (0..40)
+        .map(|i| [(i % 8) as f64 * 2.0, (i / 8) as f64 * 2.0])
+        .collect();
+    let v = vec![c; xy.len()];
+    let p = GpParams::new((3.0, 3.0), (4.0, 4.0), 0.05, (c[0], c[1])).unwrap();
+    let frames: Vec<(usize, FrameRef)> = (0..5)
+        .map(|f| {
+            (
+                f,
+                FrameRef {
+                    xy: &xy[f * 8..f * 8 + 8],
+                    v: &v[f * 8..f * 8 + 8],
+                },
+            )
+        })
+        .collect();
+    Pattern::new(p, &frames).unwrap()
+}
+
+#[test]
+fn pattern_rollout_follows_its_mean_and_flags_low_data() {
+    let pat = constant_pattern([1.0, 0.5]);
+    let start = [[2.0, 2.0], [100.0, 100.0]];
+    let o = opts(0.5, 10, Method::Rk4);
+    let r = rollout(&pat, &start, &o, None, Some(0.5)).unwrap();
+    let err = max_error(&r, |t, s| [s[0] + t, s[1] + 0.5 * t], &start, 0.5);
+    assert!(err < 1e-9, "{err}");
+    assert!(!r.low_data[0], "inside the data");
+    assert!(r.low_data[1], "far from the data");
+    let none = rollout(&pat, &start, &o, None, None).unwrap();
+    assert!(none.low_data.iter().all(|&b| !b) && none.positions == r.positions);
+}
+
+#[test]
+fn stochastic_rollouts_are_seeded_draws_of_the_posterior() {
+    let pat = constant_pattern([0.0, 0.0]);
+    let o = opts(0.1, 400, Method::Euler);
+    // Far from the data the posterior is the prior: independent N(0, 4) per output.
+    let start = [[1e4, 1e4], [-1e4, 1e4]];
+    let a = rollout(&pat, &start, &o, Some(7), None).unwrap();
+    let b = rollout(&pat, &start, &o, Some(7), None).unwrap();
+    let c = rollout(&pat, &start, &o, Some(8), None).unwrap();
+    assert_eq!(a, b);
+    assert_ne!(a.positions, c.positions);
+    let vx: Vec<f64> = a.velocities.iter().map(|v| v[0]).collect();
+    let n = vx.len() as f64;
+    let mean = vx.iter().sum::<f64>() / n;
+    let var = vx.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / n;
+    assert!(
+        mean.abs() < 0.3 && (var - 4.0).abs() < 0.8,
+        "mean {mean} var {var}"
+    );
+    // Near the data the draws hug the mean: the posterior variance is tiny.
+    let near = rollout(
+        &pat,
+        &[[4.0, 4.0]],
+        &opts(0.1, 1, Method::Euler),
+        Some(7),
+        None,
+    )
+    .unwrap();
+    assert!(
+        near.velocities[0][0].abs() < 0.5,
+        "{:?}",
+        near.velocities[0]
+    );
+    // Two vehicles at one spot: a singular covariance, handled by jitter.
+    let same = rollout(
+        &pat,
+        &[[50.0, 50.0], [50.0, 50.0]],
+        &opts(0.1, 3, Method::Rk4),
+        Some(1),
+        None,
+    )
+    .unwrap();
+    assert!(same.positions.iter().all(|p| p[0].is_finite()));
+}
