@@ -95,6 +95,7 @@ fn bench(c: &mut Criterion) {
         alpha: None,
         new_pattern_samples: 100,
         length_scale_fraction: 1.0,
+        pattern_moments: false,
         seed: 0,
     };
     let mut sampler = Sampler::new(data, settings).unwrap();

@@ -86,3 +86,26 @@ def test_length_scale_fraction_keeps_the_chain_valid_and_deterministic():
     np.testing.assert_array_equal(a.labels_, b.labels_)
     assert a.history_["log_joint"] == b.history_["log_joint"]
     assert dpgp.adjusted_rand_index(a.labels_, frames.labels) >= 0.9
+
+
+def test_pattern_moments_option_uses_each_patterns_own_mean_and_variance():
+    frames = dpgp.datasets.synthetic("intersection", n_frames=60, seed=3)
+    m = dpgp.DPGP(iterations=4, pattern_moments=True, seed=0, progress=False).fit(frames)
+    assert dpgp.adjusted_rand_index(m.labels_, frames.labels) >= 0.9
+    for k in range(m.n_patterns_):
+        members = frames[np.flatnonzero(m.labels_ == k)]
+        # far from every vehicle the field reverts to the pattern's own prior mean and variance
+        mean, var = m.velocity_field(k, [[1e6, 1e6]])
+        np.testing.assert_allclose(mean[0], members.v.mean(axis=0), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(var[0], np.maximum(members.v.var(axis=0), 1e-3 * frames.v.var(axis=0)), rtol=1e-12)
+    back = m.get_params()["pattern_moments"]
+    assert back is True
+
+
+def test_pattern_moments_model_round_trips(tmp_path):
+    frames = dpgp.datasets.synthetic("highway", n_frames=40, seed=1)
+    m = dpgp.DPGP(iterations=2, pattern_moments=True, seed=0, progress=False).fit(frames)
+    m.save(tmp_path / "m.npz")
+    back = dpgp.DPGP.load(tmp_path / "m.npz")
+    assert back.pattern_moments is True
+    np.testing.assert_array_equal(back.predict_proba(frames), m.predict_proba(frames))

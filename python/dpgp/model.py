@@ -40,6 +40,9 @@ class DPGP:
         sweep, drawn at random per pattern and sweep (1.0: all, every sweep). Lower values keep
         the cached scores of the others and make sweeps much cheaper; the chain still targets
         the same posterior.
+    pattern_moments : set each pattern's signal variances and means to those of its own
+        velocities at every parameter step (as the paper's code does; never during the
+        assignment sweep). Off by default: the chain then no longer targets a fixed model.
     seed : the run is a function of (data, settings, seed), whatever ``n_threads``.
     n_threads : worker threads (``None``: all cores).
     progress : show a progress bar.
@@ -61,6 +64,7 @@ class DPGP:
         alpha: float | None = None,
         new_pattern_samples: int = 100,
         length_scale_fraction: float = 1.0,
+        pattern_moments: bool = False,
         seed: int = 0,
         n_threads: int | None = None,
         progress: bool = True,
@@ -79,6 +83,7 @@ class DPGP:
         self.alpha = alpha
         self.new_pattern_samples = new_pattern_samples
         self.length_scale_fraction = length_scale_fraction
+        self.pattern_moments = pattern_moments
         self.seed = seed
         self.n_threads = n_threads
         self.progress = progress
@@ -201,6 +206,7 @@ class DPGP:
             int(self.seed) & 0xFFFF_FFFF_FFFF_FFFF,
             self.n_threads,
             float(self.length_scale_fraction),
+            bool(self.pattern_moments),
         )
 
     def _sync(self) -> None:

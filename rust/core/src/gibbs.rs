@@ -56,6 +56,10 @@ pub struct Settings {
     pub alpha: Option<f64>,
     /// Auxiliary patterns of Algorithm 8.
     pub new_pattern_samples: usize,
+    /// Set each pattern's signal variances and means to its own data's at the parameter step
+    /// (what the paper's code does; never during the assignment sweep). New patterns start from
+    /// `base`. The chain then no longer targets a fixed model's posterior.
+    pub pattern_moments: bool,
     /// Share of the patterns whose length scales are resampled each sweep (chosen at random per
     /// pattern and sweep). Below 1 the score cache of the others survives the sweep; every
     /// pattern is still updated infinitely often, so the chain keeps the same posterior.
@@ -366,7 +370,13 @@ impl Sampler {
             if members.is_empty() {
                 continue;
             }
-            let k = self.add_pattern(Pattern::new(self.pattern_params(ls), &members)?);
+            let mut pattern = Pattern::new(self.pattern_params(ls), &members)?;
+            if self.settings.pattern_moments
+                && let Some(p) = pattern.with_own_moments(self.moment_floor())?
+            {
+                pattern = p;
+            }
+            let k = self.add_pattern(pattern);
             for (i, _) in members {
                 self.labels[i] = k;
             }
@@ -390,6 +400,11 @@ impl Sampler {
             }
             let mut rng = stream(self.settings.seed, self.sweep, Phase::Assign, i as u64);
             moves += usize::from(self.update_frame(i, &mut rng, true)?);
+        }
+        if self.settings.pattern_moments {
+            let t = Instant::now();
+            self.update_moments()?;
+            self.timings.length_scales += t.elapsed().as_secs_f64();
         }
         if !self.settings.fixed_length_scales {
             let t = Instant::now();
@@ -627,6 +642,30 @@ impl Sampler {
         };
         self.timings.moves += t.elapsed().as_secs_f64();
         Ok(changed)
+    }
+
+    /// Floors of the per-pattern signal variances: a thousandth of the global ones.
+    fn moment_floor(&self) -> [f64; 2] {
+        self.settings.base.signal_var.map(|s| s * 1e-3)
+    }
+
+    /// Refit every pattern's signal variances and means to its own velocities (in parallel).
+    fn update_moments(&mut self) -> Result<()> {
+        let floor = self.moment_floor();
+        let slots: Vec<usize> = self.live().map(|(k, _)| k).collect();
+        let refit: Vec<Result<Option<Pattern>>> = slots
+            .par_iter()
+            .map(|&k| self.live_slot(k).pattern.with_own_moments(floor))
+            .collect();
+        for (&k, p) in slots.iter().zip(refit) {
+            if let Some(p) = p? {
+                let v = self.fresh_version();
+                let slot = self.live_slot_mut(k);
+                slot.pattern = p;
+                slot.version = v;
+            }
+        }
+        Ok(())
     }
 
     /// Log density of one pattern's length scales (with the log-scale Jacobian) and data.

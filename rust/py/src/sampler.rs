@@ -115,7 +115,7 @@ impl PySampler {
 impl PySampler {
     #[new]
     #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (xy, v, offsets, assignment, params_, fixed_length_scales, length_scale_prior, alpha, new_pattern_samples, seed, n_threads, length_scale_fraction=1.0))]
+    #[pyo3(signature = (xy, v, offsets, assignment, params_, fixed_length_scales, length_scale_prior, alpha, new_pattern_samples, seed, n_threads, length_scale_fraction=1.0, pattern_moments=false))]
     fn new(
         py: Python<'_>,
         xy: PyReadonlyArray2<'_, f64>,
@@ -130,6 +130,7 @@ impl PySampler {
         seed: u64,
         n_threads: Option<usize>,
         length_scale_fraction: f64,
+        pattern_moments: bool,
     ) -> PyResult<Self> {
         let assignment = match assignment {
             "gibbs" => Assignment::Gibbs,
@@ -152,6 +153,7 @@ impl PySampler {
             alpha,
             new_pattern_samples,
             length_scale_fraction,
+            pattern_moments,
             seed,
         };
         let sampler = py

@@ -34,6 +34,7 @@ fn settings(assignment: Assignment, seed: u64) -> Settings {
         alpha: None,
         new_pattern_samples: 10,
         length_scale_fraction: 1.0,
+        pattern_moments: false,
         seed,
     }
 }
@@ -101,4 +102,25 @@ fn bad_settings_are_errors() {
     st.new_pattern_samples = 0;
     assert!(Sampler::new(two_patterns(), st).is_err());
     assert!(Data::new(vec![[0.0, 0.0]], vec![[0.0, 0.0]], vec![0, 0, 1]).is_err());
+}
+
+#[test]
+fn pattern_moments_follow_each_patterns_own_data() {
+    let mut st = settings(Assignment::Gibbs, 2);
+    st.pattern_moments = true;
+    let mut s = Sampler::new(two_patterns(), st).unwrap();
+    for _ in 0..3 {
+        s.sweep(&|| false).unwrap();
+    }
+    for info in s.patterns() {
+        let p = s.pattern(info.slot).unwrap();
+        let (_, v) = p.points();
+        let n = v.len() as f64;
+        for d in 0..2 {
+            let mean = v.iter().map(|r| r[d]).sum::<f64>() / n;
+            let var = v.iter().map(|r| (r[d] - mean).powi(2)).sum::<f64>() / n;
+            assert!((p.params.mean[d] - mean).abs() < 1e-12);
+            assert!((p.params.signal_var[d] - var.max(25.0e-3)).abs() < 1e-12);
+        }
+    }
 }
