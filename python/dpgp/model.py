@@ -146,10 +146,15 @@ class DPGP:
         traces: list[np.ndarray] = []
         self.converged_ = False
         self.n_iter_ = 0
+        t = time.perf_counter()
         try:
-            t = time.perf_counter()
             self._sampler.initialize()
-            self.init_seconds_ = time.perf_counter() - t
+        except KeyboardInterrupt:
+            # Some frames have no pattern yet: there is no state to keep.
+            self.__dict__.pop("labels_", None)
+            raise
+        self.init_seconds_ = time.perf_counter() - t
+        try:
             previous = np.asarray(self._sampler.labels())
             stable = 0
             bar = _progress(self.iterations, self.progress)

@@ -1,0 +1,34 @@
+"""Ctrl-C during a fit stops between frames and keeps the state reached."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+
+SCRIPT = """
+import signal
+import dpgp
+# A background job may inherit SIGINT as ignored; restore Python's default (KeyboardInterrupt).
+signal.signal(signal.SIGINT, signal.default_int_handler)
+frames = dpgp.datasets.synthetic("highway", n_frames=150, seed=0)
+model = dpgp.DPGP(iterations=100000, progress=False)
+print("fitting", flush=True)
+model.fit(frames)
+print("sweeps", model.n_iter_, "patterns", model.n_patterns_, flush=True)
+print("predict", model.predict(frames[:3]).tolist(), flush=True)
+"""
+
+
+def test_ctrl_c_keeps_the_state_reached():
+    proc = subprocess.Popen([sys.executable, "-c", SCRIPT], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout.readline().strip() == "fitting"
+    time.sleep(6)  # initialisation takes well under a second; sweeps are under way
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert "fit interrupted after" in err and "keeps the state reached" in err
+    sweeps = int(out.split("sweeps")[1].split()[0])
+    assert 1 <= sweeps < 100000
+    assert "predict [" in out
