@@ -23,10 +23,13 @@ print("predict", model.predict(frames[:3]).tolist(), flush=True)
 
 def test_ctrl_c_keeps_the_state_reached():
     proc = subprocess.Popen([sys.executable, "-c", SCRIPT], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    assert proc.stdout.readline().strip() == "fitting"
-    time.sleep(6)  # initialisation takes well under a second; sweeps are under way
-    proc.send_signal(signal.SIGINT)
-    out, err = proc.communicate(timeout=120)
+    try:
+        assert proc.stdout.readline().strip() == "fitting"
+        time.sleep(6)  # initialisation takes well under a second; sweeps are under way
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()  # never leave a runaway fit behind
     assert proc.returncode == 0, err
     assert "fit interrupted after" in err and "keeps the state reached" in err
     sweeps = int(out.split("sweeps")[1].split()[0])
