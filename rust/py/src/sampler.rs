@@ -99,7 +99,15 @@ impl PySampler {
             })
         });
         match result {
-            Ok(Ok(v)) => Ok(v),
+            Ok(Ok(v)) => {
+                if interrupt.is_some() {
+                    // Ctrl-C came after the last check point (e.g. during the length-scale step):
+                    // the work is done and kept; re-arm the interrupt so Python raises it next.
+                    // SAFETY: PyErr_SetInterrupt only sets CPython's pending-signal flag.
+                    unsafe { pyo3::ffi::PyErr_SetInterrupt() };
+                }
+                Ok(v)
+            }
             Ok(Err(Error::Interrupted)) => {
                 Err(interrupt.unwrap_or_else(|| CoreError(Error::Interrupted).into()))
             }
