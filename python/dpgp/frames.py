@@ -218,20 +218,13 @@ def _find_columns(columns: list[str], given: dict[str, str | None]) -> dict[str,
 
 
 def _read_table(path: str | os.PathLike) -> pd.DataFrame:
-    import pandas as pd
+    """A framed table from disk, read by the same sniffing reader as trajectory files."""
+    from .tracks import _read_table as read_delimited_or_parquet
 
     path = os.fspath(path)
     if not os.path.exists(path):
         raise FileNotFoundError(f"no such file: {path}")
-    if path.endswith(".parquet"):
-        return pd.read_parquet(path)
-    with open(path, encoding="utf-8-sig", errors="replace") as fh:
-        first = fh.readline()
-    sep = "\t" if "\t" in first else "," if "," in first else r"\s+"
-    try:
-        return pd.read_csv(path, sep=sep, encoding="utf-8-sig")
-    except (pd.errors.ParserError, UnicodeDecodeError) as e:
-        raise DataFormatError(f"{path} is not a readable table: {e}") from None
+    return read_delimited_or_parquet(path, None)
 
 
 def read_frames(

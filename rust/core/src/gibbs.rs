@@ -807,9 +807,9 @@ impl Sampler {
                     logw.push(f64::NEG_INFINITY);
                     continue;
                 }
-                let mut p = s.pattern.clone();
-                p.remove(i)?;
-                logw.push((p.n_frames() as f64).ln() + p.score(&[f])?[0]);
+                // The same leave-one-block-out score the sweep uses.
+                let loo = s.pattern.loo_score(i)?.unwrap_or(f64::NEG_INFINITY);
+                logw.push((s.pattern.n_frames() as f64 - 1.0).ln() + loo);
             } else {
                 logw.push((s.pattern.n_frames() as f64).ln() + s.pattern.score(&[f])?[0]);
             }

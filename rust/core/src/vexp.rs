@@ -3,7 +3,8 @@
 //! `f64::exp` calls libm one element at a time (~5.5 ns); kernel assembly is dominated by it.
 //! This Cody–Waite reduction plus a degree-12 Taylor polynomial is accurate to a few ulp on
 //! [-708, 0] and runs at about 1 ns per element once the loop is vectorised. Kernel arguments
-//! are always `-(squared scaled distance) <= 0`, so only that range is needed.
+//! are always `-(squared scaled distance) <= 0`, so only that range is needed. It is inlined
+//! into the kernel-assembly loop (kernel.rs), which is compiled for AVX2+FMA where available.
 
 const LOG2E: f64 = std::f64::consts::LOG2_E;
 const LN2_HI: f64 = 6.931_471_803_691_238e-1;
@@ -36,33 +37,6 @@ pub(crate) fn exp_nonpos(x: f64) -> f64 {
     // t's low bits hold k in two's complement; shift (k + 1023) into the exponent field.
     let scale = f64::from_bits(t.to_bits().wrapping_add(1023) << 52);
     if x < MIN_ARG { 0.0 } else { p * scale }
-}
-
-#[inline(always)]
-fn exp_slice_generic(v: &mut [f64]) {
-    for x in v.iter_mut() {
-        *x = exp_nonpos(*x);
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-fn exp_slice_avx2(v: &mut [f64]) {
-    exp_slice_generic(v)
-}
-
-/// Replace every element `x <= 0` of `v` by `exp(x)` (values below -708 become 0).
-pub fn exp_nonpos_in_place(v: &mut [f64]) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
-            // SAFETY: the required CPU features were detected at run time.
-            unsafe { exp_slice_avx2(v) };
-            return;
-        }
-    }
-    exp_slice_generic(v)
 }
 
 #[cfg(test)]

@@ -6,8 +6,7 @@ fn matches_libm_to_a_few_ulp() {
         .map(|i| -(i as f64) * 708.0 / 200_000.0)
         .collect();
     xs.extend([0.0, -1e-300, -1e-12, -0.5, -0.34657359, -700.5]);
-    let mut ys = xs.clone();
-    exp_nonpos_in_place(&mut ys);
+    let ys: Vec<f64> = xs.iter().map(|&x| exp_nonpos(x)).collect();
     for (&x, &y) in xs.iter().zip(&ys) {
         let e = x.exp();
         assert!(((y - e) / e).abs() < 4e-16, "exp({x}) = {y}, libm {e}");
@@ -16,7 +15,9 @@ fn matches_libm_to_a_few_ulp() {
 
 #[test]
 fn underflow_is_zero() {
-    let mut v = vec![-709.0, -1e6, f64::MIN];
-    exp_nonpos_in_place(&mut v);
+    let v: Vec<f64> = [-709.0, -1e6, f64::MIN]
+        .iter()
+        .map(|&x| exp_nonpos(x))
+        .collect();
     assert_eq!(v, vec![0.0, 0.0, 0.0]);
 }
