@@ -88,7 +88,57 @@ def test_noise_has_the_stated_standard_deviation():
     assert np.std(noisy.v - clean.v) == pytest.approx(0.7, rel=0.05)
 
 
-@pytest.mark.parametrize("bad", [dict(kind="roundabout"), dict(n_frames=0), dict(vehicles=(0, 3)), dict(vehicles=(5, 4))])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        dict(kind="roundabout"),
+        dict(kind=None),
+        dict(n_frames=0),
+        dict(n_frames="10"),
+        dict(n_frames=2.5),
+        dict(vehicles=(0, 3)),
+        dict(vehicles=(5, 4)),
+        dict(vehicles=3),
+        dict(vehicles=(1, 2, 3)),
+        dict(n_frames=10**6, vehicles=(1, 10**9)),
+        dict(noise=float("nan")),
+        dict(noise="loud"),
+        dict(seed=-1),
+        dict(seed="x"),
+    ],
+)
 def test_bad_arguments_raise(bad):
     with pytest.raises(dpgp.InvalidInputError):
         datasets.synthetic(**bad)
+
+
+# Stream speeds of each pattern, in label order (module docstring).
+SPEEDS = {
+    "highway": [{26, 28, 30, 32}, {18, 20, 22}, {3, 12, 18, 24}],
+    "intersection": [{0, 12}, {0, 12}, {0, 7}, {0}],
+}
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_large_draw_keeps_the_documented_properties(kind):
+    n = 20_000
+    frames = datasets.synthetic(kind, n_frames=n, seed=12, vehicles=(3, 11), noise=0.1)
+    props = np.array([share for _, share in datasets.patterns(kind)])
+    counts = np.bincount(frames.labels, minlength=len(props))
+    assert counts.sum() == n and np.abs(counts - n * props).max() < 1
+    assert frames.sizes.min() == 3 and frames.sizes.max() == 11
+    assert set(np.unique(frames.sizes)) == set(range(3, 12))  # every count in the range occurs
+    speed = np.hypot(frames.v[:, 0], frames.v[:, 1])
+    rows = frames.labels[frames.frame_of_row]
+    for k, speeds in enumerate(SPEEDS[kind]):
+        off = np.min(np.abs(speed[rows == k, None] - np.array(sorted(speeds))[None, :]), axis=1)
+        assert off.max() < 0.1 * 6  # within six noise standard deviations of a stream speed
+
+
+def test_large_draw_splits_vehicles_over_lanes_as_documented():
+    frames = datasets.synthetic("highway", n_frames=5_000, seed=13, vehicles=(4, 15))
+    free = np.flatnonzero(frames.labels == 0)  # four lanes, a quarter of the vehicles each
+    for i in free[:500]:
+        f = frames[int(i)]
+        lane = np.clip(np.round((f.x - 2) / 4), 0, 3).astype(int)
+        assert np.bincount(lane, minlength=4).min() >= len(f) // 4

@@ -140,13 +140,6 @@ def patterns(kind: str) -> list[tuple[str, float]]:
     return [(name, share) for name, share, _ in _KINDS[kind]()]
 
 
-def _split(n: int, shares: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """``floor(n * share)`` each, the remainder drawn in proportion to the shares."""
-    base = np.floor(n * shares + 1e-9).astype(int)
-    extra = n - base.sum()
-    return base + (rng.multinomial(extra, shares / shares.sum()) if extra else 0)
-
-
 def _place(stream: _Stream, count: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """``count`` vehicles uniformly along the stream's path: positions and noise-free velocities."""
     seg = np.diff(stream.path, axis=0)
@@ -158,6 +151,24 @@ def _place(stream: _Stream, count: int, rng: np.random.Generator) -> tuple[np.nd
     normal = np.column_stack([-direction[:, 1], direction[:, 0]])
     xy = stream.path[j] + direction * (s - cum[j])[:, None] + normal * rng.normal(0.0, 0.3, count)[:, None]
     return xy, stream.speed * direction
+
+
+def _split(n: np.ndarray, shares: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Vehicles per stream for frames of ``n`` vehicles each, shape ``(len(n), len(shares))``:
+    ``floor(n * share)`` each, the remainder drawn in proportion to the shares."""
+    base = np.floor(n[:, None] * shares + 1e-9).astype(np.int64)
+    extra = n - base.sum(axis=1)
+    return base + rng.multinomial(extra, shares / shares.sum())
+
+
+# Rows synthetic() will allocate at most (about 100 bytes each, all arrays together).
+_MAX_ROWS = 50_000_000
+
+
+def _as_int(name: str, value: object) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise InvalidInputError(f"{name} must be an integer, got {value!r}")
+    return int(value)
 
 
 def synthetic(
@@ -173,34 +184,63 @@ def synthetic(
     order; ``frames.labels`` holds each frame's pattern. The same arguments give the same frames.
     Positions may fall up to about a metre outside :func:`roi` (lateral jitter).
     """
+    if not isinstance(kind, str):
+        raise InvalidInputError(f"kind must be one of {sorted(_KINDS)}, got {kind!r}")
     _check_kind(kind)
+    n_frames = _as_int("n_frames", n_frames)
     if n_frames < 1:
         raise InvalidInputError(f"n_frames must be at least 1, got {n_frames}")
-    lo, hi = (int(vehicles[0]), int(vehicles[1]))
+    try:
+        lo, hi = (_as_int("vehicles[0]", vehicles[0]), _as_int("vehicles[1]", vehicles[1]))  # type: ignore[index]
+        if len(vehicles) != 2:  # type: ignore[arg-type]
+            raise TypeError
+    except (TypeError, IndexError, KeyError):
+        raise InvalidInputError(f"vehicles must be a pair of integers (min, max), got {vehicles!r}") from None
     if not 1 <= lo <= hi:
         raise InvalidInputError(f"vehicles must be (min, max) with 1 <= min <= max, got {vehicles!r}")
-    if not noise >= 0:
-        raise InvalidInputError(f"noise must be a non-negative standard deviation, got {noise!r}")
+    if n_frames * hi > _MAX_ROWS:
+        raise InvalidInputError(
+            f"n_frames * vehicles[1] = {n_frames * hi} rows is too many (at most {_MAX_ROWS}); "
+            "ask for fewer frames or vehicles"
+        )
+    try:
+        noise = float(noise)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"noise must be a number, got {noise!r}") from None
+    if not 0 <= noise < np.inf:
+        raise InvalidInputError(f"noise must be a finite non-negative standard deviation, got {noise!r}")
+    try:
+        rng = np.random.default_rng(seed)
+    except (TypeError, ValueError) as e:
+        raise InvalidInputError(f"seed must be a non-negative integer, got {seed!r} ({e})") from None
+
     pats = _KINDS[kind]()
     props = np.array([share for _, share, _ in pats])
     raw = n_frames * props
     counts = np.floor(raw).astype(int)
     counts[np.argsort(-(raw - counts), kind="stable")[: n_frames - counts.sum()]] += 1
-    rng = np.random.default_rng(seed)
     labels = rng.permutation(np.repeat(np.arange(len(pats)), counts))
+    sizes = rng.integers(lo, hi + 1, size=n_frames)
 
+    # All frames of one pattern at once, then all vehicles of one stream at once: rows come
+    # out grouped by stream and Frames.from_arrays regroups them by frame (stably, so a
+    # frame's vehicles keep stream order).
     frame_col, xy_rows, v_rows = [], [], []
-    for i, k in enumerate(labels):
-        streams = pats[k][2]
-        n = int(rng.integers(lo, hi + 1))
-        per_stream = _split(n, np.array([s.share for s in streams]), rng)
-        for stream, c in zip(streams, per_stream):
-            if c:
-                xy, v = _place(stream, int(c), rng)
+    for k, (_, _, streams) in enumerate(pats):
+        members = np.flatnonzero(labels == k)
+        if len(members) == 0:
+            continue
+        per_stream = _split(sizes[members], np.array([s.share for s in streams]), rng)
+        for j, stream in enumerate(streams):
+            c = per_stream[:, j]
+            total = int(c.sum())
+            if total:
+                xy, v = _place(stream, total, rng)
                 xy_rows.append(xy)
-                v_rows.append(v + rng.normal(0.0, noise, v.shape))
-                frame_col.append(np.full(c, i))
+                v_rows.append(v)
+                frame_col.append(np.repeat(members, c))
     xy, v = np.vstack(xy_rows), np.vstack(v_rows)
+    v += rng.normal(0.0, noise, v.shape)
     return Frames.from_arrays(np.concatenate(frame_col), xy[:, 0], xy[:, 1], v[:, 0], v[:, 1], labels=labels)
 
 
