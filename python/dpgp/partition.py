@@ -109,26 +109,27 @@ def _xlog2x(x: np.ndarray) -> np.ndarray:
         return np.where(x > 0, x * np.log2(np.where(x > 0, x, 1.0)), 0.0)
 
 
-def _contingency(c: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """(draws, K, J) counts of items in cluster k of c and j of each draw."""
-    s, n = d.shape
-    k, j = int(c.max()) + 1, int(d.max()) + 1
-    flat = (np.arange(s)[:, None] * k + c[None, :]) * j + d
-    return np.bincount(flat.ravel(), minlength=s * k * j).reshape(s, k, j)
-
-
 def losses(labels: object, draws: object, loss: str = "vi") -> np.ndarray:
     """The loss between the partition ``labels`` and each draw: shape (draws,)."""
     _check_loss(loss)
     d = as_draws(draws)
     s, n = d.shape
     c = _as_partition(labels, n)
-    t = _contingency(c, d)
-    a, b = t.sum(axis=2), t.sum(axis=1)  # (S, K) sizes in c, (S, J) sizes in each draw
-    if loss == "binder":
-        sq = lambda x, ax: (x.astype(float) ** 2).sum(axis=ax)  # noqa: E731
-        return (sq(a, 1) + sq(b, 1) - 2.0 * sq(t, (1, 2))) / max(n * (n - 1), 1)
-    return (_xlog2x(a).sum(axis=1) + _xlog2x(b).sum(axis=1) - 2.0 * _xlog2x(t).sum(axis=(1, 2))) / n
+    k, j = int(c.max()) + 1, int(d.max()) + 1
+    h = _xlog2x if loss == "vi" else np.square
+
+    def per_draw(index: np.ndarray, size: int) -> np.ndarray:
+        """Σ h(count) over the cells of each draw's table (only the non-empty cells)."""
+        counts = np.bincount(index.ravel(), minlength=s * size)
+        cell = np.flatnonzero(counts)
+        return np.bincount(cell // size, weights=h(counts[cell].astype(float)), minlength=s)
+
+    rows = np.arange(s)[:, None]
+    own = float(h(np.bincount(c).astype(float)).sum())  # Σ h(n_k), the same for every draw
+    theirs = per_draw(rows * j + d, j)  # Σ h(m_j) per draw
+    joint = per_draw((rows * k + c[None, :]) * j + d, k * j)  # Σ h(n_kj) per draw
+    total = own + theirs - 2.0 * joint
+    return total / max(n * (n - 1), 1) if loss == "binder" else total / n
 
 
 def expected_loss(labels: object, draws: object, loss: str = "vi") -> float:
