@@ -23,7 +23,9 @@ name                dtype, shape            content
 ``settings`` (``DPGP.get_params()``), ``params`` (the global GP parameters), ``alpha``,
 ``history`` (per-sweep lists), ``n_iter``, ``converged``, ``init_seconds``, ``timings``,
 ``log_joint``, ``frames_summary`` (what ``make_frames`` did, with ``dt`` and ``roi``, or null)
-and ``distributions`` (φ and ψ, ``EmpiricalDistributions.to_dict`` as lists).
+and ``distributions`` (φ and ψ, ``EmpiricalDistributions.to_dict`` as lists); a model made by
+``dpgp.Chains.best_model`` adds ``chain_summary`` (R̂, ESS, burn-in, the stopping verdict and the
+point estimate's expected loss; ``Chains.summary_dict``).
 
 Loading rebuilds the sampler from the frames, labels, length scales and α exactly as ``fit``
 leaves it (every pattern factored in canonical order), so a loaded model predicts, simulates and
@@ -102,6 +104,8 @@ def save(model: DPGP, path: str | os.PathLike) -> None:
         "frames_summary": None if summary is None else summary.to_dict(),
         "distributions": distributions(model).to_dict(),
     }
+    if getattr(model, "chain_summary_", None) is not None:
+        meta["chain_summary"] = model.chain_summary_  # a model summarising chains (dpgp.fit_chains)
     arrays: dict[str, np.ndarray] = {
         "metadata": np.array(json.dumps(_jsonable(meta))),
         "frame_ids": _ids_array(frames.ids),
@@ -254,6 +258,8 @@ def _build(cls: type[DPGP], meta: dict[str, Any], arrays: dict[str, np.ndarray])
     model.timings_ = dict(meta.get("timings") or model.timings_)
     if "label_trace" in arrays:
         model.label_trace_ = np.asarray(arrays["label_trace"], dtype=np.int64)
+    if meta.get("chain_summary") is not None:
+        model.chain_summary_ = meta["chain_summary"]
     if meta.get("distributions") is not None:
         model._distributions = (frames, EmpiricalDistributions.from_dict(meta["distributions"]))
     return model
