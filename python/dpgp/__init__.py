@@ -5,7 +5,8 @@ Multi-Vehicle Interaction Scenarios Using Gaussian Random Field"), fitted by col
 sampling in a Rust core.
 """
 
-from . import _core, datasets, gp, plot
+from . import _core, datasets, diagnostics, gp, partition, plot
+from .chains import Chains, ChainsFailedError, fit_chains
 from .exceptions import (
     DataFormatError,
     DpgpError,
@@ -29,6 +30,11 @@ __version__: str = _core.__version__
 
 __all__ = [
     "DPGP",
+    "Chains",
+    "ChainsFailedError",
+    "fit_chains",
+    "diagnostics",
+    "partition",
     "DataFormatError",
     "DpgpError",
     "Frame",

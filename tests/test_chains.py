@@ -1,0 +1,207 @@
+"""dpgp.fit_chains on local worker processes: deterministic chains, the stopping rule, the
+summaries (R̂/ESS as dpgp.diagnostics computes them, similarity, point estimate, best model),
+Ctrl-C and a worker process that dies. The Dask engine is tested in test_chains_dask.py."""
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+import warnings
+
+import numpy as np
+import pytest
+
+import dpgp
+from dpgp import InvalidInputError, diagnostics, partition
+
+SETTINGS = dict(iterations=12, block=4, seed=5, progress=False)
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return dpgp.datasets.synthetic("intersection", n_frames=60, seed=0)
+
+
+@pytest.fixture(scope="module")
+def chains(frames):
+    return dpgp.fit_chains(frames, 4, **SETTINGS)
+
+
+def test_four_chains_run_and_hold_their_traces(chains, frames):
+    assert chains.names == ["chain0", "chain1", "chain2", "chain3"]
+    assert chains.n_chains == 4 and chains.n_sweeps == 12 and chains.burn_in == 6
+    for q in ("log_joint", "n_patterns", "alpha", "moves", "seconds"):
+        assert chains.traces[q].shape == (4, 12)
+    assert chains.labels.shape == (4, 12, len(frames))
+    assert not chains.converged_ and "12 sweeps" in chains.stop_reason_ and chains.failures_ == {}
+    # chains differ (independent seeds); each model is a fitted DPGP at its chain's last state
+    assert len(set(chains.traces["log_joint"][:, -1])) == 4
+    for model, labels, k in zip(chains.models, chains.labels[:, -1], chains.traces["n_patterns"][:, -1]):
+        assert model.n_patterns_ == k
+        assert dpgp.adjusted_rand_index(model.labels_, labels) == 1.0
+        assert model.predict(frames[:3]).shape == (3,)
+
+
+def test_same_seed_same_chains_whatever_the_number_of_workers(chains, frames):
+    again = dpgp.fit_chains(frames, 4, n_workers=1, **SETTINGS)
+    np.testing.assert_array_equal(again.labels, chains.labels)
+    for q in ("log_joint", "n_patterns", "alpha", "moves"):
+        np.testing.assert_array_equal(again.traces[q], chains.traces[q])
+    other = dpgp.fit_chains(frames, 2, **{**SETTINGS, "seed": 6})
+    assert not np.array_equal(other.traces["log_joint"], chains.traces["log_joint"][:2])
+
+
+def test_diagnostics_are_those_of_the_kept_draws(chains):
+    rhat, bulk, tail = chains.rhat(), chains.ess("bulk"), chains.ess("tail")
+    assert set(rhat) == {"log_joint", "n_patterns", "alpha"}
+    for q in rhat:
+        kept = chains.traces[q][:, 6:]
+        np.testing.assert_equal(rhat[q], diagnostics.rhat(kept))
+        assert bulk[q] == diagnostics.ess_bulk(kept) and tail[q] == diagnostics.ess_tail(kept)
+    table = chains.summary()
+    assert list(table.columns) == ["mean", "sd", "rhat", "ess_bulk", "ess_tail"]
+    chains.burn_in = 2
+    assert chains.draws("alpha").shape == (4, 10)
+    chains.burn_in = 6
+    with pytest.raises(InvalidInputError, match="burn_in"):
+        chains.burn_in = 12
+
+
+def test_to_inference_data_round_trips_through_arviz(chains):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        az = pytest.importorskip("arviz")
+        idata = chains.to_inference_data()
+        np.testing.assert_allclose(float(az.rhat(idata, method="rank")["log_joint"]), chains.rhat()["log_joint"], rtol=1e-6)
+    assert idata.posterior["alpha"].shape == (4, 6)
+    assert idata.warmup_posterior["alpha"].shape == (4, 6)
+
+
+def test_point_estimate_similarity_and_best_model(chains, frames, tmp_path):
+    est = chains.point_estimate("vi")
+    kept = chains.kept_labels()
+    assert kept.shape == (24, len(frames))
+    assert est.expected_loss == pytest.approx(partition.expected_loss(est.labels, kept, "vi"))
+    assert dpgp.adjusted_rand_index(est.labels, frames.labels) >= 0.95  # the synthetic truth: 4 patterns
+    assert chains.point_estimate("binder").loss == "binder"
+    sim = chains.similarity()
+    assert sim.shape == (60, 60)
+    np.testing.assert_allclose(chains.similarity(rows=[0, 7]), sim[[0, 7]])
+    ball = chains.credible_ball("vi", level=0.9)
+    assert ball.radius >= 0
+    model = chains.best_model("vi")
+    np.testing.assert_array_equal(model.labels_, est.labels)
+    assert model.n_patterns_ == est.n_clusters
+    assert model.chain_summary_["point_estimate"]["expected_loss"] == pytest.approx(est.expected_loss)
+    sim_run = model.simulate(0, steps=3)
+    assert sim_run.positions.shape[0] == 4
+    path = tmp_path / "best.npz"
+    model.save(path)
+    loaded = dpgp.DPGP.load(path)
+    np.testing.assert_array_equal(loaded.labels_, model.labels_)
+    assert loaded.chain_summary_["rhat"].keys() == model.chain_summary_["rhat"].keys()
+    assert loaded.chain_summary_["burn_in"] == 6
+    assert getattr(loaded, "label_trace_", None) is None  # traces only when asked
+    with_traces = chains.best_model("vi", keep_traces=True)
+    assert with_traces.label_trace_.shape == (24, len(frames))
+
+
+def test_until_converged_stops_by_the_rule_and_says_why(frames):
+    # A fixed α and generous thresholds: the rule holds once K and the log joint agree.
+    ch = dpgp.fit_chains(frames, 3, until="converged", rhat=1.5, min_ess=5, block=4, max_iterations=40,
+                         seed=1, progress=False, alpha=1.0)  # fmt: skip
+    assert ch.converged_ and ch.stop_reason_.startswith("converged after")
+    assert ch.n_sweeps % 4 == 0 and ch.n_sweeps <= 40
+    last = ch.checks_[-1]
+    assert last["ok"] and last["sweeps"] == ch.n_sweeps
+    strict = dpgp.fit_chains(frames, 2, until="converged", rhat=1.0001, min_ess=10_000, block=3, max_iterations=6,
+                             seed=1, progress=False)  # fmt: skip
+    assert not strict.converged_ and "max_iterations=6" in strict.stop_reason_ and strict.n_sweeps == 6
+    assert "ESS" in strict.stop_reason_
+
+
+def test_convergence_rule_on_fixed_traces():
+    rng = np.random.default_rng(0)
+    good = {"a": rng.normal(size=(4, 400)), "k": np.full((4, 400), 3.0)}
+    verdict = dpgp.chains.convergence(good, 0, 1.01, 100)
+    assert verdict["ok"], verdict["why"]  # a quantity that never varies passes
+    bad = {"a": rng.normal(size=(4, 400)) + np.arange(4)[:, None]}
+    verdict = dpgp.chains.convergence(bad, 0, 1.01, 100)
+    assert not verdict["ok"] and "R̂(a)" in verdict["why"]
+
+
+def test_bad_arguments_raise_typed_errors(frames):
+    with pytest.raises(InvalidInputError, match="n_chains"):
+        dpgp.fit_chains(frames, 0)
+    with pytest.raises(InvalidInputError, match="until"):
+        dpgp.fit_chains(frames, until="forever")
+    with pytest.raises(InvalidInputError, match="fit_chains' own"):
+        dpgp.fit_chains(frames, iterations=3, store_labels=True)
+    with pytest.raises(InvalidInputError, match="unknown DPGP setting"):
+        dpgp.fit_chains(frames, iterations=3, sweeps=3)
+    with pytest.raises(InvalidInputError, match="assignment"):
+        dpgp.fit_chains(frames, iterations=3, assignment="greedy")
+
+
+def test_a_local_worker_that_dies_is_replaced_and_its_block_rerun(frames, chains):
+    """Kill one worker process mid-run: the pool is restarted, the lost blocks run again
+    (they are deterministic), and the chains come out as in an undisturbed run."""
+    import psutil
+
+    me = psutil.Process()
+    before = {p.pid for p in me.children(recursive=True)}
+    killed: list[int] = []
+
+    def kill_one() -> None:
+        deadline = time.time() + 60
+        while time.time() < deadline and not killed:
+            workers = [p for p in me.children() if p.pid not in before and "spawn_main" in " ".join(p.cmdline())]
+            if len(workers) >= 2:
+                time.sleep(1.0)  # let the first blocks start
+                workers[0].kill()
+                killed.append(workers[0].pid)
+            time.sleep(0.05)
+
+    thread = threading.Thread(target=kill_one)
+    thread.start()
+    again = dpgp.fit_chains(frames, 4, **{**SETTINGS, "block": 2})
+    thread.join()
+    assert killed
+    assert again.failures_ == {}
+    np.testing.assert_array_equal(again.labels, chains.labels)
+
+
+_CTRL_C = textwrap.dedent(
+    """
+    import warnings, dpgp
+    if __name__ == "__main__":
+        frames = dpgp.datasets.synthetic("intersection", n_frames=60, seed=0)
+        print("start", flush=True)
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            ch = dpgp.fit_chains(frames, 2, iterations=100000, block=2, progress=False)
+        print("kept", ch.n_sweeps, ch.converged_, "|", ch.stop_reason_, "|", [str(x.message) for x in w], flush=True)
+    """
+)
+
+
+def test_ctrl_c_cancels_the_tasks_and_keeps_the_finished_sweeps(tmp_path):
+    script = tmp_path / "ctrl_c.py"
+    script.write_text(_CTRL_C)
+    proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)  # fmt: skip
+    try:
+        assert proc.stdout.readline().strip() == "start"
+        time.sleep(8.0)  # workers spawn, import dpgp and finish some blocks
+        os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in a terminal does: the whole group
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 0, err
+    kept = out.split()
+    assert kept[0] == "kept" and int(kept[1]) >= 2 and kept[2] == "False", out
+    assert "interrupted (Ctrl-C)" in out and "keep every finished block" in out
