@@ -205,3 +205,33 @@ def test_ctrl_c_cancels_the_tasks_and_keeps_the_finished_sweeps(tmp_path):
     kept = out.split()
     assert kept[0] == "kept" and int(kept[1]) >= 2 and kept[2] == "False", out
     assert "interrupted (Ctrl-C)" in out and "keep every finished block" in out
+
+
+def test_chain_figures(chains):
+    fig = dpgp.plot.chain_trace(chains)
+    assert len(fig.axes) == 3 and all(len(ax.lines) == 4 for ax in fig.axes)
+    assert "12 sweeps" in fig._suptitle.get_text()
+    ax = dpgp.plot.similarity(chains)
+    assert ax.images[0].get_array().shape == (60, 60)
+    assert dpgp.plot.similarity(chains, max_items=20).images[0].get_array().shape == (20, 20)
+    ax = dpgp.plot.rhat(chains)
+    labels = [line.get_label() for line in ax.lines]
+    assert labels[0] == "log joint" and labels[1].startswith("K") and labels[3] == "threshold 1.01"
+
+
+def test_cli_fits_chains_saves_the_point_estimate_and_info_shows_the_diagnostics(frames, tmp_path, capsys):
+    from dpgp import cli
+
+    data = tmp_path / "frames.csv"
+    frames.to_pandas().to_csv(data, index=False)
+    out = tmp_path / "chains.npz"
+    assert cli.main(["fit", str(data), "-o", str(out), "--chains", "2", "--iterations", "8", "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "Chains(2 chains × 8 sweeps" in text and "ess_bulk" in text and "point estimate (vi)" in text
+    model = dpgp.DPGP.load(out)
+    assert model.chain_summary_["n_chains"] == 2 and model.chain_summary_["n_sweeps"] == 8
+    assert cli.main(["info", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "chains: 2 × 8 sweeps, burn-in 4" in text and "R̂: log joint" in text and "ESS bulk" in text
+    assert cli.main(["fit", str(data), "-o", str(out), "--until-converged", "--no-progress"]) == 1
+    assert "go with --chains" in capsys.readouterr().err

@@ -27,25 +27,43 @@ def frames():
 def _cluster(**config):
     with dask.config.set(config):
         cluster = distributed.LocalCluster(
-            n_workers=2, processes=True, threads_per_worker=1, dashboard_address=None, silence_logs=50
+            n_workers=2, processes=True, threads_per_worker=1, dashboard_address=None,
+            worker_dashboard_address=None, silence_logs=50,
         )
     return cluster, distributed.Client(cluster)
 
 
-def test_four_chains_on_dask_equal_local_processes(frames):
+@pytest.fixture(scope="module")
+def cluster():
     cluster, client = _cluster()
-    try:
-        assert len(client.scheduler_info()["workers"]) == 2
-        on_dask = dpgp.fit_chains(frames, 4, client=client, **SETTINGS)
-    finally:
-        client.close()
-        cluster.close()
+    yield cluster, client
+    client.close()
+    cluster.close()
+
+
+def test_four_chains_on_dask_equal_local_processes(frames, cluster):
+    client = cluster[1]
+    assert len(client.scheduler_info()["workers"]) == 2
+    on_dask = dpgp.fit_chains(frames, 4, client=client, **SETTINGS)
     local = dpgp.fit_chains(frames, 4, **SETTINGS)
     assert on_dask.names == local.names == ["chain0", "chain1", "chain2", "chain3"]
     np.testing.assert_array_equal(on_dask.labels, local.labels)
     for q in ("log_joint", "n_patterns", "alpha", "moves"):
         np.testing.assert_array_equal(on_dask.traces[q], local.traces[q])
     np.testing.assert_array_equal(on_dask.point_estimate().labels, local.point_estimate().labels)
+
+
+def test_cli_runs_chains_on_a_scheduler_address(frames, cluster, tmp_path, capsys):
+    from dpgp import cli
+
+    data = tmp_path / "frames.csv"
+    frames.to_pandas().to_csv(data, index=False)
+    out = tmp_path / "m.npz"
+    args = ["fit", str(data), "-o", str(out), "--chains", "2", "--iterations", "6", "--no-progress"]
+    assert cli.main([*args, "--scheduler", cluster[0].scheduler_address]) == 0
+    assert "Chains(2 chains × 6 sweeps" in capsys.readouterr().out
+    local = dpgp.fit_chains(frames, 2, iterations=6, seed=0, progress=False)
+    np.testing.assert_array_equal(dpgp.DPGP.load(out).labels_, local.best_model().labels_)
 
 
 def test_a_killed_worker_fails_its_chains_by_name_and_keeps_the_others(frames):
@@ -72,7 +90,7 @@ def test_a_killed_worker_fails_its_chains_by_name_and_keeps_the_others(frames):
         killer.start()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            ch = dpgp.fit_chains(frames, 4, client=client, **{**SETTINGS, "iterations": 16, "block": 2})
+            ch = dpgp.fit_chains(frames, 4, client=client, **{**SETTINGS, "iterations": 10, "block": 2})
         killer.join()
     finally:
         client.close()
@@ -84,8 +102,8 @@ def test_a_killed_worker_fails_its_chains_by_name_and_keeps_the_others(frames):
         assert any(name + "-" in key for keys in victims.values() for key in keys)
         assert any(name in str(w.message) for w in caught)
     assert sorted(ch.names + list(ch.failures_)) == ["chain0", "chain1", "chain2", "chain3"]
-    assert ch.n_sweeps == 16  # the survivors ran to the end ...
-    local = dpgp.fit_chains(frames, 4, **{**SETTINGS, "iterations": 16, "block": 2})
+    assert ch.n_sweeps == 10  # the survivors ran to the end ...
+    local = dpgp.fit_chains(frames, 4, **{**SETTINGS, "iterations": 10, "block": 2})
     for name in ch.names:  # ... exactly as undisturbed chains do
         i, j = ch.names.index(name), local.names.index(name)
         np.testing.assert_array_equal(ch.labels[i], local.labels[j])

@@ -92,6 +92,10 @@ def _fit(args: argparse.Namespace) -> int:
     if args.max_frames is not None:
         frames = frames[: args.max_frames]  # a selection keeps dt and ROI for simulations
     print(f"{args.data}: {frames!r}")
+    if args.chains is not None:
+        return _fit_chains(args, frames)
+    if args.scheduler is not None or args.until_converged:
+        raise ValueError("--scheduler and --until-converged go with --chains N")
     model = DPGP(
         iterations=args.iterations, assignment=args.assignment, seed=args.seed, alpha=args.alpha,
         n_threads=args.threads, progress=args.progress,
@@ -102,6 +106,58 @@ def _fit(args: argparse.Namespace) -> int:
     model.save(args.output)
     print(f"wrote {args.output}")
     return 0
+
+
+def _fit_chains(args: argparse.Namespace, frames: Any) -> int:
+    """``dpgp fit --chains N``: independent chains (locally or on a Dask scheduler), then the
+    point-estimate model, saved with the chain summary."""
+    from . import fit_chains
+
+    client = None
+    if args.scheduler is not None:
+        try:
+            from distributed import Client
+        except ImportError:
+            raise DpgpError("--scheduler needs Dask: pip install 'dpgp[distributed]'") from None
+        client = Client(args.scheduler)
+    t = time.perf_counter()
+    try:
+        chains = fit_chains(
+            frames, args.chains, client, iterations=args.iterations, until="converged" if args.until_converged else None,
+            rhat=args.rhat, min_ess=args.min_ess, max_iterations=args.max_iterations, seed=args.seed,
+            progress=args.progress, assignment=args.assignment, alpha=args.alpha, n_threads=args.threads or 1,
+        )  # fmt: skip
+    finally:
+        if client is not None:
+            client.close()
+    print(f"{chains!r} in {time.perf_counter() - t:.1f} s: {chains.stop_reason_}")
+    for name, error in chains.failures_.items():
+        print(f"  {name} failed: {error}")
+    print(chains.summary().to_string(float_format=lambda v: f"{v:.4g}"))
+    model = chains.best_model(args.loss)
+    s = model.chain_summary_["point_estimate"]
+    print(f"point estimate ({s['loss']}): {model.n_patterns_} patterns, posterior expected loss {s['expected_loss']:.4g}")
+    model.save(args.output)
+    print(f"wrote {args.output}")
+    return 0
+
+
+def _chain_lines(summary: dict[str, Any]) -> list[str]:
+    """What ``dpgp info`` shows of a model made from chains."""
+    names = {"log_joint": "log joint", "n_patterns": "K", "alpha": "α"}
+
+    def row(key: str, fmt: str) -> str:
+        return ", ".join(f"{names.get(q, q)} {format(v, fmt)}" for q, v in summary[key].items())
+
+    pe = summary["point_estimate"]
+    lines = [
+        f"chains: {summary['n_chains']} × {summary['n_sweeps']} sweeps, burn-in {summary['burn_in']}; {summary['stop_reason']}",
+        f"  R̂: {row('rhat', '.4f')}",
+        f"  ESS bulk: {row('ess_bulk', '.0f')}; tail: {row('ess_tail', '.0f')}",
+        f"  point estimate ({pe['loss']}): {pe['n_patterns']} patterns, posterior expected loss {pe['expected_loss']:.4g}",
+    ]
+    lines += [f"  {name} failed: {error}" for name, error in summary.get("failures", {}).items()]
+    return lines
 
 
 def _info(args: argparse.Namespace) -> int:
@@ -124,6 +180,8 @@ def _info(args: argparse.Namespace) -> int:
         f"sweeps: {model.n_iter_}" + (" (stopped early: converged)" if model.converged_ else ""),
         f"largest {top} patterns (frames, weight, length scales w_x, w_y):",
     ]
+    if getattr(model, "chain_summary_", None):
+        lines[-1:-1] = _chain_lines(model.chain_summary_)
     counts = np.bincount(model.labels_, minlength=model.n_patterns_)
     for k in range(top):
         wx, wy = model.length_scales_[k]
@@ -281,6 +339,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, help="worker threads (default: all cores)")
     p.add_argument("--seed", type=int, default=0, help="random seed; a fit is a function of data, settings and seed")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True, help="show a progress bar")
+    g = p.add_argument_group("many chains (dpgp.fit_chains)")
+    g.add_argument("--chains", type=int, metavar="N",
+                   help="run N independent chains and save the point-estimate model with R̂ and ESS")  # fmt: skip
+    g.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run the chains on this Dask scheduler (e.g. tcp://host:8786; needs dpgp[distributed]); "
+                   "default: local worker processes")  # fmt: skip
+    g.add_argument("--until-converged", action="store_true",
+                   help="advance the chains until R̂ <= --rhat and ESS >= --min-ess (at most --max-iterations "
+                   "sweeps) instead of --iterations sweeps")  # fmt: skip
+    g.add_argument("--rhat", type=float, default=1.01, help="R̂ threshold of --until-converged")
+    g.add_argument("--min-ess", type=float, default=400, help="bulk and tail ESS threshold of --until-converged")
+    g.add_argument("--max-iterations", type=int, default=2000, help="sweep cap of --until-converged")
+    g.add_argument("--loss", choices=("vi", "binder"), default="vi", help="loss the point estimate minimises")
     p.set_defaults(func=_fit)
 
     p = sub.add_parser("info", help="summarise a model file", formatter_class=fmt,

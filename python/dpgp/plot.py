@@ -276,4 +276,87 @@ def animate(
     return fig
 
 
-__all__ = ["weights", "velocity_field", "frames", "simulation", "trace", "animate", "field_grid"]
+# --- many chains (dpgp.fit_chains) --------------------------------------------------------------
+def _stop_note(chains: Any) -> str:
+    if chains.stop_reason_.startswith(("converged", "not converged")):
+        return chains.stop_reason_
+    return f"no stopping rule: {chains.stop_reason_}"
+
+
+def chain_trace(chains: Any) -> Figure:
+    """Log joint, K and α per sweep, one line per chain, the burn-in shaded; the title says
+    why the run stopped."""
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
+
+    fig = Figure(figsize=(8.0, 6.5), layout="constrained")
+    axes = fig.subplots(3, 1, sharex=True)
+    sweeps = np.arange(1, chains.n_sweeps + 1)
+    for ax, key, label in zip(axes, ("log_joint", "n_patterns", "alpha"), ("log joint", "K", "α")):
+        for name, y in zip(chains.names, chains.traces[key]):
+            ax.plot(sweeps, y, "-", lw=1, label=name)
+        if chains.burn_in:
+            ax.axvspan(0.5, chains.burn_in + 0.5, color="0.9", zorder=0)
+        ax.set_ylabel(label)
+    axes[0].legend(loc="lower right", fontsize="small", ncols=min(chains.n_chains, 4))
+    axes[1].yaxis.set_major_locator(MaxNLocator(integer=True))
+    axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
+    axes[-1].set_xlabel(f"sweep (burn-in of {chains.burn_in} shaded)")
+    fig.suptitle(f"{chains.n_chains} chains: {_stop_note(chains)}", fontsize="medium", wrap=True)
+    return fig
+
+
+def similarity(chains: Any, loss: str = "vi", max_items: int = 1500, ax: Axes | None = None) -> Axes:
+    """The posterior similarity matrix, frames ordered by the point estimate's patterns (each
+    pattern's most typical frames first), pattern borders drawn; above ``max_items`` frames an
+    evenly spaced subset of that order is shown."""
+    est = chains.point_estimate(loss)
+    labels = est.labels
+    n = len(labels)
+    # Within a pattern, frames by their mean similarity to the pattern, from a few sample rows.
+    rng = np.random.default_rng(0)
+    typical = np.zeros(n)
+    for k in range(est.n_clusters):
+        members = np.flatnonzero(labels == k)
+        probe = rng.choice(members, size=min(len(members), 50), replace=False)
+        typical[members] = chains.similarity(rows=probe)[:, members].mean(axis=0)
+    order = np.lexsort((-typical, labels))
+    if n > max_items:
+        order = order[np.linspace(0, n - 1, max_items).astype(int)]
+    sim = chains.similarity(rows=order)[:, order]
+    ax = _axes(ax, (6.0, 5.2))
+    image = ax.imshow(sim, vmin=0.0, vmax=1.0, cmap="viridis", interpolation="nearest")
+    ax.figure.colorbar(image, ax=ax, label="P(same pattern)")
+    edges = np.flatnonzero(np.diff(labels[order])) + 0.5
+    for e in edges:
+        ax.axhline(e, color="w", lw=0.5)
+        ax.axvline(e, color="w", lw=0.5)
+    shown = "" if n <= max_items else f" ({max_items} of {n} shown)"
+    ax.set_title(f"posterior similarity, by the {loss.upper()} point estimate ({est.n_clusters} patterns){shown}",
+                 fontsize="medium")  # fmt: skip
+    ax.set_xlabel("frame")
+    ax.set_ylabel("frame")
+    return ax
+
+
+def rhat(chains: Any, ax: Axes | None = None, points: int = 30) -> Axes:
+    """Rank-normalised split-R̂ of the log joint, K and α had the run stopped after each number
+    of sweeps (the second half kept), with the stopping threshold."""
+    ns, values = chains.rhat_by_sweeps(points)
+    ax = _axes(ax, (7.0, 4.0))
+    for key, label in (("log_joint", "log joint"), ("n_patterns", "K"), ("alpha", "α")):
+        flat = len(ns) and np.all(np.isnan(values[key]))  # never varies: R̂ is undefined
+        ax.plot(ns, values[key], ".-", label=label + (" (constant, no R̂)" if flat else ""))
+    threshold = chains.thresholds.get("rhat", 1.01)
+    ax.axhline(threshold, color="k", ls="--", lw=1, label=f"threshold {threshold:g}")
+    ax.set_xlabel("sweeps per chain")
+    ax.set_ylabel("split-R̂ (rank-normalised)")
+    ax.set_title(_stop_note(chains), fontsize="small", wrap=True)
+    ax.legend(fontsize="small")
+    return ax
+
+
+__all__ = [
+    "weights", "velocity_field", "frames", "simulation", "trace", "animate", "field_grid",
+    "chain_trace", "similarity", "rhat",
+]  # fmt: skip
