@@ -8,10 +8,11 @@
 use std::hint::black_box;
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
-use dpgp_core::gibbs::{Assignment, Data, Sampler, Settings};
+use dpgp_core::gibbs::{Assignment, Data, Proposal, Sampler, Settings};
 use dpgp_core::gp::GpParams;
 use dpgp_core::kernel::Point;
 use dpgp_core::pattern::{FrameRef, Pattern};
+use dpgp_core::pattern_model::Likelihood;
 
 struct Gen(u64);
 impl Gen {
@@ -97,6 +98,9 @@ fn bench(c: &mut Criterion) {
         length_scale_fraction: 1.0,
         pattern_moments: false,
         seed: 0,
+        likelihood: Likelihood::Exact,
+        proposal: Proposal::Full,
+        memory_budget: None,
     };
     let mut sampler = Sampler::new(data, settings).unwrap();
     sampler.sweep(&|| false).unwrap();

@@ -21,6 +21,17 @@ pub enum Error {
         n: usize,
         jitter: f64,
     },
+    /// The fit would grow past its memory budget; nothing was allocated.
+    #[error(
+        "the fit needs about {needed_mb} MB for its patterns, over the memory budget of {budget_mb} MB \
+         ({likelihood} likelihood); use likelihood=\"hsgp\" (its memory does not grow with the \
+         patterns' sizes) or raise memory_budget", needed_mb = needed / 1_000_000, budget_mb = budget / 1_000_000
+    )]
+    MemoryBudget {
+        needed: usize,
+        budget: usize,
+        likelihood: &'static str,
+    },
     /// The caller asked the computation to stop (Ctrl-C).
     #[error("interrupted")]
     Interrupted,

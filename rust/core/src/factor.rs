@@ -32,6 +32,11 @@ impl GrowFactor {
         self.n
     }
 
+    /// The buffer's leading dimension (its memory is `cap² · 8` bytes).
+    pub fn cap(&self) -> usize {
+        self.cap
+    }
+
     pub fn mat(&self) -> MatRef<'_, f64> {
         MatRef::from_column_major_slice_with_stride(&self.buf, self.n, self.n, self.cap)
     }

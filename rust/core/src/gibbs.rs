@@ -20,7 +20,9 @@ use rayon::prelude::*;
 use crate::error::{Error, Result};
 use crate::gp::GpParams;
 use crate::kernel::{LengthScales, Point};
-use crate::pattern::{FrameRef, Pattern, prior_score};
+use crate::pattern::FrameRef;
+use crate::pattern_model::{Likelihood, PatternModel};
+use crate::proposal::{self, CellGrid, CellStats};
 use crate::rng::{Phase, stream};
 use crate::slice::slice_step;
 use crate::special::{ln_gamma, ln_gamma_pdf, log_sum_exp};
@@ -32,6 +34,26 @@ const SCORE_BLOCK: usize = 64;
 const ALPHA_STEPS: usize = 10;
 /// Auxiliary patterns scored per parallel task.
 const AUX_CHUNK: usize = 25;
+/// Most auxiliary patterns per frame (each costs an l x l factorisation).
+pub const MAX_NEW_PATTERN_SAMPLES: usize = 100_000;
+/// Informed proposals: the cheap scores are tempered (they treat a frame's vehicles as
+/// independent, so they are overconfident) and mixed with a uniform share, so that every
+/// pattern keeps a chance to be proposed.
+const TEMPER: f64 = 0.7;
+const UNIFORM_SHARE: f64 = 0.05;
+/// Patterns scored exactly when a frame is placed by the informed rule without a current
+/// pattern (initialisation) or in MAP mode: the best ones by cheap score, plus its own.
+const INFORMED_CANDIDATES: usize = 2;
+
+/// How a frame's new pattern is proposed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Proposal {
+    /// Score the frame against every pattern and draw from the full conditional.
+    Full,
+    /// Propose a pattern by a cheap score over all of them and accept by the exact ratio of
+    /// the proposed and current patterns (Metropolis-within-Gibbs; algorithms.md §3.7).
+    Informed,
+}
 
 /// How a frame's pattern is chosen from its conditional.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -65,6 +87,11 @@ pub struct Settings {
     /// pattern is still updated infinitely often, so the chain keeps the same posterior.
     pub length_scale_fraction: f64,
     pub seed: u64,
+    /// The GP of every pattern: exact or reduced-rank.
+    pub likelihood: Likelihood,
+    pub proposal: Proposal,
+    /// Bytes the patterns' factors and the score cache may hold; `None` for no limit.
+    pub memory_budget: Option<usize>,
 }
 
 impl Settings {
@@ -88,10 +115,11 @@ impl Settings {
                 self.length_scale_fraction
             )));
         }
-        if self.new_pattern_samples == 0 {
-            return Err(Error::InvalidInput(
-                "new_pattern_samples must be at least 1".into(),
-            ));
+        if self.new_pattern_samples == 0 || self.new_pattern_samples > MAX_NEW_PATTERN_SAMPLES {
+            return Err(Error::InvalidInput(format!(
+                "new_pattern_samples must be between 1 and {MAX_NEW_PATTERN_SAMPLES}, got {}",
+                self.new_pattern_samples
+            )));
         }
         Ok(())
     }
@@ -159,6 +187,14 @@ pub struct Timings {
     pub alpha: f64,
 }
 
+/// How often informed proposals led to an exact evaluation, and how often those were accepted.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ProposalStats {
+    /// Frames whose proposal differed from their pattern (each costs two exact scores).
+    pub proposed: u64,
+    pub accepted: u64,
+}
+
 /// What one sweep did.
 #[derive(Clone, Copy, Debug)]
 pub struct SweepStats {
@@ -170,7 +206,9 @@ pub struct SweepStats {
 
 #[derive(Clone, Debug)]
 struct Slot {
-    pattern: Pattern,
+    pattern: Box<dyn PatternModel>,
+    /// Per-cell velocity statistics for the informed proposal.
+    cells: Option<CellStats>,
     generation: u32,
     version: u64,
 }
@@ -197,7 +235,10 @@ pub struct Sampler {
     next_version: u64,
     /// `cache[frame][slot] = (pattern version, log p(frame | pattern))`.
     cache: Vec<Vec<(u64, f64)>>,
+    /// The cells of the informed proposal's statistics.
+    grid: Option<Arc<CellGrid>>,
     pub timings: Timings,
+    pub proposals: ProposalStats,
 }
 
 impl Sampler {
@@ -215,7 +256,20 @@ impl Sampler {
                 (1.0 / draw).clamp(0.1, 10.0)
             }
         };
+        let grid = (settings.proposal == Proposal::Informed).then(|| {
+            // Cells of half a typical length scale: the prior mean, or the fixed scales.
+            let (a, b) = settings.length_scale_prior;
+            let cell = if settings.fixed_length_scales {
+                let ls = settings.base.length_scales;
+                [0.5 * ls.wx, 0.5 * ls.wy]
+            } else {
+                [0.5 * a * b; 2]
+            };
+            Arc::new(CellGrid::new(&data.xy, cell))
+        });
         Ok(Self {
+            grid,
+            proposals: ProposalStats::default(),
             settings,
             data: Arc::new(data),
             slots: Vec::new(),
@@ -257,8 +311,15 @@ impl Sampler {
             .filter_map(|(k, s)| s.as_ref().map(|s| (k, s)))
     }
 
-    fn add_pattern(&mut self, pattern: Pattern) -> usize {
+    fn add_pattern(&mut self, pattern: Box<dyn PatternModel>) -> usize {
         let version = self.fresh_version();
+        let cells = self.grid.as_ref().map(|g| {
+            let mut c = CellStats::new(Arc::clone(g));
+            for (_, f) in pattern.members() {
+                c.add(f, 1.0);
+            }
+            c
+        });
         let k = match self.slots.iter().position(Option::is_none) {
             Some(k) => k,
             None => {
@@ -270,6 +331,7 @@ impl Sampler {
         self.generations[k] += 1;
         self.slots[k] = Some(Slot {
             pattern,
+            cells,
             generation: self.generations[k],
             version,
         });
@@ -304,11 +366,37 @@ impl Sampler {
     }
 
     /// The pattern in `slot`, if any.
-    pub fn pattern(&self, slot: usize) -> Option<&Pattern> {
+    pub fn pattern(&self, slot: usize) -> Option<&dyn PatternModel> {
         self.slots
             .get(slot)
             .and_then(|s| s.as_ref())
-            .map(|s| &s.pattern)
+            .map(|s| s.pattern.as_ref())
+    }
+
+    /// Bytes held by the patterns and the score cache.
+    pub fn memory_bytes(&self) -> usize {
+        let patterns: usize = self
+            .live()
+            .map(|(_, s)| s.pattern.bytes() + s.cells.as_ref().map_or(0, CellStats::bytes))
+            .sum();
+        patterns + 16 * self.data.len() * self.slots.len()
+    }
+
+    /// Fail with [`Error::MemoryBudget`] before growing the state by `extra` bytes past the
+    /// budget, so that nothing is allocated and the state stays as it was.
+    fn check_memory(&self, extra: usize) -> Result<()> {
+        let Some(budget) = self.settings.memory_budget else {
+            return Ok(());
+        };
+        let needed = self.memory_bytes() + extra;
+        if needed > budget {
+            return Err(Error::MemoryBudget {
+                needed,
+                budget,
+                likelihood: self.settings.likelihood.name(),
+            });
+        }
+        Ok(())
     }
 
     fn pattern_params(&self, ls: LengthScales) -> GpParams {
@@ -370,7 +458,13 @@ impl Sampler {
             if members.is_empty() {
                 continue;
             }
-            let mut pattern = Pattern::new(self.pattern_params(ls), &members)?;
+            let n: usize = members.iter().map(|m| m.1.xy.len()).sum();
+            let groups = self.settings.base.groups().len();
+            self.check_memory(self.settings.likelihood.pattern_bytes(n, groups))?;
+            let mut pattern = self
+                .settings
+                .likelihood
+                .pattern(self.pattern_params(ls), &members)?;
             if self.settings.pattern_moments
                 && let Some(p) = pattern.with_own_moments(self.moment_floor())?
             {
@@ -463,12 +557,18 @@ impl Sampler {
     /// against `i` and the next frames of the sweep that will need it too, which turns many
     /// single-frame solves into one level-3 solve; if the pattern changes again before those
     /// frames come, their scores are simply recomputed.
-    fn scores_for(&mut self, i: usize, skip: usize, lookahead: bool) -> Result<Vec<(usize, f64)>> {
+    fn scores_for(
+        &mut self,
+        i: usize,
+        skip: usize,
+        only: Option<&[usize]>,
+        lookahead: bool,
+    ) -> Result<Vec<(usize, f64)>> {
         let data = Arc::clone(&self.data);
         let n = data.len();
         let live: Vec<(usize, u64)> = self
             .live()
-            .filter(|(k, _)| *k != skip)
+            .filter(|(k, _)| *k != skip && only.is_none_or(|o| o.contains(k)))
             .map(|(k, s)| (k, s.version))
             .collect();
         let is_stale = |j: usize, k: usize, v: u64| self.cache[j].get(k).is_none_or(|c| c.0 != v);
@@ -517,7 +617,11 @@ impl Sampler {
             let ls = self.settings.base.length_scales;
             return Ok(vec![(
                 ls,
-                self.alpha.ln() + prior_score(f, &self.settings.base)?,
+                self.alpha.ln()
+                    + self
+                        .settings
+                        .likelihood
+                        .prior_score(f, &self.settings.base)?,
             )]);
         }
         let m = self.settings.new_pattern_samples;
@@ -540,7 +644,10 @@ impl Sampler {
             .map(|chunk| {
                 chunk
                     .iter()
-                    .map(|&ls| Ok((ls, log_w0 + prior_score(f, &self.pattern_params(ls))?)))
+                    .map(|&ls| {
+                        let p = self.pattern_params(ls);
+                        Ok((ls, log_w0 + self.settings.likelihood.prior_score(f, &p)?))
+                    })
                     .collect()
             })
             .collect();
@@ -549,15 +656,57 @@ impl Sampler {
 
     /// Take frame `i` out of pattern `k` (dropping the pattern if it was its only frame).
     fn detach_frame(&mut self, i: usize, k: usize) -> Result<()> {
+        let data = Arc::clone(&self.data);
         let slot = self.live_slot_mut(k);
         if slot.pattern.n_frames() == 1 {
             self.slots[k] = None;
         } else {
             slot.pattern.remove(i)?;
+            if let Some(c) = slot.cells.as_mut() {
+                c.add(data.frame(i), -1.0);
+            }
             let v = self.fresh_version();
             self.live_slot_mut(k).version = v;
         }
         self.labels[i] = NONE;
+        Ok(())
+    }
+
+    /// Move frame `i` from `old` (or nowhere) into the live pattern `k`.
+    fn move_frame(&mut self, i: usize, old: usize, k: usize) -> Result<()> {
+        let data = Arc::clone(&self.data);
+        let f = data.frame(i);
+        let p = &self.live_slot(k).pattern;
+        self.check_memory(p.bytes_after_insert(f.xy.len()).saturating_sub(p.bytes()))?;
+        if old != NONE {
+            self.detach_frame(i, old)?;
+        }
+        let v = self.fresh_version();
+        let slot = self.live_slot_mut(k);
+        slot.pattern.insert(i, f)?;
+        if let Some(c) = slot.cells.as_mut() {
+            c.add(f, 1.0);
+        }
+        slot.version = v;
+        self.labels[i] = k;
+        Ok(())
+    }
+
+    /// Move frame `i` from `old` (or nowhere) into a new pattern with length scales `ls`.
+    fn move_to_new(&mut self, i: usize, old: usize, ls: LengthScales) -> Result<()> {
+        let data = Arc::clone(&self.data);
+        let f = data.frame(i);
+        let groups = self.settings.base.groups().len();
+        self.check_memory(self.settings.likelihood.pattern_bytes(f.xy.len(), groups))?;
+        let pattern = self
+            .settings
+            .likelihood
+            .pattern(self.pattern_params(ls), &[(i, f)])?;
+        if old != NONE {
+            self.detach_frame(i, old)?;
+        }
+        let k = self.add_pattern(pattern);
+        self.labels[i] = k;
         Ok(())
     }
 
@@ -571,22 +720,58 @@ impl Sampler {
         rng: &mut impl rand::Rng,
         lookahead: bool,
     ) -> Result<bool> {
+        if self.settings.proposal == Proposal::Full {
+            return self.choose_among(i, None, rng, lookahead);
+        }
+        let old = self.labels[i];
+        if old != NONE && self.settings.assignment == Assignment::Gibbs {
+            return self.informed_step(i, rng);
+        }
+        // Without a current pattern (initialisation), or in MAP mode: the exact choice among
+        // the patterns the cheap score ranks highest, the frame's own, and a new one.
+        let t = Instant::now();
+        let f = self.data.frame(i);
+        let (cands, logq) = self.proposal(f, old);
+        let mut order: Vec<usize> = (0..cands.len()).collect();
+        order.sort_by(|&a, &b| logq[b].total_cmp(&logq[a]));
+        let mut only: Vec<usize> = order
+            .iter()
+            .take(INFORMED_CANDIDATES)
+            .map(|&j| cands[j])
+            .collect();
+        if old != NONE && !only.contains(&old) {
+            only.push(old);
+        }
+        self.timings.scoring += t.elapsed().as_secs_f64();
+        self.choose_among(i, Some(&only), rng, lookahead)
+    }
+
+    /// Draw frame `i`'s pattern from its conditional restricted to the patterns `only` (all
+    /// when `None`) and new ones (Algorithm 8), or take the most probable in MAP mode; returns
+    /// whether the partition changed.
+    ///
+    /// The frame's own pattern is scored by leave-one-block-out without touching its factor, so
+    /// a frame that stays (most of them, after burn-in) costs no factor update at all.
+    fn choose_among(
+        &mut self,
+        i: usize,
+        only: Option<&[usize]>,
+        rng: &mut impl rand::Rng,
+        lookahead: bool,
+    ) -> Result<bool> {
         let data = Arc::clone(&self.data);
         let f = data.frame(i);
         let old = self.labels[i];
         let t = Instant::now();
-        let (own_ls, own_score) = match self.slots.get(old).and_then(|s| s.as_ref()) {
-            None => (None, None),
-            Some(s) if s.pattern.n_frames() == 1 => (Some(s.pattern.length_scales()), None),
-            Some(s) => (
-                None,
-                s.pattern
-                    .loo_score(i)?
-                    .map(|v| (s.pattern.n_frames() as f64 - 1.0).ln() + v),
-            ),
+        let own_ls = self.singleton_scales(old);
+        let own_score = match own_ls {
+            Some(_) => None,
+            None if old == NONE => None,
+            None if only.is_some_and(|o| !o.contains(&old)) => None,
+            None => Some(self.own_weight(i, old)?),
         };
         let mut candidates: Vec<(usize, f64)> = self
-            .scores_for(i, old, lookahead)?
+            .scores_for(i, old, only, lookahead)?
             .into_iter()
             .map(|(k, s)| (k, (self.live_slot(k).pattern.n_frames() as f64).ln() + s))
             .collect();
@@ -619,26 +804,155 @@ impl Sampler {
         let changed = if choice < candidates.len() {
             let k = candidates[choice].0;
             if k != old {
-                if old != NONE {
-                    self.detach_frame(i, old)?;
-                }
-                self.live_slot_mut(k).pattern.insert(i, f)?;
-                let v = self.fresh_version();
-                self.live_slot_mut(k).version = v;
-                self.labels[i] = k;
+                self.move_frame(i, old, k)?;
             }
             k != old
         } else {
             let j = choice - candidates.len();
             // A singleton that draws its own length scales (auxiliary 0) keeps its pattern.
             if !(own_ls.is_some() && j == 0) {
-                if old != NONE {
-                    self.detach_frame(i, old)?;
-                }
-                let k = self.add_pattern(Pattern::new(self.pattern_params(aux[j].0), &[(i, f)])?);
-                self.labels[i] = k;
+                self.move_to_new(i, old, aux[j].0)?;
             }
             own_ls.is_none()
+        };
+        self.timings.moves += t.elapsed().as_secs_f64();
+        Ok(changed)
+    }
+
+    /// The length scales of frame `i`'s pattern `k` if the frame is alone in it.
+    fn singleton_scales(&self, k: usize) -> Option<LengthScales> {
+        self.slots
+            .get(k)
+            .and_then(|s| s.as_ref())
+            .filter(|s| s.pattern.n_frames() == 1)
+            .map(|s| s.pattern.length_scales())
+    }
+
+    /// `log [(n_k − 1) p(V_i | D_k \ i)]` for frame `i` in its own (non-singleton) pattern `k`.
+    fn own_weight(&self, i: usize, k: usize) -> Result<f64> {
+        let p = &self.live_slot(k).pattern;
+        let loo = p.loo_score(i)?.unwrap_or(f64::NEG_INFINITY);
+        Ok((p.n_frames() as f64 - 1.0).ln() + loo)
+    }
+
+    /// `log [n_k p(V_i | D_k)]` for a pattern `k` that does not hold frame `i`, from the cache
+    /// when current.
+    fn other_weight(&mut self, i: usize, k: usize) -> Result<f64> {
+        let slot = self.live_slot(k);
+        let (version, n) = (slot.version, slot.pattern.n_frames() as f64);
+        let score = match self.cache[i].get(k) {
+            Some(&(v, s)) if v == version => s,
+            _ => {
+                let s = slot.pattern.score(&[self.data.frame(i)])?[0];
+                let row = &mut self.cache[i];
+                if row.len() <= k {
+                    row.resize(self.slots.len(), (0, 0.0));
+                }
+                row[k] = (version, s);
+                s
+            }
+        };
+        Ok(n.ln() + score)
+    }
+
+    /// The informed proposal for frame `f` whose pattern is `old` (or none): the candidate
+    /// existing patterns (slots; not `old` if the frame is alone there) and the log proposal
+    /// probability of each, then of "new" (last). It depends on the other frames only: the
+    /// own pattern is scored with the frame left out.
+    fn proposal(&self, f: FrameRef<'_>, old: usize) -> (Vec<usize>, Vec<f64>) {
+        let grid = self.grid.as_ref().expect("informed proposals have a grid");
+        let cells = grid.cells(f.xy);
+        let mut cands = Vec::new();
+        let mut logq = Vec::new();
+        for (k, s) in self.live() {
+            let own = k == old;
+            let n = s.pattern.n_frames() - usize::from(own);
+            if n == 0 {
+                continue;
+            }
+            let cheap = s
+                .cells
+                .as_ref()
+                .map_or(0.0, |c| c.score(f, &cells, own, s.pattern.params()));
+            cands.push(k);
+            logq.push((n as f64).ln() + TEMPER * cheap);
+        }
+        logq.push(self.alpha.ln() + TEMPER * proposal::prior_score(f, &self.settings.base));
+        let z = log_sum_exp(&logq);
+        let floor = UNIFORM_SHARE / logq.len() as f64;
+        let logq = logq
+            .iter()
+            .map(|w| ((1.0 - UNIFORM_SHARE) * (w - z).exp() + floor).ln())
+            .collect();
+        (cands, logq)
+    }
+
+    /// One Metropolis-within-Gibbs update of frame `i` (which has a pattern): propose from the
+    /// cheap informed proposal and accept by the exact conditional. The target is Algorithm 8's
+    /// conditional over existing patterns and auxiliary new ones; the proposal picks "new" as a
+    /// group and then an auxiliary by its exact weight, so for any state `y`,
+    /// `h(y) = log π(y) − log q(y)` is `log π(k) − log q(k)` for an existing pattern and
+    /// `log Σ_aux π − log q(new)` for every auxiliary, and a proposal `y` from `x` is accepted
+    /// with probability `min(1, exp(h(y) − h(x)))`. The auxiliaries are drawn only when "new"
+    /// is the current or the proposed state; a frame proposed to stay costs nothing exact.
+    fn informed_step(&mut self, i: usize, rng: &mut impl rand::Rng) -> Result<bool> {
+        let data = Arc::clone(&self.data);
+        let f = data.frame(i);
+        let old = self.labels[i];
+        let t = Instant::now();
+        let (cands, logq) = self.proposal(f, old);
+        let new = cands.len();
+        let own_ls = self.singleton_scales(old);
+        let current = match own_ls {
+            Some(_) => new,
+            None => cands
+                .iter()
+                .position(|&k| k == old)
+                .expect("a frame's own pattern is a candidate"),
+        };
+        let pick = sample_log(&logq, rng);
+        self.timings.scoring += t.elapsed().as_secs_f64();
+        if pick == current && own_ls.is_none() {
+            return Ok(false);
+        }
+        self.proposals.proposed += 1;
+        let t = Instant::now();
+        let aux = if pick == new || own_ls.is_some() {
+            let a = self.auxiliaries(f, own_ls, rng)?;
+            let mass = log_sum_exp(&a.iter().map(|x| x.1).collect::<Vec<_>>());
+            Some((a, mass))
+        } else {
+            None
+        };
+        self.timings.new_pattern += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let h_new = aux.as_ref().map(|a| a.1 - logq[new]);
+        let h_current = match h_new {
+            Some(h) if current == new => h,
+            _ => self.own_weight(i, old)? - logq[current],
+        };
+        let h_pick = if pick == new {
+            h_new.expect("auxiliaries drawn for a new pattern")
+        } else {
+            self.other_weight(i, cands[pick])? - logq[pick]
+        };
+        self.timings.scoring += t.elapsed().as_secs_f64();
+        let log_u = rng.random::<f64>().ln();
+        if log_u >= h_pick - h_current {
+            return Ok(false);
+        }
+        self.proposals.accepted += 1;
+        let t = Instant::now();
+        let changed = if pick == new {
+            let (aux, _) = aux.expect("auxiliaries drawn for a new pattern");
+            let j = sample_log(&aux.iter().map(|a| a.1).collect::<Vec<_>>(), rng);
+            if !(own_ls.is_some() && j == 0) {
+                self.move_to_new(i, old, aux[j].0)?;
+            }
+            own_ls.is_none()
+        } else {
+            self.move_frame(i, old, cands[pick])?;
+            true
         };
         self.timings.moves += t.elapsed().as_secs_f64();
         Ok(changed)
@@ -653,7 +967,7 @@ impl Sampler {
     fn update_moments(&mut self) -> Result<()> {
         let floor = self.moment_floor();
         let slots: Vec<usize> = self.live().map(|(k, _)| k).collect();
-        let refit: Vec<Result<Option<Pattern>>> = slots
+        let refit: Vec<Result<Option<Box<dyn PatternModel>>>> = slots
             .par_iter()
             .map(|&k| self.live_slot(k).pattern.with_own_moments(floor))
             .collect();
@@ -669,7 +983,7 @@ impl Sampler {
     }
 
     /// Log density of one pattern's length scales (with the log-scale Jacobian) and data.
-    fn ls_log_target(&self, p: &Pattern) -> f64 {
+    fn ls_log_target(&self, p: &dyn PatternModel) -> f64 {
         let (a, b) = self.settings.length_scale_prior;
         let ls = p.length_scales();
         ln_gamma_pdf(ls.wx, a, b)
@@ -683,8 +997,16 @@ impl Sampler {
     /// at the accepted point becomes the pattern's cached factor.
     fn update_length_scales(&mut self) -> Result<()> {
         let keys: Vec<(usize, u64)> = self.patterns().iter().map(|p| (p.slot, p.id)).collect();
+        // Each worker holds up to two candidate copies of the pattern it is updating.
+        let largest = self
+            .live()
+            .map(|(_, s)| s.pattern.bytes())
+            .max()
+            .unwrap_or(0);
+        let workers = rayon::current_num_threads().min(keys.len());
+        self.check_memory(2 * workers * largest)?;
         let sweep = self.sweep;
-        let updated: Vec<Result<Pattern>> = keys
+        let updated: Vec<Result<Box<dyn PatternModel>>> = keys
             .par_iter()
             .map(|&(k, id)| {
                 let mut rng = stream(self.settings.seed, sweep, Phase::LengthScales, id);
@@ -694,11 +1016,11 @@ impl Sampler {
                 {
                     return Ok(current);
                 }
-                let mut f0 = self.ls_log_target(&current);
+                let mut f0 = self.ls_log_target(current.as_ref());
                 for axis in 0..2 {
                     let ls = current.length_scales();
                     let x0 = if axis == 0 { ls.wx.ln() } else { ls.wy.ln() };
-                    let mut last: Option<(f64, Pattern)> = None;
+                    let mut last: Option<(f64, Box<dyn PatternModel>)> = None;
                     let (x, fx) = slice_step(x0, f0, 0.5, &mut rng, |x| {
                         let w = x.exp();
                         let cand = if axis == 0 {
@@ -711,7 +1033,7 @@ impl Sampler {
                         }
                         match current.with_length_scales(cand) {
                             Ok(p) => {
-                                let f = self.ls_log_target(&p);
+                                let f = self.ls_log_target(p.as_ref());
                                 last = Some((x, p));
                                 f
                             }

@@ -10,8 +10,9 @@ use faer::{Accum, MatMut, MatRef, Par};
 
 use crate::error::Result;
 use crate::factor::GrowFactor;
-use crate::gp::{GpParams, LN_2PI, centered, factor};
-use crate::kernel::{self, LengthScales, Point};
+use crate::gp::{GpParams, LN_2PI, centered};
+use crate::kernel::{Correlation, LengthScales, Point};
+use crate::linalg::Chol;
 use crate::small;
 
 /// A frame's vehicles: positions and velocities, row for row.
@@ -34,6 +35,9 @@ struct Group {
 #[derive(Clone, Debug)]
 pub struct Pattern {
     pub params: GpParams,
+    /// The kernel's correlation: the squared exponential, or the reduced-rank one for small
+    /// patterns of a reduced-rank fit.
+    corr: Correlation,
     /// Training frames in factor order, with the row where each starts.
     pub frames: Vec<usize>,
     sizes: Vec<usize>,
@@ -47,8 +51,18 @@ pub struct Pattern {
 impl Pattern {
     /// Build and factor a pattern from scratch.
     pub fn new(params: GpParams, members: &[(usize, FrameRef<'_>)]) -> Result<Self> {
+        Self::with_correlation(Correlation::SquaredExp, params, members)
+    }
+
+    /// Build and factor a pattern whose GP uses the correlation `corr`.
+    pub fn with_correlation(
+        corr: Correlation,
+        params: GpParams,
+        members: &[(usize, FrameRef<'_>)],
+    ) -> Result<Self> {
         let mut p = Self {
             params,
+            corr,
             frames: members.iter().map(|m| m.0).collect(),
             sizes: members.iter().map(|m| m.1.xy.len()).collect(),
             xy: members
@@ -77,24 +91,23 @@ impl Pattern {
         if var == self.params.signal_var && mean == self.params.mean {
             return Ok(None);
         }
-        let params = GpParams {
+        self.with_params(GpParams {
             signal_var: var,
             mean,
             ..self.params
-        };
-        let mut p = Self {
-            params,
-            groups: Vec::new(),
-            ..self.clone_data()
-        };
-        p.refactor()?;
-        Ok(Some(p))
+        })
+        .map(Some)
     }
 
     /// The same frames under other length scales (a fresh factorisation).
     pub fn with_length_scales(&self, ls: LengthScales) -> Result<Self> {
+        self.with_params(self.params.with_length_scales(ls))
+    }
+
+    /// The same frames under other hyperparameters (a fresh factorisation).
+    pub fn with_params(&self, params: GpParams) -> Result<Self> {
         let mut p = Self {
-            params: self.params.with_length_scales(ls),
+            params,
             groups: Vec::new(),
             ..self.clone_data()
         };
@@ -102,9 +115,33 @@ impl Pattern {
         Ok(p)
     }
 
+    /// The correlation this pattern's GP uses.
+    pub fn correlation(&self) -> &Correlation {
+        &self.corr
+    }
+
+    /// Bytes held by the factors and the data.
+    pub fn bytes(&self) -> usize {
+        let cap: usize = self.groups.iter().map(|g| g.factor.cap().pow(2)).sum();
+        8 * cap + 56 * self.xy.len()
+    }
+
+    /// Bytes after appending a frame of `l` points (the factors grow by doubling).
+    pub fn bytes_after_insert(&self, l: usize) -> usize {
+        let n = self.xy.len() + l;
+        let cap: usize = self
+            .groups
+            .iter()
+            .map(|g| g.factor.cap().max(n.next_power_of_two()).pow(2))
+            .sum::<usize>()
+            .max(self.params.groups().len() * n.next_power_of_two().max(16).pow(2));
+        8 * cap + 56 * n
+    }
+
     fn clone_data(&self) -> Self {
         Self {
             params: self.params,
+            corr: self.corr.clone(),
             frames: self.frames.clone(),
             sizes: self.sizes.clone(),
             xy: self.xy.clone(),
@@ -120,7 +157,10 @@ impl Pattern {
         self.groups.clear();
         for outs in self.params.groups() {
             let s2 = self.params.signal_var[outs[0]];
-            let chol = factor(&self.xy, &self.params, s2, Par::Seq)?;
+            let (ls, noise) = (self.params.length_scales, self.params.noise_var);
+            let chol = Chol::factor(n, "training", Par::Seq, || {
+                self.corr.gram(&self.xy, ls, s2, noise)
+            })?;
             let mut z = centered(&self.v, outs, self.params.mean);
             chol.solve_lower(&mut z, Par::Seq);
             self.groups.push(Group {
@@ -135,6 +175,30 @@ impl Pattern {
 
     pub fn n_frames(&self) -> usize {
         self.frames.len()
+    }
+
+    /// Points per member frame, in factor order.
+    pub fn sizes(&self) -> &[usize] {
+        &self.sizes
+    }
+
+    /// A pattern with no frames (a placeholder; scoring against it is meaningless).
+    pub fn empty() -> Self {
+        Self {
+            params: GpParams {
+                length_scales: LengthScales { wx: 1.0, wy: 1.0 },
+                signal_var: [1.0; 2],
+                noise_var: 1.0,
+                mean: [0.0; 2],
+            },
+            corr: Correlation::SquaredExp,
+            frames: Vec::new(),
+            sizes: Vec::new(),
+            xy: Vec::new(),
+            v: Vec::new(),
+            groups: Vec::new(),
+            weights: Default::default(),
+        }
     }
 
     pub fn n_points(&self) -> usize {
@@ -169,7 +233,9 @@ impl Pattern {
             .iter()
             .map(|f| -(f.xy.len() as f64) * LN_2PI)
             .collect();
-        let corr = kernel::cross(&self.xy, &pts, self.params.length_scales, 1.0, false);
+        let corr = self
+            .corr
+            .cross(&self.xy, &pts, self.params.length_scales, 1.0);
         for g in &self.groups {
             let mut vbuf: Vec<f64> = corr.iter().map(|c| c * g.signal_var).collect();
             g.factor.solve_lower(&mut vbuf, Par::Seq);
@@ -180,7 +246,7 @@ impl Pattern {
                 let m = f.xy.len();
                 let v = vall.subcols(col, m);
                 col += m;
-                let (logdet, quad) = schur_terms(f, v, z, g, &self.params)?;
+                let (logdet, quad) = schur_terms(f, v, z, g, &self.params, &self.corr)?;
                 *o -= 0.5 * quad + 0.5 * g.outs.len() as f64 * logdet;
             }
         }
@@ -209,7 +275,7 @@ impl Pattern {
     /// Posterior mean velocity at `q`: `μ + σ² R(q, X) K⁻¹ (v − μ)` per output.
     pub fn predict_mean(&self, q: &[Point]) -> Vec<[f64; 2]> {
         let n = self.xy.len();
-        let corr = kernel::cross(&self.xy, q, self.params.length_scales, 1.0, false);
+        let corr = self.corr.cross(&self.xy, q, self.params.length_scales, 1.0);
         let mut out = vec![self.params.mean; q.len()];
         for (g, a) in self.groups.iter().zip(self.weights()) {
             for (c, &d) in g.outs.iter().enumerate() {
@@ -229,7 +295,9 @@ impl Pattern {
         let n = self.xy.len();
         let mut var = Vec::with_capacity(q.len());
         for block in q.chunks(1024) {
-            let corr = kernel::cross(&self.xy, block, self.params.length_scales, 1.0, false);
+            let ls = self.params.length_scales;
+            let corr = self.corr.cross(&self.xy, block, ls, 1.0);
+            let prior = self.corr.diag(block, ls);
             let mut out = vec![[0.0; 2]; block.len()];
             for g in &self.groups {
                 let mut v: Vec<f64> = corr.iter().map(|c| c * g.signal_var).collect();
@@ -237,7 +305,11 @@ impl Pattern {
                 for (j, o) in out.iter_mut().enumerate() {
                     let explained: f64 = v[j * n..(j + 1) * n].iter().map(|x| x * x).sum();
                     for &d in g.outs {
-                        o[d] = (g.signal_var - explained).max(0.0);
+                        o[d] = if self.corr.unsupported(block[j]) {
+                            g.signal_var
+                        } else {
+                            (g.signal_var * prior[j] - explained).max(0.0)
+                        };
                     }
                 }
             }
@@ -250,8 +322,8 @@ impl Pattern {
     /// `m x m` covariance `σ² R_qq − Vᵀ V` (column-major), `V = L⁻¹ σ² R(X, q)`.
     pub fn predict_joint(&self, q: &[Point]) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
         let (n, m) = (self.xy.len(), q.len());
-        let corr = kernel::cross(&self.xy, q, self.params.length_scales, 1.0, false);
-        let rqq = kernel::cross(q, q, self.params.length_scales, 1.0, false);
+        let corr = self.corr.cross(&self.xy, q, self.params.length_scales, 1.0);
+        let rqq = self.corr.cross(q, q, self.params.length_scales, 1.0);
         let mut cov = [Vec::new(), Vec::new()];
         for g in &self.groups {
             let mut v: Vec<f64> = corr.iter().map(|c| c * g.signal_var).collect();
@@ -266,6 +338,12 @@ impl Pattern {
                 -1.0,
                 Par::Seq,
             );
+            // No support outside a reduced-rank basis: report the prior variance there.
+            for (i, p) in q.iter().enumerate() {
+                if self.corr.unsupported(*p) {
+                    c[i * m + i] += g.signal_var;
+                }
+            }
             for &d in g.outs {
                 cov[d] = c.clone();
             }
@@ -330,11 +408,11 @@ impl Pattern {
         self.weights = Default::default();
         for g in &mut self.groups {
             let ls = self.params.length_scales;
-            let mut vbuf = kernel::cross(&self.xy, f.xy, ls, g.signal_var, false);
+            let mut vbuf = self.corr.cross(&self.xy, f.xy, ls, g.signal_var);
             g.factor.solve_lower(&mut vbuf, Par::Seq);
             let v = MatRef::from_column_major_slice(&vbuf, n, m);
             let k = g.outs.len();
-            let mut r = schur(&f, v, g.signal_var, &self.params);
+            let mut r = schur(&f, v, g.signal_var, &self.params, &self.corr);
             small::cholesky(&mut r, m)?;
             // New whitened residuals: z_new = R⁻¹ (v_f − μ − Vᵀ z).
             let mut rz = residual(
@@ -405,8 +483,14 @@ fn sub_vt_times(dst: &mut [f64], v: MatRef<'_, f64>, x: MatRef<'_, f64>) {
 }
 
 /// `S = σ² R(X_f, X_f) + σ_n² I − VᵀV` (m x m, column-major).
-fn schur(f: &FrameRef<'_>, v: MatRef<'_, f64>, s2: f64, p: &GpParams) -> Vec<f64> {
-    let mut s = kernel::gram(f.xy, p.length_scales, s2, p.noise_var, false);
+fn schur(
+    f: &FrameRef<'_>,
+    v: MatRef<'_, f64>,
+    s2: f64,
+    p: &GpParams,
+    corr: &Correlation,
+) -> Vec<f64> {
+    let mut s = corr.gram(f.xy, p.length_scales, s2, p.noise_var);
     sub_vt_times(&mut s, v, v);
     s
 }
@@ -431,9 +515,10 @@ fn schur_terms(
     z: MatRef<'_, f64>,
     g: &Group,
     p: &GpParams,
+    corr: &Correlation,
 ) -> Result<(f64, f64)> {
     small::gaussian_terms(
-        schur(f, v, g.signal_var, p),
+        schur(f, v, g.signal_var, p, corr),
         f.xy.len(),
         residual(f, v, z, g.outs, p),
     )
@@ -442,8 +527,13 @@ fn schur_terms(
 /// `log N(V_f ; μ, σ² R_ff + σ_n² I)` summed over both outputs: the prior predictive of a frame
 /// (the new-pattern term of Algorithm 8).
 pub fn prior_score(f: FrameRef<'_>, p: &GpParams) -> Result<f64> {
+    prior_score_with(&Correlation::SquaredExp, f, p)
+}
+
+/// [`prior_score`] under the correlation `corr`.
+pub fn prior_score_with(corr: &Correlation, f: FrameRef<'_>, p: &GpParams) -> Result<f64> {
     let m = f.xy.len();
-    let corr = kernel::cross(f.xy, f.xy, p.length_scales, 1.0, false);
+    let corr = corr.cross(f.xy, f.xy, p.length_scales, 1.0);
     let mut total = -(m as f64) * LN_2PI;
     for outs in p.groups() {
         let s2 = p.signal_var[outs[0]];

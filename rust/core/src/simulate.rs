@@ -13,7 +13,7 @@ use rand_distr::{Distribution, StandardNormal};
 
 use crate::error::{Error, Result};
 use crate::kernel::Point;
-use crate::pattern::Pattern;
+use crate::pattern_model::PatternModel;
 use crate::rng::{Phase, stream};
 use crate::small;
 
@@ -255,7 +255,7 @@ fn check_len(what: &str, got: usize, want: usize) -> Result<()> {
 
 /// A fitted pattern's GP as a field.
 pub struct PatternField<'a> {
-    pattern: &'a Pattern,
+    pattern: &'a dyn PatternModel,
     /// `Some(seed)`: stochastic mode.
     seed: Option<u64>,
     /// Flag a point when its latent posterior variance exceeds this fraction of the prior
@@ -264,7 +264,11 @@ pub struct PatternField<'a> {
 }
 
 impl<'a> PatternField<'a> {
-    pub fn new(pattern: &'a Pattern, seed: Option<u64>, low_data: Option<f64>) -> Result<Self> {
+    pub fn new(
+        pattern: &'a dyn PatternModel,
+        seed: Option<u64>,
+        low_data: Option<f64>,
+    ) -> Result<Self> {
         if let Some(f) = low_data
             && !(f.is_finite() && f >= 0.0)
         {
@@ -297,7 +301,7 @@ impl Field for PatternField<'_> {
         // The latent covariance costs n² m (a triangular solve per vehicle); it gives both the
         // variances for the flags and the matrix to draw from.
         let (_, mut cov) = self.pattern.predict_joint(q);
-        let s2 = self.pattern.params.signal_var;
+        let s2 = self.pattern.params().signal_var;
         if let Some(f) = self.low_data {
             for (j, flag) in info.low_data.iter_mut().enumerate() {
                 *flag = (0..2).any(|d| cov[d][j * m + j] > f * s2[d]);
@@ -335,7 +339,7 @@ impl Field for PatternField<'_> {
 /// Roll the vehicles at `start` through `pattern`: its posterior mean, or with `seed` joint
 /// posterior draws at every step; flags per [`PatternField`].
 pub fn rollout(
-    pattern: &Pattern,
+    pattern: &dyn PatternModel,
     start: &[Point],
     opts: &Options,
     seed: Option<u64>,

@@ -1,4 +1,5 @@
 use super::*;
+use crate::hsgp::Basis;
 
 /// Two obvious patterns: vehicles moving +y and vehicles moving +x, 30 frames each.
 fn two_patterns() -> Data {
@@ -36,16 +37,51 @@ fn settings(assignment: Assignment, seed: u64) -> Settings {
         length_scale_fraction: 1.0,
         pattern_moments: false,
         seed,
+        likelihood: Likelihood::Exact,
+        proposal: Proposal::Full,
+        memory_budget: None,
     }
 }
 
+/// A reduced-rank likelihood for `two_patterns` (positions in [0, 40]²): few basis functions,
+/// so that patterns cross between the dense and the statistics representations.
+fn hsgp() -> Likelihood {
+    Likelihood::Hsgp(Arc::new(
+        Basis::new([20.0, 20.0], [40.0, 40.0], [6, 6]).unwrap(),
+    ))
+}
+
+/// Every combination of likelihood and proposal.
+fn variants() -> Vec<(Likelihood, Proposal)> {
+    let mut out = Vec::new();
+    for l in [Likelihood::Exact, hsgp()] {
+        for p in [Proposal::Full, Proposal::Informed] {
+            out.push((l.clone(), p));
+        }
+    }
+    out
+}
+
 fn run(assignment: Assignment, seed: u64, threads: usize) -> (Vec<usize>, Vec<f64>) {
+    run_with(assignment, seed, threads, Likelihood::Exact, Proposal::Full)
+}
+
+fn run_with(
+    assignment: Assignment,
+    seed: u64,
+    threads: usize,
+    likelihood: Likelihood,
+    proposal: Proposal,
+) -> (Vec<usize>, Vec<f64>) {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
         .unwrap();
     pool.install(|| {
-        let mut s = Sampler::new(two_patterns(), settings(assignment, seed)).unwrap();
+        let mut st = settings(assignment, seed);
+        st.likelihood = likelihood;
+        st.proposal = proposal;
+        let mut s = Sampler::new(two_patterns(), st).unwrap();
         let mut trace = Vec::new();
         for _ in 0..5 {
             trace.push(s.sweep(&|| false).unwrap().log_joint);
@@ -55,14 +91,17 @@ fn run(assignment: Assignment, seed: u64, threads: usize) -> (Vec<usize>, Vec<f6
 }
 
 #[test]
-fn separates_two_obvious_patterns_in_both_modes() {
-    for mode in [Assignment::Gibbs, Assignment::Map] {
-        let (labels, _) = run(mode, 1, 1);
-        for i in (0..60).step_by(2) {
-            assert_eq!(labels[i], labels[0], "{mode:?}: frame {i}");
-            assert_eq!(labels[i + 1], labels[1], "{mode:?}: frame {}", i + 1);
+fn separates_two_obvious_patterns_in_every_mode() {
+    for (likelihood, proposal) in variants() {
+        for mode in [Assignment::Gibbs, Assignment::Map] {
+            let name = format!("{mode:?} {} {proposal:?}", likelihood.name());
+            let (labels, _) = run_with(mode, 1, 1, likelihood.clone(), proposal);
+            for i in (0..60).step_by(2) {
+                assert_eq!(labels[i], labels[0], "{name}: frame {i}");
+                assert_eq!(labels[i + 1], labels[1], "{name}: frame {}", i + 1);
+            }
+            assert_ne!(labels[0], labels[1], "{name}");
         }
-        assert_ne!(labels[0], labels[1]);
     }
 }
 
@@ -73,6 +112,28 @@ fn same_seed_same_chain_whatever_the_thread_count() {
     assert_eq!(a, b);
     let c = run(Assignment::Gibbs, 4, 2);
     assert_ne!(a.1, c.1);
+    for (likelihood, proposal) in variants() {
+        for mode in [Assignment::Gibbs, Assignment::Map] {
+            let one = run_with(mode, 3, 1, likelihood.clone(), proposal);
+            let two = run_with(mode, 3, 2, likelihood.clone(), proposal);
+            assert_eq!(one, two, "{mode:?} {} {proposal:?}", likelihood.name());
+        }
+    }
+}
+
+#[test]
+fn memory_budget_stops_before_allocating_and_keeps_the_state() {
+    let mut st = settings(Assignment::Gibbs, 1);
+    st.memory_budget = Some(200_000);
+    let mut s = Sampler::new(two_patterns(), st).unwrap();
+    let err = s.initialize(&|| false).unwrap_err();
+    assert!(matches!(err, Error::MemoryBudget { .. }), "{err:?}");
+    assert!(err.to_string().contains("hsgp"));
+    assert!(s.memory_bytes() <= 200_000);
+    // Every frame placed so far still has a live pattern.
+    for (i, &k) in s.labels().iter().enumerate() {
+        assert!(k == NONE || s.pattern(k).unwrap().frames().contains(&i));
+    }
 }
 
 #[test]
@@ -119,8 +180,8 @@ fn pattern_moments_follow_each_patterns_own_data() {
         for d in 0..2 {
             let mean = v.iter().map(|r| r[d]).sum::<f64>() / n;
             let var = v.iter().map(|r| (r[d] - mean).powi(2)).sum::<f64>() / n;
-            assert!((p.params.mean[d] - mean).abs() < 1e-12);
-            assert!((p.params.signal_var[d] - var.max(25.0e-3)).abs() < 1e-12);
+            assert!((p.params().mean[d] - mean).abs() < 1e-12);
+            assert!((p.params().signal_var[d] - var.max(25.0e-3)).abs() < 1e-12);
         }
     }
 }

@@ -1,6 +1,7 @@
 use super::*;
 use crate::gp::GpParams;
 use crate::pattern::FrameRef;
+use crate::pattern::Pattern;
 
 fn opts(dt: f64, steps: usize, method: Method) -> Options {
     Options {

@@ -1,0 +1,170 @@
+use super::*;
+use crate::kernel::{self, Correlation};
+use crate::pattern::Pattern;
+use crate::pattern_model::{PatternModel, ReducedPattern};
+
+fn frames(seed: u64, count: usize) -> Vec<(Vec<Point>, Vec<[f64; 2]>)> {
+    let mut s = seed;
+    let mut u = move || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    (0..count)
+        .map(|_| {
+            let l = 2 + (u() * 6.0) as usize;
+            let xy: Vec<Point> = (0..l).map(|_| [u() * 30.0, u() * 100.0]).collect();
+            let v = xy
+                .iter()
+                .map(|p| [(p[1] / 20.0).sin() + u(), 20.0 + p[0] / 5.0 + u()])
+                .collect();
+            (xy, v)
+        })
+        .collect()
+}
+
+fn refs(fs: &[(Vec<Point>, Vec<[f64; 2]>)]) -> Vec<FrameRef<'_>> {
+    fs.iter().map(|(xy, v)| FrameRef { xy, v }).collect()
+}
+
+fn basis(m: [usize; 2]) -> Arc<Basis> {
+    Arc::new(Basis::new([15.0, 50.0], [25.0, 70.0], m).unwrap())
+}
+
+fn close(a: f64, b: f64, tol: f64) -> bool {
+    (a - b).abs() <= tol * (1.0 + a.abs().max(b.abs()))
+}
+
+fn params() -> [GpParams; 2] {
+    [
+        GpParams::new((6.0, 20.0), (1.5, 1.5), 0.7, (0.2, 20.0)).unwrap(),
+        GpParams::new((6.0, 20.0), (1.5, 9.0), 0.7, (0.2, 20.0)).unwrap(),
+    ]
+}
+
+#[test]
+fn reduced_correlation_approaches_the_squared_exponential() {
+    // A box well beyond the data (the boundary distorts k̃ within a few length scales of it).
+    let b = Arc::new(Basis::new([15.0, 50.0], [45.0, 110.0], [40, 96]).unwrap());
+    let fs = frames(1, 4);
+    let pts: Vec<Point> = fs.iter().flat_map(|f| f.0.iter().copied()).collect();
+    let ls = LengthScales::new(6.0, 20.0).unwrap();
+    let approx = b.correlation(&pts, &pts, ls, 1.0);
+    let exact = kernel::cross(&pts, &pts, ls, 1.0, false);
+    for (a, e) in approx.iter().zip(&exact) {
+        assert!((a - e).abs() < 2e-3, "{a} vs {e}");
+    }
+}
+
+#[test]
+fn basis_statistics_match_the_dense_reduced_gp() {
+    // The M x M statistics and the dense n x n factor of k̃ are two computations of one model.
+    let b = basis([8, 12]);
+    for p in params() {
+        let fs = frames(5, 12);
+        let r = refs(&fs);
+        let members: Vec<(usize, FrameRef)> = (0..8).map(|i| (i, r[i])).collect();
+        let stats = HsgpPattern::new(Arc::clone(&b), p, &members).unwrap();
+        let dense =
+            Pattern::with_correlation(Correlation::Reduced(Arc::clone(&b)), p, &members).unwrap();
+        assert!(close(stats.log_marginal(), dense.log_marginal(), 1e-9));
+        let s = HsgpPattern::score(&stats, &r[8..]).unwrap();
+        let d = Pattern::score(&dense, &r[8..]).unwrap();
+        for (a, e) in s.iter().zip(&d) {
+            assert!(close(*a, *e, 1e-8), "{a} vs {e}");
+        }
+        for id in [0, 3, 7] {
+            let a = HsgpPattern::loo_score(&stats, id).unwrap().unwrap();
+            let e = Pattern::loo_score(&dense, id).unwrap().unwrap();
+            assert!(close(a, e, 1e-8), "loo {a} vs {e}");
+        }
+        let q = [[3.0, 10.0], [20.0, 90.0], [-100.0, 0.0]];
+        let (ms, vs) = HsgpPattern::posterior(&stats, &q);
+        let (md, vd) = Pattern::posterior(&dense, &q);
+        for j in 0..3 {
+            for d in 0..2 {
+                assert!(close(ms[j][d], md[j][d], 1e-8));
+                assert!((vs[j][d] - vd[j][d]).abs() < 1e-8 * p.signal_var[d]);
+            }
+        }
+        let (_, cs) = HsgpPattern::predict_joint(&stats, &q);
+        let (_, cd) = Pattern::predict_joint(&dense, &q);
+        for d in 0..2 {
+            for (a, e) in cs[d].iter().zip(&cd[d]) {
+                assert!((a - e).abs() < 1e-8 * p.signal_var[d]);
+            }
+        }
+    }
+}
+
+#[test]
+fn moves_match_fresh_statistics() {
+    let b = basis([8, 12]);
+    for p in params() {
+        let fs = frames(9, 14);
+        let r = refs(&fs);
+        let members: Vec<(usize, FrameRef)> = (0..6).map(|i| (i, r[i])).collect();
+        let mut pat = HsgpPattern::new(Arc::clone(&b), p, &members).unwrap();
+        for i in 6..14 {
+            pat.insert(i, r[i]).unwrap();
+        }
+        for id in [2, 9, 13, 0] {
+            assert!(pat.remove(id).unwrap());
+        }
+        assert!(!pat.remove(2).unwrap());
+        let kept: Vec<(usize, FrameRef)> = pat.frames().iter().map(|&i| (i, r[i])).collect();
+        let fresh = HsgpPattern::new(Arc::clone(&b), p, &kept).unwrap();
+        assert!(close(pat.log_marginal(), fresh.log_marginal(), 1e-9));
+        let a = HsgpPattern::score(&pat, &r[2..3]).unwrap()[0];
+        let e = HsgpPattern::score(&fresh, &r[2..3]).unwrap()[0];
+        assert!(close(a, e, 1e-9));
+        // Leave-one-out equals the score against the pattern without the frame.
+        let id = pat.frames()[1];
+        let mut rest = pat.clone();
+        rest.remove(id).unwrap();
+        let loo = HsgpPattern::loo_score(&pat, id).unwrap().unwrap();
+        let direct = HsgpPattern::score(&rest, &r[id..id + 1]).unwrap()[0];
+        assert!(close(loo, direct, 1e-9), "{loo} vs {direct}");
+    }
+}
+
+#[test]
+fn reduced_pattern_switches_representation_without_changing_densities() {
+    // 16 basis functions: ten frames (at least 20 points) exceed them; one frame (at most 7
+    // points, below 16 / 2) goes back to dense.
+    let b = basis([4, 4]);
+    let p = params()[1];
+    let fs = frames(11, 10);
+    let r = refs(&fs);
+    let mut pat = ReducedPattern::new(Arc::clone(&b), p, &[(0, r[0])]).unwrap();
+    assert!(matches!(pat, ReducedPattern::Dense(_)));
+    for i in 1..10 {
+        PatternModel::insert(&mut pat, i, r[i]).unwrap();
+    }
+    assert!(matches!(pat, ReducedPattern::Basis(_)));
+    let members: Vec<(usize, FrameRef)> = (0..10).map(|i| (i, r[i])).collect();
+    let dense =
+        Pattern::with_correlation(Correlation::Reduced(Arc::clone(&b)), p, &members).unwrap();
+    assert!(close(pat.log_marginal(), dense.log_marginal(), 1e-9));
+    for i in 1..10 {
+        PatternModel::remove(&mut pat, i).unwrap();
+    }
+    assert!(matches!(pat, ReducedPattern::Dense(_)));
+    let single =
+        Pattern::with_correlation(Correlation::Reduced(Arc::clone(&b)), p, &members[..1]).unwrap();
+    assert!(close(pat.log_marginal(), single.log_marginal(), 1e-9));
+}
+
+#[test]
+fn sizing_rule_covers_the_data_and_respects_the_cap() {
+    let xy = [[0.0, 1350.0], [72.0, 1550.0]];
+    let b = Basis::for_data(&xy, [5.0, 5.0], [10.0, 10.0], None).unwrap();
+    assert_eq!(b.center(), [36.0, 1450.0]);
+    assert!(b.half_widths()[0] >= 36.0 + 20.0 && b.half_widths()[1] >= 120.0);
+    assert_eq!(b.counts(), [23, 48]);
+    let tiny = Basis::for_data(&xy, [0.01, 0.01], [0.1, 0.1], None).unwrap();
+    assert!(tiny.len() <= MAX_BASIS);
+    assert!(Basis::for_data(&xy, [5.0, 5.0], [10.0, 10.0], Some([100, 100])).is_err());
+    assert!(Basis::new([0.0, 0.0], [0.0, 1.0], [2, 2]).is_err());
+}
