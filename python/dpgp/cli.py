@@ -11,9 +11,9 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
-from .exceptions import DpgpError
+from .exceptions import DataFormatError, DpgpError, InvalidInputError
 
 _PRESETS = ("sumo", "highd", "ind", "interaction", "eth_ucy")
 _FORMATS = ("auto", "frames", "tracks", "ngsim", *_PRESETS)
@@ -28,13 +28,15 @@ def _sniff(path: str) -> str:
         return "sumo"
     import pandas as pd
 
-    if lower.endswith(".parquet"):
-        cols = list(pd.read_parquet(path).columns)
-    else:
-        try:
+    try:
+        if lower.endswith(".parquet"):
+            cols = list(pd.read_parquet(path).columns)
+        else:
             cols = list(pd.read_csv(path, sep=None, engine="python", nrows=5, encoding="utf-8-sig").columns)
-        except (pd.errors.ParserError, UnicodeDecodeError, pd.errors.EmptyDataError) as e:
-            raise ValueError(f"{path}: cannot read a header to detect the format ({e}); pass --format") from None
+    except Exception as e:  # noqa: BLE001 - pandas, csv, gzip, zlib and pyarrow each have their own
+        raise DataFormatError(
+            f"{path}: cannot read a header to detect the format ({type(e).__name__}: {e}); pass --format"
+        ) from None
     names = {str(c).strip().lower() for c in cols}
     if {"vehicle_id", "frame_id", "local_x", "local_y"} <= names:
         return "ngsim"
@@ -62,12 +64,12 @@ def load_frames(path: str, fmt: str = "auto", roi: Any = None, dt: float | None 
         return make_frames(tracks, roi=roi, dt=0.5 if dt is None else dt, units=units)
     frames = read_frames(path)
     if units is not None:
-        raise ValueError("--units applies to trajectories that are framed here, not to framed input")
+        raise InvalidInputError("--units applies to trajectories that are framed here, not to framed input")
     if roi is not None:
         x0, x1, y0, y1 = roi
         keep = (frames.xy[:, 0] >= x0) & (frames.xy[:, 0] <= x1) & (frames.xy[:, 1] >= y0) & (frames.xy[:, 1] <= y1)
         if not keep.any():
-            raise ValueError(f"no vehicle of {path} lies inside the ROI {tuple(roi)}")
+            raise InvalidInputError(f"no vehicle of {path} lies inside the ROI {tuple(roi)}")
         fid = np.repeat(frames.ids, frames.sizes)[keep]
         n_before = len(frames)
         frames = type(frames).from_arrays(fid, *frames.xy[keep].T, *frames.v[keep].T)
@@ -306,12 +308,19 @@ class _Help(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action) or text
 
 
+class _Parser(argparse.ArgumentParser):
+    """Usage errors in one line (the usage text is one ``--help`` away), exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+
 def _roi(text: str) -> float:
     return float(text)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="dpgp",
         description="Learn multi-vehicle motion patterns from traffic data (a Dirichlet-process mixture of "
         "Gaussian-process velocity fields) and use them: simulate frames, generate scenarios.",
@@ -416,7 +425,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as e:  # a usage error, already printed as one line; --help exits 0
+        if e.code in (0, None):
+            raise
+        return e.code if isinstance(e.code, int) else 2
     try:
         return int(args.func(args))
     except (DpgpError, OSError, ValueError) as e:
@@ -426,6 +440,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("dpgp: interrupted", file=sys.stderr)
         return 130
+    except Exception as e:  # a defect of dpgp: still one line for the user, never a traceback
+        msg = " ".join(str(e).split())[:300]
+        print(f"dpgp: internal error ({type(e).__name__}: {msg}); please report it", file=sys.stderr)
+        return 3
 
 
 if __name__ == "__main__":
