@@ -60,7 +60,7 @@ class _State:
     length_scales: np.ndarray  # (K, 2)
     alpha: float
     params: dict[str, Any]  # the GP parameters fit derived from the frames
-    resolved: dict[str, Any]  # "auto" settings as the first block resolved them
+    resolved: dict[str, Any] | None  # "auto" settings as the first block resolved them
 
 
 @dataclass
@@ -82,18 +82,13 @@ def _init_worker(frames: Frames) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-_RESOLVED = ("assignment", "noise_var", "length_scale_prior")  # settings a fit may resolve from the data
-
-
 def _state_of(model: Any) -> _State:
     p = model.params_
     params = {"length_scales": p.length_scales, "signal_var": p.signal_var, "noise_var": p.noise_var, "mean": p.mean}
-    # Later blocks rebuild the model with the values the first one resolved ("auto" settings
-    # estimated from the data), so that no block estimates them again.
-    names = model.get_params()
-    resolved = {k: getattr(model, k + "_") for k in _RESOLVED if k in names and hasattr(model, k + "_")}
-    if resolved and "preset" in names:
-        resolved["preset"] = None
+    # What the "auto" settings resolved to on the data (dpgp.defaults): later blocks and the
+    # point-estimate model are rebuilt with these values, never by estimating them again.
+    defaults = getattr(model, "defaults_", None)
+    resolved = None if defaults is None else defaults.to_dict()
     return _State(model.labels_.copy(), model.length_scales_.copy(), float(model.alpha_), params, resolved)
 
 
@@ -105,7 +100,8 @@ def _model_at(frames: Frames, settings: dict[str, Any], state: _State, extra_met
 
     summary = getattr(frames, "summary", None)
     meta = {
-        "settings": {**settings, **state.resolved},
+        "settings": settings,
+        "resolved": state.resolved,
         "params": state.params,
         "alpha": state.alpha,
         "frames_summary": None if summary is None else summary.to_dict(),
