@@ -5,12 +5,13 @@ Multi-Vehicle Interaction Scenarios Using Gaussian Random Field"), fitted by col
 sampling in a Rust core.
 """
 
-from . import _core, datasets, diagnostics, gp, partition, plot
+from . import _core, datasets, diagnostics, gp, hsgp, partition, plot
 from .chains import Chains, ChainsFailedError, fit_chains
 from .exceptions import (
     DataFormatError,
     DpgpError,
     InvalidInputError,
+    MemoryBudgetError,
     ModelFileError,
     NotFittedError,
     NotPositiveDefiniteError,
@@ -41,12 +42,14 @@ __all__ = [
     "Frames",
     "GPParams",
     "InvalidInputError",
+    "MemoryBudgetError",
     "ModelFileError",
     "NotFittedError",
     "NotPositiveDefiniteError",
     "ShapeError",
     "datasets",
     "gp",
+    "hsgp",
     "plot",
     "Scenarios",
     "Simulation",

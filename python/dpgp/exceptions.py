@@ -26,6 +26,11 @@ class NotPositiveDefiniteError(DpgpError, np.linalg.LinAlgError):
     """A covariance matrix stayed indefinite even after diagonal jitter."""
 
 
+class MemoryBudgetError(DpgpError, MemoryError):
+    """A fit would grow past its memory budget. Nothing was allocated and the state reached is
+    kept; the message gives the estimate. ``likelihood="hsgp"`` needs far less memory."""
+
+
 class NotFittedError(DpgpError, AttributeError):
     """A method that needs a fitted model was called before ``fit``."""
 
@@ -40,6 +45,7 @@ __all__ = [
     "ShapeError",
     "DataFormatError",
     "NotPositiveDefiniteError",
+    "MemoryBudgetError",
     "NotFittedError",
     "ModelFileError",
 ]

@@ -484,9 +484,13 @@ impl Sampler {
             self.initialize(stop)?;
         }
         self.sweep += 1;
-        let t = Instant::now();
-        self.refresh_scores()?;
-        self.timings.refresh += t.elapsed().as_secs_f64();
+        if self.settings.proposal == Proposal::Full {
+            // The full conditional needs every pair: score the stale ones in level-3 batches.
+            // Informed proposals score pairs on demand instead.
+            let t = Instant::now();
+            self.refresh_scores()?;
+            self.timings.refresh += t.elapsed().as_secs_f64();
+        }
         let mut moves = 0;
         for i in 0..self.data.len() {
             if i % 8 == 0 && stop() {
@@ -642,13 +646,13 @@ impl Sampler {
         let scored: Vec<Result<Vec<(LengthScales, f64)>>> = draws
             .par_chunks(AUX_CHUNK)
             .map(|chunk| {
-                chunk
+                let ps: Vec<GpParams> = chunk.iter().map(|&ls| self.pattern_params(ls)).collect();
+                let scores = self.settings.likelihood.prior_scores(f, &ps)?;
+                Ok(chunk
                     .iter()
-                    .map(|&ls| {
-                        let p = self.pattern_params(ls);
-                        Ok((ls, log_w0 + self.settings.likelihood.prior_score(f, &p)?))
-                    })
-                    .collect()
+                    .zip(scores)
+                    .map(|(&ls, s)| (ls, log_w0 + s))
+                    .collect())
             })
             .collect();
         Ok(scored.into_iter().collect::<Result<Vec<_>>>()?.concat())

@@ -107,6 +107,31 @@ impl Basis {
         Self::new(center, half, count)
     }
 
+    /// [`Basis::for_data`] with the low and typical length scales of the fit: the 5% quantile
+    /// and the median of the Gamma(shape, scale) prior, or the fixed length scales.
+    pub fn for_prior(
+        xy: &[Point],
+        prior: (f64, f64),
+        fixed: Option<LengthScales>,
+        m: Option<[usize; 2]>,
+    ) -> Result<Self> {
+        let (lo, mid) = match fixed {
+            Some(ls) => ([ls.wx, ls.wy], [ls.wx, ls.wy]),
+            None => {
+                let (a, b) = prior;
+                if !(a > 0.0 && b > 0.0 && a.is_finite() && b.is_finite()) {
+                    return Err(Error::InvalidInput(format!(
+                        "length_scale_prior must be (shape, scale) with both positive, got {prior:?}"
+                    )));
+                }
+                let lo = crate::special::gamma_quantile(0.05, a, b);
+                let mid = crate::special::gamma_quantile(0.5, a, b);
+                ([lo; 2], [mid; 2])
+            }
+        };
+        Self::for_data(xy, lo, mid, m)
+    }
+
     pub fn len(&self) -> usize {
         self.m[0] * self.m[1]
     }
@@ -191,37 +216,54 @@ impl Basis {
             .collect()
     }
 
+    /// The eigenfunctions along each axis at the points (points x m_d, column-major): what
+    /// [`Basis::correlation_between`] needs, independent of the length scales.
+    pub fn axis_features(&self, pts: &[Point]) -> AxisFeatures {
+        let n = pts.len();
+        let f = [0, 1].map(|d| {
+            let m = self.m[d];
+            let mut f = vec![0.0; n * m];
+            let mut col = vec![0.0; m];
+            for (i, p) in pts.iter().enumerate() {
+                self.eval_axis(d, p[d], &mut col);
+                for (j, c) in col.iter().enumerate() {
+                    f[j * n + i] = *c;
+                }
+            }
+            f
+        });
+        AxisFeatures { n, f }
+    }
+
     /// `scale · k̃(a, b) / σ²`, i.e. `scale Σ s φ(a) φ(b)`, column-major `|a| x |b|`. Separable:
     /// the product of two one-axis sums, `|a| |b| (m_x + m_y)` work.
-    pub fn correlation(&self, a: &[Point], b: &[Point], ls: LengthScales, scale: f64) -> Vec<f64> {
+    pub fn correlation_between(
+        &self,
+        a: &AxisFeatures,
+        b: &AxisFeatures,
+        ls: LengthScales,
+        scale: f64,
+    ) -> Vec<f64> {
         let spectra = self.axis_spectra(ls);
-        let mut out = vec![scale; a.len() * b.len()];
+        let mut out = vec![scale; a.n * b.n];
         if out.is_empty() {
             return out;
         }
+        let mut k = vec![0.0; a.n * b.n];
         for d in 0..2 {
             let m = self.m[d];
-            // Rows: points; columns: eigenfunctions (a's weighted by the spectrum).
-            let axis = |pts: &[Point], weight: bool| {
-                let mut f = vec![0.0; pts.len() * m];
-                let mut col = vec![0.0; m];
-                for (i, p) in pts.iter().enumerate() {
-                    self.eval_axis(d, p[d], &mut col);
-                    for j in 0..m {
-                        let s = if weight { spectra[d][j] } else { 1.0 };
-                        f[j * pts.len() + i] = s * col[j];
-                    }
+            // a's eigenfunctions weighted by the spectrum, times b's.
+            let mut fa = a.f[d].clone();
+            for (j, s) in spectra[d].iter().enumerate() {
+                for x in &mut fa[j * a.n..(j + 1) * a.n] {
+                    *x *= s;
                 }
-                f
-            };
-            let fa = axis(a, true);
-            let fb = axis(b, false);
-            let mut k = vec![0.0; a.len() * b.len()];
+            }
             matmul(
-                MatMut::from_column_major_slice_mut(&mut k, a.len(), b.len()),
+                MatMut::from_column_major_slice_mut(&mut k, a.n, b.n),
                 Accum::Replace,
-                MatRef::from_column_major_slice(&fa, a.len(), m),
-                MatRef::from_column_major_slice(&fb, b.len(), m).transpose(),
+                MatRef::from_column_major_slice(&fa, a.n, m),
+                MatRef::from_column_major_slice(&b.f[d], b.n, m).transpose(),
                 1.0,
                 Par::Seq,
             );
@@ -231,6 +273,22 @@ impl Basis {
         }
         out
     }
+
+    /// [`Basis::correlation_between`] of two point sets.
+    pub fn correlation(&self, a: &[Point], b: &[Point], ls: LengthScales, scale: f64) -> Vec<f64> {
+        let fa = self.axis_features(a);
+        if std::ptr::eq(a, b) {
+            return self.correlation_between(&fa, &fa, ls, scale);
+        }
+        self.correlation_between(&fa, &self.axis_features(b), ls, scale)
+    }
+}
+
+/// Eigenfunction values of a set of points along each axis.
+#[derive(Clone, Debug)]
+pub struct AxisFeatures {
+    n: usize,
+    f: [Vec<f64>; 2],
 }
 
 /// Per output group: `R = chol(σ_n² I + D G D)` and `z = R⁻¹ D b` (M x outputs).

@@ -532,12 +532,36 @@ pub fn prior_score(f: FrameRef<'_>, p: &GpParams) -> Result<f64> {
 
 /// [`prior_score`] under the correlation `corr`.
 pub fn prior_score_with(corr: &Correlation, f: FrameRef<'_>, p: &GpParams) -> Result<f64> {
+    Ok(prior_scores_with(corr, f, std::slice::from_ref(p))?[0])
+}
+
+/// [`prior_score_with`] for several parameter sets (Algorithm 8's auxiliary patterns): the
+/// frame's reduced-rank eigenfunctions are evaluated once for all of them.
+pub fn prior_scores_with(corr: &Correlation, f: FrameRef<'_>, ps: &[GpParams]) -> Result<Vec<f64>> {
+    let features = match corr {
+        Correlation::Reduced(basis) => Some(basis.axis_features(f.xy)),
+        Correlation::SquaredExp => None,
+    };
+    ps.iter()
+        .map(|p| {
+            let c = match (corr, &features) {
+                (Correlation::Reduced(basis), Some(ft)) => {
+                    basis.correlation_between(ft, ft, p.length_scales, 1.0)
+                }
+                _ => corr.cross(f.xy, f.xy, p.length_scales, 1.0),
+            };
+            gaussian_prior(&c, f, p)
+        })
+        .collect()
+}
+
+/// `log N(V_f ; μ, σ² C + σ_n² I)` summed over both outputs, for the correlation matrix `c`.
+fn gaussian_prior(c: &[f64], f: FrameRef<'_>, p: &GpParams) -> Result<f64> {
     let m = f.xy.len();
-    let corr = corr.cross(f.xy, f.xy, p.length_scales, 1.0);
     let mut total = -(m as f64) * LN_2PI;
     for outs in p.groups() {
         let s2 = p.signal_var[outs[0]];
-        let mut a: Vec<f64> = corr.iter().map(|c| c * s2).collect();
+        let mut a: Vec<f64> = c.iter().map(|c| c * s2).collect();
         for i in 0..m {
             a[i * m + i] += p.noise_var;
         }

@@ -13,7 +13,7 @@ use crate::error::Result;
 use crate::gp::GpParams;
 use crate::hsgp::{Basis, HsgpPattern};
 use crate::kernel::{Correlation, LengthScales, Point};
-use crate::pattern::{FrameRef, Pattern, prior_score_with};
+use crate::pattern::{FrameRef, Pattern, prior_score_with, prior_scores_with};
 
 /// A pattern's GP: its data, marginal likelihood, scores of frames, moves and posterior.
 pub trait PatternModel: Send + Sync + std::fmt::Debug {
@@ -405,6 +405,11 @@ impl Likelihood {
     /// `log N(V_f ; μ, σ² r(X_f, X_f) + σ_n² I)`: the frame's density under a new pattern.
     pub fn prior_score(&self, f: FrameRef<'_>, p: &GpParams) -> Result<f64> {
         prior_score_with(&self.correlation(), f, p)
+    }
+
+    /// [`Likelihood::prior_score`] for several parameter sets at once.
+    pub fn prior_scores(&self, f: FrameRef<'_>, ps: &[GpParams]) -> Result<Vec<f64>> {
+        prior_scores_with(&self.correlation(), f, ps)
     }
 
     /// Bytes a pattern of `n` points would hold (both likelihoods grow factors by doubling).

@@ -7,6 +7,7 @@ use pyo3::prelude::*;
 pyo3::import_exception!(dpgp.exceptions, InvalidInputError);
 pyo3::import_exception!(dpgp.exceptions, ShapeError);
 pyo3::import_exception!(dpgp.exceptions, NotPositiveDefiniteError);
+pyo3::import_exception!(dpgp.exceptions, MemoryBudgetError);
 
 /// Newtype for the orphan rule: `From<dpgp_core::Error> for PyErr` cannot live here.
 pub struct CoreError(pub dpgp_core::Error);
@@ -25,6 +26,7 @@ impl From<CoreError> for PyErr {
             E::InvalidInput(_) => InvalidInputError::new_err(msg),
             E::Shape(_) => ShapeError::new_err(msg),
             E::NotPositiveDefinite { .. } => NotPositiveDefiniteError::new_err(msg),
+            E::MemoryBudget { .. } => MemoryBudgetError::new_err(msg),
             E::Interrupted => PyKeyboardInterrupt::new_err(msg),
         }
     }

@@ -4,6 +4,7 @@
 mod convert;
 mod errors;
 mod gp;
+mod hsgp;
 mod sampler;
 mod simulate;
 
@@ -13,6 +14,10 @@ mod _core {
 
     #[pymodule_export]
     use super::gp::{check_params, log_marginal_likelihood, log_predictive, posterior};
+    #[pymodule_export]
+    use super::hsgp::{
+        hsgp_basis, hsgp_log_marginal_likelihood, hsgp_log_predictive, hsgp_posterior,
+    };
     #[pymodule_export]
     use super::sampler::PySampler;
     #[pymodule_export]

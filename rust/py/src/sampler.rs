@@ -2,7 +2,7 @@
 //! the GIL released, and stoppable with Ctrl-C between frames.
 
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Mutex, mpsc};
+use std::sync::{Arc, Mutex, mpsc};
 use std::time::Duration;
 
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
@@ -12,10 +12,12 @@ use pyo3::types::PyDict;
 use crate::convert::{pairs, to_numpy};
 use crate::errors::{CoreError, CoreResult};
 use crate::gp::{ParamTuple, params};
+use crate::hsgp::BasisTuple;
 use dpgp_core::Error;
-use dpgp_core::gibbs::{Assignment, Data, Sampler, Settings};
+use dpgp_core::gibbs::{Assignment, Data, Proposal, Sampler, Settings};
 use dpgp_core::kernel::LengthScales;
 use dpgp_core::pattern::FrameRef;
+use dpgp_core::pattern_model::Likelihood;
 
 #[pyclass(module = "dpgp._core", name = "Sampler")]
 pub struct PySampler {
@@ -123,7 +125,7 @@ impl PySampler {
 impl PySampler {
     #[new]
     #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (xy, v, offsets, assignment, params_, fixed_length_scales, length_scale_prior, alpha, new_pattern_samples, seed, n_threads, length_scale_fraction=1.0, pattern_moments=false))]
+    #[pyo3(signature = (xy, v, offsets, assignment, params_, fixed_length_scales, length_scale_prior, alpha, new_pattern_samples, seed, n_threads, length_scale_fraction=1.0, pattern_moments=false, likelihood="exact", basis=None, proposal="full", memory_budget=None))]
     fn new(
         py: Python<'_>,
         xy: PyReadonlyArray2<'_, f64>,
@@ -139,7 +141,31 @@ impl PySampler {
         n_threads: Option<usize>,
         length_scale_fraction: f64,
         pattern_moments: bool,
+        likelihood: &str,
+        basis: Option<BasisTuple>,
+        proposal: &str,
+        memory_budget: Option<usize>,
     ) -> PyResult<Self> {
+        let likelihood = match (likelihood, basis) {
+            ("exact", _) => Likelihood::Exact,
+            ("hsgp", Some(b)) => Likelihood::Hsgp(Arc::new(crate::hsgp::basis(b)?)),
+            (other, _) => {
+                return Err(CoreError(Error::InvalidInput(format!(
+                    "likelihood must be 'exact' or 'hsgp' (with a basis), got {other:?}"
+                )))
+                .into());
+            }
+        };
+        let proposal = match proposal {
+            "full" => Proposal::Full,
+            "informed" => Proposal::Informed,
+            other => {
+                return Err(CoreError(Error::InvalidInput(format!(
+                    "proposal must be 'full' or 'informed', got {other:?}"
+                )))
+                .into());
+            }
+        };
         let assignment = match assignment {
             "gibbs" => Assignment::Gibbs,
             "map" => Assignment::Map,
@@ -163,6 +189,9 @@ impl PySampler {
             length_scale_fraction,
             pattern_moments,
             seed,
+            likelihood,
+            proposal,
+            memory_budget,
         };
         let sampler = py
             .detach(|| Sampler::new(data, settings))
@@ -220,6 +249,17 @@ impl PySampler {
 
     fn log_joint(&self) -> f64 {
         self.lock().log_joint()
+    }
+
+    /// Bytes held by the patterns and the score cache.
+    fn memory_bytes(&self) -> usize {
+        self.lock().memory_bytes()
+    }
+
+    /// (proposed, accepted) counts of informed proposals so far.
+    fn proposal_counts(&self) -> (u64, u64) {
+        let p = self.lock().proposals;
+        (p.proposed, p.accepted)
     }
 
     /// Seconds spent per part of the sweep so far.

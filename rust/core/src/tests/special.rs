@@ -22,3 +22,20 @@ fn log_sum_exp_is_stable() {
     assert!((log_sum_exp(&[1000.0, 1000.0]) - (1000.0 + 2f64.ln())).abs() < 1e-12);
     assert_eq!(log_sum_exp(&[f64::NEG_INFINITY]), f64::NEG_INFINITY);
 }
+
+#[test]
+fn gamma_quantiles_match_known_values() {
+    // scipy.stats.gamma(a, scale=b).ppf(p)
+    for (p, a, b, want) in [
+        (0.05, 10.0, 1.0, 5.425_405_697_091_295),
+        (0.5, 10.0, 1.0, 9.668_714_614_714_128),
+        (0.95, 2.0, 3.0, 14.231_593_555_171_731),
+        (0.01, 0.5, 2.0, 0.000_157_087_857_909_701_84),
+    ] {
+        let got = gamma_quantile(p, a, b);
+        assert!(
+            (got - want).abs() < 1e-9 * want,
+            "{p} {a} {b}: {got} vs {want}"
+        );
+    }
+}
