@@ -14,6 +14,8 @@ from ._arrays import as_pairs, check_finite
 from .exceptions import DataFormatError, InvalidInputError, ShapeError
 
 _FORMAT_VERSION = 1
+_MAX_BINS = 10**7  # position bins (80 MB of histogram)
+_MAX_SAMPLES = 10**8  # draws per call (0.8-1.6 GB of output)
 
 
 class EmpiricalDistributions:
@@ -37,13 +39,16 @@ class EmpiricalDistributions:
         roi: Any,
         pseudocount: float = 0.0,
     ) -> None:
-        ch = np.asarray(count_hist, dtype=np.float64)
-        ph = np.asarray(position_hist, dtype=np.float64)
+        ch = _floats("count_hist", count_hist)
+        ph = _floats("position_hist", position_hist)
+        pseudocount = _floats("pseudocount", pseudocount)
+        if pseudocount.ndim != 0:
+            raise InvalidInputError(f"pseudocount must be one number >= 0, got {pseudocount!r}")
         r = np.asarray(_roi(roi))
         if ch.ndim != 1 or len(ch) < 2:
             raise ShapeError("count_hist must be one-dimensional: frames with 0, 1, 2, ... vehicles")
-        if ph.ndim != 2 or 0 in ph.shape:
-            raise ShapeError(f"position_hist must be a non-empty (nx, ny) array, got shape {ph.shape}")
+        if ph.ndim != 2 or 0 in ph.shape or ph.size > _MAX_BINS:
+            raise ShapeError(f"position_hist must be a non-empty (nx, ny) array of at most {_MAX_BINS} bins, got shape {ph.shape}")
         if not (np.isfinite(pseudocount) and pseudocount >= 0):
             raise InvalidInputError(f"pseudocount must be >= 0, got {pseudocount!r}")
         if np.any(ch < 0) or np.any(ph < 0) or not np.all(np.isfinite(ch)) or not np.all(np.isfinite(ph)):
@@ -148,12 +153,12 @@ class EmpiricalDistributions:
     # --- sampling ------------------------------------------------------------------------------
     def sample_counts(self, n: int, rng: Any = None) -> np.ndarray:
         """``n`` vehicle counts drawn from φ (int64)."""
-        gen = np.random.default_rng(rng)
+        gen = _rng(rng)
         return gen.choice(len(self._count_p), size=_count("n", n), p=self._count_p).astype(np.int64)
 
     def sample_positions(self, n: int, rng: Any = None) -> np.ndarray:
         """``n`` positions (n, 2) drawn from ψ: a bin by its probability, then uniformly inside it."""
-        gen = np.random.default_rng(rng)
+        gen = _rng(rng)
         n = _count("n", n)
         nx, ny = self.bins
         flat = gen.choice(nx * ny, size=n, p=self._bin_p.ravel())
@@ -180,10 +185,14 @@ class EmpiricalDistributions:
         missing = [k for k in ("count_hist", "position_hist", "roi") if k not in d]
         if missing:
             raise DataFormatError(f"not a stored EmpiricalDistributions: missing {missing}")
-        version = int(np.asarray(d.get("version", _FORMAT_VERSION)))
+        version = d.get("version", _FORMAT_VERSION)
+        try:
+            version = int(np.asarray(version))
+        except (TypeError, ValueError, OverflowError):
+            raise DataFormatError(f"EmpiricalDistributions format version must be a whole number, got {version!r:.40}") from None
         if version > _FORMAT_VERSION:
             raise DataFormatError(f"EmpiricalDistributions format {version} is newer than this dpgp reads ({_FORMAT_VERSION})")
-        return cls(d["count_hist"], d["position_hist"], d["roi"], float(np.asarray(d.get("pseudocount", 0.0))))
+        return cls(d["count_hist"], d["position_hist"], d["roi"], d.get("pseudocount", 0.0))
 
     def __repr__(self) -> str:
         return (
@@ -219,15 +228,34 @@ def _bins(bins: Any) -> tuple[int, int]:
     arr = np.atleast_1d(np.asarray(bins))
     if arr.shape == (1,):
         arr = np.r_[arr, arr]
-    if arr.shape != (2,) or arr.dtype.kind not in "iu" or np.any(arr < 1):
-        raise InvalidInputError(f"bins must be a positive whole number or a pair (nx, ny), got {bins!r}")
+    if arr.shape != (2,) or arr.dtype.kind not in "iu" or np.any(arr < 1) or int(arr[0]) * int(arr[1]) > _MAX_BINS:
+        raise InvalidInputError(
+            f"bins must be a positive whole number or a pair (nx, ny) of at most {_MAX_BINS} bins in all, got {bins!r}"
+        )
     return int(arr[0]), int(arr[1])
 
 
 def _count(name: str, n: Any) -> int:
-    if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 0:
-        raise InvalidInputError(f"{name} must be a whole number >= 0, got {n!r}")
+    if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or not 0 <= n <= _MAX_SAMPLES:
+        raise InvalidInputError(f"{name} must be a whole number from 0 to {_MAX_SAMPLES}, got {n!r}")
     return int(n)
+
+
+def _rng(rng: Any) -> np.random.Generator:
+    try:
+        return np.random.default_rng(rng)
+    except (TypeError, ValueError) as e:
+        raise InvalidInputError(f"rng must be None, a seed >= 0 or a numpy Generator, got {rng!r} ({e})") from None
+
+
+def _floats(name: str, value: Any) -> np.ndarray:
+    try:
+        arr = np.asarray(value)
+        if arr.dtype.kind not in "biuf":
+            raise TypeError(f"dtype {arr.dtype}")
+        return arr.astype(np.float64)
+    except (TypeError, ValueError) as e:
+        raise InvalidInputError(f"{name} must hold real numbers, got {value!r:.80} ({e})") from None
 
 
 __all__ = ["EmpiricalDistributions"]

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Iterator, overload
 import numpy as np
 
 from ._arrays import as_vector, check_finite
-from .exceptions import DataFormatError, ShapeError
+from .exceptions import DataFormatError, InvalidInputError, ShapeError
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -74,6 +74,8 @@ class Frames:
             raise ShapeError("every frame must hold at least one vehicle")
         if xy.shape != v.shape or xy.ndim != 2 or xy.shape[1] != 2:
             raise ShapeError(f"xy and v must both have shape (n, 2), got {xy.shape} and {v.shape}")
+        if labels is not None and np.ndim(labels) != 1:
+            raise ShapeError(f"labels must be one label per frame (a 1-D array), got {labels!r:.80}")
         if labels is not None and len(labels) != len(ids):
             raise ShapeError(f"labels has {len(labels)} entries for {len(ids)} frames")
         self.ids = np.asarray(ids)
@@ -102,7 +104,12 @@ class Frames:
             check_finite(name, col)
         if len(frame) == 0:
             raise ShapeError("no rows: a Frames needs at least one vehicle observation")
-        order = np.argsort(frame, kind="stable")
+        if frame.dtype.kind == "f" and np.isnan(frame).any():
+            raise InvalidInputError(f"frame has {int(np.isnan(frame).sum())} NaN id(s); every row needs a frame id")
+        try:
+            order = np.argsort(frame, kind="stable")
+        except TypeError as e:  # e.g. None among the ids, or numbers mixed with strings
+            raise InvalidInputError(f"frame ids must be numbers or strings that can be sorted ({e})") from None
         sorted_frame = frame[order]
         starts = np.flatnonzero(np.r_[True, sorted_frame[1:] != sorted_frame[:-1]])
         offsets = np.r_[starts, len(frame)]
@@ -127,12 +134,13 @@ class Frames:
             i = int(i) % n
             a, b = self.offsets[i], self.offsets[i + 1]
             return Frame(self.ids[i], self.xy[a:b], self.v[a:b])
-        idx = np.arange(len(self))[i]
-        rows = np.concatenate([np.arange(self.offsets[k], self.offsets[k + 1]) for k in idx]) if len(idx) else []
-        rows = np.asarray(rows, dtype=np.int64)
-        sizes = self.sizes[idx]
+        idx = self._selection(i)
         if len(idx) == 0:
             raise ShapeError("selection is empty: a Frames needs at least one frame")
+        sizes = self.sizes[idx]
+        # the rows of the chosen frames, in selection order, without a loop over frames
+        rows = np.arange(int(sizes.sum()), dtype=np.int64)
+        rows += np.repeat(self.offsets[idx] - (np.cumsum(sizes) - sizes), sizes)
         out = Frames(
             self.ids[idx],
             np.r_[0, np.cumsum(sizes)],
@@ -143,6 +151,27 @@ class Frames:
         # A selection keeps how the frames were made (dt, ROI, units) for the model to use.
         out.summary = self.summary
         return out
+
+    def _selection(self, i: object) -> np.ndarray:
+        """Frame positions picked by a slice, an integer array or a boolean mask."""
+        n = len(self)
+        if isinstance(i, slice):
+            return np.arange(n)[i]
+        arr = np.asarray(i) if isinstance(i, (list, tuple, np.ndarray)) else None
+        if arr is not None and arr.size == 0:
+            arr = arr.astype(np.int64)
+        if arr is None or arr.ndim != 1 or arr.dtype.kind not in "biu":
+            raise InvalidInputError(
+                f"select frames with an int, a slice, an integer array or a boolean mask, got {i!r:.80}"
+            )
+        if arr.dtype.kind == "b":
+            if len(arr) != n:
+                raise ShapeError(f"boolean mask has {len(arr)} entries for {n} frames")
+            return np.flatnonzero(arr)
+        bad = (arr < -n) | (arr >= n)
+        if bad.any():
+            raise InvalidInputError(f"frame index {arr[bad][0]} out of range for {n} frames")
+        return np.where(arr < 0, arr + n, arr).astype(np.int64)
 
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):

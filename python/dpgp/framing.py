@@ -25,6 +25,8 @@ _UNITS = {"ft->m": FT_TO_M, "feet->metres": FT_TO_M, "feet->meters": FT_TO_M, "m
 _GRID_EPS = 1e-6  # a sample within 1e-6 dt of a grid time counts as on it (float rounding)
 _CHUNK = 1 << 18  # rows per batch in the smoothing solve (bounds its memory)
 _BATCH = 1 << 20  # rows (plus grid points) per batch of the resampling
+_MAX_GRID_NUMBER = 2.0**52  # grid numbers t / dt beyond this are not exact in float64
+_MAX_RESAMPLED = 200_000_000  # vehicle-times on the grid (about 10 GB of temporaries beyond this)
 
 
 @dataclass(frozen=True)
@@ -260,9 +262,18 @@ def _resample(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, uni
     seg_len = ends - starts
     seg_track = tr[starts]
 
+    t_abs = float(max(abs(t[0]), abs(t[-1]), np.abs(t).max()))
+    if t_abs / dt > _MAX_GRID_NUMBER:
+        raise InvalidInputError(
+            f"dt={dt:g} s is too small for times up to {t_abs:g} s: grid numbers would exceed 2^52 and lose "
+            "precision; use a larger dt, or subtract the start time from t"
+        )
+    # Snap to a grid time within 1e-6 dt (float rounding), but never more than 1e-6 s: with a
+    # huge dt, a sample seconds away from a grid time must not count as on it.
+    eps = _GRID_EPS * min(1.0, 1.0 / dt)
     s0, s1 = t[starts], t[ends - 1]
-    k0 = np.ceil(s0 / dt - _GRID_EPS).astype(np.int64)
-    k1 = np.floor(s1 / dt + _GRID_EPS).astype(np.int64)
+    k0 = np.ceil(s0 / dt - eps).astype(np.int64)
+    k1 = np.floor(s1 / dt + eps).astype(np.int64)
     cont = seg_track[1:] == seg_track[:-1]
     n_gap_times = int(np.maximum(k0[1:] - k1[:-1] - 1, 0)[cont].sum())
     cnt = np.maximum(k1 - k0 + 1, 0)
@@ -280,6 +291,11 @@ def _resample(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, uni
         n_unsmoothed_segments=0 if smoothing is None else int(((seg_len < smoothing[0]) & (cnt > 0)).sum()),
         n_resampled=G, n_scenes=1 if sc is None else len(np.unique(seg_scene)),
     )
+    if G > _MAX_RESAMPLED:
+        raise InvalidInputError(
+            f"dt={dt:g} s gives {G:,} vehicle-times on the grid, more than {_MAX_RESAMPLED:,}; use a larger dt "
+            "(or a smaller max_gap, which stops tracks being bridged across long gaps)"
+        )
     if G == 0:
         raise InvalidInputError(
             f"no track reaches a grid time: dt={dt:g} s is longer than every track's time span "
@@ -313,7 +329,14 @@ def _resample(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, uni
     counts["n_outside_roi"] = G - len(seg_g)
     if scale != 1.0:
         for key in ("x", "y", "vx", "vy"):
-            out[key] *= scale
+            largest = float(np.abs(out[key]).max())
+            with np.errstate(over="ignore"):  # checked just below, with a message that says what to do
+                out[key] *= scale
+            if not np.isfinite(out[key]).all():
+                raise InvalidInputError(
+                    f"units={units!r} takes {key} beyond the floating-point range (largest |{key}| "
+                    f"{largest:g}); use a smaller factor"
+                )
     # Grid times from the first to the last one any segment reaches, per scene.
     has = cnt > 0
     if seg_scene is None:

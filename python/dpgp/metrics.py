@@ -4,19 +4,34 @@ from __future__ import annotations
 
 import numpy as np
 
+from .exceptions import InvalidInputError
+
+
+def _codes(name: str, labels: object) -> np.ndarray:
+    """Group numbers 0.. of a 1-D labeling; any hashable labels (None, mixed types) work."""
+    arr = np.asarray(labels, dtype=object) if isinstance(labels, (list, tuple)) else np.asarray(labels)
+    if arr.ndim != 1:
+        raise InvalidInputError(f"labeling {name} must be one-dimensional, got shape {arr.shape}")
+    try:
+        return np.unique(arr, return_inverse=True)[1].reshape(-1)
+    except TypeError:  # labels that cannot be ordered: number them by first appearance
+        try:
+            seen: dict = {}
+            return np.array([seen.setdefault(v, len(seen)) for v in arr.tolist()], dtype=np.int64)
+        except TypeError as e:
+            raise InvalidInputError(f"labeling {name} holds unhashable labels ({e}); use numbers or strings") from None
+
 
 def adjusted_rand_index(a: object, b: object) -> float:
     """Adjusted Rand index of two labelings of the same items (1 = identical partitions)."""
-    a, b = np.asarray(a), np.asarray(b)
-    if a.shape != b.shape or a.ndim != 1:
-        raise ValueError(f"labelings must be 1-D and of equal length, got {a.shape} and {b.shape}")
+    a, b = _codes("a", a), _codes("b", b)
+    if a.shape != b.shape:
+        raise InvalidInputError(f"labelings must be 1-D and of equal length, got {a.shape} and {b.shape}")
     n = len(a)
     if n < 2:
         return 1.0
-    _, ai = np.unique(a, return_inverse=True)
-    _, bi = np.unique(b, return_inverse=True)
-    table = np.zeros((ai.max() + 1, bi.max() + 1), dtype=np.int64)
-    np.add.at(table, (ai, bi), 1)
+    table = np.zeros((a.max() + 1, b.max() + 1), dtype=np.int64)
+    np.add.at(table, (a, b), 1)
 
     def pairs(x: np.ndarray) -> float:
         return float((x * (x - 1) // 2).sum())

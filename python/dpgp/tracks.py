@@ -106,8 +106,8 @@ def read_ngsim(path: str | os.PathLike, *, split_gap: float = 1.0) -> pd.DataFra
             skipinitialspace=True,
             low_memory=False,
         )
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
-        raise DataFormatError(f"{path} is not a readable NGSIM file: {e}") from None
+    except _damaged_file_errors() as e:
+        raise DataFormatError(f"{path} is not a readable NGSIM file ({type(e).__name__}: {e})") from None
     if header is None:
         names = _NGSIM_TXT.get(df.shape[1])
         if names is None:
@@ -368,14 +368,23 @@ def _build_tracks(df: pd.DataFrame, cols: dict[str, Any], time_scale: float, sor
 
     # Track numbers: 0.. in order of the id value(s), so that they do not depend on row order.
     id_cols = cols["id"]
-    if len(id_cols) == 1:
-        codes, _ = pd.factorize(df[id_cols[0]], sort=True, use_na_sentinel=False)
-    else:
-        codes = df.groupby(id_cols, sort=True, dropna=False).ngroup().to_numpy()
-    codes = codes.astype(np.int64, copy=False)
-    if "scene" in cols and cols["scene"] not in id_cols:
+    try:
+        if len(id_cols) == 1:
+            codes, _ = pd.factorize(df[id_cols[0]], sort=True, use_na_sentinel=False)
+        else:
+            codes = df.groupby(id_cols, sort=True, dropna=False).ngroup().to_numpy()
+        codes = codes.astype(np.int64, copy=False)
+        scene_codes = None
+        if "scene" in cols and cols["scene"] not in id_cols:
+            scene_codes, _ = pd.factorize(df[cols["scene"]], sort=True, use_na_sentinel=False)
+    except TypeError as e:  # lists or a mix of types that cannot be ordered (numbers and None)
+        named = id_cols + ([cols["scene"]] if "scene" in cols else [])
+        raise DataFormatError(
+            f"{where}: the id column(s) {named} hold values that cannot be compared ({e}); "
+            "ids must be numbers or strings"
+        ) from None
+    if scene_codes is not None:
         # A track lives in one scene: make the scene part of its identity.
-        scene_codes, _ = pd.factorize(df[cols["scene"]], sort=True, use_na_sentinel=False)
         combined = scene_codes.astype(np.int64) * (int(codes.max()) + 1) + codes
         codes = pd.factorize(combined, sort=True)[0].astype(np.int64, copy=False)
 
@@ -481,8 +490,12 @@ def _read_sumo_xml(path: str) -> pd.DataFrame:
                     rows.append(row)
                 elif elem.tag == "timestep":
                     root.clear()  # free what is parsed: FCD files run to gigabytes
+    except DataFormatError:
+        raise
     except ET.ParseError as e:
         raise DataFormatError(f"{path} is not well-formed XML: {e}") from None
+    except _damaged_file_errors() as e:
+        raise DataFormatError(f"{path} could not be read ({type(e).__name__}: {e}); is it complete?") from None
     except (TypeError, ValueError) as e:
         raise DataFormatError(f"{path}: unreadable timestep time: {e}") from None
     if not rows:
@@ -544,6 +557,18 @@ def _existing(path: str | os.PathLike) -> str:
     return path
 
 
+def _damaged_file_errors() -> tuple[type[BaseException], ...]:
+    """What reading a damaged text or gzip file raises from pandas, csv, gzip and zlib: all of
+    them mean "unreadable file" (a truncated .gz ends in EOFError, a corrupt one in zlib.error)."""
+    import csv
+    import zlib
+
+    import pandas as pd
+
+    return (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, EOFError, zlib.error,
+            csv.Error, gzip.BadGzipFile)  # fmt: skip
+
+
 def _first_line(path: str) -> str:
     opener = gzip.open if path.lower().endswith(".gz") else open
     try:
@@ -551,8 +576,8 @@ def _first_line(path: str) -> str:
             for line in fh:
                 if line.strip():
                     return line
-    except OSError as e:
-        raise DataFormatError(f"{path} could not be read: {e}") from None
+    except (OSError, EOFError, *_damaged_file_errors()) as e:
+        raise DataFormatError(f"{path} could not be read ({type(e).__name__}: {e}); is it complete?") from None
     raise DataFormatError(f"{path} is empty")
 
 
@@ -584,8 +609,8 @@ def _read_table(path: str, names: list[str] | None) -> pd.DataFrame:
     header = None if names is not None or all(_is_number(tok) for tok in tokens if tok) else 0
     try:
         return pd.read_csv(path, sep=sep, header=header, encoding="utf-8-sig", low_memory=False)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as e:
-        raise DataFormatError(f"{path} is not a readable table: {e}") from None
+    except _damaged_file_errors() as e:
+        raise DataFormatError(f"{path} is not a readable table ({type(e).__name__}: {e})") from None
 
 
 def _numeric(col: pd.Series, name: object, where: str) -> pd.Series:
