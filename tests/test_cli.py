@@ -12,6 +12,7 @@ import pytest
 
 import dpgp
 from dpgp.cli import main
+from dpgp.io import FORMAT_VERSION
 
 COMMANDS = ("fit", "info", "plot", "simulate", "generate", "demo")
 
@@ -76,7 +77,7 @@ def test_info(model_file, capsys):
     assert main(["info", str(model_file), "--top", "2"]) == 0
     out = capsys.readouterr().out
     model = dpgp.DPGP.load(model_file)
-    assert "dpgp-model format 1" in out and "36 frames" in out
+    assert f"dpgp-model format {FORMAT_VERSION}" in out and "36 frames" in out
     assert f"patterns: {model.n_patterns_}" in out and "settings:" in out
 
 

@@ -100,7 +100,7 @@ def _fit(args: argparse.Namespace) -> int:
         raise ValueError("--scheduler and --until-converged go with --chains N")
     model = DPGP(
         iterations=args.iterations, assignment=args.assignment, seed=args.seed, alpha=args.alpha,
-        n_threads=args.threads, progress=args.progress,
+        n_threads=args.threads, progress=args.progress, preset=args.preset,
     )  # fmt: skip
     t = time.perf_counter()
     model.fit(frames)
@@ -276,6 +276,37 @@ def _generate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _evaluate(args: argparse.Namespace) -> int:
+    from . import DPGP
+    from .evaluate import split_in_time
+
+    model = DPGP.load(args.model)
+    summary = getattr(model.frames_, "summary", None)
+    dt = args.dt if args.dt is not None else getattr(summary, "dt", None)
+    roi = args.roi if args.roi is not None else getattr(summary, "roi", None)
+    fmt = _sniff(args.data) if args.format == "auto" else args.format
+    tracks = None
+    if fmt == "frames":
+        frames = load_frames(args.data, fmt, roi, dt)
+    else:  # trajectories: framed like the training data, and kept for the rollouts
+        from . import make_frames, read_ngsim, read_tracks
+
+        tracks = read_ngsim(args.data) if fmt == "ngsim" else read_tracks(args.data, preset=None if fmt == "tracks" else fmt)
+        units = getattr(summary, "units", None)
+        frames = make_frames(tracks, roi=roi, dt=0.5 if dt is None else dt, units=units)
+    test = frames if args.split == 0 else split_in_time(frames, args.split)[1]
+    print(f"{args.data}: {len(test)} test frames ({test.n_points} vehicles)" + (f", the last {1 - args.split:.0%}" if args.split else ""))
+    ev = model.evaluate(test, tracks=tracks, horizons=args.horizons)
+    print(ev.table.to_string(float_format=lambda x: f"{x:.3f}"))
+    if args.output:
+        ev.table.to_csv(args.output)
+        print(f"wrote {args.output}")
+    if args.plot:
+        ev.plot().savefig(args.plot, dpi=100)
+        print(f"wrote {args.plot}")
+    return 0
+
+
 def _demo(args: argparse.Namespace) -> int:
     from . import DPGP, adjusted_rand_index, datasets
 
@@ -343,6 +374,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--iterations", type=int, default=100, help="Gibbs sweeps after the initialisation")
     p.add_argument("--assignment", choices=("gibbs", "map"), default="gibbs",
                    help="'gibbs' samples each frame's pattern; 'map' takes the most probable (the paper's)")  # fmt: skip
+    p.add_argument("--preset", choices=("paper",),
+                   help="'paper': the paper's Gamma(10, 1) length scales, noise variance 1 and map assignment "
+                   "(for data in feet; the default settings scale with the data)")  # fmt: skip
+
     p.add_argument("--alpha", type=float, help="fix the DP concentration (default: sampled)")
     p.add_argument("--max-frames", type=int, help="use only the first N frames")
     p.add_argument("--threads", type=int, help="worker threads (default: all cores)")
@@ -410,6 +445,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mean", action="store_true", help="follow the posterior mean instead of drawing velocities")
     p.add_argument("--seed", type=int, help="random seed (default: random)")
     p.set_defaults(func=_generate)
+
+    p = sub.add_parser("evaluate", help="score a model on held-out data against baselines", formatter_class=fmt,
+                       description="Held-out log density of the velocities per vehicle for the model, a single GP and "
+                       "a position-blind Gaussian (both fitted to the model's training frames); for trajectory "
+                       "input, also rollout ADE/FDE against constant velocity. DATA is framed like the training "
+                       "data (its dt, ROI and units).")  # fmt: skip
+    p.add_argument("model", help="model file written by 'dpgp fit'")
+    p.add_argument("data", help="the data: framed table, trajectories or SUMO FCD XML")
+    p.add_argument("--format", choices=_FORMATS, default="auto", help="input kind, as for 'dpgp fit'")
+    p.add_argument("--split", type=float, default=0.7,
+                   help="score the frames after this share of DATA (the protocol: the model was fitted to the first "
+                   "share, e.g. with --max-frames); 0 scores all of DATA")  # fmt: skip
+    p.add_argument("--horizons", type=float, nargs="+", default=[1.0, 2.0, 4.0], help="rollout horizons in seconds")
+    p.add_argument("--roi", nargs=4, type=_roi, metavar=("X_MIN", "X_MAX", "Y_MIN", "Y_MAX"), help="default: the model's")
+    p.add_argument("--dt", type=float, help="time step in seconds (default: the model's)")
+    p.add_argument("-o", "--output", help="write the table as CSV")
+    p.add_argument("--plot", help="write the figure (PNG)")
+    p.set_defaults(func=_evaluate)
 
     p = sub.add_parser("demo", help="fit built-in synthetic data and write every figure", formatter_class=fmt,
                        description="Fit the synthetic four-way intersection (dpgp.datasets.synthetic) and write the "

@@ -110,6 +110,11 @@ def evaluate(model: Any, test_frames: Frames, tracks: Any = None, horizons: Any 
     if not isinstance(test_frames, Frames):
         raise ShapeError(f"test_frames must be dpgp.Frames, got {type(test_frames).__name__}")
     horizons = _horizons(horizons)
+    if tracks is not None and getattr(test_frames, "summary", None) is None:
+        raise InvalidInputError(
+            "rollouts need test frames made by dpgp.make_frames from these tracks (their time step and units); "
+            "these frames carry no framing summary"
+        )
     train = model.frames_
     sizes = test_frames.sizes
     scores = {

@@ -25,7 +25,10 @@ name                dtype, shape            content
 ``log_joint``, ``frames_summary`` (what ``make_frames`` did, with ``dt`` and ``roi``, or null)
 and ``distributions`` (φ and ψ, ``EmpiricalDistributions.to_dict`` as lists); a model made by
 ``dpgp.Chains.best_model`` adds ``chain_summary`` (R̂, ESS, burn-in, the stopping verdict and the
-point estimate's expected loss; ``Chains.summary_dict``).
+point estimate's expected loss; ``Chains.summary_dict``). From version 2, ``resolved`` holds the
+assignment, σ_n² and length-scale prior the fit ran with after ``"auto"`` and ``preset`` were
+resolved (:class:`dpgp.defaults.Resolved`); version 1 files, written when those settings were
+always numbers, are read by taking them from ``settings``.
 
 Loading rebuilds the sampler from the frames, labels, length scales and α exactly as ``fit``
 leaves it (every pattern factored in canonical order), so a loaded model predicts, simulates and
@@ -50,7 +53,7 @@ if TYPE_CHECKING:
     from .model import DPGP
 
 FORMAT = "dpgp-model"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: "resolved" (what the "auto" settings and the preset resolved to)
 
 _REQUIRED = ("metadata", "frame_ids", "frame_offsets", "frame_xy", "frame_v", "labels", "length_scales")
 
@@ -103,6 +106,7 @@ def save(model: DPGP, path: str | os.PathLike) -> None:
         "log_joint": getattr(model, "log_joint_", None),
         "frames_summary": None if summary is None else summary.to_dict(),
         "distributions": distributions(model).to_dict(),
+        "resolved": _resolved_dict(model),
     }
     if getattr(model, "chain_summary_", None) is not None:
         meta["chain_summary"] = model.chain_summary_  # a model summarising chains (dpgp.fit_chains)
@@ -241,6 +245,7 @@ def _build(cls: type[DPGP], meta: dict[str, Any], arrays: dict[str, np.ndarray])
         raise ModelFileError("labels do not name exactly the patterns the file holds")
     p = meta["params"]
     model.params_ = GPParams(tuple(p["length_scales"]), tuple(p["signal_var"]), p["noise_var"], tuple(p["mean"]))
+    _restore_resolved(model, meta)
     # The sampler fit builds; set_state then factors every pattern in the canonical order fit
     # ends with, so every later computation is bitwise the same.
     model._sampler = model._new_sampler(frames)
@@ -261,8 +266,42 @@ def _build(cls: type[DPGP], meta: dict[str, Any], arrays: dict[str, np.ndarray])
     if meta.get("chain_summary") is not None:
         model.chain_summary_ = meta["chain_summary"]
     if meta.get("distributions") is not None:
-        model._distributions = (frames, EmpiricalDistributions.from_dict(meta["distributions"]))
+        model._cache = {"distributions": (frames, EmpiricalDistributions.from_dict(meta["distributions"]))}
     return model
+
+
+def _resolved_dict(model: DPGP) -> dict[str, Any]:
+    r = getattr(model, "defaults_", None)
+    if r is not None:
+        return r.to_dict()
+    return {  # a model assembled without fit (for example from chains) still has the values
+        "assignment": model.assignment_, "noise_var": float(model.noise_var_),
+        "length_scale_prior": list(model.length_scale_prior_), "noise_var_source": "user",
+        "length_scale_prior_source": "user",
+    }  # fmt: skip
+
+
+def _restore_resolved(model: DPGP, meta: dict[str, Any]) -> None:
+    """Set ``assignment_``, ``noise_var_``, ``length_scale_prior_`` and ``defaults_`` as the fit
+    resolved them (never re-estimated: the saved model is what was fitted)."""
+    from .defaults import Resolved
+
+    r = meta.get("resolved")
+    if r is None:  # version 1: the settings were the values
+        s = meta["settings"]
+        r = {
+            "assignment": s["assignment"], "noise_var": float(s["noise_var"]),
+            "length_scale_prior": s["length_scale_prior"], "noise_var_source": "user", "length_scale_prior_source": "user",
+        }  # fmt: skip
+    scores = r.get("noise_scores")
+    resolved = Resolved(**{
+        **r, "length_scale_prior": tuple(float(x) for x in r["length_scale_prior"]),
+        "noise_scores": None if scores is None else tuple((float(a), float(b)) for a, b in scores),
+    })  # fmt: skip
+    model.assignment_ = resolved.assignment
+    model.noise_var_ = resolved.noise_var
+    model.length_scale_prior_ = resolved.length_scale_prior
+    model.defaults_ = resolved
 
 
 __all__ = ["save", "load", "read_metadata", "FORMAT", "FORMAT_VERSION"]

@@ -12,6 +12,7 @@ import numpy as np
 
 from . import _core
 from .exceptions import InvalidInputError, NotFittedError, ShapeError
+from .fitted import FittedPatterns
 from .frames import Frames, read_frames
 from .gp import GPParams, _pair
 from .metrics import adjusted_rand_index, canonical_labels
@@ -29,9 +30,16 @@ class DPGP:
     assignment : ``"gibbs"`` draws each frame's pattern from its conditional (a true collapsed
         Gibbs sampler); ``"map"`` takes the most probable one (the paper's Algorithm 1).
     likelihood : ``"exact"`` (the full GP; reduced-rank approximations are planned).
-    length_scale_prior : ``(shape, scale)`` of the Gamma prior of each length scale, in data units.
+    length_scale_prior : ``(shape, scale)`` of the Gamma prior of each length scale, in data
+        units; ``"auto"`` (default): shape 10 with the mean at the data's spacing, the median
+        distance between nearest vehicles of a frame (:mod:`dpgp.defaults`). Resolved value in
+        ``length_scale_prior_``.
     length_scales : ``None`` samples ``(w_x, w_y)`` per pattern; a pair fixes them for all patterns.
-    noise_var : observation noise variance σ_n² (velocity units squared).
+    noise_var : observation noise variance σ_n² (velocity units squared); ``"auto"`` (default):
+        chosen before sampling by the held-out score of short pilot fits over a grid relative to
+        the velocity variance (:mod:`dpgp.defaults`). Resolved value in ``noise_var_``.
+    preset : ``"paper"``: the paper's settings wherever ``"auto"`` is left — Gamma(10, 1)
+        length scales (feet), σ_n² = 1 ((ft/s)²) — and map assignment. :meth:`paper` builds one.
     signal_var, mean : per-output signal variance and mean; ``None`` takes the variance and mean
         of the training velocities.
     alpha : DP concentration; ``None`` samples it (starting from a draw of its prior).
@@ -56,9 +64,9 @@ class DPGP:
         iterations: int = 100,
         assignment: str = "gibbs",
         likelihood: str = "exact",
-        length_scale_prior: tuple[float, float] = (10.0, 1.0),
+        length_scale_prior: tuple[float, float] | str = "auto",
         length_scales: tuple[float, float] | None = None,
-        noise_var: float = 1.0,
+        noise_var: float | str = "auto",
         signal_var: float | tuple[float, float] | None = None,
         mean: float | tuple[float, float] | None = None,
         alpha: float | None = None,
@@ -71,6 +79,7 @@ class DPGP:
         n_iter_no_change: int | None = None,
         ari_tol: float = 0.99,
         store_labels: bool = False,
+        preset: str | None = None,
     ) -> None:
         self.iterations = iterations
         self.assignment = assignment
@@ -90,6 +99,7 @@ class DPGP:
         self.n_iter_no_change = n_iter_no_change
         self.ari_tol = ari_tol
         self.store_labels = store_labels
+        self.preset = preset
 
     # --- scikit-learn conventions ---------------------------------------------------------------
     def get_params(self, deep: bool = True) -> dict[str, Any]:
@@ -109,6 +119,38 @@ class DPGP:
         defaults = type(self)().get_params()
         changed = {k: v for k, v in self.get_params().items() if not _same(v, defaults[k])}
         return f"DPGP({', '.join(f'{k}={v!r}' for k, v in changed.items())})"
+
+    @classmethod
+    def paper(cls, **params: Any) -> DPGP:
+        """The paper's settings: Gamma(10, 1) length-scale prior, σ_n² = 1 and map assignment
+        (``preset="paper"``); other settings as keyword arguments."""
+        return cls(preset="paper", **params)
+
+    def _resolve_defaults(self, frames: Frames) -> None:
+        """Resolve the ``"auto"`` settings and the preset against the training frames
+        (:mod:`dpgp.defaults`) into ``assignment_``, ``noise_var_``, ``length_scale_prior_``."""
+        from .defaults import resolve
+
+        r = resolve(
+            frames, preset=self.preset, assignment=self.assignment, noise_var=self.noise_var,
+            length_scale_prior=self.length_scale_prior, signal_var=self.signal_var, mean=self.mean,
+            pilot=self._pilot_fit,
+        )  # fmt: skip
+        self.assignment_ = r.assignment
+        self.noise_var_ = r.noise_var
+        self.length_scale_prior_ = r.length_scale_prior
+        self.defaults_ = r
+
+    def _pilot_fit(self, train: Frames, test: Frames, noise_var: float, length_scale_prior: tuple[float, float]) -> float:
+        """Held-out log density of ``test`` under a short map fit to ``train`` with these
+        settings: the pilot of ``noise_var="auto"``."""
+        from .defaults import PILOT_SWEEPS
+
+        settings = {**self.get_params(), "iterations": PILOT_SWEEPS, "assignment": "map", "noise_var": noise_var,
+                    "length_scale_prior": length_scale_prior, "preset": None, "progress": False,
+                    "n_iter_no_change": None, "store_labels": False}  # fmt: skip
+        pilot = type(self)(**settings).fit(train)
+        return float(pilot.score_samples(test, positions=False).sum())
 
     # --- fitting ----------------------------------------------------------------------------------
     def _check_settings(self) -> None:
@@ -131,15 +173,16 @@ class DPGP:
         """Fit the mixture to training frames (a :class:`~dpgp.Frames` or a framed DataFrame)."""
         self._check_settings()
         frames = _as_frames(frames)
+        self._resolve_defaults(frames)
         signal_var = frames.v.var(axis=0) if self.signal_var is None else _pair("signal_var", self.signal_var)
         mean = frames.v.mean(axis=0) if self.mean is None else _pair("mean", self.mean)
         if np.any(np.asarray(signal_var) <= 0):
             raise InvalidInputError(
                 f"the training velocities have zero variance in an output ({tuple(signal_var)}); pass signal_var="
             )
-        a, b = _pair("length_scale_prior", self.length_scale_prior)
+        a, b = self.length_scale_prior_
         ls0 = (a * b, a * b) if self.length_scales is None else _pair("length_scales", self.length_scales)
-        self.params_ = GPParams(ls0, tuple(signal_var), self.noise_var, tuple(mean))
+        self.params_ = GPParams(ls0, tuple(signal_var), self.noise_var_, tuple(mean))
         self._sampler = self._new_sampler(frames)
         self.frames_ = frames
         self.history_: dict[str, list] = {k: [] for k in ("n_patterns", "alpha", "log_joint", "moves", "ari", "seconds")}
@@ -197,12 +240,12 @@ class DPGP:
     def _new_sampler(self, frames: Frames) -> _core.Sampler:
         """A core sampler over ``frames`` with this model's settings and ``params_``; shared by
         ``fit`` and by loading a model file, so that both compute identically."""
-        a, b = _pair("length_scale_prior", self.length_scale_prior)
+        a, b = self.length_scale_prior_
         return _core.Sampler(
             frames.xy,
             frames.v,
             frames.offsets,
-            self.assignment,
+            self.assignment_,
             self.params_.as_tuple(),
             self.length_scales is not None,
             (a, b),
@@ -236,20 +279,22 @@ class DPGP:
         if not hasattr(self, "labels_"):
             raise NotFittedError("this DPGP is not fitted yet; call fit(frames) first")
 
+    def _fitted(self) -> FittedPatterns:
+        """The fitted state the lower modules (simulation, scenarios) work on: they take this,
+        never the estimator, so that dependencies run one way."""
+        self._check_fitted()
+        cache = self.__dict__.setdefault("_cache", {})
+        return FittedPatterns(
+            self._sampler, self._slots, self._slot_order, self.frames_, self.labels_, self.weights_, self.alpha_, cache
+        )
+
     def _log_scores(self, frames: Frames) -> tuple[np.ndarray, np.ndarray]:
         """log p(V_f | D_k) for each frame and pattern (labels_ order), and the new-pattern term."""
-        per_slot, new = self._sampler.score_frames(frames.xy, frames.v, frames.offsets)
-        scores = np.asarray(per_slot, dtype=np.float64).reshape(len(frames), -1)[:, self._slot_order]
-        return scores, np.asarray(new, dtype=np.float64)
+        return self._fitted().log_scores(frames)
 
     def _log_joint_terms(self, frames: Frames) -> np.ndarray:
         """(N, K+1): log [prior weight × likelihood] of each pattern, then of a new pattern."""
-        self._check_fitted()
-        frames = _as_frames(frames)
-        scores, new = self._log_scores(frames)
-        n = len(self.labels_)
-        log_prior = np.log(np.r_[self.weights_ * n, self.alpha_]) - np.log(n + self.alpha_)
-        return np.column_stack([scores, new]) + log_prior
+        return self._fitted().log_joint_terms(_as_frames(frames))
 
     def predict_proba(self, frames: Frames | Any) -> np.ndarray:
         """Posterior probability of each pattern for each frame: shape (N, K+1), the last column
@@ -275,7 +320,7 @@ class DPGP:
         if positions:
             from .scenarios import distributions
 
-            d = distributions(self)
+            d = distributions(self._fitted())
             out = out + np.array([d.log_frame_density(f.xy) for f in frames])
         return out
 
@@ -321,7 +366,7 @@ class DPGP:
         Returns a :class:`dpgp.simulation.Simulation`."""
         from .simulation import simulate
 
-        return simulate(self, frame, pattern, steps, dt, method, stochastic, seed, roi, low_data_threshold)
+        return simulate(self._fitted(), frame, pattern, steps, dt, method, stochastic, seed, roi, low_data_threshold)
 
     def sample_scenarios(
         self, n: int, steps: int = 100, pattern: int | None = None, seed: int | None = None, **options: Any
@@ -333,7 +378,7 @@ class DPGP:
         (``to_pandas``, ``to_csv``, ``to_sumo``)."""
         from .scenarios import sample_scenarios
 
-        return sample_scenarios(self, n, steps, pattern, seed, **options)
+        return sample_scenarios(self._fitted(), n, steps, pattern, seed, **options)
 
     def save(self, path: Any) -> None:
         """Write the fitted model to ``path`` (a versioned ``.npz``, no pickle; see :mod:`dpgp.io`)."""
@@ -348,6 +393,15 @@ class DPGP:
         from .io import load
 
         return load(cls, path)
+
+    def evaluate(self, test_frames: Frames | Any, tracks: Any = None, horizons: Any = (1, 2, 4)) -> Any:
+        """Held-out evaluation against baselines (:mod:`dpgp.evaluate`): log density of the test
+        velocities per vehicle for this model, a single GP and a position-blind Gaussian, and,
+        given the raw ``tracks``, rollout ADE/FDE at ``horizons`` (seconds) against constant
+        velocity. Returns :class:`dpgp.evaluate.Evaluation` (``.table``, ``.plot()``)."""
+        from .evaluate import evaluate
+
+        return evaluate(self, _as_frames(test_frames), tracks, horizons)
 
 
 def _same(a: object, b: object) -> bool:

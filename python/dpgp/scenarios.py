@@ -22,12 +22,11 @@ import numpy as np
 
 from .distributions import EmpiricalDistributions
 from .exceptions import InvalidInputError
-from .simulation import LOW_DATA_THRESHOLD, Simulation, _check, _check_pattern, default_dt, default_roi, rollouts
+from .fitted import FittedPatterns, as_fitted
+from .simulation import LOW_DATA_THRESHOLD, Simulation, _check, _check_pattern, rollouts
 
 if TYPE_CHECKING:
     import pandas as pd
-
-    from .model import DPGP
 
 MIN_OWN_POSITIONS = 20  # fewer positions than this in a pattern: draw from the global ψ
 DEFAULT_BINS = (20, 20)  # ψ grid over the ROI
@@ -145,14 +144,16 @@ class Scenarios:
         )
 
 
-def distributions(model: DPGP, bins: Any = DEFAULT_BINS) -> EmpiricalDistributions:
-    """φ and ψ of the model's training frames over :func:`~dpgp.simulation.default_roi` (kept
-    on the model, and in its model file, so that generation does not recompute them)."""
-    cached = getattr(model, "_distributions", None)
-    if cached is not None and cached[0] is model.frames_ and (bins is None or cached[1].bins == _pair(bins)):
+def distributions(model: Any, bins: Any = DEFAULT_BINS) -> EmpiricalDistributions:
+    """φ and ψ of the training frames over the training ROI (``model`` a
+    :class:`~dpgp.fitted.FittedPatterns` or a fitted estimator; kept in its cache, and in the
+    model file, so that generation does not recompute them)."""
+    fit = as_fitted(model)
+    cached = fit.cache.get("distributions")
+    if cached is not None and cached[0] is fit.frames and (bins is None or cached[1].bins == _pair(bins)):
         return cached[1]
-    d = EmpiricalDistributions.from_frames(model.frames_, roi=_padded(default_roi(model), model), bins=bins or DEFAULT_BINS)
-    model._distributions = (model.frames_, d)
+    d = EmpiricalDistributions.from_frames(fit.frames, roi=_padded(fit), bins=bins or DEFAULT_BINS)
+    fit.cache["distributions"] = (fit.frames, d)
     return d
 
 
@@ -161,27 +162,29 @@ def _pair(bins: Any) -> tuple[int, int]:
     return (int(b[0]), int(b[-1]))
 
 
-def _padded(roi: tuple[float, float, float, float], model: DPGP) -> tuple[float, float, float, float]:
-    """The ROI, widened to hold every training position (ψ must cover them all)."""
-    x0, x1, y0, y1 = model.frames_.bounds()
+def _padded(fit: FittedPatterns) -> tuple[float, float, float, float]:
+    """The training ROI, widened to hold every training position (ψ must cover them all)."""
+    roi = fit.roi
+    x0, x1, y0, y1 = fit.frames.bounds()
     r = (min(roi[0], x0), max(roi[1], x1), min(roi[2], y0), max(roi[3], y1))
     if r[0] == r[1] or r[2] == r[3]:
         r = (r[0] - 0.5, r[1] + 0.5, r[2] - 0.5, r[3] + 0.5)
     return r
 
 
-def pattern_positions(model: DPGP, k: int, psi: EmpiricalDistributions) -> EmpiricalDistributions:
+def pattern_positions(model: Any, k: int, psi: EmpiricalDistributions) -> EmpiricalDistributions:
     """Pattern ``k``'s own position distribution (its frames' positions on ψ's grid), or ψ
     itself when the pattern holds fewer than :data:`MIN_OWN_POSITIONS` positions."""
-    rows = np.repeat(model.labels_ == k, model.frames_.sizes)
+    fit = as_fitted(model)
+    rows = np.repeat(fit.labels == k, fit.frames.sizes)
     if rows.sum() < MIN_OWN_POSITIONS:
         return psi
-    frames = model.frames_[np.flatnonzero(model.labels_ == k)]
+    frames = fit.frames[np.flatnonzero(fit.labels == k)]
     return EmpiricalDistributions.from_frames(frames, roi=psi.roi, bins=psi.bins)
 
 
 def sample_scenarios(
-    model: DPGP,
+    model: Any,
     n: int,
     steps: int = 100,
     pattern: int | None = None,
@@ -193,34 +196,35 @@ def sample_scenarios(
     roi: tuple[float, float, float, float] | None = None,
     low_data_threshold: float | None = LOW_DATA_THRESHOLD,
 ) -> Scenarios:
-    """Generate ``n`` scenarios; see :meth:`dpgp.DPGP.sample_scenarios`."""
-    model._check_fitted()
+    """Generate ``n`` scenarios; see :meth:`dpgp.DPGP.sample_scenarios`. ``model``: a
+    :class:`~dpgp.fitted.FittedPatterns` (or a fitted estimator, which hands one down)."""
+    fit = as_fitted(model)
     if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 0:
         raise InvalidInputError(f"n must be a whole number >= 0, got {n!r}")
-    dt = default_dt(model) if dt is None else dt
+    dt = fit.dt if dt is None else dt
     steps, method, thr = _check(steps, method, dt, low_data_threshold)
     if seed is not None and (isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0):
         raise InvalidInputError(f"seed must be a whole number >= 0 or None, got {seed!r}")
     rng = np.random.default_rng(seed)
     if pattern is None:
-        patterns = rng.choice(model.n_patterns_, size=n, p=model.weights_).astype(np.int64)
+        patterns = rng.choice(fit.n_patterns, size=n, p=fit.weights).astype(np.int64)
     else:
-        patterns = np.full(n, _check_pattern(model, pattern), dtype=np.int64)
-    psi = distributions(model)
+        patterns = np.full(n, _check_pattern(fit, pattern), dtype=np.int64)
+    psi = distributions(fit)
     counts = psi.sample_counts(n, rng)
-    own = {int(k): pattern_positions(model, int(k), psi) for k in np.unique(patterns)}
+    own = {int(k): pattern_positions(fit, int(k), psi) for k in np.unique(patterns)}
     starts = [own[int(k)].sample_positions(int(c), rng) for k, c in zip(patterns, counts)]
     # The rollout's first recorded velocities are the GP draw at the sampled positions.
     seeds = [int(s) for s in rng.integers(0, 2**63, size=n, dtype=np.uint64)] if stochastic else None
     sims = rollouts(
-        model,
+        fit,
         patterns.tolist(),
         starts,
         steps=steps,
         dt=float(dt),
         method=method,
         seeds=seeds,
-        roi=default_roi(model) if roi is None else roi,
+        roi=fit.roi if roi is None else roi,
         low_data_threshold=thr,
     )
     return Scenarios(sims, patterns, counts)

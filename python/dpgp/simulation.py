@@ -29,14 +29,12 @@ import numpy as np
 from . import _core
 from ._arrays import as_float_array, check_finite
 from .exceptions import InvalidInputError, ShapeError
+from .fitted import DEFAULT_DT, FittedPatterns, as_fitted, frames_dt, frames_roi
 from .frames import Frame, Frames
 
 if TYPE_CHECKING:
     import pandas as pd
 
-    from .model import DPGP
-
-DEFAULT_DT = 0.5  # the paper's time step, when the training frames do not say theirs
 LOW_DATA_THRESHOLD = 0.5  # posterior / prior variance above which a point counts as low-data
 
 _METHODS = ("euler", "rk4")
@@ -102,18 +100,15 @@ class Simulation:
         )
 
 
-def default_dt(model: DPGP) -> float:
-    """The training frames' time step (``make_frames`` records it), else :data:`DEFAULT_DT`."""
-    summary = getattr(model.frames_, "summary", None)
-    dt = getattr(summary, "dt", None)
-    return float(dt) if dt else DEFAULT_DT
+def default_dt(model: Any) -> float:
+    """The training frames' time step (``make_frames`` records it), else :data:`DEFAULT_DT`;
+    ``model`` a fitted estimator or its :class:`~dpgp.fitted.FittedPatterns`."""
+    return frames_dt(model.frames if isinstance(model, FittedPatterns) else model.frames_)
 
 
-def default_roi(model: DPGP) -> tuple[float, float, float, float]:
+def default_roi(model: Any) -> tuple[float, float, float, float]:
     """The ROI the training frames were cropped to, else their bounding box."""
-    summary = getattr(model.frames_, "summary", None)
-    roi = getattr(summary, "roi", None)
-    return tuple(float(v) for v in roi) if roi is not None else model.frames_.bounds()  # type: ignore[return-value]
+    return frames_roi(model.frames if isinstance(model, FittedPatterns) else model.frames_)
 
 
 def _check(steps: Any, method: Any, dt: Any, low_data_threshold: Any) -> tuple[int, str, float | None]:
@@ -129,9 +124,9 @@ def _check(steps: Any, method: Any, dt: Any, low_data_threshold: Any) -> tuple[i
     return int(steps), method, thr
 
 
-def _check_pattern(model: DPGP, k: Any) -> int:
-    if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or not 0 <= k < model.n_patterns_:
-        raise InvalidInputError(f"pattern must be an index 0..{model.n_patterns_ - 1}, got {k!r}")
+def _check_pattern(fit: FittedPatterns, k: Any) -> int:
+    if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or not 0 <= k < fit.n_patterns:
+        raise InvalidInputError(f"pattern must be an index 0..{fit.n_patterns - 1}, got {k!r}")
     return int(k)
 
 
@@ -143,7 +138,7 @@ def _seeds(seed: Any, n: int) -> list[int]:
 
 
 def rollouts(
-    model: DPGP,
+    fit: FittedPatterns,
     patterns: list[int],
     starts: list[np.ndarray],
     *,
@@ -159,9 +154,9 @@ def rollouts(
     sizes = np.array([len(s) for s in starts], dtype=np.int64)
     offsets = np.r_[0, np.cumsum(sizes)].astype(np.int64)
     start = np.ascontiguousarray(np.concatenate(starts) if starts else np.zeros((0, 2)), dtype=np.float64)
-    slots = [int(model._slots[k]) for k in patterns]
+    slots = [int(fit.slots[k]) for k in patterns]
     pos, vel, inside, low = _core.rollouts(
-        model._sampler, slots, start, offsets, float(dt), int(steps), method, tuple(roi), seeds, low_data_threshold
+        fit.sampler, slots, start, offsets, float(dt), int(steps), method, tuple(roi), seeds, low_data_threshold
     )
     t = np.arange(steps + 1) * float(dt)
     out, row = [], 0
@@ -185,15 +180,15 @@ def rollouts(
     return out
 
 
-def _start(model: DPGP, frame: Any) -> tuple[np.ndarray, np.ndarray | None, int | None]:
+def _start(fit: FittedPatterns, frame: Any) -> tuple[np.ndarray, np.ndarray | None, int | None]:
     """(positions, velocities or None, training index or None) of what the user passed."""
     if isinstance(frame, (bool, np.bool_)):
         raise InvalidInputError("frame must be a training frame index, a Frame or an array, not a bool")
     if isinstance(frame, (int, np.integer)):
-        n = len(model.frames_)
+        n = len(fit.frames)
         if not -n <= frame < n:
             raise InvalidInputError(f"frame index {frame} out of range for {n} training frames")
-        f = model.frames_[int(frame)]
+        f = fit.frames[int(frame)]
         return f.xy, f.v, int(frame) % n
     if isinstance(frame, Frames):
         if len(frame) != 1:
@@ -209,7 +204,7 @@ def _start(model: DPGP, frame: Any) -> tuple[np.ndarray, np.ndarray | None, int 
 
 
 def simulate(
-    model: DPGP,
+    model: Any,
     frame: Any,
     pattern: int | None = None,
     steps: int = 100,
@@ -220,29 +215,30 @@ def simulate(
     roi: tuple[float, float, float, float] | None = None,
     low_data_threshold: float | None = LOW_DATA_THRESHOLD,
 ) -> Simulation:
-    """Roll the vehicles of ``frame`` forward through a pattern; see :meth:`dpgp.DPGP.simulate`."""
-    model._check_fitted()
-    xy, v, index = _start(model, frame)
+    """Roll the vehicles of ``frame`` forward through a pattern; see :meth:`dpgp.DPGP.simulate`.
+    ``model``: a :class:`~dpgp.fitted.FittedPatterns` (or a fitted estimator, which hands one down)."""
+    fit = as_fitted(model)
+    xy, v, index = _start(fit, frame)
     if pattern is None:
         if index is not None:
-            pattern = int(model.labels_[index])  # a training frame's own assignment
+            pattern = int(fit.labels[index])  # a training frame's own assignment
         elif v is not None:
             one = Frames(np.array([0]), np.array([0, len(xy)]), xy, v)
-            pattern = int(model.predict(one)[0])
+            pattern = int(fit.predict(one)[0])
         else:
             raise InvalidInputError("frame has positions only: pass pattern=k (there are no velocities to assign it by)")
-    k = _check_pattern(model, pattern)
-    steps, method, thr = _check(steps, method, default_dt(model) if dt is None else dt, low_data_threshold)
-    dt = default_dt(model) if dt is None else float(dt)
+    k = _check_pattern(fit, pattern)
+    steps, method, thr = _check(steps, method, fit.dt if dt is None else dt, low_data_threshold)
+    dt = fit.dt if dt is None else float(dt)
     return rollouts(
-        model,
+        fit,
         [k],
         [xy],
         steps=steps,
         dt=dt,
         method=method,
         seeds=_seeds(seed, 1) if stochastic else None,
-        roi=default_roi(model) if roi is None else roi,
+        roi=fit.roi if roi is None else roi,
         low_data_threshold=thr,
     )[0]
 

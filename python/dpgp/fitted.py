@@ -1,0 +1,89 @@
+"""What the modules below the estimator need of a fitted mixture, without the estimator.
+
+:class:`~dpgp.DPGP` hands a :class:`FittedPatterns` down to :mod:`dpgp.simulation` and
+:mod:`dpgp.scenarios` (``model._fitted()``), so that dependencies run one way: the estimator
+imports them, never the reverse. It holds the core sampler and the patterns in the estimator's
+order (by decreasing size), the training frames and the DP weights.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .frames import Frames
+
+DEFAULT_DT = 0.5  # the paper's time step, when the training frames do not say theirs
+
+
+@dataclass(frozen=True, eq=False)
+class FittedPatterns:
+    """A fitted mixture's state: ``sampler`` (the core sampler), ``slots[k]`` (its slot of
+    pattern ``k``), ``slot_order`` (pattern ``k``'s index in the core's slot order), the training
+    ``frames`` and their ``labels``, the pattern ``weights`` and ``alpha``. ``cache`` is shared
+    with the estimator (for φ and ψ)."""
+
+    sampler: Any
+    slots: np.ndarray
+    slot_order: np.ndarray
+    frames: Frames
+    labels: np.ndarray
+    weights: np.ndarray
+    alpha: float
+    cache: dict = field(default_factory=dict)
+
+    @property
+    def n_patterns(self) -> int:
+        return len(self.slots)
+
+    @property
+    def dt(self) -> float:
+        """The training frames' time step (``make_frames`` records it), else :data:`DEFAULT_DT`."""
+        return frames_dt(self.frames)
+
+    @property
+    def roi(self) -> tuple[float, float, float, float]:
+        """The ROI the training frames were cropped to, else their bounding box."""
+        return frames_roi(self.frames)
+
+    def log_scores(self, frames: Frames) -> tuple[np.ndarray, np.ndarray]:
+        """log p(V_f | D_k) for each frame and pattern (estimator order), and the new-pattern term."""
+        per_slot, new = self.sampler.score_frames(frames.xy, frames.v, frames.offsets)
+        scores = np.asarray(per_slot, dtype=np.float64).reshape(len(frames), -1)[:, self.slot_order]
+        return scores, np.asarray(new, dtype=np.float64)
+
+    def log_joint_terms(self, frames: Frames) -> np.ndarray:
+        """(N, K+1): log [DP predictive weight × likelihood] of each pattern, then of a new one."""
+        scores, new = self.log_scores(frames)
+        n = len(self.labels)
+        log_prior = np.log(np.r_[self.weights * n, self.alpha]) - np.log(n + self.alpha)
+        return np.column_stack([scores, new]) + log_prior
+
+    def predict(self, frames: Frames) -> np.ndarray:
+        """The most probable existing pattern of each frame."""
+        return np.argmax(self.log_joint_terms(frames)[:, :-1], axis=1)
+
+
+def frames_dt(frames: Frames) -> float:
+    dt = getattr(getattr(frames, "summary", None), "dt", None)
+    return float(dt) if dt else DEFAULT_DT
+
+
+def frames_roi(frames: Frames) -> tuple[float, float, float, float]:
+    roi = getattr(getattr(frames, "summary", None), "roi", None)
+    return tuple(float(v) for v in roi) if roi is not None else frames.bounds()  # type: ignore[return-value]
+
+
+def as_fitted(obj: Any) -> FittedPatterns:
+    """``obj`` itself, or what a fitted estimator hands down (anything with ``_fitted()``)."""
+    if isinstance(obj, FittedPatterns):
+        return obj
+    fitted = getattr(obj, "_fitted", None)
+    if fitted is None:
+        raise TypeError(f"expected a fitted dpgp.DPGP or FittedPatterns, got {type(obj).__name__}")
+    return fitted()
+
+
+__all__ = ["FittedPatterns", "as_fitted", "frames_dt", "frames_roi", "DEFAULT_DT"]
