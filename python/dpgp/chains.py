@@ -31,7 +31,7 @@ import signal
 import time
 import uuid
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -146,6 +146,29 @@ def _run_block(frames: Frames | None, settings: dict[str, Any], seed: int, state
     return _Block({name: cols[:, j] for j, name in enumerate(_TRACES)}, labels, _state_of(model))
 
 
+def _resolve(frames: Frames | None, settings: dict[str, Any], seed: int) -> dict[str, Any] | None:
+    """What the "auto" settings resolve to on the frames (a fit with no sweeps resolves them),
+    or None where the model has nothing to resolve. Run once per fit_chains, so that every
+    chain samples the same model."""
+    from .model import DPGP
+
+    frames = _WORKER_FRAMES if frames is None else frames
+    model = DPGP(**{**settings, "seed": seed, "progress": False}, iterations=0).fit(frames)
+    defaults = getattr(model, "defaults_", None)
+    return None if defaults is None else defaults.to_dict()
+
+
+def _explicit(settings: dict[str, Any], resolved: dict[str, Any] | None) -> dict[str, Any]:
+    """``settings`` with the resolved values in place of "auto" (and no preset)."""
+    if resolved is None:
+        return settings
+    out = {**settings, **{k: resolved[k] for k in ("assignment", "noise_var", "length_scale_prior")}}
+    out["length_scale_prior"] = tuple(out["length_scale_prior"])
+    if "preset" in settings:
+        out["preset"] = None
+    return out
+
+
 def block_seed(seed: int, chain: int, block: int) -> int:
     """The seed of a chain's block: independent streams per (seed, chain, block)."""
     return int(np.random.SeedSequence(seed, spawn_key=(chain, block)).generate_state(1, np.uint64)[0])
@@ -163,8 +186,8 @@ class _LocalEngine:
         ctx = multiprocessing.get_context("spawn")
         return cf.ProcessPoolExecutor(self.n_workers, mp_context=ctx, initializer=_init_worker, initargs=(self.frames,))
 
-    def submit(self, key: str, *args: Any) -> cf.Future:
-        return self.pool.submit(_run_block, None, *args)
+    def submit(self, key: str, fn: Any, *args: Any) -> cf.Future:
+        return self.pool.submit(fn, None, *args)
 
     def wait(self, futures: list[Any]) -> set[Any]:
         return cf.wait(futures, return_when=cf.FIRST_COMPLETED)[0]
@@ -200,8 +223,8 @@ class _DaskEngine:
         self.frames = client.scatter(frames, hash=False)
         self.run = uuid.uuid4().hex[:8]
 
-    def submit(self, key: str, *args: Any) -> Any:
-        return self.client.submit(_run_block, self.frames, *args, key=f"dpgp-{key}-{self.run}", pure=False, retries=0)
+    def submit(self, key: str, fn: Any, *args: Any) -> Any:
+        return self.client.submit(fn, self.frames, *args, key=f"dpgp-{key}-{self.run}", pure=False, retries=0)
 
     def wait(self, futures: list[Any]) -> set[Any]:
         from distributed import wait
@@ -292,6 +315,7 @@ def fit_chains(
         engine = _DaskEngine(client, frames)
     runner = _Runner(engine, frames, settings, n_chains, seed, block, progress)
     try:
+        runner.resolve()
         runner.run(until, iterations, rhat, min_ess, max_iterations, max_seconds)
     finally:
         engine.close()
@@ -313,6 +337,8 @@ class _Runner:
         self.progress = progress
         self.checks: list[dict[str, Any]] = []
         self.pending: dict[Any, int] = {}  # future -> chain
+        self.resolved: dict[str, Any] | None = None
+        self.chain_settings = settings
 
     def sweeps(self, c: int) -> int:
         return sum(len(b.labels) for b in self.blocks[c])
@@ -320,8 +346,8 @@ class _Runner:
     def _submit(self, c: int, n: int) -> Any:
         b = len(self.blocks[c])
         state = self.blocks[c][-1].state if b else None
-        args = (self.settings, block_seed(self.seed, c, b), state, n)
-        return self.engine.submit(f"{self.names[c]}-block{b}", *args)
+        args = (self.chain_settings, block_seed(self.seed, c, b), state, n)
+        return self.engine.submit(f"{self.names[c]}-block{b}", _run_block, *args)
 
     def _feed(self, c: int, target: int) -> None:
         """Submit chain c's next block unless it has reached ``target`` sweeps or failed."""
@@ -375,6 +401,20 @@ class _Runner:
                 self._fail(c, RuntimeError("its worker process died twice"))
                 continue
             self._feed(c, target)
+
+    def resolve(self) -> None:
+        """Resolve the "auto" settings once, as a task, and run every chain with the values."""
+        future = self.engine.submit("resolve-settings", _resolve, self.settings, self.seed)
+        self.engine.wait([future])
+        try:
+            self.resolved = future.result()
+        except KeyboardInterrupt:
+            raise
+        except BaseException as e:  # noqa: BLE001
+            if isinstance(e, DpgpError):
+                raise
+            raise ChainsFailedError(f"resolving the settings failed: {type(e).__name__}: {e}") from e
+        self.chain_settings = _explicit(self.settings, self.resolved)
 
     def run(self, until: str | None, iterations: int, rhat: float, min_ess: float, max_iterations: int, max_seconds: float | None) -> None:
         start = time.perf_counter()
@@ -438,6 +478,8 @@ class _Runner:
             failures=dict(self.failures),
             checks=self.checks,
             thresholds={"rhat": rhat, "min_ess": min_ess},
+            resolved=self.resolved,
+            retried={self.names[c]: n for c, n in enumerate(self.attempts) if n},
         )
 
 
@@ -483,7 +525,8 @@ class Chains:
     labels : (chains, sweeps, N) int32, each sweep's partition (canonical labels).
     burn_in : sweeps dropped from each chain by every summary (settable).
     converged_, stop_reason_ : whether and why the run stopped; ``failures_`` maps a failed
-        chain's name to its error; ``checks_`` the stopping rule's verdict at each round.
+        chain's name to its error; ``retried_`` names the chains whose block was run again
+        after a local worker process died; ``checks_`` the stopping rule's verdict at each round.
     models : each chain's final state as a fitted :class:`dpgp.DPGP` (built on first use).
     """
 
@@ -500,6 +543,8 @@ class Chains:
         failures: dict[str, str],
         checks: list[dict[str, Any]],
         thresholds: dict[str, float],
+        resolved: dict[str, Any] | None = None,
+        retried: dict[str, int] | None = None,
     ) -> None:
         self.frames, self.settings, self.seed, self.names = frames, settings, seed, names
         n = min(sum(len(b.labels) for b in bl) for bl in blocks)  # chains cut to a common length
@@ -511,6 +556,8 @@ class Chains:
         self.burn_in = n // 2 if burn_in is None else burn_in
         self.converged_, self.stop_reason_, self.failures_ = converged, stop_reason, failures
         self.checks_, self.thresholds = checks, thresholds
+        self.resolved = resolved  # what the "auto" settings resolved to (dpgp.defaults), or None
+        self.retried_ = retried or {}  # chains whose block was rerun after a local worker died
         self._models: list[Any] | None = None
         self._estimates: dict[tuple[str, int, int], partition.PointEstimate] = {}
 
@@ -628,7 +675,7 @@ class Chains:
 
     def _model(self, state: _State, **extra: Any) -> Any:
         settings = {**self.settings, "seed": self.seed, "iterations": self.n_sweeps, "progress": False}
-        return _model_at(self.frames, settings, state, extra)
+        return _model_at(self.frames, settings, replace(state, resolved=self.resolved), extra)
 
     def summary_dict(self, loss: str = "vi") -> dict[str, Any]:
         """What a model file keeps of the chains: R̂, ESS, burn-in, the stopping verdict and the
@@ -661,7 +708,7 @@ class Chains:
         est = self.point_estimate(loss)
         ls = _matching_length_scales(est.labels, self._states)
         alpha = float(np.median(self.draws("alpha")))
-        state = _State(est.labels.astype(np.int64), ls, alpha, self._states[0].params, self._states[0].resolved)
+        state = _State(est.labels.astype(np.int64), ls, alpha, self._states[0].params, None)
         model = self._model(state, history={}, n_iter=self.n_sweeps, converged=bool(self.converged_))
         model.chain_summary_ = self.summary_dict(loss)
         if keep_traces:
