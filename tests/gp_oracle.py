@@ -13,6 +13,17 @@ def corr(a: np.ndarray, b: np.ndarray, wx: float, wy: float) -> np.ndarray:
     return np.exp(-(dx**2) / (2 * wx**2) - dy**2 / (2 * wy**2))
 
 
+def kernel(p, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The correlation the parameters ``p`` ask for: the squared exponential, or the reduced-rank
+    one when ``p`` carries a ``basis`` (hsgp_oracle)."""
+    basis = getattr(p, "basis", None)
+    if basis is None:
+        return corr(a, b, *p.length_scales)
+    import hsgp_oracle
+
+    return hsgp_oracle.corr(a, b, p.length_scales, basis)
+
+
 def mvn_logpdf(r: np.ndarray, cov: np.ndarray) -> float:
     c = cho_factor(cov, lower=True)
     logdet = 2 * np.sum(np.log(np.diag(c[0])))
@@ -20,17 +31,17 @@ def mvn_logpdf(r: np.ndarray, cov: np.ndarray) -> float:
 
 
 def log_marginal_likelihood(xy, v, p) -> float:
-    (wx, wy), s2, sn2, mu = p.length_scales, p.signal_var, p.noise_var, p.mean
-    R = corr(xy, xy, wx, wy)
+    s2, sn2, mu = p.signal_var, p.noise_var, p.mean
+    R = kernel(p, xy, xy)
     return sum(mvn_logpdf(v[:, d] - mu[d], s2[d] * R + sn2 * np.eye(len(xy))) for d in range(2))
 
 
 def predictive_moments(train_xy, train_v, test_xy, p, d):
     """Mean and covariance of the noisy test velocities of output d given the training data."""
-    (wx, wy), s2, sn2, mu = p.length_scales, p.signal_var[d], p.noise_var, p.mean[d]
-    K = s2 * corr(train_xy, train_xy, wx, wy) + sn2 * np.eye(len(train_xy))
-    Ks = s2 * corr(train_xy, test_xy, wx, wy)
-    Kss = s2 * corr(test_xy, test_xy, wx, wy) + sn2 * np.eye(len(test_xy))
+    s2, sn2, mu = p.signal_var[d], p.noise_var, p.mean[d]
+    K = s2 * kernel(p, train_xy, train_xy) + sn2 * np.eye(len(train_xy))
+    Ks = s2 * kernel(p, train_xy, test_xy)
+    Kss = s2 * kernel(p, test_xy, test_xy) + sn2 * np.eye(len(test_xy))
     c = cho_factor(K, lower=True)
     mean = mu + Ks.T @ cho_solve(c, train_v[:, d] - mu)
     cov = Kss - Ks.T @ cho_solve(c, Ks)
@@ -46,14 +57,15 @@ def log_predictive(train_xy, train_v, test_xy, test_v, p) -> float:
 
 
 def posterior(train_xy, train_v, query_xy, p):
-    (wx, wy), s2, sn2, mu = p.length_scales, p.signal_var, p.noise_var, p.mean
-    R = corr(train_xy, train_xy, wx, wy)
-    Rq = corr(train_xy, query_xy, wx, wy)
+    s2, sn2, mu = p.signal_var, p.noise_var, p.mean
+    R = kernel(p, train_xy, train_xy)
+    Rq = kernel(p, train_xy, query_xy)
+    prior = np.diag(kernel(p, query_xy, query_xy))
     mean = np.empty((len(query_xy), 2))
     var = np.empty((len(query_xy), 2))
     for d in range(2):
         c = cho_factor(s2[d] * R + sn2 * np.eye(len(train_xy)), lower=True)
         Ks = s2[d] * Rq
         mean[:, d] = mu[d] + Ks.T @ cho_solve(c, train_v[:, d] - mu[d])
-        var[:, d] = s2[d] - np.einsum("ij,ij->j", Ks, cho_solve(c, Ks))
+        var[:, d] = s2[d] * prior - np.einsum("ij,ij->j", Ks, cho_solve(c, Ks))
     return mean, var

@@ -31,6 +31,8 @@ class Params:
     signal_var: tuple[float, float]
     noise_var: float = 1.0
     mean: tuple[float, float] = (0.0, 0.0)
+    #: A dpgp.hsgp.Basis for the reduced-rank kernel; None for the squared exponential.
+    basis: object = None
 
 
 def default_params(frames, length_scales, noise_var=1.0, signal_var=None, mean=None) -> Params:

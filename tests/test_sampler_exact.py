@@ -140,3 +140,29 @@ def test_different_seeds_give_different_chains():
     _, p, alpha = so.tiny_problem(5)
     c, d = (fit_tiny(p, alpha, iterations=200, seed=s, store_labels=True) for s in (1, 2))
     assert not np.array_equal(c.label_trace_, d.label_trace_)
+
+
+# --- (e) every likelihood and proposal targets its own posterior ---------------------------------
+@pytest.mark.parametrize(
+    "likelihood,proposal", [("exact", "full"), ("hsgp", "full"), ("hsgp", "informed")]
+)
+def test_every_engine_matches_its_enumerated_posterior(likelihood, proposal):
+    """exact/informed is the default and tested above. hsgp with 6 basis functions: patterns of
+    more than 6 points compute through the M x M statistics, smaller ones densely, and the
+    oracle enumerates the posterior of the reduced-rank kernel k̃ (hsgp_oracle)."""
+    import dataclasses
+
+    frames, p, alpha = so.tiny_problem(5)
+    m = fit_tiny(
+        p, alpha, iterations=SWEEPS, seed=7, store_labels=True, likelihood=likelihood, proposal=proposal, n_basis=(2, 3)
+    )
+    assert m.likelihood_ == likelihood
+    target = p if likelihood == "exact" else dataclasses.replace(p, basis=m.basis_)
+    parts, logp = so.partition_posterior(frames, target, alpha)
+    got = so.empirical_partition_probs(m.label_trace_[BURN_IN:], parts)
+    tv = so.total_variation(got, np.exp(logp))
+    print(f"{likelihood}/{proposal}: TV {tv:.4f}")
+    assert tv <= 0.03
+    if likelihood == "hsgp":  # and the reduced-rank posterior is not the exact one here
+        _, exact = so.partition_posterior(frames, p, alpha)
+        assert so.total_variation(np.exp(exact), np.exp(logp)) > 0.03

@@ -107,6 +107,7 @@ def save(model: DPGP, path: str | os.PathLike) -> None:
         "frames_summary": None if summary is None else summary.to_dict(),
         "distributions": distributions(model).to_dict(),
         "resolved": _resolved_dict(model),
+        "engine": _engine_dict(model),
     }
     if getattr(model, "chain_summary_", None) is not None:
         meta["chain_summary"] = model.chain_summary_  # a model summarising chains (dpgp.fit_chains)
@@ -246,6 +247,7 @@ def _build(cls: type[DPGP], meta: dict[str, Any], arrays: dict[str, np.ndarray])
     p = meta["params"]
     model.params_ = GPParams(tuple(p["length_scales"]), tuple(p["signal_var"]), p["noise_var"], tuple(p["mean"]))
     _restore_resolved(model, meta)
+    _restore_engine(model, meta)
     # The sampler fit builds; set_state then factors every pattern in the canonical order fit
     # ends with, so every later computation is bitwise the same.
     model._sampler = model._new_sampler(frames)
@@ -279,6 +281,33 @@ def _resolved_dict(model: DPGP) -> dict[str, Any]:
         "length_scale_prior": list(model.length_scale_prior_), "noise_var_source": "user",
         "length_scale_prior_source": "user",
     }  # fmt: skip
+
+
+def _engine_dict(model: DPGP) -> dict[str, Any]:
+    """The likelihood that ran, its basis and the memory budget."""
+    basis = getattr(model, "basis_", None)
+    return {
+        "likelihood": getattr(model, "likelihood_", "exact"),
+        "basis": None if basis is None else basis.to_dict(),
+        "memory_budget": getattr(model, "memory_budget_", None),
+    }
+
+
+def _restore_engine(model: DPGP, meta: dict[str, Any]) -> None:
+    """``likelihood_``, ``basis_`` and ``memory_budget_`` as the fit chose them (files written
+    before reduced-rank fits existed ran the exact likelihood)."""
+    from .hsgp import Basis
+
+    e = meta.get("engine") or {"likelihood": "exact", "basis": None, "memory_budget": None}
+    if e.get("likelihood") not in ("exact", "hsgp") or (e["likelihood"] == "hsgp") != (e.get("basis") is not None):
+        raise ModelFileError(f"unknown likelihood or basis in the model file: {e!r}")
+    model.likelihood_ = e["likelihood"]
+    model.basis_ = None if e.get("basis") is None else Basis.from_dict(e["basis"])
+    # The budget is this machine's: the model's setting, else half the memory available now.
+    from ._resources import default_memory_budget, parse_bytes
+
+    budget = parse_bytes("memory_budget", model.memory_budget)
+    model.memory_budget_ = budget if budget is not None else default_memory_budget()
 
 
 def _restore_resolved(model: DPGP, meta: dict[str, Any]) -> None:

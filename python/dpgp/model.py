@@ -11,14 +11,21 @@ from typing import Any
 import numpy as np
 
 from . import _core
-from .exceptions import InvalidInputError, NotFittedError, ShapeError
+from ._resources import default_memory_budget, parse_bytes
+from .exceptions import InvalidInputError, MemoryBudgetError, NotFittedError, ShapeError
 from .fitted import FittedPatterns
 from .frames import Frames, read_frames
 from .gp import GPParams, _pair
+from .hsgp import _basis_counts, basis_for
 from .metrics import adjusted_rand_index, canonical_labels
 
 _ASSIGNMENTS = ("gibbs", "map")
-_LIKELIHOODS = ("exact",)
+_LIKELIHOODS = ("auto", "exact", "hsgp")
+_PROPOSALS = ("full", "informed")
+#: ``likelihood="auto"`` runs the exact GP up to this many training points (vehicle
+#: observations), where one pattern holding them all still factors in well under a second,
+#: and the reduced-rank GP beyond.
+AUTO_EXACT_MAX_POINTS = 3000
 
 
 class DPGP:
@@ -29,7 +36,25 @@ class DPGP:
     iterations : Gibbs sweeps after the sequential initialisation.
     assignment : ``"gibbs"`` draws each frame's pattern from its conditional (a true collapsed
         Gibbs sampler); ``"map"`` takes the most probable one (the paper's Algorithm 1).
-    likelihood : ``"exact"`` (the full GP; reduced-rank approximations are planned).
+    likelihood : ``"exact"``: the full GP, whose cost grows with the cube of a pattern's size;
+        ``"hsgp"``: the Hilbert-space reduced-rank GP (Solin & Särkkä 2020) on a basis over a box
+        around the data, whose moves, scores and length-scale steps cost the same whatever the
+        pattern's size (memory ``K · M²``); ``"auto"`` (default): exact up to
+        ``AUTO_EXACT_MAX_POINTS`` training points if its worst case fits the memory budget, hsgp
+        beyond. Which one ran: ``likelihood_``.
+    n_basis : ``(m_x, m_y)`` basis functions per axis for hsgp; ``None`` sizes them from the data's
+        extent and the lower tail of the length-scale prior (:func:`dpgp.hsgp.basis_for`).
+    proposal : ``"informed"`` (default): Metropolis-within-Gibbs; each frame proposes a pattern
+        by a cheap score over all patterns (cell means of their velocities) and accepts by the
+        exact ratio of the proposed and current patterns, so the chain targets the same
+        posterior at a fraction of the cost. ``"full"``: draw from the full conditional (every
+        pattern scored exactly). With ``assignment="map"``, "informed" takes the exact argmax
+        over the frame's own pattern, the two patterns the cheap score ranks highest, and a new
+        one.
+    memory_budget : bytes the patterns may hold (an int, or a string such as ``"4GB"``); a fit
+        that would grow past it stops with :class:`~dpgp.MemoryBudgetError` before allocating,
+        keeping the state reached. ``None`` (default): half of the memory available at the
+        start of the fit.
     length_scale_prior : ``(shape, scale)`` of the Gamma prior of each length scale, in data
         units; ``"auto"`` (default): shape 10 with the mean at the data's spacing, the median
         distance between nearest vehicles of a frame (:mod:`dpgp.defaults`). Resolved value in
@@ -63,7 +88,7 @@ class DPGP:
         self,
         iterations: int = 100,
         assignment: str = "gibbs",
-        likelihood: str = "exact",
+        likelihood: str = "auto",
         length_scale_prior: tuple[float, float] | str = "auto",
         length_scales: tuple[float, float] | None = None,
         noise_var: float | str = "auto",
@@ -80,6 +105,9 @@ class DPGP:
         ari_tol: float = 0.99,
         store_labels: bool = False,
         preset: str | None = None,
+        proposal: str = "informed",
+        n_basis: tuple[int, int] | None = None,
+        memory_budget: int | str | None = None,
     ) -> None:
         self.iterations = iterations
         self.assignment = assignment
@@ -100,6 +128,9 @@ class DPGP:
         self.ari_tol = ari_tol
         self.store_labels = store_labels
         self.preset = preset
+        self.proposal = proposal
+        self.n_basis = n_basis
+        self.memory_budget = memory_budget
 
     # --- scikit-learn conventions ---------------------------------------------------------------
     def get_params(self, deep: bool = True) -> dict[str, Any]:
@@ -157,9 +188,12 @@ class DPGP:
         if self.assignment not in _ASSIGNMENTS:
             raise InvalidInputError(f"assignment must be one of {_ASSIGNMENTS}, got {self.assignment!r}")
         if self.likelihood not in _LIKELIHOODS:
-            raise InvalidInputError(
-                f"likelihood must be one of {_LIKELIHOODS}, got {self.likelihood!r} (reduced-rank likelihoods are planned)"
-            )
+            raise InvalidInputError(f"likelihood must be one of {_LIKELIHOODS}, got {self.likelihood!r}")
+        if self.proposal not in _PROPOSALS:
+            raise InvalidInputError(f"proposal must be one of {_PROPOSALS}, got {self.proposal!r}")
+        if self.n_basis is not None:
+            _basis_counts(self.n_basis)
+        parse_bytes("memory_budget", self.memory_budget)
         if not (isinstance(self.iterations, (int, np.integer)) and self.iterations >= 0):
             raise InvalidInputError(f"iterations must be a non-negative integer, got {self.iterations!r}")
         if not (isinstance(self.new_pattern_samples, (int, np.integer)) and self.new_pattern_samples >= 1):
@@ -183,6 +217,7 @@ class DPGP:
         a, b = self.length_scale_prior_
         ls0 = (a * b, a * b) if self.length_scales is None else _pair("length_scales", self.length_scales)
         self.params_ = GPParams(ls0, tuple(signal_var), self.noise_var_, tuple(mean))
+        self._resolve_engine(frames)
         self._sampler = self._new_sampler(frames)
         self.frames_ = frames
         self.history_: dict[str, list] = {k: [] for k in ("n_patterns", "alpha", "log_joint", "moves", "ari", "seconds")}
@@ -194,6 +229,9 @@ class DPGP:
             self._sampler.initialize()
         except KeyboardInterrupt:
             # Some frames have no pattern yet: there is no state to keep.
+            self.__dict__.pop("labels_", None)
+            raise
+        except MemoryBudgetError:
             self.__dict__.pop("labels_", None)
             raise
         self.init_seconds_ = time.perf_counter() - t
@@ -225,6 +263,12 @@ class DPGP:
             warnings.warn(
                 f"fit interrupted after {self.n_iter_} sweeps; the model keeps the state reached", stacklevel=2
             )
+        except MemoryBudgetError:
+            # Nothing was allocated: keep the state reached, as Ctrl-C does, then say why.
+            if "bar" in locals() and bar is not None:
+                bar.close()
+            self._sync()
+            raise
         finally:
             if "bar" in locals() and bar is not None:
                 bar.close()
@@ -236,6 +280,29 @@ class DPGP:
         self._sampler.set_state(self.labels_, self.length_scales_, self.alpha_)
         self._sync()
         return self
+
+    def _resolve_engine(self, frames: Frames) -> None:
+        """Choose the likelihood (``likelihood_``), its basis (``basis_``) and the memory budget
+        (``memory_budget_``) for ``frames``."""
+        budget = parse_bytes("memory_budget", self.memory_budget)
+        self.memory_budget_ = budget if budget is not None else default_memory_budget()
+        likelihood = self.likelihood
+        if likelihood == "auto":
+            n = frames.n_points
+            # Worst case of exact: every point in one pattern, one factor per output group,
+            # each in a buffer that doubles as it grows.
+            worst = 8 * 2 * (1 << max(n - 1, 1).bit_length()) ** 2
+            fits = self.memory_budget_ is None or worst <= self.memory_budget_
+            likelihood = "exact" if n <= AUTO_EXACT_MAX_POINTS and fits else "hsgp"
+        self.likelihood_ = likelihood
+        self.basis_ = None
+        if likelihood == "hsgp":
+            self.basis_ = basis_for(
+                frames.xy,
+                self.length_scale_prior_,
+                None if self.length_scales is None else _pair("length_scales", self.length_scales),
+                None if self.n_basis is None else _basis_counts(self.n_basis),
+            )
 
     def _new_sampler(self, frames: Frames) -> _core.Sampler:
         """A core sampler over ``frames`` with this model's settings and ``params_``; shared by
@@ -255,6 +322,10 @@ class DPGP:
             self.n_threads,
             float(self.length_scale_fraction),
             bool(self.pattern_moments),
+            self.likelihood_,
+            None if self.basis_ is None else self.basis_.as_tuple(),
+            self.proposal,
+            self.memory_budget_,
         )
 
     def _sync(self) -> None:

@@ -23,9 +23,13 @@ pub enum Error {
     },
     /// The fit would grow past its memory budget; nothing was allocated.
     #[error(
-        "the fit needs about {needed_mb} MB for its patterns, over the memory budget of {budget_mb} MB \
-         ({likelihood} likelihood); use likelihood=\"hsgp\" (its memory does not grow with the \
-         patterns' sizes) or raise memory_budget", needed_mb = needed / 1_000_000, budget_mb = budget / 1_000_000
+        "the fit needs about {:.1} MB for its patterns, over the memory budget of {:.1} MB \
+         ({likelihood} likelihood); {}", *needed as f64 / 1e6, *budget as f64 / 1e6,
+        if *likelihood == "exact" {
+            "use likelihood=\"hsgp\" (its memory does not grow with the patterns' sizes) or raise memory_budget"
+        } else {
+            "use fewer basis functions (n_basis) or raise memory_budget"
+        }
     )]
     MemoryBudget {
         needed: usize,

@@ -40,10 +40,13 @@ pub const MAX_NEW_PATTERN_SAMPLES: usize = 100_000;
 /// independent, so they are overconfident) and mixed with a uniform share, so that every
 /// pattern keeps a chance to be proposed.
 const TEMPER: f64 = 0.7;
-const UNIFORM_SHARE: f64 = 0.05;
+const UNIFORM_SHARE: f64 = 0.02;
 /// Patterns scored exactly when a frame is placed by the informed rule without a current
 /// pattern (initialisation) or in MAP mode: the best ones by cheap score, plus its own.
 const INFORMED_CANDIDATES: usize = 2;
+/// Frames placed one by one by the (restricted) conditional at initialisation with informed
+/// proposals; the rest join patterns by cheap score.
+pub const INIT_SEQUENTIAL: usize = 1000;
 
 /// How a frame's new pattern is proposed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -405,7 +408,14 @@ impl Sampler {
 
     /// Sequential initialisation: frames join one at a time by the same conditional, seeing only
     /// the frames placed before them.
+    ///
+    /// With informed proposals, only the first [`INIT_SEQUENTIAL`] frames are placed so; each
+    /// later frame joins the existing pattern with the best cheap score, and the patterns'
+    /// GPs are rebuilt once at the end. Any starting state is valid for the chain, and the
+    /// sweeps then correct it (new patterns included), so a large data set starts in seconds.
     pub fn initialize(&mut self, stop: &dyn Fn() -> bool) -> Result<()> {
+        let mut placed = 0;
+        let mut bulk: Vec<usize> = Vec::new();
         for i in 0..self.data.len() {
             if self.labels[i] != NONE {
                 continue;
@@ -413,8 +423,83 @@ impl Sampler {
             if i % 8 == 0 && stop() {
                 return Err(Error::Interrupted);
             }
+            if self.settings.proposal == Proposal::Informed
+                && placed >= INIT_SEQUENTIAL
+                && self.live().next().is_some()
+            {
+                bulk.push(i);
+                continue;
+            }
             let mut rng = stream(self.settings.seed, 0, Phase::Init, i as u64);
             self.update_frame(i, &mut rng, false)?;
+            placed += 1;
+        }
+        if !bulk.is_empty() {
+            self.place_by_cheap_score(&bulk, stop)?;
+        }
+        Ok(())
+    }
+
+    /// Put each frame of `frames` (unassigned, in order) into the existing pattern with the
+    /// highest informed proposal probability, updating only the cell statistics on the way,
+    /// then rebuild the GP of every pattern that grew from all its members at once.
+    fn place_by_cheap_score(&mut self, frames: &[usize], stop: &dyn Fn() -> bool) -> Result<()> {
+        let data = Arc::clone(&self.data);
+        let mut joined: Vec<Vec<usize>> = vec![Vec::new(); self.slots.len()];
+        for (n, &i) in frames.iter().enumerate() {
+            if n % 64 == 0 && stop() {
+                // Undo the cell statistics of the frames placed so far: they have no GP yet.
+                for (k, members) in joined.iter().enumerate() {
+                    for &j in members {
+                        if let Some(c) = self.live_slot_mut(k).cells.as_mut() {
+                            c.add(data.frame(j), -1.0);
+                        }
+                    }
+                }
+                return Err(Error::Interrupted);
+            }
+            let f = data.frame(i);
+            let (cands, logq) = self.proposal(f, NONE);
+            let (best, _) = argmax(&logq[..cands.len()]);
+            let k = cands[best];
+            if let Some(c) = self.live_slot_mut(k).cells.as_mut() {
+                c.add(f, 1.0);
+            }
+            joined[k].push(i);
+        }
+        let groups = self.settings.base.groups().len();
+        let grown: Vec<usize> = (0..joined.len())
+            .filter(|&k| !joined[k].is_empty())
+            .collect();
+        let mut extra = 0;
+        for &k in &grown {
+            let p = &self.live_slot(k).pattern;
+            let n = p.n_points()
+                + joined[k]
+                    .iter()
+                    .map(|&i| data.frame(i).xy.len())
+                    .sum::<usize>();
+            extra += self.settings.likelihood.pattern_bytes(n, groups);
+        }
+        self.check_memory(extra)?;
+        let rebuilt: Vec<Result<Box<dyn PatternModel>>> = grown
+            .par_iter()
+            .map(|&k| {
+                let p = &self.live_slot(k).pattern;
+                let mut members = p.members();
+                members.extend(joined[k].iter().map(|&i| (i, data.frame(i))));
+                self.settings.likelihood.pattern(*p.params(), &members)
+            })
+            .collect();
+        for (&k, p) in grown.iter().zip(rebuilt) {
+            let p = p?;
+            let v = self.fresh_version();
+            let slot = self.live_slot_mut(k);
+            slot.pattern = p;
+            slot.version = v;
+            for &i in &joined[k] {
+                self.labels[i] = k;
+            }
         }
         Ok(())
     }

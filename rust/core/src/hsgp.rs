@@ -35,6 +35,8 @@ use crate::small;
 
 /// Most basis functions a fit may use (M x M matrices of 8 bytes: 128 MiB each at the cap).
 pub const MAX_BASIS: usize = 4096;
+/// Frames whose features enter the Gram matrix in one product when a pattern is built.
+const STATS_BLOCK: usize = 64;
 
 /// The basis: a box per axis and the number of eigenfunctions along each.
 #[derive(Clone, Debug, PartialEq)]
@@ -357,8 +359,26 @@ impl HsgpPattern {
             groups: Vec::new(),
             weights: OnceLock::new(),
         };
-        for &(id, f) in members {
-            p.add_stats(id, f, 1.0);
+        // The Gram matrix in blocks of frames (one level-3 product each), the rest per frame.
+        for block in members.chunks(STATS_BLOCK) {
+            let pts: Vec<Point> = block.iter().flat_map(|m| m.1.xy.iter().copied()).collect();
+            let phi_t = p.basis.features(&pts);
+            let pt = MatRef::from_column_major_slice(&phi_t, m, pts.len());
+            matmul(
+                MatMut::from_column_major_slice_mut(&mut p.gram, m, m),
+                Accum::Add,
+                pt,
+                pt.transpose(),
+                1.0,
+                Par::Seq,
+            );
+            let mut col = 0;
+            for &(id, f) in block {
+                let l = f.xy.len();
+                p.add_vectors(&phi_t[col * m..(col + l) * m], f, 1.0);
+                col += l;
+                p.record(id, f);
+            }
         }
         p.refactor()?;
         Ok(p)
@@ -408,6 +428,22 @@ impl HsgpPattern {
             sign,
             Par::Seq,
         );
+        self.add_vectors(&phi_t, f, sign);
+        if sign > 0.0 {
+            self.record(id, f);
+        }
+    }
+
+    fn record(&mut self, id: usize, f: FrameRef<'_>) {
+        self.frames.push(id);
+        self.sizes.push(f.xy.len());
+        self.xy.extend_from_slice(f.xy);
+        self.v.extend_from_slice(f.v);
+    }
+
+    /// The vector and scalar statistics of one frame, given its `Φᵀ` (M x l).
+    fn add_vectors(&mut self, phi_t: &[f64], f: FrameRef<'_>, sign: f64) {
+        let m = self.m();
         for (j, col) in phi_t.chunks(m).enumerate() {
             for (d, vd) in f.v[j].iter().enumerate() {
                 self.v_sum[d] += sign * vd;
@@ -419,12 +455,6 @@ impl HsgpPattern {
             for (t, c) in self.phi_sum.iter_mut().zip(col) {
                 *t += sign * c;
             }
-        }
-        if sign > 0.0 {
-            self.frames.push(id);
-            self.sizes.push(l);
-            self.xy.extend_from_slice(f.xy);
-            self.v.extend_from_slice(f.v);
         }
     }
 
