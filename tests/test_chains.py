@@ -148,6 +148,8 @@ def test_bad_arguments_raise_typed_errors(frames):
         dpgp.fit_chains(frames, iterations=3, sweeps=3)
     with pytest.raises(InvalidInputError, match="assignment"):
         dpgp.fit_chains(frames, iterations=3, assignment="greedy")
+    with pytest.raises(InvalidInputError, match="burn_in"):
+        dpgp.fit_chains(frames, iterations=3, burn_in=-1)
 
 
 def test_a_local_worker_that_dies_is_replaced_and_its_block_rerun(frames, chains):

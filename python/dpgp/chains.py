@@ -294,6 +294,8 @@ def fit_chains(
             raise InvalidInputError(f"{name} must be a positive integer, got {value!r}")
     if not (isinstance(seed, (int, np.integer)) and seed >= 0):
         raise InvalidInputError(f"seed must be a non-negative integer, got {seed!r}")
+    if burn_in is not None and not (isinstance(burn_in, (int, np.integer)) and burn_in >= 0):
+        raise InvalidInputError(f"burn_in must be a non-negative integer or None, got {burn_in!r}")
     if not rhat > 1.0 or not min_ess > 0:
         raise InvalidInputError(f"need rhat > 1 and min_ess > 0, got rhat={rhat!r}, min_ess={min_ess!r}")
     reserved = sorted(set(settings) & set(_RESERVED))
@@ -404,8 +406,17 @@ class _Runner:
 
     def resolve(self) -> None:
         """Resolve the "auto" settings once, as a task, and run every chain with the values."""
+        from .model import DPGP
+
+        merged = {**DPGP().get_params(), **self.settings}
+        if not merged.get("preset") and "auto" not in [v for v in merged.values() if isinstance(v, str)]:
+            return  # every setting is a value already
         future = self.engine.submit("resolve-settings", _resolve, self.settings, self.seed)
-        self.engine.wait([future])
+        try:
+            self.engine.wait([future])
+        except KeyboardInterrupt:
+            self.engine.cancel([future])
+            raise
         try:
             self.resolved = future.result()
         except KeyboardInterrupt:
@@ -553,6 +564,9 @@ class Chains:
         self.traces["moves"] = self.traces["moves"].astype(np.int64)
         self.labels = np.stack([np.concatenate([b.labels for b in bl])[:n] for bl in blocks])
         self._states = [bl[-1].state for bl in blocks]
+        if burn_in is not None and not burn_in < n:  # e.g. a run interrupted early
+            warnings.warn(f"burn_in={burn_in} leaves no sweep of {n}; using {n // 2}", stacklevel=3)
+            burn_in = None
         self.burn_in = n // 2 if burn_in is None else burn_in
         self.converged_, self.stop_reason_, self.failures_ = converged, stop_reason, failures
         self.checks_, self.thresholds = checks, thresholds

@@ -302,7 +302,9 @@ def chain_trace(chains: Any) -> Figure:
     axes[1].yaxis.set_major_locator(MaxNLocator(integer=True))
     axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
     axes[-1].set_xlabel(f"sweep (burn-in of {chains.burn_in} shaded)")
-    fig.suptitle(f"{chains.n_chains} chains: {_stop_note(chains)}", fontsize="medium", wrap=True)
+    note = _stop_note(chains)
+    head, _, detail = note.partition(" (")  # the verdict; the failing diagnostics on a second line
+    fig.suptitle(f"{chains.n_chains} chains: {head}" + (f"\n({detail}" if detail else ""), fontsize="small")
     return fig
 
 
