@@ -45,6 +45,27 @@ def integrate_affine(
     roi: tuple[float, float, float, float] | None = None,
 ) -> RolloutArrays: ...
 
+BasisTuple = tuple[tuple[float, float], tuple[float, float], tuple[int, int]]
+
+def hsgp_basis(
+    xy: NDArray[np.float64],
+    length_scale_prior: tuple[float, float],
+    length_scales: tuple[float, float] | None = None,
+    n_basis: tuple[int, int] | None = None,
+) -> BasisTuple: ...
+def hsgp_log_marginal_likelihood(xy: NDArray[np.float64], v: NDArray[np.float64], p: ParamTuple, b: BasisTuple) -> float: ...
+def hsgp_log_predictive(
+    train_xy: NDArray[np.float64],
+    train_v: NDArray[np.float64],
+    test_xy: NDArray[np.float64],
+    test_v: NDArray[np.float64],
+    p: ParamTuple,
+    b: BasisTuple,
+) -> float: ...
+def hsgp_posterior(
+    train_xy: NDArray[np.float64], train_v: NDArray[np.float64], query_xy: NDArray[np.float64], p: ParamTuple, b: BasisTuple
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
+
 class Sampler:
     """The DP-GP collapsed Gibbs sampler (rust/py/src/sampler.rs); dpgp.DPGP wraps it."""
 
@@ -61,6 +82,12 @@ class Sampler:
         new_pattern_samples: int,
         seed: int,
         n_threads: int | None,
+        length_scale_fraction: float = 1.0,
+        pattern_moments: bool = False,
+        likelihood: str = "exact",
+        basis: BasisTuple | None = None,
+        proposal: str = "full",
+        memory_budget: int | None = None,
     ) -> None: ...
     def initialize(self) -> None: ...
     def sweep(self) -> tuple[int, int, float, float]: ...
@@ -69,6 +96,8 @@ class Sampler:
     def alpha(self) -> float: ...
     def log_joint(self) -> float: ...
     def timings(self) -> dict[str, float]: ...
+    def memory_bytes(self) -> int: ...
+    def proposal_counts(self) -> tuple[int, int]: ...
     def conditional_log_probs(self, i: int) -> list[float]: ...
     def score_frames(
         self, xy: NDArray[np.float64], v: NDArray[np.float64], offsets: NDArray[np.int64]

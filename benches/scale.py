@@ -1,0 +1,121 @@
+"""Whole-fit benchmarks of the scalable engine (issue "Fits that scale"). Each configuration runs in
+its own process, so that its peak resident memory is its own.
+
+    python benches/scale.py synthetic [--sizes 1000 10000 100000] [--sweeps 20]
+    python benches/scale.py us101 [--sweeps 60]          # likelihood x proposal on NGSIM US-101
+    python benches/scale.py one KIND N LIKELIHOOD PROPOSAL SWEEPS   # one configuration, JSON out
+
+``synthetic``: dpgp.datasets.synthetic highway and intersection scenes at each size, exact (up to
+1,000 frames, beyond which it does not fit in time or memory) and hsgp, default proposal; prints
+the median seconds per sweep, initialisation seconds, peak RSS, K and the ARI against the truth.
+
+``us101``: the 1000 US-101 frames under the paper's model constants (σ_n² = 1, Gamma(10, 1)) in
+all four combinations of likelihood and proposal, then the new defaults. For each: median
+seconds per sweep, and the effective sample size (bulk, Vehtari et al. 2021) of the log joint
+density and of K over the sweeps after a burn-in of a fifth, per second of those sweeps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ngsim_us101_frames.tsv"
+PAPER = {"noise_var": 1.0, "length_scale_prior": (10.0, 1.0)}
+
+
+def one(kind: str, n: int, likelihood: str, proposal: str, sweeps: int, paper: bool) -> dict:
+    import dpgp
+    from dpgp.diagnostics import ess_bulk
+
+    frames = dpgp.read_frames(DATA) if kind == "us101" else dpgp.datasets.synthetic(kind, n, seed=0)
+    t = time.perf_counter()
+    kw = dict(PAPER) if paper else {}
+    m = dpgp.DPGP(iterations=sweeps, likelihood=likelihood, proposal=proposal, seed=1, progress=False, **kw)
+    m.fit(frames)
+    total = time.perf_counter() - t
+    sec = np.asarray(m.history_["seconds"])
+    burn = len(sec) // 5
+    lj, k = np.asarray(m.history_["log_joint"]), np.asarray(m.history_["n_patterns"], dtype=float)
+    out = {
+        "data": kind, "frames": len(frames), "likelihood": m.likelihood_, "proposal": proposal,
+        "M": None if m.basis_ is None else m.basis_.size, "sweeps": len(sec),
+        "median_sweep_s": float(np.median(sec)), "init_s": m.init_seconds_, "fit_s": total,
+        "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6,
+        "K": m.n_patterns_, "noise_var": float(m.noise_var_),
+        "accepted": list(m._sampler.proposal_counts()),
+    }  # fmt: skip
+    if frames.labels is not None:
+        out["ari"] = dpgp.adjusted_rand_index(m.labels_, frames.labels)
+    if len(sec) - burn >= 8:
+        s = float(sec[burn:].sum())
+        out["ess_logjoint_per_s"] = ess_bulk(lj[burn:]) / s
+        out["ess_k_per_s"] = ess_bulk(k[burn:]) / s if np.ptp(k[burn:]) > 0 else float("nan")
+    return out
+
+
+def run(*args: object) -> dict:
+    r = subprocess.run([sys.executable, __file__, "one", *map(str, args)], capture_output=True, text=True)
+    if r.returncode != 0:
+        return {"error": r.stderr.strip().splitlines()[-1] if r.stderr.strip() else f"exit {r.returncode}", "args": args}
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def show(rows: list[dict], cols: list[str]) -> None:
+    def fmt(v: object) -> str:
+        if isinstance(v, float):
+            return f"{v:.3g}" if abs(v) < 1000 else f"{v:.0f}"
+        return str(v)
+
+    print(" | ".join(cols))
+    for r in rows:
+        print(" | ".join(fmt(r.get(c, "")) for c in cols) + ("" if "error" not in r else f"  ERROR {r['error']}"))
+    sys.stdout.flush()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    s = sub.add_parser("synthetic")
+    s.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000, 100000])
+    s.add_argument("--sweeps", type=int, default=20)
+    u = sub.add_parser("us101")
+    u.add_argument("--sweeps", type=int, default=60)
+    o = sub.add_parser("one")
+    for name in ("kind", "n", "likelihood", "proposal", "sweeps", "paper"):
+        o.add_argument(name)
+    a = ap.parse_args()
+    if a.cmd == "one":
+        print(json.dumps(one(a.kind, int(a.n), a.likelihood, a.proposal, int(a.sweeps), a.paper == "True")))
+        return
+    if a.cmd == "synthetic":
+        rows = []
+        cols = ["data", "frames", "likelihood", "M", "median_sweep_s", "init_s", "fit_s", "peak_rss_gb", "K", "ari"]
+        for kind in ("highway", "intersection"):
+            for n in a.sizes:
+                for lik in ("exact", "hsgp") if n <= 1000 else ("hsgp",):
+                    rows.append(run(kind, n, lik, "informed", a.sweeps, True))
+                    show(rows[-1:], cols)
+        print()
+        show(rows, cols)
+    else:
+        rows = []
+        cols = ["likelihood", "proposal", "M", "sweeps", "median_sweep_s", "K", "ess_logjoint_per_s", "ess_k_per_s", "accepted", "noise_var"]
+        for lik in ("exact", "hsgp"):
+            for prop in ("full", "informed"):
+                rows.append(run("us101", 0, lik, prop, a.sweeps, True))
+                show(rows[-1:], cols)
+        rows.append({**run("us101", 0, "auto", "informed", a.sweeps, False), "proposal": "informed (all defaults)"})
+        print()
+        show(rows, cols)
+
+
+if __name__ == "__main__":
+    main()
