@@ -141,6 +141,7 @@ def replay(spec: str, seed: int) -> int:
 
     surface, _, i = spec.partition(":")
     draw = fc.RandomDraw([seed, fc.SURFACES.index(surface), int(i)])
+    draw.verbose = True
     ctx = fc.Context()
     orig = fc.classify_exception
 

@@ -189,3 +189,213 @@ def test_cli_reports_an_internal_error_in_one_line(monkeypatch, capsys):
     assert cli.main(["fit", "x.csv", "-o", "m.npz"]) == 3
     err = capsys.readouterr().err
     assert err.startswith("dpgp: internal error (IndexError: deep inside)") and err.count("\n") == 1
+
+
+# --- open defects in files owned by others (model.py, io.py, simulation.py, scenarios.py,
+# defaults.py, the Rust core), each the smallest reproducer the fuzz led to. They must end in a
+# typed error or a finite result; until they do, they are expected failures.
+def open_defect(where: str, what: str):
+    return pytest.mark.xfail(strict=False, reason=f"open defect in {where}: {what} (found by the fuzz, issue 11)")
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    frames = dpgp.datasets.synthetic("intersection", n_frames=12, seed=0, vehicles=(2, 5))
+    model = dpgp.DPGP(iterations=1, seed=0, progress=False, noise_var=1.0).fit(frames)
+    path = tmp_path_factory.mktemp("fuzz") / "tiny.npz"
+    model.save(path)
+    return model, path
+
+
+def _three_frames(vx=(1.0, 2.0, 1.0, 2.0, 1.0, 2.0), x=(0.0, 1, 2, 3, 4, 5)):
+    return dpgp.Frames.from_arrays([0, 0, 1, 1, 2, 2], list(x), [0.0, 1, 0, 1, 0, 1], list(vx), [0.0, 1, 1, 0, 0, 1])
+
+
+def _fit(frames=None, **settings):
+    settings = {"iterations": 1, "noise_var": 1.0, "progress": False, **settings}
+    return dpgp.DPGP(**settings).fit(frames if frames is not None else _three_frames())
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        pytest.param(dict(n_iter_no_change="x"), marks=open_defect("model.py", "TypeError in _check_settings")),
+        pytest.param(dict(seed="s"), marks=open_defect("model.py", "ValueError in _new_sampler")),
+        pytest.param(dict(seed=None), marks=open_defect("model.py", "TypeError in _new_sampler")),
+        pytest.param(dict(length_scale_fraction="x"), marks=open_defect("model.py", "ValueError in _new_sampler")),
+        pytest.param(dict(new_pattern_samples=2**64), marks=open_defect("model.py", "OverflowError in _new_sampler")),
+    ],
+)
+def test_open_fit_settings_raise_typed(settings):
+    with pytest.raises(dpgp.InvalidInputError):
+        _fit(**settings)
+
+
+@open_defect("defaults.py", "OverflowError in vehicle_spacing for coordinates near 1e300")
+def test_open_auto_prior_on_huge_coordinates():
+    frames = dpgp.Frames.from_arrays([0, 0, 0], [-2e301, -3e301, 2.7e301], [1.0, 1, 1], [1.0, 2, 3], [0.0, 1, 0.5])
+    with pytest.raises(dpgp.InvalidInputError):
+        _fit(frames)
+
+
+@pytest.mark.parametrize(
+    "frames, settings",
+    [
+        pytest.param(_three_frames(vx=(3e300, -4e300, 1e300, 1.0, 2.0, 1.0)), dict(signal_var=1.0), id="velocities-1e300"),
+        pytest.param(None, dict(mean=1e300), id="mean-1e300"),
+    ],
+)
+@open_defect("model.py / rust", "a log joint density of -inf, no error")
+def test_open_fit_with_huge_values_is_finite_or_refused(frames, settings):
+    try:
+        model = _fit(frames, **settings)
+    except dpgp.InvalidInputError:
+        return
+    assert np.isfinite(model.log_joint_) and np.all(np.isfinite(model.history_["log_joint"]))
+
+
+@pytest.mark.parametrize(
+    "call",
+    [
+        pytest.param(lambda m: m.velocity_field(None, [[0.0, 0.0]]), id="velocity_field-k-None"),
+        pytest.param(lambda m: m.velocity_field(1.5, [[0.0, 0.0]]), id="velocity_field-k-1.5"),
+        pytest.param(lambda m: m.velocity_field(True, [[0.0, 0.0]]), id="velocity_field-k-True"),
+        pytest.param(lambda m: m.conditional_log_probs(None), id="conditional_log_probs-None"),
+        pytest.param(lambda m: m.simulate(0, steps=2, low_data_threshold="x"), id="simulate-threshold-x"),
+        pytest.param(lambda m: m.simulate(0, steps=1, roi=(0, 1)), id="simulate-roi-of-two"),
+        pytest.param(lambda m: m.sample_scenarios(1, steps=1, dt=2**1000), id="scenarios-dt-2**1000"),
+        pytest.param(lambda m: m.sample_scenarios(1, steps=1, roi=(0, 1)), id="scenarios-roi-of-two"),
+        pytest.param(lambda m: m.sample_scenarios(2**63, steps=1), id="scenarios-n-2**63"),
+    ],
+)
+@open_defect("model.py / simulation.py / scenarios.py", "TypeError, IndexError or a bare ValueError from numpy or the binding")
+def test_open_model_use_arguments_raise_typed(tiny, call):
+    with pytest.raises(dpgp.InvalidInputError):
+        call(tiny[0])
+
+
+@pytest.mark.parametrize(
+    "method, vx, vy",
+    [("predict_proba", 1e200, 0.0), ("score_samples", 0.0, 1e300)],
+)
+@open_defect("model.py / rust", "NaN probabilities or log densities for velocities near the float range")
+def test_open_scores_of_huge_velocities_are_finite_or_refused(tiny, method, vx, vy):
+    frames = dpgp.Frames.from_arrays([0, 0], [0.0, 1], [0.0, 1], [vx, -vx], [vy, -vy])
+    try:
+        out = getattr(tiny[0], method)(frames)
+    except dpgp.InvalidInputError:
+        return
+    assert not np.isnan(out).any()
+
+
+def _rewrite(path, out, edit):
+    import io as _io
+
+    arrays = fc._npz_members(path.read_bytes())
+    edit(arrays)
+    buf = _io.BytesIO()
+    np.savez(buf, **arrays)
+    out.write_bytes(buf.getvalue())
+    return out
+
+
+def _edit_metadata(key, value):
+    import json
+
+    def edit(arrays):
+        meta = json.loads(str(arrays["metadata"]))
+        meta[key] = value
+        arrays["metadata"] = np.array(json.dumps(meta).replace('"DEEP"', "[" * 100_000 + "]" * 100_000))
+
+    return edit
+
+
+def _declared_shape(path, out, member, shape):
+    import io as _io
+    import zipfile
+
+    arrays = fc._npz_members(path.read_bytes())
+    buf = _io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as z:
+        for k, v in arrays.items():
+            raw = _io.BytesIO()
+            np.save(raw, v, allow_pickle=False)
+            z.writestr(k + ".npy", fc._npy_with_shape(v, shape) if k == member else raw.getvalue())
+    out.write_bytes(buf.getvalue())
+    return out
+
+
+def _unknown_compression(path, out):
+    data = bytearray(path.read_bytes())
+    at = data.find(b"PK\x01\x02")  # the first central-directory entry: its compression method
+    data[at + 10 : at + 12] = (99).to_bytes(2, "little")
+    out.write_bytes(bytes(data))
+    return out
+
+
+@pytest.mark.parametrize(
+    "damage",
+    [
+        pytest.param(lambda p, o: _declared_shape(p, o, "length_scales", (2**40, 2)), id="declared-shape-2**40",
+                     marks=open_defect("io.py", "MemoryError from numpy on a huge declared shape")),
+        pytest.param(lambda p, o: _rewrite(p, o, _edit_metadata("settings", "DEEP")), id="metadata-nested-100000-deep",
+                     marks=open_defect("io.py", "RecursionError from json")),
+        pytest.param(lambda p, o: _rewrite(p, o, _edit_metadata("settings", float("-inf"))), id="settings-not-a-dict",
+                     marks=open_defect("io.py", "AttributeError in _build")),
+        pytest.param(lambda p, o: _rewrite(p, o, _edit_metadata("history", 3)), id="history-not-a-dict",
+                     marks=open_defect("io.py", "AttributeError in _build")),
+        pytest.param(_unknown_compression, id="unknown-compression-method",
+                     marks=open_defect("io.py", "NotImplementedError from zipfile")),
+    ],
+)
+def test_open_damaged_model_files_raise_model_file_error(tiny, tmp_path, damage):
+    path = damage(tiny[1], tmp_path / "damaged.npz")
+    with pytest.raises(dpgp.ModelFileError):
+        dpgp.DPGP.load(path)
+
+
+@open_defect("io.py", "a model file whose velocities are 1e308 loads and scores to -inf")
+def test_open_model_file_with_overflowing_velocities(tiny, tmp_path):
+    def edit(arrays):
+        arrays["frame_v"] = np.full_like(arrays["frame_v"], 1e308)
+
+    path = _rewrite(tiny[1], tmp_path / "big.npz", edit)
+    try:
+        model = dpgp.DPGP.load(path)
+    except dpgp.ModelFileError:
+        return
+    assert np.isfinite(model.log_joint_)
+
+
+def _run_limited(code: str, seconds: float, memory_mb: int = 4096) -> subprocess.CompletedProcess:
+    """Run ``code`` in a child Python with an address-space limit (a crash must not take pytest)."""
+    import resource
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (memory_mb << 20, memory_mb << 20))
+
+    prelude = (
+        "import dpgp, numpy as np\n"
+        "frames = dpgp.datasets.synthetic('intersection', n_frames=12, seed=0, vehicles=(2, 5))\n"
+        "model = dpgp.DPGP(iterations=1, seed=0, progress=False, noise_var=1.0).fit(frames)\n"
+        "try:\n"
+        f"{textwrap.indent(code, '    ')}\n"
+        "except dpgp.DpgpError as e:\n"
+        "    print('typed', type(e).__name__)\n"
+    )
+    return subprocess.run([sys.executable, "-c", prelude], capture_output=True, text=True, timeout=seconds, preexec_fn=limit)
+
+
+@open_defect("simulation.py / rust", "SIGABRT on allocation: the row cap does not bound the memory (one vehicle, 2e8 steps)")
+def test_open_simulate_that_cannot_fit_in_memory_is_refused():
+    r = _run_limited("model.simulate(np.array([[0.0, 0.0]]), pattern=0, steps=2 * 10**8)", 120)
+    assert r.returncode == 0 and "typed" in r.stdout, r.stderr[-500:]
+
+
+@open_defect("scenarios.py", "sample_scenarios(10**8, steps=1) runs for minutes (and gigabytes) instead of being refused")
+def test_open_huge_scenario_count_is_refused_quickly():
+    try:
+        r = _run_limited("model.sample_scenarios(10**8, steps=1, seed=0)", 15)
+    except subprocess.TimeoutExpired:
+        pytest.fail("sample_scenarios(10**8) ran for more than 15 s")
+    assert r.returncode == 0 and "typed" in r.stdout, r.stderr[-500:]
