@@ -56,8 +56,8 @@ class DPGP:
         keeping the state reached. ``None`` (default): half of the memory available at the
         start of the fit.
     length_scale_prior : ``(shape, scale)`` of the Gamma prior of each length scale, in data
-        units; ``"auto"`` (default): shape 10 with the mean at the data's spacing, the median
-        distance between nearest vehicles of a frame (:mod:`dpgp.defaults`). Resolved value in
+        units; ``"auto"`` (default): shape 10 with the mean at twice the data's spacing, the
+        median distance between nearest vehicles of a frame (:mod:`dpgp.defaults`). Resolved value in
         ``length_scale_prior_``.
     length_scales : ``None`` samples ``(w_x, w_y)`` per pattern; a pair fixes them for all patterns.
     noise_var : observation noise variance σ_n² (velocity units squared); ``"auto"`` (default):
@@ -196,10 +196,10 @@ class DPGP:
         parse_bytes("memory_budget", self.memory_budget)
         if not (isinstance(self.iterations, (int, np.integer)) and self.iterations >= 0):
             raise InvalidInputError(f"iterations must be a non-negative integer, got {self.iterations!r}")
-        if not (isinstance(self.new_pattern_samples, (int, np.integer)) and self.new_pattern_samples >= 1):
-            raise InvalidInputError(f"new_pattern_samples must be a positive integer, got {self.new_pattern_samples!r}")
-        if self.n_threads is not None and not (isinstance(self.n_threads, (int, np.integer)) and self.n_threads >= 1):
-            raise InvalidInputError(f"n_threads must be a positive integer or None, got {self.n_threads!r}")
+        if not (isinstance(self.new_pattern_samples, (int, np.integer)) and 1 <= self.new_pattern_samples <= 100_000):
+            raise InvalidInputError(f"new_pattern_samples must be an integer in [1, 100000], got {self.new_pattern_samples!r}")
+        if self.n_threads is not None and not (isinstance(self.n_threads, (int, np.integer)) and 1 <= self.n_threads <= 1024):
+            raise InvalidInputError(f"n_threads must be None or an integer in [1, 1024], got {self.n_threads!r}")
         if self.n_iter_no_change is not None and not self.n_iter_no_change >= 1:
             raise InvalidInputError(f"n_iter_no_change must be a positive integer or None, got {self.n_iter_no_change!r}")
 

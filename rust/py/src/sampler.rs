@@ -1,4 +1,5 @@
-//! The `Sampler` class: a DP-GP Gibbs sampler owned by Python, run on its own rayon pool with
+//! The `Sampler` class: a DP-GP Gibbs sampler owned by Python, run on a rayon pool (one per
+//! thread count, shared by every sampler of the process) with
 //! the GIL released, and stoppable with Ctrl-C between frames.
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -22,7 +23,7 @@ use dpgp_core::pattern_model::Likelihood;
 #[pyclass(module = "dpgp._core", name = "Sampler")]
 pub struct PySampler {
     inner: Mutex<Sampler>,
-    pool: rayon::ThreadPool,
+    pool: Arc<rayon::ThreadPool>,
 }
 
 fn offsets_vec(name: &str, o: &PyReadonlyArray1<'_, i64>) -> CoreResult<Vec<usize>> {
@@ -58,6 +59,34 @@ fn frame_refs<'a>(
             v: &v[w[0]..w[1]],
         })
         .collect())
+}
+
+/// Most worker threads a sampler may ask for.
+const MAX_THREADS: usize = 1024;
+
+/// The process's rayon pool of `n` threads (0: one per core), created on first use: samplers
+/// share pools, so that many live models do not each hold their own threads.
+fn shared_pool(n: usize) -> PyResult<Arc<rayon::ThreadPool>> {
+    static POOLS: Mutex<Vec<(usize, Arc<rayon::ThreadPool>)>> = Mutex::new(Vec::new());
+    if n > MAX_THREADS {
+        return Err(CoreError(Error::InvalidInput(format!(
+            "n_threads must be at most {MAX_THREADS}, got {n}"
+        )))
+        .into());
+    }
+    let mut pools = POOLS.lock().unwrap_or_else(|e| e.into_inner());
+    if let Some((_, p)) = pools.iter().find(|(k, _)| *k == n) {
+        return Ok(Arc::clone(p));
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(n)
+        .build()
+        .map_err(|e| {
+            pyo3::exceptions::PyRuntimeError::new_err(format!("could not start threads: {e}"))
+        })?;
+    let pool = Arc::new(pool);
+    pools.push((n, Arc::clone(&pool)));
+    Ok(pool)
 }
 
 impl PySampler {
@@ -196,12 +225,7 @@ impl PySampler {
         let sampler = py
             .detach(|| Sampler::new(data, settings))
             .map_err(CoreError)?;
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(n_threads.unwrap_or(0))
-            .build()
-            .map_err(|e| {
-                pyo3::exceptions::PyRuntimeError::new_err(format!("could not start threads: {e}"))
-            })?;
+        let pool = shared_pool(n_threads.unwrap_or(0))?;
         Ok(Self {
             inner: Mutex::new(sampler),
             pool,
