@@ -166,3 +166,15 @@ def test_auto_picks_exact_for_small_data_and_hsgp_for_large(monkeypatch):
     monkeypatch.setattr(dpgp.model, "AUTO_EXACT_MAX_POINTS", 10**6)
     frames = dpgp.datasets.synthetic("highway", n_frames=400, seed=1)  # ~4,800 points: ~1 GB
     assert dpgp.DPGP(memory_budget="500MB", **kw).fit(frames).likelihood_ == "hsgp"
+
+
+def test_large_fit_is_the_same_with_one_or_two_threads():
+    """Past 1,000 frames the informed initialisation places frames by cheap score and builds
+    each pattern in one go (in parallel over patterns): still a function of the seed alone."""
+    frames = dpgp.datasets.synthetic("highway", n_frames=1200, seed=3)
+    kw = dict(iterations=2, likelihood="hsgp", noise_var=1.0, length_scale_prior=(10.0, 1.0), seed=5, progress=False)
+    a, b = (dpgp.DPGP(n_threads=t, **kw).fit(frames) for t in (1, 2))
+    np.testing.assert_array_equal(a.labels_, b.labels_)
+    assert a.history_["log_joint"] == b.history_["log_joint"]
+    np.testing.assert_array_equal(a.length_scales_, b.length_scales_)
+    assert dpgp.adjusted_rand_index(a.labels_, frames.labels) >= 0.9
