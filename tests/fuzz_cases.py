@@ -957,8 +957,12 @@ def run_case(surface: str, draw: Draw, ctx: Context) -> Outcome:
                     outcome = result
                 else:
                     value, allow = result if isinstance(result, tuple) and len(result) == 2 and isinstance(result[1], bool) else (result, False)
-                    bad = nonfinite(value, allow)
-                    outcome = Outcome("nonfinite", bad) if bad else Outcome("valid")
+                    try:
+                        bad = nonfinite(value, allow)
+                    except Exception as e:  # noqa: BLE001 - a result too malformed to inspect
+                        outcome = Outcome("untyped", f"malformed result ({type(e).__name__} at {where(e)}: {e})")
+                    else:
+                        outcome = Outcome("nonfinite", bad) if bad else Outcome("valid")
         left = [p.name for p in d.rglob(".dpgp-*")]
         if left and not outcome.defect:
             outcome = Outcome("tempfile", f"left behind: {left}")

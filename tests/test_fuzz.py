@@ -106,6 +106,18 @@ def test_adjusted_rand_index_takes_any_hashable_labels_and_raises_typed():
         dpgp.adjusted_rand_index([0, 1], [0])
 
 
+def test_ngsim_header_without_rows_and_list_ids_are_typed(tmp_path):
+    path = tmp_path / "header.csv"
+    path.write_text("Vehicle_ID,Frame_ID,Total_Frames,Local_X,Local_Y\n")
+    with pytest.raises(dpgp.DataFormatError, match="no rows"):  # was pandas' "Grouper and axis must be same length"
+        dpgp.read_ngsim(path)
+    import pandas as pd
+
+    tracks = pd.DataFrame({"track": [[1], [2]], "t": [0.0, 1.0], "x": [0.0, 1.0], "y": [0.0, 1.0]})
+    with pytest.raises(dpgp.DataFormatError, match="ids must be numbers or strings"):  # was TypeError
+        dpgp.make_frames(tracks)
+
+
 def test_frames_selection_and_ids_are_checked():
     frames = dpgp.Frames.from_arrays([0, 0, 1], [0.0, 1, 2], [0.0, 1, 2], [1.0, 1, 1], [0.0, 0, 0])
     for bad in ("a", None, np.array([0.5]), np.array([5]), [[0]]):  # were IndexError/TypeError/ValueError
@@ -350,6 +362,20 @@ def _unknown_compression(path, out):
 )
 def test_open_damaged_model_files_raise_model_file_error(tiny, tmp_path, damage):
     path = damage(tiny[1], tmp_path / "damaged.npz")
+    with pytest.raises(dpgp.ModelFileError):
+        dpgp.DPGP.load(path)
+
+
+@open_defect("io.py", "a history of strings loads unchecked (history_['log_joint'] == ['x'])")
+def test_open_model_file_history_values_are_checked(tiny, tmp_path):
+    import json
+
+    def edit(arrays):
+        meta = json.loads(str(arrays["metadata"]))
+        meta["history"]["log_joint"] = "x"
+        arrays["metadata"] = np.array(json.dumps(meta))
+
+    path = _rewrite(tiny[1], tmp_path / "history.npz", edit)
     with pytest.raises(dpgp.ModelFileError):
         dpgp.DPGP.load(path)
 

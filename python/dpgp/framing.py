@@ -568,9 +568,12 @@ def _track_codes(col: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             return codes, np.arange(int(col.max()) + 1 if len(col) else 0)  # ids are their own labels
     import pandas as pd
 
-    if pd.isna(col).any():
-        raise InvalidInputError("the track (or scene) column has missing values; every row needs an id")
-    codes, labels = pd.factorize(col, sort=True)
+    try:
+        if pd.isna(col).any():
+            raise InvalidInputError("the track (or scene) column has missing values; every row needs an id")
+        codes, labels = pd.factorize(col, sort=True)
+    except TypeError as e:  # lists as ids, or numbers mixed with strings (no order)
+        raise DataFormatError(f"track (and scene) ids must be numbers or strings of one kind ({e})") from None
     return codes.astype(np.int64, copy=False), np.asarray(labels)
 
 

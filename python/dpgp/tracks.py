@@ -124,6 +124,8 @@ def read_ngsim(path: str | os.PathLike, *, split_gap: float = 1.0) -> pd.DataFra
             f"{path} is not an NGSIM trajectory file: no column {missing} (found {list(df.columns)}); "
             "for other tables use dpgp.read_tracks"
         )
+    if len(df) == 0:
+        raise DataFormatError(f"{path} has a header but no rows of data")
     for col in ("Vehicle_ID", "Frame_ID", "Total_Frames", "Local_X", "Local_Y"):
         if col in df.columns:
             df[col] = _numeric(df[col], col, path)
