@@ -532,14 +532,15 @@ def case_framing(draw: Draw, ctx: Context, d: Path) -> Any:
     if draw.boolean("via_read_tracks", 0.3):
         tracks = dpgp.read_tracks(tracks, sort=draw.boolean("sort"))
     fn = draw.choice([dpgp.make_frames, dpgp.make_frames, dpgp.resample_tracks], "function")
+    p = draw.choice([0.0, 0.1, 0.35], "hostility")  # some cases with valid arguments only
     return fn(
         tracks,
-        roi=draw.maybe([None, (-1e9, 1e9, -1e9, 1e9), (0, 10, 0, 10)], [(1, 0, 0, 1), (NAN, 1, 0, 1), (0, INF, 0, 1), (0, 1), "roi", (0, 1, 0, "x"), 5], "roi"),
-        dt=draw.maybe([0.5, 0.1, 1.0], [0, -1, NAN, INF, 1e300, 1e-300, "x", None, 2**70], "dt"),
-        velocity=draw.maybe(["auto", "diff", "columns"], ["speed", None, 1], "velocity"),
-        smoothing=draw.maybe([None, (3, 1), (5, 2)], [(2, 1), (3, 3), (3,), (-3, 1), (3, 1.5), (10**9, 1), "x", (3, -1)], "smoothing"),
-        units=draw.maybe([None, "ft->m", 0.3048], [1e308, 1e-320, 0, -1, NAN, "km", "M->FT", True, 1e154], "units"),
-        max_gap=draw.maybe([None, 1.0], [0, -1, NAN, INF, 1e-300, "x"], "max_gap"),
+        roi=draw.maybe([None, (-1e9, 1e9, -1e9, 1e9), (0, 10, 0, 10)], [(1, 0, 0, 1), (NAN, 1, 0, 1), (0, INF, 0, 1), (0, 1), "roi", (0, 1, 0, "x"), 5], "roi", p),
+        dt=draw.maybe([0.5, 0.1, 1.0], [0, -1, NAN, INF, 1e300, 1e-300, "x", None, 2**70], "dt", p),
+        velocity=draw.maybe(["auto", "diff", "columns"], ["speed", None, 1], "velocity", p),
+        smoothing=draw.maybe([None, (3, 1), (5, 2)], [(2, 1), (3, 3), (3,), (-3, 1), (3, 1.5), (10**9, 1), "x", (3, -1)], "smoothing", p),
+        units=draw.maybe([None, "ft->m", 0.3048], [1e308, 1e-320, 0, -1, NAN, "km", "M->FT", True, 1e154], "units", p),
+        max_gap=draw.maybe([None, 1.0], [0, -1, NAN, INF, 1e-300, "x"], "max_gap", p),
     )
 
 

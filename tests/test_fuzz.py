@@ -154,6 +154,10 @@ def test_make_frames_refuses_impossible_grids_and_overflowing_units():
         dpgp.make_frames(_tracks(t0=0.0, step=1e3, n=3), dt=1e-5, max_gap=1e4)
     with pytest.raises(dpgp.InvalidInputError, match="floating-point range"):  # was inf positions
         dpgp.make_frames(_tracks(t0=0.0, step=0.5, n=4), dt=0.5, units=1e308)
+    tracks = _tracks(t0=1e-9, step=1e-12, n=3)
+    tracks["y"] = [-4e300, 4.8e301, 1.2e301]
+    with pytest.raises(dpgp.InvalidInputError, match="floating-point range"):  # was inf velocities
+        dpgp.make_frames(tracks, dt=0.1, velocity="diff")
 
 
 def test_distributions_refuse_bad_arguments_typed():

@@ -312,10 +312,11 @@ def _resample(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, uni
     for sa, sb in zip(bounds[:-1], bounds[1:]):
         r0, r1 = int(starts[sa]), int(ends[sb - 1])
         rows = slice(r0, r1) if perm is None else perm[r0:r1]
-        part = _resample_batch(
-            t[r0:r1], x[rows], y[rows], None if vx is None else vx[rows], None if vy is None else vy[rows],
-            starts[sa:sb] - r0, ends[sa:sb] - r0, k0[sa:sb], cnt[sa:sb], dt, mode, smoothing, roi,
-        )
+        with np.errstate(over="ignore"):  # overflow (absurd units or steps) is checked and reported below
+            part = _resample_batch(
+                t[r0:r1], x[rows], y[rows], None if vx is None else vx[rows], None if vy is None else vy[rows],
+                starts[sa:sb] - r0, ends[sa:sb] - r0, k0[sa:sb], cnt[sa:sb], dt, mode, smoothing, roi,
+            )
         part["seg"] += sa
         parts.append(part)
     out = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
@@ -326,6 +327,13 @@ def _resample(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, uni
             + f": the data span x [{x.min():g}, {x.max():g}], y [{y.min():g}, {y.max():g}]"
             " (the ROI is in the table's units, before any units conversion)"
         )
+    for key in ("x", "y", "vx", "vy"):
+        if not np.isfinite(out[key]).all():  # differences or interpolation beyond the float range
+            raise InvalidInputError(
+                f"{key} overflows the floating-point range when resampled (positions up to "
+                f"{max(np.abs(x).max(), np.abs(y).max()):g}, samples as close as {_min_step(t):g} s apart); "
+                "check the units of t, x and y"
+            )
     counts["n_outside_roi"] = G - len(seg_g)
     if scale != 1.0:
         for key in ("x", "y", "vx", "vy"):
@@ -352,6 +360,12 @@ def _resample(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, uni
         scene=None if seg_scene is None else seg_scene[seg_g], scene_labels=scene_labels,
         n_slots=n_slots, counts=counts, **out,
     )
+
+
+def _min_step(t: np.ndarray) -> float:
+    steps = np.diff(t)
+    steps = steps[steps > 0]
+    return float(steps.min()) if len(steps) else 0.0
 
 
 def _typical_step(tr: np.ndarray, t: np.ndarray) -> float:
