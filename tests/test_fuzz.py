@@ -32,13 +32,15 @@ KNOWN_OPEN = [
     ("model_files", "untyped", "MemoryError at dpgp/io.py"),
     ("model_files", "untyped", "RecursionError at dpgp/io.py"),
     ("model_files", "untyped", "AttributeError at dpgp/io.py"),
+    ("model_files", "untyped", "NotImplementedError at dpgp/io.py"),
+    ("model_files", "untyped", "malformed result"),  # a history of strings loads unchecked
     ("model_use", "untyped", "at dpgp/model.py"),
     ("model_use", "untyped", "at dpgp/simulation.py"),
     ("model_use", "untyped", "at dpgp/scenarios.py"),
     ("model_use", "nonfinite", ""),
     ("fit", "untyped", "at dpgp/model.py"),
     ("fit", "untyped", "at dpgp/defaults.py"),
-    ("fit", "nonfinite", "log_joint_"),
+    ("fit", "nonfinite", ""),
     ("model_files", "nonfinite", "log_joint_"),
     # the CLI prints these as one line ("internal error"), but they are still defects of io.py
     ("cli", "cli", "internal error (MemoryError"),
