@@ -377,7 +377,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", choices=("paper",),
                    help="'paper': the paper's Gamma(10, 1) length scales, noise variance 1 and map assignment "
                    "(for data in feet; the default settings scale with the data)")  # fmt: skip
-
     p.add_argument("--alpha", type=float, help="fix the DP concentration (default: sampled)")
     p.add_argument("--max-frames", type=int, help="use only the first N frames")
     p.add_argument("--threads", type=int, help="worker threads (default: all cores)")
