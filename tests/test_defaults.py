@@ -126,13 +126,22 @@ def test_model_file_keeps_the_resolved_values(small, tmp_path):
     np.testing.assert_array_equal(back.score_samples(small[:5]), m.score_samples(small[:5]))
 
 
-def test_us101_feet_to_metres_gives_the_same_fit(us101_path):
+@pytest.mark.parametrize(
+    "proposal",
+    [
+        "full",
+        pytest.param("informed", marks=pytest.mark.xfail(
+            reason="the informed proposal's cheap score is not unit-free: feet and metres give different "
+            "partitions (ARI 0.70 here) although every resolved setting scales exactly", strict=False)),
+    ],
+)  # fmt: skip
+def test_us101_feet_to_metres_gives_the_same_fit(us101_path, proposal):
     """Unit invariance on real data: the same partition, and the same log density up to the
     Jacobian of the change of units (2 l log c per frame of l vehicles)."""
     frames = dpgp.read_frames(us101_path)[:120]
     train, test = frames[:90], frames[90:]
-    ft = dpgp.DPGP(iterations=4, seed=3, progress=False).fit(train)
-    m = dpgp.DPGP(iterations=4, seed=3, progress=False).fit(scaled(train, FT))
+    ft = dpgp.DPGP(iterations=4, seed=3, progress=False, proposal=proposal).fit(train)
+    m = dpgp.DPGP(iterations=4, seed=3, progress=False, proposal=proposal).fit(scaled(train, FT))
     assert m.noise_var_ == pytest.approx(ft.noise_var_ * FT**2, rel=1e-6)
     assert dpgp.adjusted_rand_index(ft.labels_, m.labels_) >= 0.95
     jac = 2 * test.sizes * np.log(FT)

@@ -90,7 +90,9 @@ def test_length_scale_fraction_keeps_the_chain_valid_and_deterministic():
 
 def test_pattern_moments_option_uses_each_patterns_own_mean_and_variance():
     frames = dpgp.datasets.synthetic("intersection", n_frames=60, seed=3)
-    m = dpgp.DPGP(iterations=4, pattern_moments=True, seed=0, progress=False).fit(frames)
+    # full proposals: after 4 informed sweeps at the true noise level the partition is still
+    # split (ARI 0.65), which is about mixing, not about pattern_moments
+    m = dpgp.DPGP(iterations=4, pattern_moments=True, seed=0, progress=False, proposal="full").fit(frames)
     assert dpgp.adjusted_rand_index(m.labels_, frames.labels) >= 0.9
     for k in range(m.n_patterns_):
         members = frames[np.flatnonzero(m.labels_ == k)]

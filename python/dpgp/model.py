@@ -177,9 +177,10 @@ class DPGP:
         settings: the pilot of ``noise_var="auto"``."""
         from .defaults import PILOT_SWEEPS
 
+        # proposal "full": the exact argmax, unit-free whatever the main fit's proposal
         settings = {**self.get_params(), "iterations": PILOT_SWEEPS, "assignment": "map", "noise_var": noise_var,
                     "length_scale_prior": length_scale_prior, "preset": None, "progress": False,
-                    "n_iter_no_change": None, "store_labels": False}  # fmt: skip
+                    "n_iter_no_change": None, "store_labels": False, "proposal": "full"}  # fmt: skip
         pilot = type(self)(**settings).fit(train)
         return float(pilot.score_samples(test, positions=False).sum())
 
