@@ -119,3 +119,27 @@ def test_bad_input_raises_typed_errors():
         partition.salso([[0.5, 1.0]])
     with pytest.raises(InvalidInputError, match="level"):
         partition.credible_ball([0, 0], [[0, 1]], level=1.5)
+
+
+_MEMORY = """
+import resource, numpy as np
+from dpgp import partition
+rng = np.random.default_rng(0)
+n, s = 10_000, 200
+base = rng.integers(0, 100, size=n)
+draws = np.where(rng.random((s, n)) < 0.1, rng.integers(0, 150, size=(s, n)), base).astype(np.int32)
+sim = partition.similarity(draws)
+i, j = 17, int(np.flatnonzero(base == base[17])[1])
+assert abs(sim[i, j] - (draws[:, i] == draws[:, j]).mean()) < 1e-6 and sim[i, j] == sim[j, i]
+print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+"""
+
+
+def test_similarity_of_10000_items_and_200_draws_fits_in_1_gb():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _MEMORY], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    peak_mb = int(out.stdout.split()[-1]) / (2**20 if sys.platform == "darwin" else 2**10)  # bytes on macOS, KiB elsewhere
+    assert peak_mb <= 1024, f"peak RSS {peak_mb:.0f} MB"
