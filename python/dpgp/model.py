@@ -201,19 +201,33 @@ class DPGP:
             raise InvalidInputError(f"new_pattern_samples must be an integer in [1, 100000], got {self.new_pattern_samples!r}")
         if self.n_threads is not None and not (isinstance(self.n_threads, (int, np.integer)) and 1 <= self.n_threads <= 1024):
             raise InvalidInputError(f"n_threads must be None or an integer in [1, 1024], got {self.n_threads!r}")
-        if self.n_iter_no_change is not None and not self.n_iter_no_change >= 1:
+        if self.n_iter_no_change is not None and not (_is_int(self.n_iter_no_change) and self.n_iter_no_change >= 1):
             raise InvalidInputError(f"n_iter_no_change must be a positive integer or None, got {self.n_iter_no_change!r}")
+        if not _is_int(self.seed):
+            raise InvalidInputError(f"seed must be an integer, got {self.seed!r}")
+        f = self.length_scale_fraction
+        if isinstance(f, bool) or not isinstance(f, (int, float, np.integer, np.floating)) or not 0 < f <= 1:
+            raise InvalidInputError(f"length_scale_fraction must be a number in (0, 1], got {f!r}")
+        t = self.ari_tol
+        if isinstance(t, bool) or not isinstance(t, (int, float, np.integer, np.floating)) or not 0 <= t <= 1:
+            raise InvalidInputError(f"ari_tol must be a number in [0, 1], got {t!r}")
 
     def fit(self, frames: Frames | Any, y: None = None) -> DPGP:
         """Fit the mixture to training frames (a :class:`~dpgp.Frames` or a framed DataFrame)."""
         self._check_settings()
         frames = _as_frames(frames)
+        _check_magnitudes(frames, "the training data")
         self._resolve_defaults(frames)
         signal_var = frames.v.var(axis=0) if self.signal_var is None else _pair("signal_var", self.signal_var)
         mean = frames.v.mean(axis=0) if self.mean is None else _pair("mean", self.mean)
         if np.any(np.asarray(signal_var) <= 0):
             raise InvalidInputError(
                 f"the training velocities have zero variance in an output ({tuple(signal_var)}); pass signal_var="
+            )
+        if np.max(np.abs(mean)) > _MAX_MAGNITUDE or np.max(signal_var) > _MAX_MAGNITUDE**2:
+            raise InvalidInputError(
+                f"mean {tuple(map(float, mean))} or signal_var {tuple(map(float, signal_var))} is too large to compute with; "
+                "convert the velocities to sensible units first"
             )
         a, b = self.length_scale_prior_
         ls0 = (a * b, a * b) if self.length_scales is None else _pair("length_scales", self.length_scales)
@@ -366,7 +380,9 @@ class DPGP:
 
     def _log_joint_terms(self, frames: Frames) -> np.ndarray:
         """(N, K+1): log [prior weight × likelihood] of each pattern, then of a new pattern."""
-        return self._fitted().log_joint_terms(_as_frames(frames))
+        frames = _as_frames(frames)
+        _check_magnitudes(frames, "the frames to score")
+        return self._fitted().log_joint_terms(frames)
 
     def predict_proba(self, frames: Frames | Any) -> np.ndarray:
         """Posterior probability of each pattern for each frame: shape (N, K+1), the last column
@@ -401,16 +417,16 @@ class DPGP:
         self._check_fitted()
         from ._arrays import as_pairs
 
-        if not 0 <= k < self.n_patterns_:
-            raise InvalidInputError(f"pattern {k} does not exist; the model has {self.n_patterns_} (0..{self.n_patterns_ - 1})")
+        if not (_is_int(k) and 0 <= k < self.n_patterns_):
+            raise InvalidInputError(f"pattern {k!r} does not exist; the model has {self.n_patterns_} (0..{self.n_patterns_ - 1})")
         return self._sampler.posterior(int(self._slots[k]), as_pairs("xy", xy))
 
     def conditional_log_probs(self, i: int) -> np.ndarray:
         """Normalised log conditional of training frame ``i`` given every other frame's pattern:
         (K+1,), patterns in ``labels_`` order (its own scored without it) and then "new"."""
         self._check_fitted()
-        if not 0 <= i < len(self.labels_):
-            raise InvalidInputError(f"frame {i} out of range for {len(self.labels_)} training frames")
+        if not (_is_int(i) and 0 <= i < len(self.labels_)):
+            raise InvalidInputError(f"frame {i!r} is not a training frame index (0..{len(self.labels_) - 1})")
         lp = np.asarray(self._sampler.conditional_log_probs(int(i)))
         return np.r_[lp[:-1][self._slot_order], lp[-1]]
 
@@ -474,6 +490,25 @@ class DPGP:
         from .evaluate import evaluate
 
         return evaluate(self, _as_frames(test_frames), tracks, horizons)
+
+
+def _is_int(x: object) -> bool:
+    return isinstance(x, (int, np.integer)) and not isinstance(x, bool)
+
+
+#: Largest magnitude of a velocity or position (after centring) whose squares and sums stay
+#: finite in double precision, with room to spare.
+_MAX_MAGNITUDE = 1e100
+
+
+def _check_magnitudes(frames: Frames, what: str) -> None:
+    """Refuse values whose squares would overflow the GP's sums (a silent -inf or NaN)."""
+    for name, a in (("velocities", frames.v), ("positions", frames.xy - frames.xy.mean(axis=0))):
+        if len(a) and np.max(np.abs(a)) > _MAX_MAGNITUDE:
+            raise InvalidInputError(
+                f"{what} has {name} of magnitude {np.max(np.abs(a)):.3g}, beyond {_MAX_MAGNITUDE:g}; "
+                "convert them to sensible units first"
+            )
 
 
 def _same(a: object, b: object) -> bool:
