@@ -84,6 +84,7 @@ def test_conditionals_on_tiny_frames_match_the_formula(signal):
             length_scales=p.length_scales,
             signal_var=SIGNALS[signal],
             mean=None if signal == "default" else p.mean,
+            noise_var=p.noise_var,
             alpha=0.7,
             seed=seed,
             progress=False,
@@ -97,7 +98,7 @@ def test_conditionals_on_tiny_frames_match_the_formula(signal):
 def test_conditionals_on_a_synthetic_scene_match_the_formula(signal):
     frames = dpgp.datasets.synthetic("intersection", n_frames=40, seed=3)
     ws = (6.0, 8.0)
-    m = dpgp.DPGP(iterations=3, length_scales=ws, signal_var=SIGNALS[signal], seed=1, progress=False).fit(frames)
+    m = dpgp.DPGP(iterations=3, length_scales=ws, signal_var=SIGNALS[signal], noise_var=1.0, seed=1, progress=False).fit(frames)
     assert m.n_patterns_ >= 2
     p = so.default_params(frames, ws, 1.0, SIGNALS[signal])
     check_conditionals(m, frames, p, [0, 1, 7, 19, 39])
