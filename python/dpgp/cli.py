@@ -195,6 +195,12 @@ def _info(args: argparse.Namespace) -> int:
         f"GP: signal variance ({p.signal_var[0]:.4g}, {p.signal_var[1]:.4g}), noise variance {p.noise_var:.4g}, "
         f"mean ({p.mean[0]:.4g}, {p.mean[1]:.4g})"
     )
+    r = model.defaults_
+    a, b = r.length_scale_prior
+    lines.append(
+        f"resolved: noise variance {r.noise_var:.4g} ({r.noise_var_source}), length-scale prior Gamma({a:g}, {b:.4g}) "
+        f"({r.length_scale_prior_source}), assignment {r.assignment}"
+    )
     settings = {k: v for k, v in model.get_params().items() if k not in ("progress",)}
     lines.append("settings: " + ", ".join(f"{k}={v!r}" for k, v in settings.items()))
     print("\n".join(lines))
