@@ -30,8 +30,9 @@ assignment, σ_n² and length-scale prior the fit ran with after ``"auto"`` and 
 resolved (:class:`dpgp.defaults.Resolved`); version 1 files, written when those settings were
 always numbers, are read by taking them from ``settings``.
 
-Loading rebuilds the sampler from the frames, labels, length scales and α exactly as ``fit``
-leaves it (every pattern factored in canonical order), so a loaded model predicts, simulates and
+Reading (:func:`read_model_file`) checks the file and returns a :class:`ModelFile`;
+:meth:`dpgp.DPGP.load` then rebuilds the sampler from the frames, labels, length scales and α
+exactly as ``fit`` leaves it (every pattern factored in canonical order), so a loaded model predicts, simulates and
 plots bit for bit as the saved one. A reader refuses files of a newer ``format_version``; a
 writer bumps it whenever a reader of the previous version would misread the file.
 """
@@ -43,6 +44,7 @@ import os
 import tempfile
 import zipfile
 import zlib
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -175,8 +177,10 @@ def _read(path: str) -> dict[str, np.ndarray]:
                 "which dpgp never writes and will not load)"
             ) from None
         raise ModelFileError(f"{path} is not a dpgp model file (not a readable .npz archive): {e}") from None
-    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, KeyError) as e:
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, KeyError, NotImplementedError) as e:
         raise ModelFileError(f"{path} is truncated or corrupted ({type(e).__name__}: {e})") from None
+    except MemoryError:
+        raise ModelFileError(f"{path} declares an array too large to read; the file is corrupted") from None
 
 
 def _meta(path: str, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
@@ -185,7 +189,7 @@ def _meta(path: str, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
         raise ModelFileError(f"{path}: the metadata entry is not a JSON string")
     try:
         meta = json.loads(str(raw))
-    except json.JSONDecodeError as e:
+    except (json.JSONDecodeError, RecursionError) as e:
         raise ModelFileError(f"{path}: the metadata is not valid JSON ({e})") from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise ModelFileError(f"{path} is not a dpgp model file (format {meta.get('format') if isinstance(meta, dict) else None!r})")
@@ -207,29 +211,64 @@ def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
     return _meta(path, _read(path))
 
 
-def load(cls: type[DPGP], path: str | os.PathLike) -> DPGP:
-    """Read a model written by :func:`save`; raise :class:`~dpgp.ModelFileError` if the file
-    is truncated, corrupted, not a model file, or of a newer format version."""
+@dataclass(frozen=True, eq=False)
+class ModelFile:
+    """What a model file holds, read and checked: :meth:`dpgp.DPGP.load` builds the estimator
+    from it (this module takes nothing from the estimator but its public attributes).
+
+    ``state`` holds the fitted attributes restored as saved (``pattern_ids_``, ``history_``,
+    ``n_iter_``, ``converged_``, ``init_seconds_``, ``timings_`` and, where present,
+    ``label_trace_`` and ``chain_summary_``)."""
+
+    path: str
+    settings: dict[str, Any]
+    frames: Any
+    labels: np.ndarray
+    length_scales: np.ndarray
+    alpha: float
+    params: Any
+    resolved: Any
+    likelihood: str
+    basis: Any
+    state: dict[str, Any]
+    distributions: Any
+
+
+def read_model_file(path: str | os.PathLike) -> ModelFile:
+    """Read and check a model written by :func:`save`; :class:`~dpgp.ModelFileError` if the
+    file is truncated, corrupted, not a model file, of a newer format version or inconsistent."""
     path = os.fspath(path)
     arrays = _read(path)
-    meta = _meta(path, arrays)
+    return parse(_meta(path, arrays), arrays, path)
+
+
+def parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str = "model") -> ModelFile:
+    """A :class:`ModelFile` from the metadata and arrays of a model file."""
     try:
-        return _build(cls, meta, arrays)
+        return _parse(meta, arrays, path)
     except ModelFileError:
         raise
-    except (DpgpError, KeyError, TypeError, ValueError, IndexError) as e:
+    except (DpgpError, KeyError, TypeError, ValueError, IndexError, AttributeError) as e:
         raise ModelFileError(f"{path}: inconsistent model file ({type(e).__name__}: {e})") from None
 
 
+def load(cls: type[DPGP], path: str | os.PathLike) -> DPGP:
+    """``cls.load(path)``: kept for callers of the earlier function."""
+    return cls.load(path)
+
+
 def _build(cls: type[DPGP], meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> DPGP:
+    """An estimator from a model file's metadata and arrays (used by :mod:`dpgp.chains`)."""
+    return cls._from_file(parse(meta, arrays))
+
+
+def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> ModelFile:
     from .distributions import EmpiricalDistributions
     from .frames import Frames
     from .framing import FramingSummary
     from .gp import GPParams
 
-    settings = meta["settings"]
-    model = cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in settings.items()})
-    model._check_settings()
+    settings = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["settings"].items()}
     labels_file = arrays.get("frame_labels")
     frames = Frames(arrays["frame_ids"], arrays["frame_offsets"], arrays["frame_xy"], arrays["frame_v"], labels_file)
     if meta.get("frames_summary") is not None:
@@ -245,31 +284,30 @@ def _build(cls: type[DPGP], meta: dict[str, Any], arrays: dict[str, np.ndarray])
     if len(labels) and (labels.min() < 0 or labels.max() >= len(ls) or len(np.unique(labels)) != len(ls)):
         raise ModelFileError("labels do not name exactly the patterns the file holds")
     p = meta["params"]
-    model.params_ = GPParams(tuple(p["length_scales"]), tuple(p["signal_var"]), p["noise_var"], tuple(p["mean"]))
-    _restore_resolved(model, meta)
-    _restore_engine(model, meta)
-    # The sampler fit builds; set_state then factors every pattern in the canonical order fit
-    # ends with, so every later computation is bitwise the same.
-    model._sampler = model._new_sampler(frames)
-    model.frames_ = frames
-    model._sampler.set_state(labels, ls, float(meta["alpha"]))
-    model._sync()
-    if not np.array_equal(model.labels_, labels):
-        raise ModelFileError("the patterns are not stored in decreasing order of size; the file was not written by dpgp")
-    if "pattern_ids" in arrays and len(arrays["pattern_ids"]) == model.n_patterns_:
-        model.pattern_ids_ = np.asarray(arrays["pattern_ids"], dtype=np.uint64)
-    model.history_ = {k: list(v) for k, v in meta.get("history", {}).items()}
-    model.n_iter_ = meta.get("n_iter")
-    model.converged_ = meta.get("converged")
-    model.init_seconds_ = meta.get("init_seconds")
-    model.timings_ = dict(meta.get("timings") or model.timings_)
+    params = GPParams(tuple(p["length_scales"]), tuple(p["signal_var"]), p["noise_var"], tuple(p["mean"]))
+    likelihood, basis = _engine(meta)
+    history = {k: list(v) for k, v in meta.get("history", {}).items()}
+    for key, values in history.items():
+        if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in values):
+            raise ModelFileError(f"the history's {key!r} holds values that are not numbers")
+    state: dict[str, Any] = {
+        "history_": history,
+        "n_iter_": meta.get("n_iter"),
+        "converged_": meta.get("converged"),
+        "init_seconds_": meta.get("init_seconds"),
+        "timings_": dict(meta.get("timings") or {}),
+    }
+    if "pattern_ids" in arrays and len(arrays["pattern_ids"]) == len(ls):
+        state["pattern_ids_"] = np.asarray(arrays["pattern_ids"], dtype=np.uint64)
     if "label_trace" in arrays:
-        model.label_trace_ = np.asarray(arrays["label_trace"], dtype=np.int64)
+        state["label_trace_"] = np.asarray(arrays["label_trace"], dtype=np.int64)
     if meta.get("chain_summary") is not None:
-        model.chain_summary_ = meta["chain_summary"]
-    if meta.get("distributions") is not None:
-        model._cache = {"distributions": (frames, EmpiricalDistributions.from_dict(meta["distributions"]))}
-    return model
+        state["chain_summary_"] = meta["chain_summary"]
+    d = meta.get("distributions")
+    return ModelFile(
+        path, settings, frames, labels, ls, float(meta["alpha"]), params, _resolved(meta), likelihood, basis, state,
+        None if d is None else EmpiricalDistributions.from_dict(d),
+    )  # fmt: skip
 
 
 def _resolved_dict(model: DPGP) -> dict[str, Any]:
@@ -293,26 +331,20 @@ def _engine_dict(model: DPGP) -> dict[str, Any]:
     }
 
 
-def _restore_engine(model: DPGP, meta: dict[str, Any]) -> None:
-    """``likelihood_``, ``basis_`` and ``memory_budget_`` as the fit chose them (files written
-    before reduced-rank fits existed ran the exact likelihood)."""
+def _engine(meta: dict[str, Any]) -> tuple[str, Any]:
+    """The likelihood that ran and its basis (files written before reduced-rank fits existed ran
+    the exact likelihood). The memory budget is the loading machine's: the estimator sets it."""
     from .hsgp import Basis
 
     e = meta.get("engine") or {"likelihood": "exact", "basis": None, "memory_budget": None}
     if e.get("likelihood") not in ("exact", "hsgp") or (e["likelihood"] == "hsgp") != (e.get("basis") is not None):
         raise ModelFileError(f"unknown likelihood or basis in the model file: {e!r}")
-    model.likelihood_ = e["likelihood"]
-    model.basis_ = None if e.get("basis") is None else Basis.from_dict(e["basis"])
-    # The budget is this machine's: the model's setting, else half the memory available now.
-    from ._resources import default_memory_budget, parse_bytes
-
-    budget = parse_bytes("memory_budget", model.memory_budget)
-    model.memory_budget_ = budget if budget is not None else default_memory_budget()
+    return e["likelihood"], None if e.get("basis") is None else Basis.from_dict(e["basis"])
 
 
-def _restore_resolved(model: DPGP, meta: dict[str, Any]) -> None:
-    """Set ``assignment_``, ``noise_var_``, ``length_scale_prior_`` and ``defaults_`` as the fit
-    resolved them (never re-estimated: the saved model is what was fitted)."""
+def _resolved(meta: dict[str, Any]) -> Any:
+    """The assignment, σ_n² and length-scale prior the fit resolved (never re-estimated: the
+    saved model is what was fitted)."""
     from .defaults import Resolved
 
     r = meta.get("resolved")
@@ -323,14 +355,10 @@ def _restore_resolved(model: DPGP, meta: dict[str, Any]) -> None:
             "length_scale_prior": s["length_scale_prior"], "noise_var_source": "user", "length_scale_prior_source": "user",
         }  # fmt: skip
     scores = r.get("noise_scores")
-    resolved = Resolved(**{
+    return Resolved(**{
         **r, "length_scale_prior": tuple(float(x) for x in r["length_scale_prior"]),
         "noise_scores": None if scores is None else tuple((float(a), float(b)) for a, b in scores),
     })  # fmt: skip
-    model.assignment_ = resolved.assignment
-    model.noise_var_ = resolved.noise_var
-    model.length_scale_prior_ = resolved.length_scale_prior
-    model.defaults_ = resolved
 
 
-__all__ = ["save", "load", "read_metadata", "FORMAT", "FORMAT_VERSION"]
+__all__ = ["save", "load", "read_model_file", "parse", "ModelFile", "read_metadata", "FORMAT", "FORMAT_VERSION"]

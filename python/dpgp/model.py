@@ -12,7 +12,7 @@ import numpy as np
 
 from . import _core
 from ._resources import default_memory_budget, parse_bytes
-from .exceptions import InvalidInputError, MemoryBudgetError, NotFittedError, ShapeError
+from .exceptions import DpgpError, InvalidInputError, MemoryBudgetError, ModelFileError, NotFittedError, ShapeError
 from .fitted import FittedPatterns
 from .frames import Frames, read_frames
 from .gp import GPParams, _pair
@@ -478,9 +478,43 @@ class DPGP:
     def load(cls, path: Any) -> DPGP:
         """Read a model written by :meth:`save`; :class:`~dpgp.ModelFileError` if the file is
         truncated, corrupted, not a model file or from a newer dpgp."""
-        from .io import load
+        from .io import read_model_file
 
-        return load(cls, path)
+        file = read_model_file(path)
+        try:
+            return cls._from_file(file)
+        except ModelFileError:
+            raise
+        except (DpgpError, KeyError, TypeError, ValueError, IndexError) as e:
+            raise ModelFileError(f"{file.path}: inconsistent model file ({type(e).__name__}: {e})") from None
+
+    @classmethod
+    def _from_file(cls, file: Any) -> DPGP:
+        """The estimator a :class:`dpgp.io.ModelFile` describes: the sampler ``fit`` builds, then
+        ``set_state`` factors every pattern in the canonical order ``fit`` ends with, so every
+        later computation is bitwise the same as the saved model's."""
+        model = cls(**file.settings)
+        model._check_settings()
+        model.params_ = file.params
+        r = file.resolved
+        model.assignment_, model.noise_var_, model.length_scale_prior_, model.defaults_ = (
+            r.assignment, r.noise_var, r.length_scale_prior, r,
+        )  # fmt: skip
+        model.likelihood_, model.basis_ = file.likelihood, file.basis
+        budget = parse_bytes("memory_budget", model.memory_budget)  # this machine's budget
+        model.memory_budget_ = budget if budget is not None else default_memory_budget()
+        model._sampler = model._new_sampler(file.frames)
+        model.frames_ = file.frames
+        model._sampler.set_state(file.labels, file.length_scales, file.alpha)
+        model._sync()
+        if not np.array_equal(model.labels_, file.labels):
+            raise ModelFileError("the patterns are not stored in decreasing order of size; the file was not written by dpgp")
+        for name, value in file.state.items():
+            if name != "timings_" or value:
+                setattr(model, name, value)
+        if file.distributions is not None:
+            model._cache = {"distributions": (file.frames, file.distributions)}
+        return model
 
     def evaluate(self, test_frames: Frames | Any, tracks: Any = None, horizons: Any = (1, 2, 4)) -> Any:
         """Held-out evaluation against baselines (:mod:`dpgp.evaluate`): log density of the test
