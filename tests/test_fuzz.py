@@ -29,23 +29,11 @@ EXAMPLES = {"readers": 160, "arrays": 200, "framing": 160, "fit": 130, "model_fi
 # scenarios.py, gp.py, defaults.py, the Rust core): (surface, outcome kind, text in the detail).
 # Each has an xfail reproducer below; the slice tolerates exactly these and fails on any other.
 KNOWN_OPEN = [
-    ("model_files", "untyped", "MemoryError at dpgp/io.py"),
-    ("model_files", "untyped", "RecursionError at dpgp/io.py"),
-    ("model_files", "untyped", "AttributeError at dpgp/io.py"),
-    ("model_files", "untyped", "NotImplementedError at dpgp/io.py"),
-    ("model_files", "untyped", "malformed result"),  # a history of strings loads unchecked
     ("model_use", "untyped", "at dpgp/model.py"),
-    ("model_use", "untyped", "at dpgp/simulation.py"),
-    ("model_use", "untyped", "at dpgp/scenarios.py"),
     ("model_use", "nonfinite", ""),
     ("fit", "untyped", "at dpgp/model.py"),
     ("fit", "untyped", "at dpgp/defaults.py"),
     ("fit", "nonfinite", ""),
-    ("model_files", "nonfinite", "log_joint_"),
-    # the CLI prints these as one line ("internal error"), but they are still defects of io.py
-    ("cli", "cli", "internal error (MemoryError"),
-    ("cli", "cli", "internal error (RecursionError"),
-    ("cli", "cli", "internal error (AttributeError"),
 ]
 
 
@@ -279,17 +267,48 @@ def test_open_fit_with_huge_values_is_finite_or_refused(frames, settings):
         pytest.param(lambda m: m.velocity_field(1.5, [[0.0, 0.0]]), id="velocity_field-k-1.5"),
         pytest.param(lambda m: m.velocity_field(True, [[0.0, 0.0]]), id="velocity_field-k-True"),
         pytest.param(lambda m: m.conditional_log_probs(None), id="conditional_log_probs-None"),
-        pytest.param(lambda m: m.simulate(0, steps=2, low_data_threshold="x"), id="simulate-threshold-x"),
-        pytest.param(lambda m: m.simulate(0, steps=1, roi=(0, 1)), id="simulate-roi-of-two"),
-        pytest.param(lambda m: m.sample_scenarios(1, steps=1, dt=2**1000), id="scenarios-dt-2**1000"),
-        pytest.param(lambda m: m.sample_scenarios(1, steps=1, roi=(0, 1)), id="scenarios-roi-of-two"),
-        pytest.param(lambda m: m.sample_scenarios(2**63, steps=1), id="scenarios-n-2**63"),
     ],
 )
-@open_defect("model.py / simulation.py / scenarios.py", "TypeError, IndexError or a bare ValueError from numpy or the binding")
+@open_defect("model.py", "TypeError, IndexError or a bare ValueError from numpy or the binding")
 def test_open_model_use_arguments_raise_typed(tiny, call):
     with pytest.raises(dpgp.InvalidInputError):
         call(tiny[0])
+
+
+@pytest.mark.parametrize(
+    "call",
+    [  # each was a bare ValueError, TypeError or a binding error before it was checked up front
+        pytest.param(lambda m: m.simulate(0, steps=2, low_data_threshold="x"), id="simulate-threshold-x"),
+        pytest.param(lambda m: m.sample_scenarios(2, steps=2, low_data_threshold="x"), id="scenarios-threshold-x"),
+        pytest.param(lambda m: m.simulate(0, steps=1, roi=(0, 1)), id="simulate-roi-of-two"),
+        pytest.param(lambda m: m.simulate(0, steps=1, roi="roi"), id="simulate-roi-str"),
+        pytest.param(lambda m: m.sample_scenarios(1, steps=1, dt=2**1024), id="scenarios-dt-2**1024"),
+        pytest.param(lambda m: m.simulate(0, steps=5, dt=1e308), id="simulate-t-overflows"),
+        pytest.param(lambda m: m.sample_scenarios(1, steps=1, roi=(0, 1)), id="scenarios-roi-of-two"),
+        pytest.param(lambda m: m.sample_scenarios(2**63, steps=1), id="scenarios-n-2**63"),
+        pytest.param(lambda m: m.simulate(0, steps=2**63), id="simulate-steps-2**63"),
+    ],
+)
+def test_simulation_arguments_raise_typed(tiny, call):
+    with pytest.raises(dpgp.InvalidInputError):
+        call(tiny[0])
+
+
+def test_simulation_size_caps_refuse_before_any_work(tiny):
+    from dpgp.scenarios import MAX_SCENARIOS
+    from dpgp.simulation import MAX_ROWS
+
+    model = tiny[0]
+    assert model.sample_scenarios(1, steps=1, dt=2**1000).dt > 0  # a huge int dt is still a number
+    with pytest.raises(dpgp.InvalidInputError, match="fewer steps"):
+        model.simulate(np.zeros((1, 2)), pattern=0, steps=MAX_ROWS)  # MAX_ROWS + 1 rows
+    assert model.simulate(np.zeros((1, 2)), pattern=0, steps=3).steps == 3
+    with pytest.raises(dpgp.InvalidInputError, match="in batches"):
+        model.sample_scenarios(MAX_SCENARIOS + 1, steps=0)
+    # bounded by the largest count φ can draw (not the counts drawn), so it does not depend on the seed
+    most = dpgp.scenarios.distributions(model).max_count
+    with pytest.raises(dpgp.InvalidInputError, match="fewer scenarios or steps"):
+        model.sample_scenarios(MAX_ROWS // (most * 200) + 1, steps=199, seed=0)
 
 
 @pytest.mark.parametrize(
@@ -354,26 +373,20 @@ def _unknown_compression(path, out):
 @pytest.mark.parametrize(
     "damage",
     [
-        pytest.param(lambda p, o: _declared_shape(p, o, "length_scales", (2**40, 2)), id="declared-shape-2**40",
-                     marks=open_defect("io.py", "MemoryError from numpy on a huge declared shape")),
-        pytest.param(lambda p, o: _rewrite(p, o, _edit_metadata("settings", "DEEP")), id="metadata-nested-100000-deep",
-                     marks=open_defect("io.py", "RecursionError from json")),
-        pytest.param(lambda p, o: _rewrite(p, o, _edit_metadata("settings", float("-inf"))), id="settings-not-a-dict",
-                     marks=open_defect("io.py", "AttributeError in _build")),
-        pytest.param(lambda p, o: _rewrite(p, o, _edit_metadata("history", 3)), id="history-not-a-dict",
-                     marks=open_defect("io.py", "AttributeError in _build")),
-        pytest.param(_unknown_compression, id="unknown-compression-method",
-                     marks=open_defect("io.py", "NotImplementedError from zipfile")),
+        pytest.param(lambda p, o: _declared_shape(p, o, "length_scales", (2**40, 2)), id="declared-shape-2**40"),
+        pytest.param(lambda p, o: _rewrite(p, o, _edit_metadata("settings", "DEEP")), id="metadata-nested-100000-deep"),
+        pytest.param(lambda p, o: _rewrite(p, o, _edit_metadata("settings", float("-inf"))), id="settings-not-a-dict"),
+        pytest.param(lambda p, o: _rewrite(p, o, _edit_metadata("history", 3)), id="history-not-a-dict"),
+        pytest.param(_unknown_compression, id="unknown-compression-method"),
     ],
 )
-def test_open_damaged_model_files_raise_model_file_error(tiny, tmp_path, damage):
+def test_damaged_model_files_raise_model_file_error(tiny, tmp_path, damage):
     path = damage(tiny[1], tmp_path / "damaged.npz")
     with pytest.raises(dpgp.ModelFileError):
         dpgp.DPGP.load(path)
 
 
-@open_defect("io.py", "a history of strings loads unchecked (history_['log_joint'] == ['x'])")
-def test_open_model_file_history_values_are_checked(tiny, tmp_path):
+def test_model_file_history_values_are_checked(tiny, tmp_path):
     import json
 
     def edit(arrays):
@@ -386,17 +399,31 @@ def test_open_model_file_history_values_are_checked(tiny, tmp_path):
         dpgp.DPGP.load(path)
 
 
-@open_defect("io.py", "a model file whose velocities are 1e308 loads and scores to -inf")
-def test_open_model_file_with_overflowing_velocities(tiny, tmp_path):
+def _set(member, value, at=None):
     def edit(arrays):
-        arrays["frame_v"] = np.full_like(arrays["frame_v"], 1e308)
+        if at is None:
+            arrays[member] = np.full_like(arrays[member], value)
+        else:
+            arrays[member][at] = value
 
-    path = _rewrite(tiny[1], tmp_path / "big.npz", edit)
-    try:
-        model = dpgp.DPGP.load(path)
-    except dpgp.ModelFileError:
-        return
-    assert np.isfinite(model.log_joint_)
+    return edit
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [  # values a fit refuses: the first loaded and scored to -inf
+        pytest.param(_set("frame_v", 1e308), id="frame_v-1e308"),
+        pytest.param(_set("frame_v", np.nan, (0, 0)), id="frame_v-nan"),
+        pytest.param(_set("frame_xy", np.inf, (0, 1)), id="frame_xy-inf"),
+        pytest.param(_set("frame_xy", 1.7e308), id="frame_xy-1.7e308"),
+        pytest.param(_set("length_scales", 0.0), id="length_scales-0"),
+        pytest.param(_edit_metadata("alpha", "x"), id="alpha-x"),
+    ],
+)
+def test_model_file_numbers_are_checked(tiny, tmp_path, edit):
+    path = _rewrite(tiny[1], tmp_path / "edited.npz", edit)
+    with pytest.raises(dpgp.ModelFileError, match="corrupted"):
+        dpgp.DPGP.load(path)
 
 
 def _run_limited(code: str, seconds: float, memory_mb: int = 4096) -> subprocess.CompletedProcess:
@@ -418,14 +445,12 @@ def _run_limited(code: str, seconds: float, memory_mb: int = 4096) -> subprocess
     return subprocess.run([sys.executable, "-c", prelude], capture_output=True, text=True, timeout=seconds, preexec_fn=limit)
 
 
-@open_defect("simulation.py / rust", "SIGABRT on allocation: the row cap does not bound the memory (one vehicle, 2e8 steps)")
-def test_open_simulate_that_cannot_fit_in_memory_is_refused():
+def test_simulate_that_cannot_fit_in_memory_is_refused():  # was SIGABRT on allocation
     r = _run_limited("model.simulate(np.array([[0.0, 0.0]]), pattern=0, steps=2 * 10**8)", 120)
     assert r.returncode == 0 and "typed" in r.stdout, r.stderr[-500:]
 
 
-@open_defect("scenarios.py", "sample_scenarios(10**8, steps=1) runs for minutes (and gigabytes) instead of being refused")
-def test_open_huge_scenario_count_is_refused_quickly():
+def test_huge_scenario_count_is_refused_quickly():  # ran for minutes and gigabytes
     try:
         r = _run_limited("model.sample_scenarios(10**8, steps=1, seed=0)", 15)
     except subprocess.TimeoutExpired:

@@ -59,6 +59,11 @@ FORMAT_VERSION = 2  # 2: "resolved" (what the "auto" settings and the preset res
 
 _REQUIRED = ("metadata", "frame_ids", "frame_offsets", "frame_xy", "frame_v", "labels", "length_scales")
 
+#: The bound ``fit`` puts on velocities and centred positions (``dpgp.model._MAX_MAGNITUDE``):
+#: beyond it the GP's sums of squares overflow, so a file holding such values did not come
+#: from a fit and would load into a model that scores to -inf or NaN.
+_MAX_MAGNITUDE = 1e100
+
 
 def _jsonable(value: Any) -> Any:
     if isinstance(value, dict):
@@ -283,6 +288,7 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
         raise ModelFileError(f"labels {labels.shape} and length_scales {ls.shape} do not fit {len(frames)} frames")
     if len(labels) and (labels.min() < 0 or labels.max() >= len(ls) or len(np.unique(labels)) != len(ls)):
         raise ModelFileError("labels do not name exactly the patterns the file holds")
+    _check_numbers(frames, ls, meta["alpha"])
     p = meta["params"]
     params = GPParams(tuple(p["length_scales"]), tuple(p["signal_var"]), p["noise_var"], tuple(p["mean"]))
     likelihood, basis = _engine(meta)
@@ -308,6 +314,24 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
         path, settings, frames, labels, ls, float(meta["alpha"]), params, _resolved(meta), likelihood, basis, state,
         None if d is None else EmpiricalDistributions.from_dict(d),
     )  # fmt: skip
+
+
+def _check_numbers(frames: Any, length_scales: np.ndarray, alpha: Any) -> None:
+    """The numbers a fit would have refused (NaN, inf, magnitudes past 1e100, α or length
+    scales <= 0) mean a damaged file: refuse them here rather than load a model that gives NaN."""
+    for name, a in (("frame_v", frames.v), ("frame_xy", frames.xy)):
+        if not np.isfinite(a).all():
+            raise ModelFileError(f"{name} holds NaN or inf; the file is corrupted")
+        with np.errstate(over="ignore", invalid="ignore"):  # a mean of 1e308s overflows: also too large
+            size = float(np.max(np.abs(a - a.mean(axis=0)) if name == "frame_xy" else np.abs(a))) if len(a) else 0.0
+        if not size <= _MAX_MAGNITUDE:
+            raise ModelFileError(
+                f"{name} holds values of magnitude {size:.3g}, beyond the {_MAX_MAGNITUDE:g} a fit accepts; the file is corrupted"
+            )
+    if not (np.isfinite(length_scales).all() and (length_scales > 0).all()):
+        raise ModelFileError("length_scales must be finite and positive; the file is corrupted")
+    if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not (np.isfinite(alpha) and alpha > 0):
+        raise ModelFileError(f"alpha must be a positive number, got {alpha!r}; the file is corrupted")
 
 
 def _resolved_dict(model: DPGP) -> dict[str, Any]:

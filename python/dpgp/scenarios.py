@@ -23,13 +23,16 @@ import numpy as np
 from .distributions import EmpiricalDistributions
 from .exceptions import InvalidInputError
 from .fitted import FittedPatterns, as_fitted
-from .simulation import LOW_DATA_THRESHOLD, Simulation, _check, _check_pattern, rollouts
+from .simulation import LOW_DATA_THRESHOLD, Simulation, _check, _check_pattern, _check_roi, _check_rows, rollouts
 
 if TYPE_CHECKING:
     import pandas as pd
 
 MIN_OWN_POSITIONS = 20  # fewer positions than this in a pattern: draw from the global ψ
 DEFAULT_BINS = (20, 20)  # ψ grid over the ROI
+#: Most scenarios one call may generate. Each costs tens of microseconds and a few kB of Python
+#: objects whatever its size, so 10**8 would run for an hour; generate more in batches (seeds).
+MAX_SCENARIOS = 100_000
 
 _COLUMNS = ["scenario", "vehicle", "t", "x", "y", "vx", "vy"]
 
@@ -201,8 +204,18 @@ def sample_scenarios(
     fit = as_fitted(model)
     if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 0:
         raise InvalidInputError(f"n must be a whole number >= 0, got {n!r}")
+    if n > MAX_SCENARIOS:
+        raise InvalidInputError(
+            f"n={n} is more than the {MAX_SCENARIOS} scenarios one call may generate; generate them in batches with different seeds"
+        )
     dt = fit.dt if dt is None else dt
     steps, method, thr = _check(steps, method, dt, low_data_threshold)
+    box = fit.roi if roi is None else _check_roi(roi)
+    psi = distributions(fit)
+    # Bound the work by the largest count φ can draw, so that whether a call is refused does not
+    # depend on the seed, and it is refused before anything is drawn or allocated.
+    rows = int(n) * psi.max_count * (steps + 1)
+    _check_rows(rows, f"{n} scenarios of up to {psi.max_count} vehicles and {steps} steps", "ask for fewer scenarios or steps")
     if seed is not None and (isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0):
         raise InvalidInputError(f"seed must be a whole number >= 0 or None, got {seed!r}")
     rng = np.random.default_rng(seed)
@@ -210,7 +223,6 @@ def sample_scenarios(
         patterns = rng.choice(fit.n_patterns, size=n, p=fit.weights).astype(np.int64)
     else:
         patterns = np.full(n, _check_pattern(fit, pattern), dtype=np.int64)
-    psi = distributions(fit)
     counts = psi.sample_counts(n, rng)
     own = {int(k): pattern_positions(fit, int(k), psi) for k in np.unique(patterns)}
     starts = [own[int(k)].sample_positions(int(c), rng) for k, c in zip(patterns, counts)]
@@ -224,10 +236,10 @@ def sample_scenarios(
         dt=float(dt),
         method=method,
         seeds=seeds,
-        roi=fit.roi if roi is None else roi,
+        roi=box,
         low_data_threshold=thr,
     )
     return Scenarios(sims, patterns, counts)
 
 
-__all__ = ["Scenarios", "sample_scenarios", "distributions", "pattern_positions", "MIN_OWN_POSITIONS"]
+__all__ = ["Scenarios", "sample_scenarios", "distributions", "pattern_positions", "MIN_OWN_POSITIONS", "MAX_SCENARIOS"]

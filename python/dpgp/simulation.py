@@ -37,6 +37,12 @@ if TYPE_CHECKING:
 
 LOW_DATA_THRESHOLD = 0.5  # posterior / prior variance above which a point counts as low-data
 
+#: Most rows ((steps + 1) x vehicles, summed over rollouts) one call may record. A row costs
+#: about 50 bytes for one rollout and up to 100 while many are joined, so this is 1-2 GB; a
+#: larger request (say steps=2e8) is refused up front, because the core cannot recover from a
+#: failed allocation (it aborts the interpreter). Simulate in pieces for longer rollouts.
+MAX_ROWS = 20_000_000
+
 _METHODS = ("euler", "rk4")
 
 
@@ -111,17 +117,49 @@ def default_roi(model: Any) -> tuple[float, float, float, float]:
     return frames_roi(model.frames if isinstance(model, FittedPatterns) else model.frames_)
 
 
+def _number(name: str, value: Any) -> float:
+    """``value`` as a float: a real number (not a bool or a string) that a float can hold."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise InvalidInputError(f"{name} must be a number, got {value!r}")
+    try:
+        return float(value)
+    except OverflowError:  # an int beyond the float range, such as 2**1024
+        raise InvalidInputError(f"{name} is beyond the float range (an integer of {len(str(abs(value)))} digits)") from None
+
+
 def _check(steps: Any, method: Any, dt: Any, low_data_threshold: Any) -> tuple[int, str, float | None]:
     if isinstance(steps, (bool, np.bool_)) or not isinstance(steps, (int, np.integer)) or steps < 0:
         raise InvalidInputError(f"steps must be a whole number >= 0, got {steps!r}")
     if method not in _METHODS:
         raise InvalidInputError(f"method must be one of {_METHODS}, got {method!r}")
-    if not (isinstance(dt, (int, float, np.floating, np.integer)) and np.isfinite(dt) and dt > 0):
+    step = _number("dt", dt)
+    if not (np.isfinite(step) and step > 0):
         raise InvalidInputError(f"dt must be a positive number of seconds, got {dt!r}")
-    thr = None if low_data_threshold is None else float(low_data_threshold)
+    if not np.isfinite(step * float(steps)):  # the recorded times t = 0, dt, ..., steps * dt
+        raise InvalidInputError(f"steps * dt must be a finite time, got {steps} steps of {dt!r} s; use a smaller dt")
+    thr = None if low_data_threshold is None else _number("low_data_threshold", low_data_threshold)
     if thr is not None and not (np.isfinite(thr) and thr >= 0):
         raise InvalidInputError(f"low_data_threshold must be >= 0 (a fraction of the prior variance), got {low_data_threshold!r}")
     return int(steps), method, thr
+
+
+def _check_rows(rows: int, what: str, fix: str = "ask for fewer steps or vehicles, or simulate in pieces") -> None:
+    """Refuse a rollout of more than :data:`MAX_ROWS` rows before anything is allocated."""
+    if rows > MAX_ROWS:
+        raise InvalidInputError(
+            f"{what} would record {rows:.3g} rows ((steps + 1) x vehicles), more than the {MAX_ROWS:.0e} one call may hold; {fix}"
+        )
+
+
+def _check_roi(roi: Any) -> tuple[float, float, float, float]:
+    """``(x_min, x_max, y_min, y_max)``: four finite numbers with min < max."""
+    fix = "roi must be (x_min, x_max, y_min, y_max), four finite numbers with x_min < x_max and y_min < y_max"
+    if isinstance(roi, (str, bytes)) or not hasattr(roi, "__len__") or len(roi) != 4:
+        raise InvalidInputError(f"{fix}; got {roi!r}")
+    box = tuple(_number("roi", v) for v in roi)
+    if not (all(np.isfinite(box)) and box[0] < box[1] and box[2] < box[3]):
+        raise InvalidInputError(f"{fix}; got {roi!r}")
+    return box  # type: ignore[return-value]
 
 
 def _check_pattern(fit: FittedPatterns, k: Any) -> int:
@@ -229,6 +267,8 @@ def simulate(
             raise InvalidInputError("frame has positions only: pass pattern=k (there are no velocities to assign it by)")
     k = _check_pattern(fit, pattern)
     steps, method, thr = _check(steps, method, fit.dt if dt is None else dt, low_data_threshold)
+    _check_rows((steps + 1) * len(xy), f"{steps} steps of {len(xy)} vehicle(s)")
+    box = fit.roi if roi is None else _check_roi(roi)
     dt = fit.dt if dt is None else float(dt)
     return rollouts(
         fit,
@@ -238,7 +278,7 @@ def simulate(
         dt=dt,
         method=method,
         seeds=_seeds(seed, 1) if stochastic else None,
-        roi=fit.roi if roi is None else roi,
+        roi=box,
         low_data_threshold=thr,
     )[0]
 
@@ -259,6 +299,8 @@ def integrate_affine(
 
     steps, method, _ = _check(steps, method, dt, None)
     start = as_pairs("xy", xy)
+    _check_rows((steps + 1) * len(start), f"{steps} steps of {len(start)} vehicle(s)")
+    roi = None if roi is None else _check_roi(roi)
     a = as_float_array("a", a)
     b = as_float_array("b", b)
     if a.shape != (2, 2) or b.shape != (2,):
@@ -280,4 +322,4 @@ def integrate_affine(
     )
 
 
-__all__ = ["Simulation", "simulate", "integrate_affine", "default_dt", "default_roi", "DEFAULT_DT", "LOW_DATA_THRESHOLD"]
+__all__ = ["Simulation", "simulate", "integrate_affine", "default_dt", "default_roi", "DEFAULT_DT", "LOW_DATA_THRESHOLD", "MAX_ROWS"]
