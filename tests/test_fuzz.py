@@ -374,6 +374,7 @@ def _unknown_compression(path, out):
     "damage",
     [
         pytest.param(lambda p, o: _declared_shape(p, o, "length_scales", (2**40, 2)), id="declared-shape-2**40"),
+        pytest.param(lambda p, o: _declared_shape(p, o, "frame_xy", (2**20, 2)), id="declared-shape-2**20"),
         pytest.param(lambda p, o: _rewrite(p, o, _edit_metadata("settings", "DEEP")), id="metadata-nested-100000-deep"),
         pytest.param(lambda p, o: _rewrite(p, o, _edit_metadata("settings", float("-inf"))), id="settings-not-a-dict"),
         pytest.param(lambda p, o: _rewrite(p, o, _edit_metadata("history", 3)), id="history-not-a-dict"),
@@ -417,6 +418,7 @@ def _set(member, value, at=None):
         pytest.param(_set("frame_xy", np.inf, (0, 1)), id="frame_xy-inf"),
         pytest.param(_set("frame_xy", 1.7e308), id="frame_xy-1.7e308"),
         pytest.param(_set("length_scales", 0.0), id="length_scales-0"),
+        pytest.param(_set("length_scales", 1e308), id="length_scales-1e308"),
         pytest.param(_edit_metadata("alpha", "x"), id="alpha-x"),
     ],
 )

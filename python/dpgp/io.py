@@ -42,6 +42,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import tokenize
 import zipfile
 import zlib
 from dataclasses import dataclass
@@ -172,6 +173,7 @@ def _read(path: str) -> dict[str, np.ndarray]:
             missing = [k for k in _REQUIRED if k not in npz.files]
             if missing:
                 raise ModelFileError(f"{path} is not a dpgp model file: it lacks {missing}")
+            _check_declared_sizes(path, npz.zip)
             return {k: npz[k] for k in npz.files}
     except ModelFileError:
         raise
@@ -186,6 +188,26 @@ def _read(path: str) -> dict[str, np.ndarray]:
         raise ModelFileError(f"{path} is truncated or corrupted ({type(e).__name__}: {e})") from None
     except MemoryError:
         raise ModelFileError(f"{path} declares an array too large to read; the file is corrupted") from None
+
+
+def _check_declared_sizes(path: str, archive: zipfile.ZipFile) -> None:
+    """Refuse a member whose ``.npy`` header declares more data than the member holds, before
+    numpy allocates it (a flipped bit in a shape asks for terabytes)."""
+    fmt = np.lib.format
+    for info in archive.infolist():
+        with archive.open(info) as fh:
+            try:
+                version = fmt.read_magic(fh)
+                read_header = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+                shape, _, dtype = read_header(fh, max_header_size=10_000)
+            except (ValueError, SyntaxError, TypeError, tokenize.TokenError) as e:  # numpy parses it as Python
+                raise ModelFileError(f"{path}: member {info.filename} has an unreadable header ({e}); the file is corrupted") from None
+        need = int(np.prod(shape, dtype=object)) * dtype.itemsize  # Python ints: no overflow
+        if need > info.file_size:
+            raise ModelFileError(
+                f"{path}: member {info.filename} declares shape {shape} ({need:.3g} bytes) but holds "
+                f"{info.file_size} bytes; the file is corrupted"
+            )
 
 
 def _meta(path: str, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
@@ -328,8 +350,9 @@ def _check_numbers(frames: Any, length_scales: np.ndarray, alpha: Any) -> None:
             raise ModelFileError(
                 f"{name} holds values of magnitude {size:.3g}, beyond the {_MAX_MAGNITUDE:g} a fit accepts; the file is corrupted"
             )
-    if not (np.isfinite(length_scales).all() and (length_scales > 0).all()):
-        raise ModelFileError("length_scales must be finite and positive; the file is corrupted")
+    # Squared length scales must stay normal floats; a fit never comes near these bounds.
+    if not ((length_scales >= 1e-150).all() and (length_scales <= _MAX_MAGNITUDE).all()):
+        raise ModelFileError(f"length_scales must lie in [1e-150, {_MAX_MAGNITUDE:g}]; the file is corrupted")
     if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not (np.isfinite(alpha) and alpha > 0):
         raise ModelFileError(f"alpha must be a positive number, got {alpha!r}; the file is corrupted")
 
