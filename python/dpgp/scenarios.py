@@ -9,6 +9,11 @@ posterior at every step (``stochastic=True``, the default) or follows its mean.
 
 Export: a CSV table ``scenario, vehicle, t, x, y, vx, vy`` and SUMO floating-car data (FCD) XML,
 the trajectory format of the SUMO simulator and its tools (see :meth:`Scenarios.to_sumo`).
+
+Limits: one call generates at most :data:`MAX_SCENARIOS` (10⁵) scenarios, and at most
+:data:`dpgp.simulation.MAX_ROWS` rows counted with φ's largest vehicle count, ``n ×
+max_count × (steps + 1)`` (so whether a call is refused does not depend on the seed). Larger
+requests are an ``InvalidInputError`` before anything is drawn; generate in batches instead.
 """
 
 from __future__ import annotations

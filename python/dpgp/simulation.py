@@ -17,6 +17,11 @@ Cost: following the mean is ``n m`` per step for a pattern of ``n`` observations
 moving vehicles. The low-data flags and the stochastic draws need the posterior covariance,
 ``n² m`` per step; pass ``low_data_threshold=None`` for fast deterministic rollouts of large
 patterns.
+
+Limits: one call records at most :data:`MAX_ROWS` (2·10⁷) rows, ``(steps + 1) × vehicles``
+summed over its rollouts (about 1-2 GB); a larger request is an ``InvalidInputError`` raised
+before anything is allocated. Simulate longer rollouts in pieces, each starting where the last
+ended.
 """
 
 from __future__ import annotations
