@@ -813,11 +813,16 @@ impl Sampler {
             return self.choose_among(i, None, rng, lookahead);
         }
         let old = self.labels[i];
-        if old != NONE && self.settings.assignment == Assignment::Gibbs {
+        if old == NONE {
+            // Sequential initialisation by the full conditional: the informed step needs a
+            // current pattern, and a start close to the posterior saves many sweeps.
+            return self.choose_among(i, None, rng, lookahead);
+        }
+        if self.settings.assignment == Assignment::Gibbs {
             return self.informed_step(i, rng);
         }
-        // Without a current pattern (initialisation), or in MAP mode: the exact choice among
-        // the patterns the cheap score ranks highest, the frame's own, and a new one.
+        // MAP mode: the exact choice among the patterns the cheap score ranks highest, the
+        // frame's own, and a new one.
         let t = Instant::now();
         let f = self.data.frame(i);
         let (cands, logq) = self.proposal(f, old);
