@@ -48,7 +48,10 @@ class DPGP:
         by a cheap score over all patterns (cell means of their velocities) and accepts by the
         exact ratio of the proposed and current patterns, so the chain targets the same
         posterior at a fraction of the cost. ``"full"``: draw from the full conditional (every
-        pattern scored exactly). With ``assignment="map"``, "informed" takes the exact argmax
+        pattern scored exactly). Informed is the default because it gives the most effective
+        samples per second (README, "How it is fast"). Frames without a pattern (the sequential
+        initialisation) are placed by the full conditional; past 1,000 frames the rest join
+        patterns by cheap score. With ``assignment="map"``, "informed" takes the exact argmax
         over the frame's own pattern, the two patterns the cheap score ranks highest, and a new
         one.
     memory_budget : bytes the patterns may hold (an int, or a string such as ``"4GB"``); a fit
