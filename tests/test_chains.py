@@ -166,7 +166,7 @@ def test_a_local_worker_that_dies_is_replaced_and_its_block_rerun(frames, chains
         while time.time() < deadline and not killed:
             workers = [p for p in me.children() if p.pid not in before and "spawn_main" in " ".join(p.cmdline())]
             if len(workers) >= 2:
-                time.sleep(1.0)  # let the first blocks start
+                time.sleep(0.3)  # blocks are submitted; the worker is still starting or running one
                 workers[0].kill()
                 killed.append(workers[0].pid)
             time.sleep(0.05)
