@@ -197,11 +197,8 @@ def test_cli_reports_an_internal_error_in_one_line(monkeypatch, capsys):
     assert err.startswith("dpgp: internal error (IndexError: deep inside)") and err.count("\n") == 1
 
 
-# --- open defects in files owned by others (model.py, io.py, simulation.py, scenarios.py,
-# defaults.py, the Rust core), each the smallest reproducer the fuzz led to. They must end in a
-# typed error or a finite result; until they do, they are expected failures.
-def open_defect(where: str, what: str):
-    return pytest.mark.xfail(strict=False, reason=f"open defect in {where}: {what} (found by the fuzz, issue 11)")
+# --- defects the fuzz found in model.py, defaults.py and the core, each as the smallest
+# reproducer it led to: each must end in a typed error or a finite result.
 
 
 @pytest.fixture(scope="module")
@@ -225,10 +222,10 @@ def _fit(frames=None, **settings):
 @pytest.mark.parametrize(
     "settings",
     [
-        pytest.param(dict(n_iter_no_change="x"), marks=open_defect("model.py", "TypeError in _check_settings")),
-        pytest.param(dict(seed="s"), marks=open_defect("model.py", "ValueError in _new_sampler")),
-        pytest.param(dict(seed=None), marks=open_defect("model.py", "TypeError in _new_sampler")),
-        pytest.param(dict(length_scale_fraction="x"), marks=open_defect("model.py", "ValueError in _new_sampler")),
+        pytest.param(dict(n_iter_no_change="x")),
+        pytest.param(dict(seed="s")),
+        pytest.param(dict(seed=None)),
+        pytest.param(dict(length_scale_fraction="x")),
         pytest.param(dict(new_pattern_samples=2**64), id="new_pattern_samples-2**64"),  # was OverflowError: fixed in 6e25ea6
     ],
 )
@@ -237,7 +234,6 @@ def test_open_fit_settings_raise_typed(settings):
         _fit(**settings)
 
 
-@open_defect("defaults.py", "OverflowError in vehicle_spacing for coordinates near 1e300")
 def test_open_auto_prior_on_huge_coordinates():
     frames = dpgp.Frames.from_arrays([0, 0, 0], [-2e301, -3e301, 2.7e301], [1.0, 1, 1], [1.0, 2, 3], [0.0, 1, 0.5])
     with pytest.raises(dpgp.InvalidInputError):
@@ -251,7 +247,6 @@ def test_open_auto_prior_on_huge_coordinates():
         pytest.param(None, dict(mean=1e300), id="mean-1e300"),
     ],
 )
-@open_defect("model.py / rust", "a log joint density of -inf, no error")
 def test_open_fit_with_huge_values_is_finite_or_refused(frames, settings):
     try:
         model = _fit(frames, **settings)
@@ -269,7 +264,6 @@ def test_open_fit_with_huge_values_is_finite_or_refused(frames, settings):
         pytest.param(lambda m: m.conditional_log_probs(None), id="conditional_log_probs-None"),
     ],
 )
-@open_defect("model.py", "TypeError, IndexError or a bare ValueError from numpy or the binding")
 def test_open_model_use_arguments_raise_typed(tiny, call):
     with pytest.raises(dpgp.InvalidInputError):
         call(tiny[0])
@@ -315,7 +309,6 @@ def test_simulation_size_caps_refuse_before_any_work(tiny):
     "method, vx, vy",
     [("predict_proba", 1e200, 0.0), ("score_samples", 0.0, 1e300)],
 )
-@open_defect("model.py / rust", "NaN probabilities or log densities for velocities near the float range")
 def test_open_scores_of_huge_velocities_are_finite_or_refused(tiny, method, vx, vy):
     frames = dpgp.Frames.from_arrays([0, 0], [0.0, 1], [0.0, 1], [vx, -vx], [vy, -vy])
     try:
