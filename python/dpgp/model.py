@@ -211,6 +211,11 @@ class DPGP:
         f = self.length_scale_fraction
         if isinstance(f, bool) or not isinstance(f, (int, float, np.integer, np.floating)) or not 0 < f <= 1:
             raise InvalidInputError(f"length_scale_fraction must be a number in (0, 1], got {f!r}")
+        al = self.alpha
+        if al is not None and (
+            isinstance(al, bool) or not isinstance(al, (int, float, np.integer, np.floating)) or not 0 < al < float("inf")
+        ):
+            raise InvalidInputError(f"alpha must be None (sampled) or a positive number, got {al!r}")
         t = self.ari_tol
         if isinstance(t, bool) or not isinstance(t, (int, float, np.integer, np.floating)) or not 0 <= t <= 1:
             raise InvalidInputError(f"ari_tol must be a number in [0, 1], got {t!r}")
