@@ -21,3 +21,7 @@ pub mod simulate;
 pub mod slice;
 pub mod small;
 pub mod special;
+
+#[cfg(test)]
+#[path = "tests/util.rs"]
+mod test_util;

@@ -1,30 +1,6 @@
 use super::*;
 use crate::gp;
-
-fn frames(seed: u64, count: usize) -> Vec<(Vec<Point>, Vec<[f64; 2]>)> {
-    let mut s = seed;
-    let mut u = move || {
-        s = s
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (s >> 11) as f64 / (1u64 << 53) as f64
-    };
-    (0..count)
-        .map(|_| {
-            let l = 2 + (u() * 6.0) as usize;
-            let xy: Vec<Point> = (0..l).map(|_| [u() * 30.0, u() * 100.0]).collect();
-            let v = xy
-                .iter()
-                .map(|p| [(p[1] / 20.0).sin() + u(), 20.0 + p[0] / 5.0 + u()])
-                .collect();
-            (xy, v)
-        })
-        .collect()
-}
-
-fn refs(fs: &[(Vec<Point>, Vec<[f64; 2]>)]) -> Vec<FrameRef<'_>> {
-    fs.iter().map(|(xy, v)| FrameRef { xy, v }).collect()
-}
+use crate::test_util::{frames, refs};
 
 #[test]
 fn incremental_updates_match_fresh_factors() {
