@@ -241,3 +241,16 @@ def test_cli_fits_chains_saves_the_point_estimate_and_info_shows_the_diagnostics
     assert "chains: 2 × 8 sweeps, burn-in 4" in text and "R̂: log joint" in text and "ESS bulk" in text
     assert cli.main(["fit", str(data), "-o", str(out), "--until-converged", "--no-progress"]) == 1
     assert "go with --chains" in capsys.readouterr().err
+
+
+def test_every_block_and_the_best_model_keep_the_likelihood_of_the_first(frames):
+    """Blocks after the first rebuild the model from its state: they must sample the model the
+    first block chose (here hsgp, with its basis), and so must the point-estimate model, also
+    when no setting was left to "auto"."""
+    ch = dpgp.fit_chains(frames, 2, iterations=8, block=4, seed=2, progress=False, likelihood="hsgp",
+                         noise_var=0.49, length_scale_prior=(10.0, 1.0))  # fmt: skip
+    basis = ch.models[0].basis_
+    assert basis is not None
+    assert all(m.likelihood_ == "hsgp" and m.basis_ == basis for m in ch.models)
+    best = ch.best_model()
+    assert best.likelihood_ == "hsgp" and best.basis_ == basis

@@ -61,6 +61,9 @@ class _State:
     alpha: float
     params: dict[str, Any]  # the GP parameters fit derived from the frames
     resolved: dict[str, Any] | None  # "auto" settings as the first block resolved them
+    # The likelihood and basis the first block chose (likelihood="auto"): every later block
+    # must sample the same model.
+    engine: dict[str, Any] | None = None
 
 
 @dataclass
@@ -89,7 +92,10 @@ def _state_of(model: Any) -> _State:
     # point-estimate model are rebuilt with these values, never by estimating them again.
     defaults = getattr(model, "defaults_", None)
     resolved = None if defaults is None else defaults.to_dict()
-    return _State(model.labels_.copy(), model.length_scales_.copy(), float(model.alpha_), params, resolved)
+    from .io import _engine_dict
+
+    engine = _engine_dict(model)
+    return _State(model.labels_.copy(), model.length_scales_.copy(), float(model.alpha_), params, resolved, engine)
 
 
 def _model_at(frames: Frames, settings: dict[str, Any], state: _State, extra_meta: dict[str, Any] | None = None) -> Any:
@@ -104,6 +110,7 @@ def _model_at(frames: Frames, settings: dict[str, Any], state: _State, extra_met
         "resolved": state.resolved,
         "params": state.params,
         "alpha": state.alpha,
+        "engine": state.engine,
         "frames_summary": None if summary is None else summary.to_dict(),
         **(extra_meta or {}),
     }
@@ -688,8 +695,12 @@ class Chains:
         return self._models
 
     def _model(self, state: _State, **extra: Any) -> Any:
-        settings = {**self.settings, "seed": self.seed, "iterations": self.n_sweeps, "progress": False}
-        return _model_at(self.frames, settings, replace(state, resolved=self.resolved), extra)
+        from .model import DPGP
+
+        # Every setting (defaults included): a model file's fallback reads them when nothing was
+        # left to "auto".
+        settings = {**DPGP().get_params(), **self.settings, "seed": self.seed, "iterations": self.n_sweeps, "progress": False}
+        return _model_at(self.frames, settings, replace(state, resolved=self.resolved or state.resolved), extra)
 
     def summary_dict(self, loss: str = "vi") -> dict[str, Any]:
         """What a model file keeps of the chains: R̂, ESS, burn-in, the stopping verdict and the
@@ -722,7 +733,8 @@ class Chains:
         est = self.point_estimate(loss)
         ls = _matching_length_scales(est.labels, self._states)
         alpha = float(np.median(self.draws("alpha")))
-        state = _State(est.labels.astype(np.int64), ls, alpha, self._states[0].params, None)
+        first = self._states[0]
+        state = _State(est.labels.astype(np.int64), ls, alpha, first.params, None, first.engine)
         model = self._model(state, history={}, n_iter=self.n_sweeps, converged=bool(self.converged_))
         model.chain_summary_ = self.summary_dict(loss)
         if keep_traces:
