@@ -17,15 +17,9 @@ use dpgp_core::kernel::{LengthScales, Point};
 use dpgp_core::pattern::FrameRef;
 use dpgp_core::proposal::{CellGrid, CellStats};
 
-struct Gen(u64);
-impl Gen {
-    fn u(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
+#[path = "common.rs"]
+mod common;
+use common::Gen;
 
 /// `count` highway-like frames of `l` vehicles on a 72 x 200 ROI.
 fn frames(count: usize, l: usize) -> Vec<(Vec<Point>, Vec<[f64; 2]>)> {

@@ -14,15 +14,9 @@ use dpgp_core::kernel::Point;
 use dpgp_core::pattern::{FrameRef, Pattern};
 use dpgp_core::pattern_model::Likelihood;
 
-struct Gen(u64);
-impl Gen {
-    fn u(&mut self) -> f64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
+#[path = "common.rs"]
+mod common;
+use common::Gen;
 
 /// `count` highway-like frames of `l` vehicles in 4 lanes; odd frames change lanes.
 fn frames(count: usize, l: usize, seed: u64) -> Vec<(Vec<Point>, Vec<[f64; 2]>)> {

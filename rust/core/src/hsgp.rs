@@ -416,9 +416,8 @@ impl HsgpPattern {
 
     /// Add (`sign = 1`) or subtract (`sign = −1`) one frame's contribution to the statistics.
     /// Adding also records the frame; subtracting leaves the bookkeeping to the caller.
-    fn add_stats(&mut self, id: usize, f: FrameRef<'_>, sign: f64) {
+    fn add_stats(&mut self, id: usize, f: FrameRef<'_>, phi_t: &[f64], sign: f64) {
         let (m, l) = (self.m(), f.xy.len());
-        let phi_t = self.basis.features(f.xy);
         let pt = MatRef::from_column_major_slice(&phi_t, m, l);
         matmul(
             MatMut::from_column_major_slice_mut(&mut self.gram, m, m),
@@ -428,7 +427,7 @@ impl HsgpPattern {
             sign,
             Par::Seq,
         );
-        self.add_vectors(&phi_t, f, sign);
+        self.add_vectors(phi_t, f, sign);
         if sign > 0.0 {
             self.record(id, f);
         }
@@ -543,14 +542,19 @@ impl HsgpPattern {
         total
     }
 
+    /// `D Φᵀ` for a group's signal variance (M x n, column-major like `phi_t`).
+    fn scaled_features(&self, signal_var: f64, phi_t: &[f64]) -> Vec<f64> {
+        let d = self.d(signal_var);
+        phi_t
+            .chunks(self.m())
+            .flat_map(|col| col.iter().zip(&d).map(|(p, d)| p * d))
+            .collect()
+    }
+
     /// `U = R⁻¹ D Φᵀ` for the points (M x n) of one group.
     fn whitened_features(&self, g: &Group, phi_t: &[f64], n: usize) -> Vec<f64> {
         let m = self.m();
-        let d = self.d(g.signal_var);
-        let mut u: Vec<f64> = phi_t
-            .chunks(m)
-            .flat_map(|col| col.iter().zip(&d).map(|(p, d)| p * d))
-            .collect();
+        let mut u = self.scaled_features(g.signal_var, phi_t);
         solve_lower_triangular_in_place(
             g.r(m),
             MatMut::from_column_major_slice_mut(&mut u, m, n),
@@ -667,11 +671,7 @@ impl HsgpPattern {
         let m = self.m();
         let mut ok = true;
         for gi in 0..self.groups.len() {
-            let d = self.d(self.groups[gi].signal_var);
-            let mut w: Vec<f64> = phi_t
-                .chunks(m)
-                .flat_map(|col| col.iter().zip(&d).map(|(p, d)| p * d))
-                .collect();
+            let mut w = self.scaled_features(self.groups[gi].signal_var, phi_t);
             let mut alpha = Diag::<f64>::full(l, sign);
             let g = &mut self.groups[gi];
             ok &= rank_r_update_clobber(
@@ -694,8 +694,8 @@ impl HsgpPattern {
 
     /// Add frame `id` (not already here): `O(l M²)`.
     pub fn insert(&mut self, id: usize, f: FrameRef<'_>) -> Result<()> {
-        self.add_stats(id, f, 1.0);
         let phi_t = self.basis.features(f.xy);
+        self.add_stats(id, f, &phi_t, 1.0);
         if self.update_factors(&phi_t, f.xy.len(), 1.0) {
             self.rewhiten();
             Ok(())
@@ -712,14 +712,12 @@ impl HsgpPattern {
         };
         let start: usize = self.sizes[..pos].iter().sum();
         let l = self.sizes[pos];
-        let xy: Vec<Point> = self.xy[start..start + l].to_vec();
-        let v: Vec<[f64; 2]> = self.v[start..start + l].to_vec();
-        self.add_stats(id, FrameRef { xy: &xy, v: &v }, -1.0);
+        let xy: Vec<Point> = self.xy.drain(start..start + l).collect();
+        let v: Vec<[f64; 2]> = self.v.drain(start..start + l).collect();
+        let phi_t = self.basis.features(&xy);
+        self.add_stats(id, FrameRef { xy: &xy, v: &v }, &phi_t, -1.0);
         self.frames.remove(pos);
         self.sizes.remove(pos);
-        self.xy.drain(start..start + l);
-        self.v.drain(start..start + l);
-        let phi_t = self.basis.features(&xy);
         if self.update_factors(&phi_t, l, -1.0) {
             self.rewhiten();
             Ok(true)
@@ -790,14 +788,13 @@ impl HsgpPattern {
     pub fn predict_mean(&self, q: &[Point]) -> Vec<[f64; 2]> {
         let m = self.m();
         let mut out = vec![self.params.mean; q.len()];
-        for block in (0..q.len()).collect::<Vec<_>>().chunks(1024) {
-            let pts: Vec<Point> = block.iter().map(|&i| q[i]).collect();
-            let phi_t = self.basis.features(&pts);
+        for (block, out) in q.chunks(1024).zip(out.chunks_mut(1024)) {
+            let phi_t = self.basis.features(block);
             for (g, a) in self.groups.iter().zip(self.weights()) {
                 for (c, &d) in g.outs.iter().enumerate() {
                     let ad = &a[c * m..(c + 1) * m];
-                    for (&i, col) in block.iter().zip(phi_t.chunks(m)) {
-                        out[i][d] += col.iter().zip(ad).map(|(x, y)| x * y).sum::<f64>();
+                    for (o, col) in out.iter_mut().zip(phi_t.chunks(m)) {
+                        o[d] += col.iter().zip(ad).map(|(x, y)| x * y).sum::<f64>();
                     }
                 }
             }

@@ -77,33 +77,6 @@ impl Pattern {
         Ok(p)
     }
 
-    /// The same frames with the signal variances and means set to those of its own velocities
-    /// (variances floored at `floor`), refactored; `None` if they are unchanged.
-    pub fn with_own_moments(&self, floor: [f64; 2]) -> Result<Option<Self>> {
-        let n = self.v.len() as f64;
-        let mut mean = [0.0; 2];
-        let mut var = [0.0; 2];
-        for d in 0..2 {
-            mean[d] = self.v.iter().map(|r| r[d]).sum::<f64>() / n;
-            var[d] =
-                (self.v.iter().map(|r| (r[d] - mean[d]).powi(2)).sum::<f64>() / n).max(floor[d]);
-        }
-        if var == self.params.signal_var && mean == self.params.mean {
-            return Ok(None);
-        }
-        self.with_params(GpParams {
-            signal_var: var,
-            mean,
-            ..self.params
-        })
-        .map(Some)
-    }
-
-    /// The same frames under other length scales (a fresh factorisation).
-    pub fn with_length_scales(&self, ls: LengthScales) -> Result<Self> {
-        self.with_params(self.params.with_length_scales(ls))
-    }
-
     /// The same frames under other hyperparameters (a fresh factorisation).
     pub fn with_params(&self, params: GpParams) -> Result<Self> {
         let mut p = Self {
