@@ -302,6 +302,12 @@ impl Sampler {
         self.sweep
     }
 
+    /// Set the sweep counter (a resumed chain): the random streams are keyed by
+    /// (seed, sweep, phase, entity), so this is the whole position of the random stream.
+    pub fn set_sweeps_done(&mut self, sweeps: u64) {
+        self.sweep = sweeps;
+    }
+
     fn fresh_version(&mut self) -> u64 {
         self.next_version += 1;
         self.next_version

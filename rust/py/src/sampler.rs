@@ -271,6 +271,16 @@ impl PySampler {
         self.lock().alpha()
     }
 
+    /// Sweeps done so far: with the seed, the position of the random stream.
+    fn sweeps_done(&self) -> u64 {
+        self.lock().sweeps_done()
+    }
+
+    /// Continue as if `sweeps` sweeps had been done (a resumed chain).
+    fn set_sweeps_done(&self, sweeps: u64) {
+        self.lock().set_sweeps_done(sweeps)
+    }
+
     fn log_joint(&self) -> f64 {
         self.lock().log_joint()
     }
