@@ -61,7 +61,7 @@ fn bench(c: &mut Criterion) {
 
     // Kernel + factor + 2 solves: one matrix shared by both outputs (equal signal variances).
     let mut g = c.benchmark_group("log_marginal_likelihood");
-    let p = GpParams::new((10.0, 40.0), (4.0, 4.0), 1.0, (0.0, 30.0)).unwrap();
+    let p = GpParams::new((10.0, 40.0), (4.0, 4.0), (1.0, 1.0), (0.0, 30.0)).unwrap();
     for n in [100usize, 1000, 4000] {
         let (xy, v) = points(n);
         g.throughput(Throughput::Elements((n * n * n / 3 + 4 * n * n) as u64));

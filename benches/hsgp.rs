@@ -47,7 +47,7 @@ fn bench(c: &mut Criterion) {
     let fs = frames(1001, 15);
     let refs: Vec<FrameRef> = fs.iter().map(|(xy, v)| FrameRef { xy, v }).collect();
     let members: Vec<(usize, FrameRef)> = (0..1000).map(|i| (i, refs[i])).collect();
-    let p = GpParams::new((10.0, 10.0), (1.0, 30.0), 1.0, (0.5, 38.0)).unwrap();
+    let p = GpParams::new((10.0, 10.0), (1.0, 30.0), (1.0, 1.0), (0.5, 38.0)).unwrap();
     let mut score = c.benchmark_group("hsgp_score");
     let sizes = [(10, 20), (20, 30), (21, 45)];
     let patterns: Vec<HsgpPattern> = sizes

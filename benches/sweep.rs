@@ -46,7 +46,7 @@ fn frames(count: usize, l: usize, seed: u64) -> Vec<(Vec<Point>, Vec<[f64; 2]>)>
 }
 
 fn params() -> GpParams {
-    GpParams::new((10.0, 40.0), (1.0, 30.0), 1.0, (0.5, 38.0)).unwrap()
+    GpParams::new((10.0, 40.0), (1.0, 30.0), (1.0, 1.0), (0.5, 38.0)).unwrap()
 }
 
 fn bench(c: &mut Criterion) {

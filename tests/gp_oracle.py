@@ -33,12 +33,12 @@ def mvn_logpdf(r: np.ndarray, cov: np.ndarray) -> float:
 def log_marginal_likelihood(xy, v, p) -> float:
     s2, sn2, mu = p.signal_var, p.noise_var, p.mean
     R = kernel(p, xy, xy)
-    return sum(mvn_logpdf(v[:, d] - mu[d], s2[d] * R + sn2 * np.eye(len(xy))) for d in range(2))
+    return sum(mvn_logpdf(v[:, d] - mu[d], s2[d] * R + sn2[d] * np.eye(len(xy))) for d in range(2))
 
 
 def predictive_moments(train_xy, train_v, test_xy, p, d):
     """Mean and covariance of the noisy test velocities of output d given the training data."""
-    s2, sn2, mu = p.signal_var[d], p.noise_var, p.mean[d]
+    s2, sn2, mu = p.signal_var[d], p.noise_var[d], p.mean[d]
     K = s2 * kernel(p, train_xy, train_xy) + sn2 * np.eye(len(train_xy))
     Ks = s2 * kernel(p, train_xy, test_xy)
     Kss = s2 * kernel(p, test_xy, test_xy) + sn2 * np.eye(len(test_xy))
@@ -64,7 +64,7 @@ def posterior(train_xy, train_v, query_xy, p):
     mean = np.empty((len(query_xy), 2))
     var = np.empty((len(query_xy), 2))
     for d in range(2):
-        c = cho_factor(s2[d] * R + sn2 * np.eye(len(train_xy)), lower=True)
+        c = cho_factor(s2[d] * R + sn2[d] * np.eye(len(train_xy)), lower=True)
         Ks = s2[d] * Rq
         mean[:, d] = mu[d] + Ks.T @ cho_solve(c, train_v[:, d] - mu[d])
         var[:, d] = s2[d] * prior - np.einsum("ij,ij->j", Ks, cho_solve(c, Ks))

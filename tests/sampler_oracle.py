@@ -29,17 +29,20 @@ class Params:
 
     length_scales: tuple[float, float]
     signal_var: tuple[float, float]
-    noise_var: float = 1.0
+    noise_var: tuple[float, float] = (1.0, 1.0)  # one number: both outputs
     mean: tuple[float, float] = (0.0, 0.0)
     #: A dpgp.hsgp.Basis for the reduced-rank kernel; None for the squared exponential.
     basis: object = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "noise_var", tuple(map(float, np.broadcast_to(self.noise_var, 2))))
 
 
 def default_params(frames, length_scales, noise_var=1.0, signal_var=None, mean=None) -> Params:
     """The estimator's defaults: variance (ddof=0) and mean of each output over all rows."""
     sv = np.var(frames.v, axis=0) if signal_var is None else np.broadcast_to(signal_var, 2)
     mu = frames.v.mean(axis=0) if mean is None else np.broadcast_to(mean, 2)
-    return Params(tuple(map(float, length_scales)), tuple(map(float, sv)), float(noise_var), tuple(map(float, mu)))
+    return Params(tuple(map(float, length_scales)), tuple(map(float, sv)), noise_var, tuple(map(float, mu)))
 
 
 # --- partitions and labels --------------------------------------------------------------------

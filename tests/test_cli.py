@@ -79,7 +79,8 @@ def test_info(model_file, capsys):
     model = dpgp.DPGP.load(model_file)
     assert f"dpgp-model format {FORMAT_VERSION}" in out and "36 frames" in out
     assert f"patterns: {model.n_patterns_}" in out and "settings:" in out
-    assert f"resolved: noise variance {model.noise_var_:.4g} (auto)" in out
+    n = model.noise_var_
+    assert f"resolved: noise variance ({n[0]:.4g}, {n[1]:.4g}) (auto)" in out
 
 
 def test_plot(model_file, tmp_path, capsys):

@@ -46,19 +46,26 @@ def test_refine_grid_finds_the_vertex_of_a_parabola_in_log_noise():
     assert defaults.refine_grid(grid, np.r_[np.nan, scores[1:]]) == pytest.approx(0.013, rel=1e-9)
 
 
-def test_estimate_noise_var_scores_the_grid_relative_to_the_velocity_variance(small):
+def test_estimate_noise_var_scans_fractions_of_each_components_variance(small):
+    """Coordinate ascent over ρ = noise / signal variance: both together, then x, then y; on a
+    score separable and quadratic in log σ_n² the parabola refinement lands on the optimum."""
     calls = []
 
     def pilot(train, test, noise, prior):
         calls.append((len(train), len(test), noise, prior))
-        return -((np.log(noise) - np.log(0.05)) ** 2)
+        return -((np.log(noise[0]) - np.log(0.05)) ** 2) - 0.5 * (np.log(noise[1]) - np.log(3.0)) ** 2
 
-    sv = (2.0, 6.0)
-    noise, scores = defaults.estimate_noise_var(small, sv, (10.0, 0.5), pilot)
-    assert [c[2] for c in calls] == pytest.approx([g * 4.0 for g in defaults.NOISE_GRID])
+    sv, grid = (2.0, 6.0), list(defaults.NOISE_GRID)
+    noise, trace = defaults.estimate_noise_var(small, sv, (10.0, 0.5), pilot)
     assert {(c[0], c[1], c[3]) for c in calls} == {(28, 12, (10.0, 0.5))}  # 70/30 in time
-    assert noise == pytest.approx(0.05, rel=1e-9)
-    assert [s for _, s in scores] == pytest.approx([-((np.log(4.0 * g) - np.log(0.05)) ** 2) for g in defaults.NOISE_GRID])
+    assert len(calls) == len(trace) == 3 * len(grid)
+    rho = np.array([c[2] for c in calls]) / sv
+    n = len(grid)
+    assert rho[:n, 0] == pytest.approx(grid) and rho[:n, 1] == pytest.approx(grid)  # one ρ for both
+    assert rho[n : 2 * n, 0] == pytest.approx(grid) and np.ptp(rho[n : 2 * n, 1]) == 0  # then x
+    assert rho[2 * n :, 1] == pytest.approx(grid) and rho[2 * n :, 0] == pytest.approx(0.05 / 2.0)  # then y
+    assert noise == pytest.approx((0.05, 3.0), rel=1e-9)
+    assert [t[:2] for t in trace] == [pytest.approx(tuple(r)) for r in rho]
 
 
 def test_spread_takes_frames_evenly_in_order(small):
@@ -74,21 +81,21 @@ def test_auto_values_scale_with_the_units(small):
     b = defaults.resolve(scaled(small, FT), **kw)
     assert b.length_scale_prior[0] == a.length_scale_prior[0]
     assert b.length_scale_prior[1] == pytest.approx(a.length_scale_prior[1] * FT, rel=1e-12)
-    assert b.noise_var == pytest.approx(a.noise_var * FT**2, rel=1e-6)
+    assert b.noise_var == pytest.approx(tuple(np.array(a.noise_var) * FT**2), rel=1e-6)
     # the pilots' held-out scores move by the Jacobian of the change of units only
     n_test = defaults.spread(small, defaults.PILOT_FRAMES)[28:].n_points
-    for (na, sa), (nb, sb) in zip(a.noise_scores, b.noise_scores):
-        assert nb == pytest.approx(na * FT**2, rel=1e-12) and sb == pytest.approx(sa - 2 * n_test * np.log(FT), abs=1e-6)
+    for (*ra, sa), (*rb, sb) in zip(a.noise_scores, b.noise_scores):
+        assert rb == pytest.approx(ra, rel=1e-9) and sb == pytest.approx(sa - 2 * n_test * np.log(FT), abs=1e-6)
     assert (a.noise_var_source, a.length_scale_prior_source) == ("auto", "auto")
 
 
 def test_explicit_values_and_the_paper_preset(small):
     r = defaults.resolve(small, preset=None, assignment="gibbs", noise_var=0.5, length_scale_prior=(3, 2))
-    assert (r.noise_var, r.length_scale_prior, r.assignment) == (0.5, (3.0, 2.0), "gibbs")
+    assert (r.noise_var, r.length_scale_prior, r.assignment) == ((0.5, 0.5), (3.0, 2.0), "gibbs")
     p = defaults.resolve(small, preset="paper", assignment="gibbs", noise_var="auto", length_scale_prior="auto")
-    assert (p.noise_var, p.length_scale_prior, p.assignment) == (1.0, (10.0, 1.0), "map")
-    q = defaults.resolve(small, preset="paper", assignment="gibbs", noise_var=0.2, length_scale_prior="auto")
-    assert (q.noise_var, q.noise_var_source, q.length_scale_prior_source) == (0.2, "user", "paper")
+    assert (p.noise_var, p.length_scale_prior, p.assignment) == ((1.0, 1.0), (10.0, 1.0), "map")
+    q = defaults.resolve(small, preset="paper", assignment="gibbs", noise_var=(0.2, 3.0), length_scale_prior="auto")
+    assert (q.noise_var, q.noise_var_source, q.length_scale_prior_source) == ((0.2, 3.0), "user", "paper")
 
 
 @pytest.mark.parametrize(
@@ -97,6 +104,8 @@ def test_explicit_values_and_the_paper_preset(small):
         (dict(noise_var="big"), "noise_var"),
         (dict(noise_var=-1.0), "noise_var"),
         (dict(noise_var=float("nan")), "noise_var"),
+        (dict(noise_var=(1.0, 2.0, 3.0)), "noise_var"),
+        (dict(noise_var=(1.0, 0.0)), "noise_var"),
         (dict(length_scale_prior="wide"), "length_scale_prior"),
         (dict(length_scale_prior=(10.0, 0.0)), "length_scale_prior"),
         (dict(preset="book"), "preset"),
@@ -110,7 +119,7 @@ def test_bad_settings_raise_typed_errors(small, kw, match):
 def test_paper_preset_is_the_paper_settings(small):
     a = dpgp.DPGP.paper(iterations=3, seed=1, progress=False).fit(small)
     b = dpgp.DPGP(iterations=3, seed=1, progress=False, assignment="map", noise_var=1.0, length_scale_prior=(10.0, 1.0)).fit(small)
-    assert (a.assignment_, a.noise_var_, a.length_scale_prior_) == ("map", 1.0, (10.0, 1.0))
+    assert (a.assignment_, a.noise_var_, a.length_scale_prior_) == ("map", (1.0, 1.0), (10.0, 1.0))
     assert a.preset == "paper" and "preset='paper'" in repr(a)
     np.testing.assert_array_equal(a.labels_, b.labels_)
     np.testing.assert_allclose(a.length_scales_, b.length_scales_)
@@ -142,7 +151,7 @@ def test_us101_feet_to_metres_gives_the_same_fit(us101_path, proposal):
     train, test = frames[:90], frames[90:]
     ft = dpgp.DPGP(iterations=4, seed=3, progress=False, proposal=proposal).fit(train)
     m = dpgp.DPGP(iterations=4, seed=3, progress=False, proposal=proposal).fit(scaled(train, FT))
-    assert m.noise_var_ == pytest.approx(ft.noise_var_ * FT**2, rel=1e-6)
+    assert m.noise_var_ == pytest.approx(tuple(np.array(ft.noise_var_) * FT**2), rel=1e-6)
     assert dpgp.adjusted_rand_index(ft.labels_, m.labels_) >= 0.95
     jac = 2 * test.sizes * np.log(FT)
     np.testing.assert_allclose(m.score_samples(scaled(test, FT), positions=False), ft.score_samples(test, positions=False) - jac, rtol=1e-6, atol=1e-4)

@@ -74,13 +74,15 @@ def test_single_gp_takes_the_best_held_out_grid_point():
     cut = int(round(0.7 * len(sub)))
     var, mu = tuple(train.v.var(axis=0)), tuple(train.v.mean(axis=0))
     spacing = dpgp.defaults.vehicle_spacing(train)
-    grid = np.asarray(dpgp.defaults.NOISE_GRID) * np.mean(var)
+    grid = np.asarray(dpgp.defaults.NOISE_GRID)  # noise variance / signal variance, per component
     scores = np.array([[
-        sum(ref_pred(sub[:cut].xy, sub[:cut].v, f.xy, f.v, dpgp.GPParams((w * spacing,) * 2, var, n, mu)) for f in sub[cut:])
-        for n in grid] for w in ev.LENGTH_GRID])  # fmt: skip
+        sum(ref_pred(sub[:cut].xy, sub[:cut].v, f.xy, f.v, dpgp.GPParams((w * spacing,) * 2, var, rho * np.array(var), mu))
+            for f in sub[cut:])
+        for rho in grid] for w in ev.LENGTH_GRID])  # fmt: skip
     i = np.unravel_index(np.argmax(scores), scores.shape)[0]
     assert g.params.length_scales == pytest.approx((ev.LENGTH_GRID[i] * spacing,) * 2)
-    assert g.params.noise_var == pytest.approx(dpgp.defaults.refine_grid(grid, scores[i]), rel=1e-6)
+    rho = dpgp.defaults.refine_grid(grid, scores[i])
+    assert g.params.noise_var == pytest.approx(tuple(rho * np.array(var)), rel=1e-6)
 
 
 def test_table_log_densities_match_the_oracles(fitted):

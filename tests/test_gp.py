@@ -22,7 +22,7 @@ def random_problem(n: int, seed: int):
     p = GPParams(
         length_scales=(rng.uniform(2, 30), rng.uniform(5, 80)),
         signal_var=(rng.uniform(0.2, 5), rng.uniform(1, 60)),
-        noise_var=rng.uniform(0.05, 2),
+        noise_var=(rng.uniform(0.05, 2), rng.uniform(0.05, 2)),
         mean=(rng.normal(), rng.uniform(20, 50)),
     )
     return xy, v, p
@@ -59,10 +59,18 @@ def test_posterior_matches_numpy(n):
 
 def test_equal_signal_variances_share_one_factor_and_agree():
     xy, v, p = random_problem(300, seed=7)
-    shared = GPParams(p.length_scales, signal_var=3.0, noise_var=p.noise_var, mean=p.mean)
+    shared = GPParams(p.length_scales, signal_var=3.0, noise_var=p.noise_var[0], mean=p.mean)
     assert dpgp.gp.log_marginal_likelihood(xy, v, shared) == pytest.approx(ref_lml(xy, v, shared), rel=RTOL)
     got = dpgp.gp.log_predictive(xy[:280], v[:280], xy[280:], v[280:], shared)
     assert got == pytest.approx(ref_pred(xy[:280], v[:280], xy[280:], v[280:], shared), rel=RTOL)
+
+
+def test_equal_signal_and_unequal_noise_use_one_factor_per_output():
+    xy, v, p = random_problem(300, seed=8)
+    split = GPParams(p.length_scales, signal_var=3.0, noise_var=(0.9, 0.05), mean=p.mean)
+    assert dpgp.gp.log_marginal_likelihood(xy, v, split) == pytest.approx(ref_lml(xy, v, split), rel=RTOL)
+    got = dpgp.gp.log_predictive(xy[:280], v[:280], xy[280:], v[280:], split)
+    assert got == pytest.approx(ref_pred(xy[:280], v[:280], xy[280:], v[280:], split), rel=RTOL)
 
 
 def test_predictive_equals_ratio_of_marginals():

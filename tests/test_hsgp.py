@@ -64,7 +64,8 @@ def random_case(rng, n, equal_signal):
     xy = np.column_stack([rng.uniform(-20, 20, n), rng.uniform(0, 60, n)])
     v = np.column_stack([np.sin(xy[:, 1] / 9) + rng.normal(0, 0.5, n), 3 + xy[:, 0] / 8 + rng.normal(0, 0.5, n)])
     sv = (2.0, 2.0) if equal_signal else (0.7, 3.0)
-    p = so.Params((rng.uniform(3, 9), rng.uniform(5, 15)), sv, rng.uniform(0.2, 1.5), (0.3, 2.0))
+    noise = rng.uniform(0.2, 1.5, size=2) if rng.random() < 0.5 else rng.uniform(0.2, 1.5)
+    p = so.Params((rng.uniform(3, 9), rng.uniform(5, 15)), sv, noise, (0.3, 2.0))
     basis = Basis((0.0, 30.0), (35.0, 50.0), (int(rng.integers(3, 14)), int(rng.integers(3, 14))))
     return xy, v, p, basis
 

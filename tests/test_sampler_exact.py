@@ -70,13 +70,16 @@ def check_conditionals(m: dpgp.DPGP, frames, p: so.Params, frames_to_check) -> i
     return alone
 
 
-SIGNALS = {"default": None, "equal": (2.0, 2.0), "unequal": (0.5, 3.0)}
+SIGNALS = {"default": None, "equal": (2.0, 2.0), "unequal": (0.5, 3.0), "unequal_noise": (2.0, 2.0)}
+# Equal signal variances with unequal noise: the outputs no longer share one factor.
+NOISES = {"unequal_noise": (0.6, 1.4)}
 
 
 @pytest.mark.parametrize("signal", SIGNALS)
 def test_conditionals_on_tiny_frames_match_the_formula(signal):
     frames, p0, alpha = so.tiny_problem(5)
-    p = so.default_params(frames, p0.length_scales, p0.noise_var, SIGNALS[signal], None if signal == "default" else p0.mean)
+    noise = NOISES.get(signal, p0.noise_var)
+    p = so.default_params(frames, p0.length_scales, noise, SIGNALS[signal], None if signal == "default" else p0.mean)
     alone = 0
     for seed in range(6):
         m = dpgp.DPGP(

@@ -4,7 +4,7 @@ from numpy.typing import NDArray
 
 __version__: str
 
-ParamTuple = tuple[float, float, float, float, float, float, float]
+ParamTuple = tuple[float, float, float, float, float, float, float, float]
 
 def check_params(p: ParamTuple) -> None: ...
 def log_marginal_likelihood(xy: NDArray[np.float64], v: NDArray[np.float64], p: ParamTuple) -> float: ...

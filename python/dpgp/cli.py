@@ -192,13 +192,13 @@ def _info(args: argparse.Namespace) -> int:
         lines.append(f"  ... and {model.n_patterns_ - top} more")
     p = model.params_
     lines.append(
-        f"GP: signal variance ({p.signal_var[0]:.4g}, {p.signal_var[1]:.4g}), noise variance {p.noise_var:.4g}, "
+        f"GP: signal variance ({p.signal_var[0]:.4g}, {p.signal_var[1]:.4g}), noise variance ({p.noise_var[0]:.4g}, {p.noise_var[1]:.4g}), "
         f"mean ({p.mean[0]:.4g}, {p.mean[1]:.4g})"
     )
     r = model.defaults_
     a, b = r.length_scale_prior
     lines.append(
-        f"resolved: noise variance {r.noise_var:.4g} ({r.noise_var_source}), length-scale prior Gamma({a:g}, {b:.4g}) "
+        f"resolved: noise variance ({r.noise_var[0]:.4g}, {r.noise_var[1]:.4g}) ({r.noise_var_source}), length-scale prior Gamma({a:g}, {b:.4g}) "
         f"({r.length_scale_prior_source}), assignment {r.assignment}"
     )
     settings = {k: v for k, v in model.get_params().items() if k not in ("progress",)}

@@ -168,25 +168,26 @@ class SingleGP:
 
     @classmethod
     def fit(cls, train: Frames) -> SingleGP:
-        """Signal variances and means of the training velocities; σ_n² and a common length scale
-        chosen as dpgp's ``noise_var="auto"`` is, by held-out score inside the training frames
-        (their first 70% scoring the rest) over :data:`~dpgp.defaults.NOISE_GRID` times the mean
-        velocity variance and :data:`LENGTH_GRID` times the vehicle spacing."""
+        """Signal variances and means of the training velocities; noise variances (the same
+        fraction ρ of each component's variance) and a common length scale chosen as dpgp's
+        ``noise_var="auto"`` is, by held-out score inside the training frames (their first 70%
+        scoring the rest) over ρ in :data:`~dpgp.defaults.NOISE_GRID` and :data:`LENGTH_GRID`
+        times the vehicle spacing."""
         var, mu = tuple(train.v.var(axis=0)), tuple(train.v.mean(axis=0))
         sub = _spread_frames(train, SINGLE_GP_POINTS)
-        v_scale, spacing = float(np.mean(var)), vehicle_spacing(train)
-        noise_grid = np.asarray(NOISE_GRID) * v_scale
+        spacing = vehicle_spacing(train)
+        grid = np.asarray(NOISE_GRID)
         if len(sub) >= 4:
             cut = int(round(0.7 * len(sub)))
             fit_part, check = sub[:cut], sub[cut:]
             scores = np.array([[
-                cls(GPParams((w * spacing, w * spacing), var, float(n), mu), fit_part.xy, fit_part.v).score_frames(check).sum()
-                for n in noise_grid] for w in LENGTH_GRID])  # fmt: skip
+                cls(GPParams((w * spacing, w * spacing), var, _times(rho, var), mu), fit_part.xy, fit_part.v).score_frames(check).sum()
+                for rho in grid] for w in LENGTH_GRID])  # fmt: skip
             i, j = np.unravel_index(np.argmax(scores), scores.shape)
-            w, noise = LENGTH_GRID[i] * spacing, refine_grid(noise_grid, scores[i])
+            w, rho = LENGTH_GRID[i] * spacing, refine_grid(grid, scores[i])
         else:
-            w, noise = spacing, float(noise_grid[len(noise_grid) // 2])
-        return cls(GPParams((w, w), var, noise, mu), sub.xy, sub.v)
+            w, rho = spacing, float(grid[len(grid) // 2])
+        return cls(GPParams((w, w), var, _times(rho, var), mu), sub.xy, sub.v)
 
     def score_frames(self, test: Frames) -> np.ndarray:
         """log N(V_f ; posterior mean, posterior covariance + σ_n² I) per test frame, jointly over
@@ -196,7 +197,7 @@ class SingleGP:
         r_tt = _correlation(self.train_xy, self.train_xy, p.length_scales)
         r_tq = _correlation(self.train_xy, test.xy, p.length_scales)
         for d in range(2):
-            k = p.signal_var[d] * r_tt + p.noise_var * np.eye(len(r_tt))
+            k = p.signal_var[d] * r_tt + p.noise_var[d] * np.eye(len(r_tt))
             chol = np.linalg.cholesky(k)
             alpha = _cho_solve(chol, self.train_v[:, d] - p.mean[d])
             v = _lower_solve(chol, p.signal_var[d] * r_tq)  # L⁻¹ K(train, test)
@@ -204,9 +205,13 @@ class SingleGP:
             for i, (a, b) in enumerate(zip(test.offsets[:-1], test.offsets[1:])):
                 q = test.xy[a:b]
                 cov = p.signal_var[d] * _correlation(q, q, p.length_scales) - v[:, a:b].T @ v[:, a:b]
-                cov[np.diag_indices_from(cov)] += p.noise_var
+                cov[np.diag_indices_from(cov)] += p.noise_var[d]
                 out[i] += _gauss_logpdf(test.v[a:b, d] - mean[a:b], cov)
         return out
+
+
+def _times(rho: float, var: tuple[float, float]) -> tuple[float, float]:
+    return (float(rho * var[0]), float(rho * var[1]))
 
 
 def _correlation(a: np.ndarray, b: np.ndarray, w: tuple[float, float]) -> np.ndarray:

@@ -1,7 +1,7 @@
 """The exact Gaussian-process layer on its own.
 
 A motion pattern's velocity field has two independent outputs ``vx`` and ``vy``; output η is a GP
-with constant mean ``mean[η]`` and covariance ``signal_var[η] * R + noise_var * I``, where
+with constant mean ``mean[η]`` and covariance ``signal_var[η] * R + noise_var[η] * I``, where
 ``R`` is the anisotropic squared-exponential correlation with ``length_scales = (w_x, w_y)``.
 These functions are what the sampler evaluates millions of times; they run in Rust.
 """
@@ -31,25 +31,27 @@ def _pair(name: str, value: object) -> tuple[float, float]:
 class GPParams:
     """Hyperparameters of one pattern's GP.
 
-    ``signal_var`` and ``mean`` take a pair ``(x, y)`` or one number used for both outputs.
+    ``signal_var``, ``noise_var`` and ``mean`` take a pair ``(x, y)`` or one number used for
+    both outputs (velocities along and across a road differ by orders of magnitude, so each
+    output has its own noise variance).
     Length scales and variances must be positive (``InvalidInputError`` otherwise).
     """
 
     length_scales: tuple[float, float]
     signal_var: tuple[float, float] = (1.0, 1.0)
-    noise_var: float = 1.0
+    noise_var: tuple[float, float] = (1.0, 1.0)
     mean: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "length_scales", _pair("length_scales", self.length_scales))
         object.__setattr__(self, "signal_var", _pair("signal_var", self.signal_var))
-        object.__setattr__(self, "noise_var", float(self.noise_var))
+        object.__setattr__(self, "noise_var", _pair("noise_var", self.noise_var))
         object.__setattr__(self, "mean", _pair("mean", self.mean))
         _core.check_params(self.as_tuple())
 
-    def as_tuple(self) -> tuple[float, float, float, float, float, float, float]:
-        """``(w_x, w_y, σ_x², σ_y², σ_n², μ_x, μ_y)``, the form the Rust core takes."""
-        return (*self.length_scales, *self.signal_var, self.noise_var, *self.mean)
+    def as_tuple(self) -> tuple[float, float, float, float, float, float, float, float]:
+        """``(w_x, w_y, σ_x², σ_y², σ_n,x², σ_n,y², μ_x, μ_y)``, the form the Rust core takes."""
+        return (*self.length_scales, *self.signal_var, *self.noise_var, *self.mean)
 
 
 def log_marginal_likelihood(xy: object, v: object, params: GPParams) -> float:

@@ -362,7 +362,7 @@ def _resolved_dict(model: DPGP) -> dict[str, Any]:
     if r is not None:
         return r.to_dict()
     return {  # a model assembled without fit (for example from chains) still has the values
-        "assignment": model.assignment_, "noise_var": float(model.noise_var_),
+        "assignment": model.assignment_, "noise_var": [float(x) for x in model.noise_var_],
         "length_scale_prior": list(model.length_scale_prior_), "noise_var_source": "user",
         "length_scale_prior_source": "user",
     }  # fmt: skip
@@ -398,14 +398,25 @@ def _resolved(meta: dict[str, Any]) -> Any:
     if r is None:  # version 1: the settings were the values
         s = meta["settings"]
         r = {
-            "assignment": s["assignment"], "noise_var": float(s["noise_var"]),
+            "assignment": s["assignment"], "noise_var": s["noise_var"],
             "length_scale_prior": s["length_scale_prior"], "noise_var_source": "user", "length_scale_prior_source": "user",
         }  # fmt: skip
     scores = r.get("noise_scores")
     return Resolved(**{
-        **r, "length_scale_prior": tuple(float(x) for x in r["length_scale_prior"]),
-        "noise_scores": None if scores is None else tuple((float(a), float(b)) for a, b in scores),
+        **r, "length_scale_prior": tuple(float(x) for x in r["length_scale_prior"]), "noise_var": _noise_pair(r["noise_var"]),
+        "noise_scores": None if scores is None else tuple(tuple(float(x) for x in row) for row in scores),
     })  # fmt: skip
+
+
+def _noise_pair(value: Any) -> tuple[float, float]:
+    """σ_n² per velocity component (files before per-component noise hold one number)."""
+    try:
+        x = np.broadcast_to(np.asarray(value, dtype=float), (2,))
+    except (TypeError, ValueError):
+        raise ModelFileError(f"noise_var must be a positive number or a pair, got {value!r}; the file is corrupted") from None
+    if not (np.all(np.isfinite(x)) and np.all(x > 0)):
+        raise ModelFileError(f"noise_var must be positive and finite, got {value!r}; the file is corrupted")
+    return (float(x[0]), float(x[1]))
 
 
 __all__ = ["save", "load", "read_model_file", "parse", "ModelFile", "read_metadata", "FORMAT", "FORMAT_VERSION"]

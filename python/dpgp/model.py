@@ -63,9 +63,10 @@ class DPGP:
         median distance between nearest vehicles of a frame (:mod:`dpgp.defaults`). Resolved value in
         ``length_scale_prior_``.
     length_scales : ``None`` samples ``(w_x, w_y)`` per pattern; a pair fixes them for all patterns.
-    noise_var : observation noise variance σ_n² (velocity units squared); ``"auto"`` (default):
-        chosen before sampling by the held-out score of short pilot fits over a grid relative to
-        the velocity variance (:mod:`dpgp.defaults`). Resolved value in ``noise_var_``.
+    noise_var : observation noise variance σ_n² (velocity units squared), one number for both
+        velocity components or a pair ``(x, y)``; ``"auto"`` (default): a fraction of each
+        component's velocity variance, chosen before sampling by the held-out score of short
+        pilot fits (:mod:`dpgp.defaults`). Resolved pair in ``noise_var_``.
     preset : ``"paper"``: the paper's settings wherever ``"auto"`` is left — Gamma(10, 1)
         length scales (feet), σ_n² = 1 ((ft/s)²) — and map assignment. :meth:`paper` builds one.
     signal_var, mean : per-output signal variance and mean; ``None`` takes the variance and mean
@@ -94,7 +95,7 @@ class DPGP:
         likelihood: str = "auto",
         length_scale_prior: tuple[float, float] | str = "auto",
         length_scales: tuple[float, float] | None = None,
-        noise_var: float | str = "auto",
+        noise_var: float | tuple[float, float] | str = "auto",
         signal_var: float | tuple[float, float] | None = None,
         mean: float | tuple[float, float] | None = None,
         alpha: float | None = None,
@@ -175,7 +176,7 @@ class DPGP:
         self.length_scale_prior_ = r.length_scale_prior
         self.defaults_ = r
 
-    def _pilot_fit(self, train: Frames, test: Frames, noise_var: float, length_scale_prior: tuple[float, float]) -> float:
+    def _pilot_fit(self, train: Frames, test: Frames, noise_var: tuple[float, float], length_scale_prior: tuple[float, float]) -> float:
         """Held-out log density of ``test`` under a short map fit to ``train`` with these
         settings: the pilot of ``noise_var="auto"``."""
         from .defaults import PILOT_SWEEPS

@@ -1,8 +1,9 @@
 //! The exact GP layer: log marginal likelihood, joint log predictive density and posterior of the
 //! two-output velocity field `(vx, vy)` of one motion pattern.
 //!
-//! Output η has covariance `σ_η² R + σ_n² I`. When `σ_x² = σ_y²` both outputs share one matrix,
-//! which is then factored once and solved with two right-hand sides.
+//! Output η has covariance `σ_η² R + σ_{n,η}² I`. When both outputs have the same signal and
+//! noise variances they share one matrix, which is then factored once and solved with two
+//! right-hand sides.
 
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
@@ -20,8 +21,9 @@ pub struct GpParams {
     pub length_scales: LengthScales,
     /// `(σ_x², σ_y²)`: signal variance of each output.
     pub signal_var: [f64; 2],
-    /// `σ_n²`: observation noise variance, shared by both outputs.
-    pub noise_var: f64,
+    /// `(σ_{n,x}², σ_{n,y}²)`: observation noise variance of each output (velocities along
+    /// and across a road differ by orders of magnitude, so one shared value fits neither).
+    pub noise_var: [f64; 2],
     /// `(μ_x, μ_y)`: constant prior mean of each output.
     pub mean: [f64; 2],
 }
@@ -31,14 +33,15 @@ impl GpParams {
     pub fn new(
         length_scales: (f64, f64),
         signal_var: (f64, f64),
-        noise_var: f64,
+        noise_var: (f64, f64),
         mean: (f64, f64),
     ) -> Result<Self> {
         let ls = LengthScales::new(length_scales.0, length_scales.1)?;
         for (name, s) in [
             ("signal_var[0]", signal_var.0),
             ("signal_var[1]", signal_var.1),
-            ("noise_var", noise_var),
+            ("noise_var[0]", noise_var.0),
+            ("noise_var[1]", noise_var.1),
         ] {
             if !(s.is_finite() && s > 0.0) {
                 return Err(Error::InvalidInput(format!(
@@ -56,7 +59,7 @@ impl GpParams {
         Ok(Self {
             length_scales: ls,
             signal_var: [signal_var.0, signal_var.1],
-            noise_var,
+            noise_var: [noise_var.0, noise_var.1],
             mean: [mean.0, mean.1],
         })
     }
@@ -69,13 +72,18 @@ impl GpParams {
         }
     }
 
-    /// Groups of outputs that share one covariance matrix, with that matrix's signal variance.
+    /// Groups of outputs that share one covariance matrix.
     pub fn groups(&self) -> &'static [&'static [usize]] {
-        if self.signal_var[0] == self.signal_var[1] {
+        if self.signal_var[0] == self.signal_var[1] && self.noise_var[0] == self.noise_var[1] {
             &[&[0, 1]]
         } else {
             &[&[0], &[1]]
         }
+    }
+
+    /// `(σ², σ_n²)` of the group of outputs `outs` (one of [`GpParams::groups`]).
+    pub fn group_vars(&self, outs: &[usize]) -> (f64, f64) {
+        (self.signal_var[outs[0]], self.noise_var[outs[0]])
     }
 }
 
@@ -110,11 +118,12 @@ fn check_pair(xy_name: &str, xy: &[Point], v_name: &str, v: &[[f64; 2]]) -> Resu
     Ok(())
 }
 
-/// Factor `σ² R(xy, xy) + σ_n² I`.
-pub fn factor(xy: &[Point], p: &GpParams, signal_var: f64, par: Par) -> Result<Chol> {
+/// Factor `σ² R(xy, xy) + σ_n² I` for the group of outputs `outs`.
+pub fn factor(xy: &[Point], p: &GpParams, outs: &[usize], par: Par) -> Result<Chol> {
     let parallel = !matches!(par, Par::Seq);
+    let (s2, n2) = p.group_vars(outs);
     Chol::factor(xy.len(), "training", par, || {
-        kernel::gram(xy, p.length_scales, signal_var, p.noise_var, parallel)
+        kernel::gram(xy, p.length_scales, s2, n2, parallel)
     })
 }
 
@@ -133,7 +142,7 @@ pub fn log_marginal_likelihood(
     let n = xy.len() as f64;
     let mut total = -n * LN_2PI; // (n/2) ln 2π for each of the two outputs
     for outs in p.groups() {
-        let chol = factor(xy, p, p.signal_var[outs[0]], par)?;
+        let chol = factor(xy, p, outs, par)?;
         let mut z = centered(v, outs, p.mean);
         chol.solve_lower(&mut z, par);
         total -= 0.5 * sum_sq(&z) + 0.5 * outs.len() as f64 * chol.log_det();
@@ -159,14 +168,14 @@ pub fn log_predictive(
     let mut total = -(m as f64) * LN_2PI;
     for outs in p.groups() {
         let g = outs.len();
-        let s2 = p.signal_var[outs[0]];
-        let chol = factor(train_xy, p, s2, par)?;
+        let (s2, n2) = p.group_vars(outs);
+        let chol = factor(train_xy, p, outs, par)?;
         // V = L⁻¹ K(X, X*)
         let mut vmat = kernel::cross(train_xy, test_xy, p.length_scales, s2, parallel);
         chol.solve_lower(&mut vmat, par);
         let v = MatRef::from_column_major_slice(&vmat, n, m);
         // S = K** + σ_n² I − VᵀV
-        let mut s = kernel::gram(test_xy, p.length_scales, s2, p.noise_var, parallel);
+        let mut s = kernel::gram(test_xy, p.length_scales, s2, n2, parallel);
         matmul(
             MatMut::from_column_major_slice_mut(&mut s, m, m),
             Accum::Add,
@@ -211,7 +220,7 @@ pub fn posterior(
     for outs in p.groups() {
         let g = outs.len();
         let s2 = p.signal_var[outs[0]];
-        let chol = factor(train_xy, p, s2, par)?;
+        let chol = factor(train_xy, p, outs, par)?;
         let mut z = centered(train_v, outs, p.mean);
         chol.solve_lower(&mut z, par);
         let zr = MatRef::from_column_major_slice(&z, n, g);

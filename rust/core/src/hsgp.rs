@@ -298,6 +298,7 @@ pub struct AxisFeatures {
 struct Group {
     outs: &'static [usize],
     signal_var: f64,
+    noise_var: f64,
     chol: Vec<f64>,
     z: Vec<f64>,
 }
@@ -502,9 +503,8 @@ impl HsgpPattern {
         self.weights = OnceLock::new();
         self.groups.clear();
         for outs in self.params.groups() {
-            let s2 = self.params.signal_var[outs[0]];
+            let (s2, noise) = self.params.group_vars(outs);
             let d = self.d(s2);
-            let noise = self.params.noise_var;
             let chol = Chol::factor(m, "reduced-rank", Par::Seq, || {
                 let mut b = vec![0.0; m * m];
                 for j in 0..m {
@@ -518,6 +518,7 @@ impl HsgpPattern {
             let mut g = Group {
                 outs,
                 signal_var: s2,
+                noise_var: noise,
                 chol: chol.l,
                 z: Vec::new(),
             };
@@ -530,9 +531,9 @@ impl HsgpPattern {
     /// `log p(D_k)` under the reduced-rank GP.
     pub fn log_marginal(&self) -> f64 {
         let (m, n) = (self.m(), self.xy.len());
-        let s2n = self.params.noise_var;
         let mut total = -(n as f64) * LN_2PI;
         for g in &self.groups {
+            let s2n = g.noise_var;
             let k = g.outs.len() as f64;
             let zz: f64 = g.z.iter().map(|x| x * x).sum();
             let yy: f64 = g.outs.iter().map(|&d| self.yy(d)).sum();
@@ -594,12 +595,12 @@ impl HsgpPattern {
         let m = self.m();
         let pts: Vec<Point> = frames.iter().flat_map(|f| f.xy.iter().copied()).collect();
         let phi_t = self.basis.features(&pts);
-        let s2n = self.params.noise_var;
         let mut out: Vec<f64> = frames
             .iter()
             .map(|f| -(f.xy.len() as f64) * LN_2PI)
             .collect();
         for g in &self.groups {
+            let s2n = g.noise_var;
             let u = self.whitened_features(g, &phi_t, pts.len());
             let ur = MatRef::from_column_major_slice(&u, m, pts.len());
             let mut col = 0;
@@ -640,9 +641,9 @@ impl HsgpPattern {
         };
         let m = self.m();
         let phi_t = self.basis.features(f.xy);
-        let s2n = self.params.noise_var;
         let mut total = -(l as f64) * LN_2PI;
         for g in &self.groups {
+            let s2n = g.noise_var;
             let u = self.whitened_features(g, &phi_t, l);
             let (utu, r) = self.frame_terms(g, MatRef::from_column_major_slice(&u, m, l), &f);
             let mut c: Vec<f64> = utu.iter().map(|x| -x).collect();
@@ -806,12 +807,12 @@ impl HsgpPattern {
     /// `σ²` (the basis has no support there, so the model knows nothing).
     pub fn posterior(&self, q: &[Point]) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
         let m = self.m();
-        let s2n = self.params.noise_var;
         let mut var = Vec::with_capacity(q.len());
         for block in q.chunks(1024) {
             let phi_t = self.basis.features(block);
             let mut out = vec![[0.0; 2]; block.len()];
             for g in &self.groups {
+                let s2n = g.noise_var;
                 let u = self.whitened_features(g, &phi_t, block.len());
                 for (j, o) in out.iter_mut().enumerate() {
                     let explained: f64 = u[j * m..(j + 1) * m].iter().map(|x| x * x).sum();
@@ -834,9 +835,9 @@ impl HsgpPattern {
     pub fn predict_joint(&self, q: &[Point]) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
         let (m, n) = (self.m(), q.len());
         let phi_t = self.basis.features(q);
-        let s2n = self.params.noise_var;
         let mut cov = [Vec::new(), Vec::new()];
         for g in &self.groups {
+            let s2n = g.noise_var;
             let u = self.whitened_features(g, &phi_t, n);
             let ur = MatRef::from_column_major_slice(&u, m, n);
             let mut c = vec![0.0; n * n];

@@ -26,6 +26,7 @@ pub struct FrameRef<'a> {
 struct Group {
     outs: &'static [usize],
     signal_var: f64,
+    noise_var: f64,
     factor: GrowFactor,
     /// `L⁻¹ (v_d − μ_d)` for each output `d` of the group, column-major `n x outs.len()`.
     z: Vec<f64>,
@@ -129,8 +130,8 @@ impl Pattern {
         self.weights = Default::default();
         self.groups.clear();
         for outs in self.params.groups() {
-            let s2 = self.params.signal_var[outs[0]];
-            let (ls, noise) = (self.params.length_scales, self.params.noise_var);
+            let (s2, noise) = self.params.group_vars(outs);
+            let ls = self.params.length_scales;
             let chol = Chol::factor(n, "training", Par::Seq, || {
                 self.corr.gram(&self.xy, ls, s2, noise)
             })?;
@@ -139,6 +140,7 @@ impl Pattern {
             self.groups.push(Group {
                 outs,
                 signal_var: s2,
+                noise_var: noise,
                 factor: GrowFactor::from_dense(&chol.l, n),
                 z,
             });
@@ -161,7 +163,7 @@ impl Pattern {
             params: GpParams {
                 length_scales: LengthScales { wx: 1.0, wy: 1.0 },
                 signal_var: [1.0; 2],
-                noise_var: 1.0,
+                noise_var: [1.0; 2],
                 mean: [0.0; 2],
             },
             corr: Correlation::SquaredExp,
@@ -385,7 +387,7 @@ impl Pattern {
             g.factor.solve_lower(&mut vbuf, Par::Seq);
             let v = MatRef::from_column_major_slice(&vbuf, n, m);
             let k = g.outs.len();
-            let mut r = schur(&f, v, g.signal_var, &self.params, &self.corr);
+            let mut r = schur(&f, v, g, &self.params, &self.corr);
             small::cholesky(&mut r, m)?;
             // New whitened residuals: z_new = R⁻¹ (v_f − μ − Vᵀ z).
             let mut rz = residual(
@@ -459,11 +461,11 @@ fn sub_vt_times(dst: &mut [f64], v: MatRef<'_, f64>, x: MatRef<'_, f64>) {
 fn schur(
     f: &FrameRef<'_>,
     v: MatRef<'_, f64>,
-    s2: f64,
+    g: &Group,
     p: &GpParams,
     corr: &Correlation,
 ) -> Vec<f64> {
-    let mut s = corr.gram(f.xy, p.length_scales, s2, p.noise_var);
+    let mut s = corr.gram(f.xy, p.length_scales, g.signal_var, g.noise_var);
     sub_vt_times(&mut s, v, v);
     s
 }
@@ -491,7 +493,7 @@ fn schur_terms(
     corr: &Correlation,
 ) -> Result<(f64, f64)> {
     small::gaussian_terms(
-        schur(f, v, g.signal_var, p, corr),
+        schur(f, v, g, p, corr),
         f.xy.len(),
         residual(f, v, z, g.outs, p),
     )
@@ -533,10 +535,10 @@ fn gaussian_prior(c: &[f64], f: FrameRef<'_>, p: &GpParams) -> Result<f64> {
     let m = f.xy.len();
     let mut total = -(m as f64) * LN_2PI;
     for outs in p.groups() {
-        let s2 = p.signal_var[outs[0]];
+        let (s2, n2) = p.group_vars(outs);
         let mut a: Vec<f64> = c.iter().map(|c| c * s2).collect();
         for i in 0..m {
-            a[i * m + i] += p.noise_var;
+            a[i * m + i] += n2;
         }
         let (log_det, quad) = small::gaussian_terms(a, m, centered(f.v, outs, p.mean))?;
         total -= 0.5 * quad + 0.5 * outs.len() as f64 * log_det;

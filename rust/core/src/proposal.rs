@@ -167,9 +167,9 @@ impl CellStats {
                 } else {
                     0.0
                 };
-                let prior_var = p.signal_var[d] + p.noise_var;
-                let var =
-                    ((spread + PRIOR_WEIGHT * prior_var) / (n + PRIOR_WEIGHT)).max(p.noise_var);
+                let prior_var = p.signal_var[d] + p.noise_var[d];
+                let var = ((spread + PRIOR_WEIGHT * prior_var) / (n + PRIOR_WEIGHT))
+                    .max(p.noise_var[d]);
                 let r = v[d] - mean;
                 out -= 0.5 * (LN_2PI + var.ln() + r * r / var);
             }
@@ -183,7 +183,7 @@ pub fn prior_score(f: FrameRef<'_>, p: &GpParams) -> f64 {
     let mut out = 0.0;
     for v in f.v {
         for d in 0..2 {
-            let var = p.signal_var[d] + p.noise_var;
+            let var = p.signal_var[d] + p.noise_var[d];
             let r = v[d] - p.mean[d];
             out -= 0.5 * (LN_2PI + var.ln() + r * r / var);
         }

@@ -8,11 +8,11 @@ use crate::errors::CoreResult;
 use dpgp_core::gp::{self, GpParams};
 use dpgp_core::linalg::par_for;
 
-/// `(w_x, w_y, σ_x², σ_y², σ_n², μ_x, μ_y)` as passed from Python.
-pub type ParamTuple = (f64, f64, f64, f64, f64, f64, f64);
+/// `(w_x, w_y, σ_x², σ_y², σ_n,x², σ_n,y², μ_x, μ_y)` as passed from Python.
+pub type ParamTuple = (f64, f64, f64, f64, f64, f64, f64, f64);
 
 pub fn params(t: ParamTuple) -> CoreResult<GpParams> {
-    Ok(GpParams::new((t.0, t.1), (t.2, t.3), t.4, (t.5, t.6))?)
+    Ok(GpParams::new((t.0, t.1), (t.2, t.3), (t.4, t.5), (t.6, t.7))?)
 }
 
 /// Validate a parameter tuple; raises InvalidInputError naming the bad value.

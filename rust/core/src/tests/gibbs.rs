@@ -29,7 +29,7 @@ fn two_patterns() -> Data {
 fn settings(assignment: Assignment, seed: u64) -> Settings {
     Settings {
         assignment,
-        base: GpParams::new((10.0, 10.0), (25.0, 25.0), 1.0, (5.0, 5.0)).unwrap(),
+        base: GpParams::new((10.0, 10.0), (25.0, 25.0), (1.0, 1.0), (5.0, 5.0)).unwrap(),
         fixed_length_scales: false,
         length_scale_prior: (10.0, 1.0),
         alpha: None,

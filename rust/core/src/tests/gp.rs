@@ -17,13 +17,14 @@ fn data(n: usize, seed: u64) -> (Vec<Point>, Vec<[f64; 2]>) {
 }
 
 fn params(sx: f64, sy: f64) -> GpParams {
-    GpParams::new((7.0, 25.0), (sx, sy), 0.8, (0.3, 30.0)).unwrap()
+    GpParams::new((7.0, 25.0), (sx, sy), (0.8, 0.8), (0.3, 30.0)).unwrap()
 }
 
 #[test]
 fn predictive_is_the_ratio_of_marginal_likelihoods() {
     let (xy, v) = data(60, 1);
-    for p in [params(2.0, 2.0), params(1.5, 9.0)] {
+    let unequal_noise = GpParams::new((7.0, 25.0), (2.0, 2.0), (0.8, 0.1), (0.3, 30.0)).unwrap();
+    for p in [params(2.0, 2.0), params(1.5, 9.0), unequal_noise] {
         let all = log_marginal_likelihood(&xy, &v, &p, Par::Seq).unwrap();
         let train = log_marginal_likelihood(&xy[..45], &v[..45], &p, Par::Seq).unwrap();
         let pred = log_predictive(&xy[..45], &v[..45], &xy[45..], &v[45..], &p, Par::Seq).unwrap();
@@ -67,6 +68,6 @@ fn bad_inputs_are_errors_not_panics() {
         log_marginal_likelihood(&[[f64::NAN, 0.0]], &[[0.0, 0.0]], &p, Par::Seq),
         Err(Error::InvalidInput(_))
     ));
-    assert!(GpParams::new((1.0, 1.0), (1.0, 0.0), 1.0, (0.0, 0.0)).is_err());
-    assert!(GpParams::new((1.0, 1.0), (1.0, 1.0), -1.0, (0.0, 0.0)).is_err());
+    assert!(GpParams::new((1.0, 1.0), (1.0, 0.0), (1.0, 1.0), (0.0, 0.0)).is_err());
+    assert!(GpParams::new((1.0, 1.0), (1.0, 1.0), (1.0, -1.0), (0.0, 0.0)).is_err());
 }

@@ -12,10 +12,11 @@ fn close(a: f64, b: f64, tol: f64) -> bool {
     (a - b).abs() <= tol * (1.0 + a.abs().max(b.abs()))
 }
 
-fn params() -> [GpParams; 2] {
+fn params() -> [GpParams; 3] {
     [
-        GpParams::new((6.0, 20.0), (1.5, 1.5), 0.7, (0.2, 20.0)).unwrap(),
-        GpParams::new((6.0, 20.0), (1.5, 9.0), 0.7, (0.2, 20.0)).unwrap(),
+        GpParams::new((6.0, 20.0), (1.5, 1.5), (0.7, 0.7), (0.2, 20.0)).unwrap(),
+        GpParams::new((6.0, 20.0), (1.5, 9.0), (0.7, 0.7), (0.2, 20.0)).unwrap(),
+        GpParams::new((6.0, 20.0), (1.5, 1.5), (0.7, 0.05), (0.2, 20.0)).unwrap(),
     ]
 }
 

@@ -5,8 +5,10 @@ use crate::test_util::{frames, refs};
 #[test]
 fn incremental_updates_match_fresh_factors() {
     for p in [
-        GpParams::new((6.0, 30.0), (1.5, 1.5), 0.7, (0.2, 20.0)).unwrap(),
-        GpParams::new((6.0, 30.0), (1.5, 9.0), 0.7, (0.2, 20.0)).unwrap(),
+        GpParams::new((6.0, 30.0), (1.5, 1.5), (0.7, 0.7), (0.2, 20.0)).unwrap(),
+        GpParams::new((6.0, 30.0), (1.5, 9.0), (0.7, 0.7), (0.2, 20.0)).unwrap(),
+        // Equal signal, different noise: the outputs no longer share a factor.
+        GpParams::new((6.0, 30.0), (1.5, 1.5), (0.7, 0.05), (0.2, 20.0)).unwrap(),
     ] {
         let fs = frames(3, 12);
         let r = refs(&fs);

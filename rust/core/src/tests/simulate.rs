@@ -139,7 +139,7 @@ fn constant_pattern(c: [f64; 2]) -> Pattern {
         .map(|i| [(i % 8) as f64 * 2.0, (i / 8) as f64 * 2.0])
         .collect();
     let v = vec![c; xy.len()];
-    let p = GpParams::new((3.0, 3.0), (4.0, 4.0), 0.05, (c[0], c[1])).unwrap();
+    let p = GpParams::new((3.0, 3.0), (4.0, 4.0), (0.05, 0.05), (c[0], c[1])).unwrap();
     let frames: Vec<(usize, FrameRef)> = (0..5)
         .map(|f| {
             (
