@@ -49,7 +49,7 @@ def one(kind: str, n: int, likelihood: str, proposal: str, sweeps: int, paper: b
         "M": None if m.basis_ is None else m.basis_.size, "sweeps": len(sec),
         "median_sweep_s": float(np.median(sec)), "init_s": m.init_seconds_, "fit_s": total,
         "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6,
-        "K": m.n_patterns_, "noise_var": float(m.noise_var_),
+        "K": m.n_patterns_, "noise_var": tuple(round(float(x), 4) for x in m.noise_var_),
         "accepted": list(m._sampler.proposal_counts()),
     }  # fmt: skip
     if frames.labels is not None:

@@ -135,15 +135,7 @@ def test_model_file_keeps_the_resolved_values(small, tmp_path):
     np.testing.assert_array_equal(back.score_samples(small[:5]), m.score_samples(small[:5]))
 
 
-@pytest.mark.parametrize(
-    "proposal",
-    [
-        "full",
-        pytest.param("informed", marks=pytest.mark.xfail(
-            reason="the informed proposal's cheap score is not unit-free: feet and metres give different "
-            "partitions (ARI 0.70 here) although every resolved setting scales exactly", strict=False)),
-    ],
-)  # fmt: skip
+@pytest.mark.parametrize("proposal", ["full", "informed"])
 def test_us101_feet_to_metres_gives_the_same_fit(us101_path, proposal):
     """Unit invariance on real data: the same partition, and the same log density up to the
     Jacobian of the change of units (2 l log c per frame of l vehicles)."""

@@ -17,8 +17,15 @@ use crate::pattern::FrameRef;
 const MAX_CELLS: usize = 64;
 /// Pseudo-observations that pull a cell's mean and spread towards the pattern's.
 const PRIOR_WEIGHT: f64 = 1.0;
+/// The grid starts this fraction of a cell below the data. Exports quantise positions (NGSIM:
+/// 0.1 ft), and with the grid starting at the lowest position, cell boundaries at simple
+/// fractions of the extent fall exactly on data points, whose cells then depend on the last
+/// bit of a division, so the same data in feet and in metres gave different proposals. An
+/// irrational offset (1 − 1/φ) keeps every boundary off any decimal grid.
+const GRID_OFFSET: f64 = 0.381_966_011_250_105_1;
 
-/// A regular grid over the training positions (points outside fall into the edge cells).
+/// A regular grid over the training positions (points outside fall into the edge cells, so the
+/// last cell along an axis stretches over the grid's offset).
 #[derive(Clone, Debug)]
 pub struct CellGrid {
     origin: [f64; 2],
@@ -45,12 +52,12 @@ impl CellGrid {
                 1.0
             };
             n[d] = (want as usize).clamp(1, MAX_CELLS);
-            origin[d] = lo;
             size[d] = if extent > 0.0 {
                 extent / n[d] as f64
             } else {
                 1.0
             };
+            origin[d] = lo - GRID_OFFSET * size[d];
         }
         Self { origin, size, n }
     }
@@ -190,3 +197,7 @@ pub fn prior_score(f: FrameRef<'_>, p: &GpParams) -> f64 {
     }
     out
 }
+
+#[cfg(test)]
+#[path = "tests/proposal.rs"]
+mod tests;
