@@ -215,12 +215,20 @@ def _inside(roi: tuple[float, float, float, float], xy: np.ndarray) -> np.ndarra
     return (xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)
 
 
+#: A position less than this share of a bin below an edge counts as on it (in the upper bin).
+#: Recorded positions often lie exactly on edges (positions on a decimal grid, an ROI from the
+#: data's own extremes), and then the rounding of ``(x - x0) / width`` alone would pick their
+#: bin, differently after an offset or a change of units. That rounding is about
+#: ``1e-16 |x| / width``: for NGSIM's state-plane feet (6e6 ft) and 1-ft bins, 1e-9 of a bin.
+_EDGE_TOLERANCE = 1e-6
+
+
 def _bin_index(roi: tuple[float, float, float, float], bins: tuple[int, int], xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     x0, x1, y0, y1 = roi
     nx, ny = bins
     # the upper edge belongs to the last bin, as in numpy.histogram
-    ix = np.minimum(((xy[:, 0] - x0) / (x1 - x0) * nx).astype(np.int64), nx - 1)
-    iy = np.minimum(((xy[:, 1] - y0) / (y1 - y0) * ny).astype(np.int64), ny - 1)
+    ix = np.minimum(((xy[:, 0] - x0) / (x1 - x0) * nx + _EDGE_TOLERANCE).astype(np.int64), nx - 1)
+    iy = np.minimum(((xy[:, 1] - y0) / (y1 - y0) * ny + _EDGE_TOLERANCE).astype(np.int64), ny - 1)
     return ix, iy
 
 

@@ -45,8 +45,13 @@ class FittedPatterns:
 
     @property
     def roi(self) -> tuple[float, float, float, float]:
-        """The ROI the training frames were cropped to, else their bounding box."""
-        return frames_roi(self.frames)
+        """The ROI the training frames were cropped to, else their bounding box; an axis along
+        which the positions span nothing (one vehicle, vehicles on one line) is widened by the
+        patterns' largest length scale on it, the reach of the fitted fields, so that vehicles
+        simulated from there have room to move."""
+        patterns = self.sampler.patterns()  # (slot, id, n_frames, wx, wy)
+        reach = (max(p[3] for p in patterns), max(p[4] for p in patterns)) if patterns else (1.0, 1.0)
+        return _widened(frames_roi(self.frames), reach)
 
     def log_scores(self, frames: Frames) -> tuple[np.ndarray, np.ndarray]:
         """log p(V_f | D_k) for each frame and pattern (estimator order), and the new-pattern term."""
@@ -74,6 +79,16 @@ def frames_dt(frames: Frames) -> float:
 def frames_roi(frames: Frames) -> tuple[float, float, float, float]:
     roi = getattr(getattr(frames, "summary", None), "roi", None)
     return tuple(float(v) for v in roi) if roi is not None else frames.bounds()  # type: ignore[return-value]
+
+
+def _widened(roi: tuple[float, float, float, float], pad: tuple[float, float]) -> tuple[float, float, float, float]:
+    """``roi`` with each axis of zero width widened by ``pad`` on both sides."""
+    x0, x1, y0, y1 = roi
+    if not x1 > x0:
+        x0, x1 = x0 - pad[0], x1 + pad[0]
+    if not y1 > y0:
+        y0, y1 = y0 - pad[1], y1 + pad[1]
+    return (x0, x1, y0, y1)
 
 
 def as_fitted(obj: Any) -> FittedPatterns:

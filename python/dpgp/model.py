@@ -238,6 +238,7 @@ class DPGP:
                 f"mean {tuple(map(float, mean))} or signal_var {tuple(map(float, signal_var))} is too large to compute with; "
                 "convert the velocities to sensible units first"
             )
+        _check_noise(self.noise_var_, signal_var)
         a, b = self.length_scale_prior_
         ls0 = (a * b, a * b) if self.length_scales is None else _pair("length_scales", self.length_scales)
         self.params_ = GPParams(ls0, tuple(signal_var), self.noise_var_, tuple(mean))
@@ -552,6 +553,29 @@ def _check_magnitudes(frames: Frames, what: str) -> None:
                 f"{what} has {name} of magnitude {np.max(np.abs(a)):.3g}, beyond {_MAX_MAGNITUDE:g}; "
                 "convert them to sensible units first"
             )
+
+
+#: Least noise variance, as a share of the signal variance, that a fit accepts. A position seen
+#: twice (a stopped vehicle, a repeated frame) makes the correlation matrix R singular, and only
+#: the noise keeps σ² R + σ_n² I positive definite; factors start failing near 1e-14 (a frame
+#: repeated 150 times), so this leaves four orders of magnitude of room.
+MIN_NOISE_RATIO = 1e-10
+
+
+def _check_noise(noise_var: Any, signal_var: Any) -> None:
+    """Refuse a noise variance too small to factor duplicated positions with (mid-fit, a
+    NotPositiveDefiniteError)."""
+    noise, signal = np.broadcast_arrays(np.asarray(noise_var, dtype=float), np.asarray(signal_var, dtype=float))
+    if np.any(noise < MIN_NOISE_RATIO * signal):
+        raise InvalidInputError(
+            f"noise_var {_short(noise)} is below {MIN_NOISE_RATIO:g} times the signal variance {_short(signal)}: a "
+            "position seen twice (a stopped vehicle, a repeated frame) would make the GP covariance singular in "
+            f"double precision; pass noise_var of at least {_short(MIN_NOISE_RATIO * signal)}"
+        )
+
+
+def _short(values: np.ndarray) -> str:
+    return "(" + ", ".join(f"{x:.3g}" for x in values) + ")"
 
 
 def _same(a: object, b: object) -> bool:

@@ -118,8 +118,11 @@ def default_dt(model: Any) -> float:
 
 
 def default_roi(model: Any) -> tuple[float, float, float, float]:
-    """The ROI the training frames were cropped to, else their bounding box."""
-    return frames_roi(model.frames if isinstance(model, FittedPatterns) else model.frames_)
+    """The ROI the training frames were cropped to, else their bounding box; for a fitted model,
+    an axis of zero width widened (:attr:`FittedPatterns.roi`)."""
+    if isinstance(model, FittedPatterns) or hasattr(model, "_fitted"):
+        return as_fitted(model).roi
+    return frames_roi(model.frames_)
 
 
 def _number(name: str, value: Any) -> float:
