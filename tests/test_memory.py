@@ -58,3 +58,63 @@ def test_bad_budgets_are_typed_errors():
     for bad in ["lots", -5, 0, float("nan"), "3 parsecs"]:
         with pytest.raises(dpgp.InvalidInputError):
             dpgp.DPGP(memory_budget=bad).fit(dpgp.datasets.synthetic("highway", 5))
+
+
+UNDER_ULIMIT = """
+import resource, sys, time
+import dpgp
+from dpgp._resources import default_memory_budget
+
+likelihood, n_frames, headroom = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+frames = dpgp.datasets.synthetic("highway", n_frames, seed=0)
+with open("/proc/self/status") as fh:
+    used = next(int(line.split()[1]) * 1024 for line in fh if line.startswith("VmSize:"))
+resource.setrlimit(resource.RLIMIT_AS, (used + headroom, resource.RLIM_INFINITY))  # ulimit -v
+assert default_memory_budget() <= headroom // 2, default_memory_budget()
+model = dpgp.DPGP(likelihood=likelihood, iterations=2, progress=False, noise_var=1.0,
+                  length_scale_prior=(10.0, 1.0), n_threads=2)
+try:
+    model.fit(frames)
+    print("fitted", model.likelihood_)
+except dpgp.MemoryBudgetError:
+    print("stopped")
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/status")
+@pytest.mark.parametrize(
+    "likelihood, n_frames, headroom_mb, outcome",
+    [
+        # exact's patterns would outgrow the address space left: a typed stop
+        ("exact", 400, 600, "stopped"),
+        # exact's worst case (~270 MB) is over the budget the limit leaves: auto runs hsgp
+        ("auto", 200, 400, "fitted hsgp"),
+    ],
+)
+def test_the_default_budget_respects_an_address_space_limit(likelihood, n_frames, headroom_mb, outcome):
+    """Under ``ulimit -v`` (or a container's cgroup limit, which the system's MemAvailable does
+    not show) the default budget is half of what the limit leaves. Before, it was half of the
+    machine's available memory, and both of these fits were killed (allocation failure, abort)."""
+    args = [likelihood, str(n_frames), str(headroom_mb * 2**20)]
+    r = subprocess.run([sys.executable, "-c", UNDER_ULIMIT, *args], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip() == outcome
+
+
+def test_the_cgroup_limit_bounds_the_available_memory(tmp_path, monkeypatch):
+    from dpgp import _resources
+
+    def cgroup(limit: str, usage: str) -> None:
+        (tmp_path / "max").write_text(limit + "\n")
+        (tmp_path / "current").write_text(usage + "\n")
+        monkeypatch.setattr(_resources, "_CGROUP_FILES", ((str(tmp_path / "max"), str(tmp_path / "current")),))
+
+    cgroup(str(2 * 2**30), str(2**30))
+    assert _resources._cgroup_available() == 2**30
+    assert _resources.available_memory() <= 2**30
+    cgroup("max", "123")  # v2: no limit
+    assert _resources._cgroup_available() is None
+    cgroup(str(2**63 - 4096), "123")  # v1: its "no limit" sentinel
+    assert _resources._cgroup_available() is None
+    monkeypatch.setattr(_resources, "_CGROUP_FILES", ((str(tmp_path / "absent"), str(tmp_path / "absent")),))
+    assert _resources._cgroup_available() is None

@@ -14,8 +14,15 @@ _UNITS = {"": 1, "b": 1, "kb": 10**3, "mb": 10**6, "gb": 10**9, "tb": 10**12, "k
 
 
 def available_memory() -> int | None:
-    """Bytes of memory available to new allocations (Linux ``MemAvailable``), or ``None`` where
-    the system does not say."""
+    """Bytes of memory this process can still allocate: the least of what the system has
+    available (Linux ``MemAvailable``), what its cgroup allows (a container's memory limit,
+    which ``MemAvailable`` does not show) and what its address-space limit (``ulimit -v``)
+    leaves; ``None`` where none of them is known."""
+    known = [b for b in (_system_available(), _cgroup_available(), _address_space_available()) if b is not None]
+    return min(known) if known else None
+
+
+def _system_available() -> int | None:
     try:
         with open("/proc/meminfo") as fh:
             for line in fh:
@@ -26,6 +33,44 @@ def available_memory() -> int | None:
     try:
         return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
     except (ValueError, OSError, AttributeError):
+        return None
+
+
+#: (limit, usage) files of the cgroup memory controller, v2 then v1.
+_CGROUP_FILES = (
+    ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+    ("/sys/fs/cgroup/memory/memory.limit_in_bytes", "/sys/fs/cgroup/memory/memory.usage_in_bytes"),
+)
+
+
+def _cgroup_available() -> int | None:
+    """The cgroup's memory limit less its usage; ``None`` without a limit ("max", or v1's huge
+    sentinel) or a controller."""
+    for limit_file, usage_file in _CGROUP_FILES:
+        try:
+            with open(limit_file) as fh:
+                limit = fh.read().strip()
+            if limit == "max" or int(limit) >= 1 << 60:
+                return None
+            with open(usage_file) as fh:
+                return max(int(limit) - int(fh.read().strip()), 0)
+        except (OSError, ValueError):
+            continue
+    return None
+
+
+def _address_space_available() -> int | None:
+    """The soft address-space limit (``RLIMIT_AS``) less the address space in use."""
+    try:
+        import resource
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+        if soft == resource.RLIM_INFINITY:
+            return None
+        with open("/proc/self/status") as fh:
+            used = next(int(line.split()[1]) * 1024 for line in fh if line.startswith("VmSize:"))
+        return max(soft - used, 0)
+    except (ImportError, OSError, ValueError, StopIteration):
         return None
 
 
