@@ -308,6 +308,12 @@ def fit_chains(
     reserved = sorted(set(settings) & set(_RESERVED))
     if reserved:
         raise InvalidInputError(f"{reserved} are fit_chains' own arguments, not settings to pass to DPGP")
+    if settings.get("checkpoint") is not None:
+        # Every block of every chain would write the same file; a chain whose worker dies
+        # already reruns only its lost block.
+        raise InvalidInputError(
+            "checkpoint is a setting of a single fit (DPGP(checkpoint=...).fit), not of fit_chains; leave it out"
+        )
     settings = {"n_threads": 1, **settings}
     try:
         DPGP(**settings)._check_settings()

@@ -100,7 +100,8 @@ def _fit(args: argparse.Namespace) -> int:
         raise ValueError("--scheduler and --until-converged go with --chains N")
     model = DPGP(
         iterations=args.iterations, assignment=args.assignment, seed=args.seed, alpha=args.alpha,
-        n_threads=args.threads, progress=args.progress, preset=args.preset,
+        n_threads=args.threads, progress=args.progress, preset=args.preset, checkpoint=args.checkpoint,
+        checkpoint_every=args.checkpoint_every,
     )  # fmt: skip
     t = time.perf_counter()
     model.fit(frames)
@@ -115,6 +116,8 @@ def _fit_chains(args: argparse.Namespace, frames: Any) -> int:
     point-estimate model, saved with the chain summary."""
     from . import fit_chains
 
+    if args.checkpoint is not None:
+        raise ValueError("--checkpoint goes with a single chain, not with --chains N")
     client = None
     if args.scheduler is not None:
         try:
@@ -141,6 +144,24 @@ def _fit_chains(args: argparse.Namespace, frames: Any) -> int:
     print(f"point estimate ({s['loss']}): {model.n_patterns_} patterns, posterior expected loss {s['expected_loss']:.4g}")
     model.save(args.output)
     print(f"wrote {args.output}")
+    return 0
+
+
+def _resume(args: argparse.Namespace) -> int:
+    """``dpgp resume CHECKPOINT``: continue a fit's chain from its checkpoint."""
+    from . import DPGP
+
+    t = time.perf_counter()
+    model = DPGP.resume(args.checkpoint, iterations=args.iterations, progress=args.progress)
+    print(
+        f"resumed {args.checkpoint} at sweep {model.resumed_from_}: {model.n_patterns_} patterns after "
+        f"{model.n_iter_} sweeps in {time.perf_counter() - t:.1f} s (α = {model.alpha_:.3g})"
+    )
+    if args.output is not None:
+        model.save(args.output)
+        print(f"wrote {args.output}")
+    else:
+        print(f"the model is in {args.checkpoint} (a model file: dpgp info, plot and simulate read it)")
     return 0
 
 
@@ -388,6 +409,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, help="worker threads (default: all cores)")
     p.add_argument("--seed", type=int, default=0, help="random seed; a fit is a function of data, settings and seed")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True, help="show a progress bar")
+    p.add_argument("--checkpoint", metavar="PATH",
+                   help="write the chain's state to PATH as it runs ('dpgp resume PATH' continues a fit that was "
+                   "killed); PATH is also a model file")  # fmt: skip
+    p.add_argument("--checkpoint-every", type=int, default=10, metavar="N", help="sweeps between checkpoints")
     g = p.add_argument_group("many chains (dpgp.fit_chains)")
     g.add_argument("--chains", type=int, metavar="N",
                    help="run N independent chains and save the point-estimate model with R̂ and ESS")  # fmt: skip
@@ -402,6 +427,17 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--max-iterations", type=int, default=2000, help="sweep cap of --until-converged")
     g.add_argument("--loss", choices=("vi", "binder"), default="vi", help="loss the point estimate minimises")
     p.set_defaults(func=_fit)
+
+    p = sub.add_parser("resume", help="continue a fit from its checkpoint", formatter_class=fmt,
+                       description="Continue the chain of a fit run with --checkpoint from the last state it wrote; "
+                       "the result is bitwise that of the fit run without interruption. The fit keeps "
+                       "checkpointing to the same file, which holds the final model at the end.")  # fmt: skip
+    p.add_argument("checkpoint", help="checkpoint written by 'dpgp fit --checkpoint'")
+    p.add_argument("--iterations", type=int,
+                   help="total sweeps of the chain (default: the original fit's); more extends it")  # fmt: skip
+    p.add_argument("-o", "--output", help="also write the final model here (.npz)")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True, help="show a progress bar")
+    p.set_defaults(func=_resume)
 
     p = sub.add_parser("info", help="summarise a model file", formatter_class=fmt,
                        description="Print what a model file holds: data, patterns, weights, settings.")  # fmt: skip

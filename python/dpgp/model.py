@@ -4,6 +4,7 @@ collapsed Gibbs sampling in the Rust core. Follows scikit-learn's conventions: s
 
 from __future__ import annotations
 
+import os
 import time
 import warnings
 from typing import Any
@@ -11,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
+from . import checkpoint as ckpt
 from ._resources import default_memory_budget, parse_bytes
 from .exceptions import DpgpError, InvalidInputError, MemoryBudgetError, ModelFileError, NotFittedError, ShapeError
 from .fitted import FittedPatterns
@@ -86,6 +88,17 @@ class DPGP:
     n_iter_no_change : stop early once K is unchanged and the adjusted Rand index between
         consecutive sweeps is at least ``ari_tol`` for this many sweeps (``None``: run all sweeps).
     store_labels : keep the labels after every sweep in ``label_trace_``.
+    checkpoint : a file path: ``fit`` writes the chain's complete state there after the
+        initialisation and every ``checkpoint_every`` sweeps, atomically (a temporary file, then a
+        rename), and the final model when it ends; :meth:`resume` continues the chain from it. A
+        checkpoint is a model file (:meth:`load` reads it). A fit killed at any point and resumed
+        gives bitwise the labels, length scales, α and history (but the seconds) of the same fit
+        run without interruption. At each checkpoint the fit rebuilds its sampler from the state
+        it wrote, as resuming does (:mod:`dpgp.checkpoint` says why), so a fit with checkpoints
+        may differ from the same fit without them in the rounding of its factors, and from there
+        in its draws. ``checkpoint_seconds_`` records each checkpoint's ``"reset"`` and ``"write"``
+        seconds.
+    checkpoint_every : sweeps between checkpoints.
     """
 
     def __init__(
@@ -112,6 +125,8 @@ class DPGP:
         proposal: str = "informed",
         n_basis: tuple[int, int] | None = None,
         memory_budget: int | str | None = None,
+        checkpoint: str | os.PathLike | None = None,
+        checkpoint_every: int = 10,
     ) -> None:
         self.iterations = iterations
         self.assignment = assignment
@@ -135,6 +150,8 @@ class DPGP:
         self.proposal = proposal
         self.n_basis = n_basis
         self.memory_budget = memory_budget
+        self.checkpoint = checkpoint
+        self.checkpoint_every = checkpoint_every
 
     # --- scikit-learn conventions ---------------------------------------------------------------
     def get_params(self, deep: bool = True) -> dict[str, Any]:
@@ -184,7 +201,7 @@ class DPGP:
         # proposal "full": the exact argmax, unit-free whatever the main fit's proposal
         settings = {**self.get_params(), "iterations": PILOT_SWEEPS, "assignment": "map", "noise_var": noise_var,
                     "length_scale_prior": length_scale_prior, "preset": None, "progress": False,
-                    "n_iter_no_change": None, "store_labels": False, "proposal": "full"}  # fmt: skip
+                    "n_iter_no_change": None, "store_labels": False, "proposal": "full", "checkpoint": None}  # fmt: skip
         pilot = type(self)(**settings).fit(train)
         return float(pilot.score_samples(test, positions=False).sum())
 
@@ -220,10 +237,13 @@ class DPGP:
         t = self.ari_tol
         if isinstance(t, bool) or not isinstance(t, (int, float, np.integer, np.floating)) or not 0 <= t <= 1:
             raise InvalidInputError(f"ari_tol must be a number in [0, 1], got {t!r}")
+        ckpt.check_settings(self.checkpoint, self.checkpoint_every)
 
     def fit(self, frames: Frames | Any, y: None = None) -> DPGP:
         """Fit the mixture to training frames (a :class:`~dpgp.Frames` or a framed DataFrame)."""
         self._check_settings()
+        if self.checkpoint is not None:
+            ckpt.check_path(self.checkpoint)  # before the work, not after the initialisation
         frames = _as_frames(frames)
         _check_magnitudes(frames, "the training data")
         self._resolve_defaults(frames)
@@ -245,8 +265,8 @@ class DPGP:
         self._resolve_engine(frames)
         self._sampler = self._new_sampler(frames)
         self.frames_ = frames
-        self.history_: dict[str, list] = {k: [] for k in ("n_patterns", "alpha", "log_joint", "moves", "ari", "seconds")}
-        traces: list[np.ndarray] = []
+        self.history_: dict[str, list] = {k: [] for k in ckpt.HISTORY_KEYS}
+        self.__dict__.pop("label_trace_", None)
         self.converged_ = False
         self.n_iter_ = 0
         t = time.perf_counter()
@@ -260,17 +280,26 @@ class DPGP:
             self.__dict__.pop("labels_", None)
             raise
         self.init_seconds_ = time.perf_counter() - t
+        self.checkpoint_seconds_: dict[str, list[float]] = {"reset": [], "write": []}
+        if self.checkpoint is not None:
+            self._data_sha256 = ckpt.fingerprint(frames)
+        self._sweeps(stable=0, traces=[], checkpoint_now=self.checkpoint is not None)
+        return self
+
+    def _sweeps(self, stable: int, traces: list[np.ndarray], checkpoint_now: bool = False) -> None:
+        """Sweep until ``iterations`` sweeps are done (a resumed chain's included) or the stopping
+        rule holds (``stable`` sweeps so far), checkpointing on the way; end in the canonical state."""
+        interrupted, bar = False, None
         try:
-            previous = np.asarray(self._sampler.labels())
-            stable = 0
-            bar = _progress(self.iterations, self.progress)
-            for _ in range(self.iterations):
+            previous = self._save_checkpoint(stable, traces) if checkpoint_now else np.asarray(self._sampler.labels())
+            bar = _progress(self.iterations, self.progress, initial=self.n_iter_)
+            while self.n_iter_ < self.iterations and not self.converged_:
                 t = time.perf_counter()
                 moves, k, alpha, log_joint = self._sampler.sweep()
                 seconds = time.perf_counter() - t
                 labels = np.asarray(self._sampler.labels())
                 ari = adjusted_rand_index(previous, labels)
-                for key, val in zip(self.history_, (k, alpha, log_joint, moves, ari, seconds)):
+                for key, val in zip(ckpt.HISTORY_KEYS, (k, alpha, log_joint, moves, ari, seconds)):
                     self.history_[key].append(val)
                 if self.store_labels:
                     traces.append(canonical_labels(labels))
@@ -281,30 +310,56 @@ class DPGP:
                 same_k = len(self.history_["n_patterns"]) > 1 and self.history_["n_patterns"][-2] == k
                 stable = stable + 1 if (same_k and ari >= self.ari_tol) else 0
                 previous = labels
-                if self.n_iter_no_change is not None and stable >= self.n_iter_no_change:
-                    self.converged_ = True
-                    break
+                self.converged_ = self.n_iter_no_change is not None and stable >= self.n_iter_no_change
+                if self.checkpoint is not None and self.n_iter_ % self.checkpoint_every == 0:
+                    previous = self._save_checkpoint(stable, traces)
         except KeyboardInterrupt:
-            warnings.warn(
-                f"fit interrupted after {self.n_iter_} sweeps; the model keeps the state reached", stacklevel=2
-            )
+            # Mid-sweep: the checkpoint keeps the last complete state, this model the state reached.
+            interrupted = True
+            warnings.warn(f"fit interrupted after {self.n_iter_} sweeps; the model keeps the state reached", stacklevel=3)
         except MemoryBudgetError:
             # Nothing was allocated: keep the state reached, as Ctrl-C does, then say why.
-            if "bar" in locals() and bar is not None:
+            if bar is not None:
                 bar.close()
             self._sync()
             raise
         finally:
-            if "bar" in locals() and bar is not None:
+            if bar is not None:
                 bar.close()
         if self.store_labels:
-            self.label_trace_ = np.array(traces, dtype=np.int64).reshape(len(traces), len(frames))
+            self.label_trace_ = _trace_array(traces, len(self.frames_))
         self._sync()
         # Refactor every pattern in canonical order (patterns by size, frames by index), which is
         # also what loading a saved model does: both then compute with identical factors.
         self._sampler.set_state(self.labels_, self.length_scales_, self.alpha_)
         self._sync()
-        return self
+        if self.checkpoint is not None and not interrupted and self._resume_point.sweeps_done != self.n_iter_:
+            self._write_checkpoint(traces)  # the finished model, with the last resume point
+
+    def _save_checkpoint(self, stable: int, traces: list[np.ndarray]) -> np.ndarray:
+        """Write the chain's state to ``checkpoint`` and continue from it exactly as a resumed
+        chain does: rebuild the sampler from the state written (:mod:`dpgp.checkpoint` says why).
+        Returns the sampler's labels after the rebuild."""
+        t = time.perf_counter()
+        self._sync()
+        self._sampler.set_state(self.labels_, self.length_scales_, self.alpha_)
+        self._sync()
+        reset = time.perf_counter()
+        self._resume_point = ckpt.ResumePoint(
+            self.n_iter_, self.labels_, self.length_scales_, self.alpha_, stable, self._data_sha256
+        )
+        self._write_checkpoint(traces)
+        self.checkpoint_seconds_["reset"].append(reset - t)
+        self.checkpoint_seconds_["write"].append(time.perf_counter() - reset)
+        return np.asarray(self._sampler.labels())
+
+    def _write_checkpoint(self, traces: list[np.ndarray]) -> None:
+        from .io import save
+
+        if self.store_labels:
+            self.label_trace_ = _trace_array(traces, len(self.frames_))
+        # Uncompressed: zlib would be most of a checkpoint's cost (the file is read once, if at all).
+        save(self, self.checkpoint, resume=self._resume_point, compress=False)
 
     def _resolve_engine(self, frames: Frames) -> None:
         """Choose the likelihood (``likelihood_``), its basis (``basis_``) and the memory budget
@@ -490,7 +545,57 @@ class DPGP:
         truncated, corrupted, not a model file or from a newer dpgp."""
         from .io import read_model_file
 
+        return cls._checked_from_file(read_model_file(path))
+
+    @classmethod
+    def resume(cls, path: Any, iterations: int | None = None, progress: bool | None = None) -> DPGP:
+        """Continue the chain of a checkpoint that ``fit`` wrote with ``checkpoint=path``, and keep
+        checkpointing to ``path``. The result is bitwise the model of the same fit run without
+        interruption (but the seconds of its sweeps and timings).
+
+        ``iterations`` is the chain's total length in sweeps, as in ``DPGP(iterations=...)``:
+        ``None`` finishes the original fit's; a larger number extends the chain (the result
+        equals a fit with that ``iterations``). A fit that has finished or stopped early
+        (``n_iter_no_change``) comes back as it is. ``progress``: show a progress bar (``None``: as
+        the fit did). ``resumed_from_`` is the sweep the chain continued from.
+        :class:`~dpgp.ModelFileError` if ``path`` is not a checkpoint, is damaged, or its data do not
+        match the fingerprint it was written with."""
+        from .io import read_model_file
+
         file = read_model_file(path)
+        if file.resume is None:
+            raise ModelFileError(
+                f"{file.path} is a model file without a resume point, not a checkpoint; checkpoints are written by "
+                "DPGP(checkpoint=PATH).fit or 'dpgp fit --checkpoint PATH'"
+            )
+        done, target = file.state["n_iter_"], file.settings.get("iterations")
+        if not (_is_int(target) and target >= done):
+            raise ModelFileError(f"{file.path}: the fit's iterations {target!r} are not a count of at least its {done} sweeps")
+        if iterations is not None:
+            if not (_is_int(iterations) and iterations >= done):
+                raise InvalidInputError(
+                    f"iterations is the chain's total length in sweeps: an integer of at least the {done} sweeps the "
+                    f"checkpoint holds (None finishes the original {target}), got {iterations!r}"
+                )
+            target = int(iterations)
+        finished = file.state["converged_"] or target == done
+        ckpt.check_path(file.path)
+        model = cls._checked_from_file(file if finished else ckpt.at_resume_point(file))
+        model.checkpoint, model.iterations = file.path, target
+        if progress is not None:
+            model.progress = bool(progress)
+        model.resumed_from_ = model.n_iter_
+        if finished:
+            return model
+        model._sampler.set_sweeps_done(model.n_iter_)
+        model._resume_point, model._data_sha256 = file.resume, file.resume.data_sha256
+        model.checkpoint_seconds_ = {"reset": [], "write": []}
+        model._sweeps(file.resume.stable, list(model.__dict__.get("label_trace_", [])))
+        return model
+
+    @classmethod
+    def _checked_from_file(cls, file: Any) -> DPGP:
+        """:meth:`_from_file`, with every inconsistency it meets a :class:`~dpgp.ModelFileError`."""
         try:
             return cls._from_file(file)
         except ModelFileError:
@@ -593,9 +698,13 @@ def _as_frames(frames: Any) -> Frames:
     raise ShapeError(f"expected dpgp.Frames or a framed DataFrame, got {type(frames).__name__}")
 
 
-def _progress(total: int, enabled: bool):
+def _progress(total: int, enabled: bool, initial: int = 0):
     if not enabled:
         return None
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc="dpgp sweeps", unit="sweep")
+    return tqdm(total=total, initial=initial, desc="dpgp sweeps", unit="sweep")
+
+
+def _trace_array(traces: list[np.ndarray], n_frames: int) -> np.ndarray:
+    return np.array(traces, dtype=np.int64).reshape(len(traces), n_frames)
