@@ -33,6 +33,7 @@ PAPER = dict(noise_var=1.0, length_scale_prior=(10.0, 1.0))
 #: A small fixed basis for hsgp keeps these tests fast (the sizing rule is tested in test_hsgp).
 ENGINES = {"exact": dict(likelihood="exact"), "hsgp": dict(likelihood="hsgp", n_basis=(10, 20))}
 
+
 def transformed(frames: dpgp.Frames, shift=(0.0, 0.0), scale: float = 1.0) -> dpgp.Frames:
     """The same frames with positions ``scale * xy + shift`` and velocities ``scale * v``."""
     ids = np.repeat(np.arange(len(frames)), frames.sizes)
@@ -188,7 +189,7 @@ def every_vehicle_twice(frames: dpgp.Frames) -> dpgp.Frames:
 
 
 def repeated_frame(frames: dpgp.Frames) -> dpgp.Frames:
-    """20 frames and then the first one 30 more times (a pattern holding one position 31 times)."""
+    """20 frames and then the first one 30 more times (each of its positions 31 times)."""
     rows = rows_of(frames)
     return from_rows(rows[:20] + [rows[0]] * 30)
 
@@ -243,7 +244,8 @@ def unit_fits(us101):
 def test_millimetres_and_kilometres_give_the_metres_fit(unit_fits, units):
     """Default settings, proposal "full": the same partition as in metres (ARI 1.0; ≥ 0.95
     required), the resolved defaults and the length scales scaled, and log densities equal up to
-    the Jacobian: −2 log c per velocity for the velocities, as much again for ψ's positions.
+    the Jacobian: −2 log c per vehicle for its velocity, as much again for its position (ψ is a
+    density per unit area).
     Before: the same on these frames; on others ψ's bins held positions on their edges by
     rounding (on 200 frames, score_samples up to 0.6 nats per frame apart; see the ψ test)."""
     metres, ref = unit_fits["metres"]
@@ -337,9 +339,9 @@ def test_a_single_frame(us101, likelihood):
 def test_a_single_vehicle_in_a_single_frame(us101):
     """One vehicle in all: the defaults cannot set a length scale or a signal variance from it
     (typed errors naming the setting to pass); with them passed it fits, and simulate now works
-    too. Before: simulate and sample_scenarios failed on the default ROI, the vehicle's
-    bounding box of zero width; now an axis of zero width is widened by the largest length
-    scale."""
+    too. Before: simulate and sample_scenarios raised InvalidInputError about a roi the user
+    never passed (the default, the vehicle's bounding box, has zero width); now an axis of zero
+    width is widened by the largest length scale."""
     frame = from_rows([rows_of(us101)[0][:1]])
     with pytest.raises(dpgp.InvalidInputError, match="length_scale_prior"):
         fit(frame, noise_var=1.0)
