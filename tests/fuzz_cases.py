@@ -235,6 +235,7 @@ class Context:
         self.root = Path(tempfile.mkdtemp(prefix="dpgp-fuzz-"))
         self._data: dict[str, bytes] | None = None
         self._model: Any = None
+        self._checkpoint: bytes | None = None
         self._counter = 0
 
     def close(self) -> None:
@@ -264,6 +265,16 @@ class Context:
             model.save(path)
             self._model = (model, path.read_bytes())
         return self._model
+
+    @property
+    def checkpoint(self) -> bytes:
+        """The bytes of a tiny fit's checkpoint (3 sweeps, every 2: the model is past its resume point)."""
+        if self._checkpoint is None:
+            frames = dpgp.datasets.synthetic("intersection", n_frames=12, seed=0, vehicles=(2, 5))
+            path = self.root / "base.ckpt"
+            dpgp.DPGP(iterations=3, seed=0, progress=False, checkpoint=str(path), checkpoint_every=2).fit(frames)
+            self._checkpoint = path.read_bytes()
+        return self._checkpoint
 
     def case_dir(self) -> Path:
         self._counter += 1
@@ -625,13 +636,16 @@ META_PATHS = [
     ("history", "log_joint"), ("history", "alpha"), ("frames_summary", "dt"), ("frames_summary", "roi"),
     ("distributions", "count_hist"), ("distributions", "position_hist"), ("distributions", "roi"),
     ("distributions", "version"), ("distributions", "pseudocount"), ("timings",), ("converged",),
+    ("resume",), ("resume", "sweeps_done"), ("resume", "stable"), ("resume", "alpha"), ("resume", "data_sha256"),
+    ("settings", "checkpoint"), ("settings", "checkpoint_every"),
 ]
 META_VALUES = [None, -1, 0, 1, 1e308, -1e308, 1e-320, "x", [], {}, [1, 2, 3], True, 2**63, 2**70, NAN, INF,
                -INF, [NAN, 1.0], [[1.0]], [1e308, 1e308], [0.0, 0.0], "DELETE", "DEEP"]
 
 
 def damaged_model_file(draw: Draw, ctx: Context, d: Path) -> Path:
-    _, base = ctx.model
+    # A model file, or a checkpoint (a model file with a resume point: DPGP(checkpoint=...)).
+    base = ctx.checkpoint if draw.boolean("checkpoint", 0.3) else ctx.model[1]
     path = d / draw.choice(["model.npz", "model", "model.npy"], "name")
     how = draw.choice(["truncate", "flip", "metadata", "metadata", "member", "member", "shape", "foreign"], "damage")
     data = base
@@ -715,6 +729,12 @@ def damaged_model_file(draw: Draw, ctx: Context, d: Path) -> Path:
 
 def case_model_files(draw: Draw, ctx: Context, d: Path) -> Any:
     path = damaged_model_file(draw, ctx, d)
+    if draw.boolean("resume", 0.2):
+        # Continues the chain (and checkpoints to the damaged file's path); a plain model file
+        # is a typed error. Always a small total: None would finish the file's own iterations,
+        # which an edit may make 2**63 (a long fit, not a defect).
+        iterations = draw.maybe([3, 4], [-1, 2, "5", 1.5, True, [4]], "iterations")
+        return dpgp.DPGP.resume(path, iterations=iterations)
     if draw.boolean("metadata_only", 0.15):
         from dpgp.io import read_metadata
 
@@ -853,7 +873,11 @@ def cli_argv(draw: Draw, ctx: Context, d: Path) -> list[str]:
     if cmd == "info":
         return ["info", model_path] + (["--top", _cli_number(draw, ["3"], HOSTILE_NUM_TEXT + ["1000000000"], "top")] if draw.boolean("top") else [])
     if cmd == "resume":
-        return ["resume", model_path]
+        if draw.boolean("checkpoint") and Path(model_path).is_file():
+            Path(model_path).write_bytes(ctx.checkpoint)
+        # Always --iterations: without it the chain runs to the file's own, which an edit may make 2**63.
+        argv = ["resume", model_path, "--no-progress", "--iterations", _cli_number(draw, ["3", "5"], ["-1", "0", "x", "1.5", ""], "iterations")]
+        return argv + (["-o", out] if draw.boolean("-o", 0.5) else [])
     if cmd == "simulate":
         argv = ["simulate", model_path, "--frame", _cli_number(draw, ["0", "1", "-1"], HOSTILE_NUM_TEXT + ["1000000"], "frame"), "-o", out]
         for flag, valid, hostile in [
