@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 import dpgp
+import dpgp.io
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ngsim_us101_frames.tsv"
 

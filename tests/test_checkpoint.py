@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 import dpgp
+import dpgp.io
 from dpgp.exceptions import InvalidInputError, ModelFileError
 
 # Synthetic highway frames with a small noise variance: frames keep moving between patterns and
