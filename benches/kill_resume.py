@@ -111,10 +111,16 @@ def kill_table(n_fits: int, data: str, n_frames: int, iterations: int, every: in
             status, twin_seconds = run_child({**base, "checkpoint": str(d / "twin.ckpt"), "out": str(d / "twin.npz")})
             if status != "finished":
                 raise RuntimeError(f"fit {i}: the twin {status}")
-            # Anywhere from the interpreter's start to the end of the last sweep.
-            kill_at = rng.uniform(0.05, 0.98) * twin_seconds
+            # Anywhere from the interpreter's start to the end of the last sweep; a child that
+            # finished first (the machine was less busy than for its twin) is run again, its
+            # checkpoint removed, and killed earlier.
             ckpt = d / "killed.ckpt"
-            status, _ = run_child({**base, "checkpoint": str(ckpt), "out": str(d / "killed.npz")}, kill_after=kill_at)
+            for attempt in range(5):
+                ckpt.unlink(missing_ok=True)
+                kill_at = rng.uniform(0.05, 0.95 - 0.2 * attempt) * twin_seconds
+                status, _ = run_child({**base, "checkpoint": str(ckpt), "out": str(d / "killed.npz")}, kill_after=kill_at)
+                if status != "finished":
+                    break
             temps = len(list(d.glob(".dpgp-*.tmp")))
             if status == "killed" and ckpt.exists():
                 sweep = str(dpgp.io.read_metadata(ckpt)["resume"]["sweeps_done"])
