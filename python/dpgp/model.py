@@ -568,17 +568,8 @@ class DPGP:
                 f"{file.path} is a model file without a resume point, not a checkpoint; checkpoints are written by "
                 "DPGP(checkpoint=PATH).fit or 'dpgp fit --checkpoint PATH'"
             )
-        done, target = file.state["n_iter_"], file.settings.get("iterations")
-        if not (_is_int(target) and target >= done):
-            raise ModelFileError(f"{file.path}: the fit's iterations {target!r} are not a count of at least its {done} sweeps")
-        if iterations is not None:
-            if not (_is_int(iterations) and iterations >= done):
-                raise InvalidInputError(
-                    f"iterations is the chain's total length in sweeps: an integer of at least the {done} sweeps the "
-                    f"checkpoint holds (None finishes the original {target}), got {iterations!r}"
-                )
-            target = int(iterations)
-        finished = file.state["converged_"] or target == done
+        target = _resume_target(file, iterations)
+        finished = file.state["converged_"] or target == file.state["n_iter_"]
         ckpt.check_path(file.path)
         model = cls._checked_from_file(file if finished else ckpt.at_resume_point(file))
         model.checkpoint, model.iterations = file.path, target
@@ -639,6 +630,21 @@ class DPGP:
         from .evaluate import evaluate
 
         return evaluate(self, _as_frames(test_frames), tracks, horizons)
+
+
+def _resume_target(file: Any, iterations: Any) -> int:
+    """The total sweeps a resumed chain runs to: ``iterations``, else the original fit's."""
+    done, original = file.state["n_iter_"], file.settings.get("iterations")
+    if not (_is_int(original) and original >= done):
+        raise ModelFileError(f"{file.path}: the fit's iterations {original!r} are not a count of at least its {done} sweeps")
+    if iterations is None:
+        return int(original)
+    if not (_is_int(iterations) and iterations >= done):
+        raise InvalidInputError(
+            f"iterations is the chain's total length in sweeps: an integer of at least the {done} sweeps the "
+            f"checkpoint holds (None finishes the original {original}), got {iterations!r}"
+        )
+    return int(iterations)
 
 
 def _is_int(x: object) -> bool:
