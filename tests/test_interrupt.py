@@ -13,7 +13,7 @@ import dpgp
 # A background job may inherit SIGINT as ignored; restore Python's default (KeyboardInterrupt).
 signal.signal(signal.SIGINT, signal.default_int_handler)
 frames = dpgp.datasets.synthetic("highway", n_frames=150, seed=0)
-model = dpgp.DPGP(iterations=100000, progress=False)
+model = dpgp.DPGP(iterations=100000, progress=False, noise_var={noise})
 print("fitting", flush=True)
 model.fit(frames)
 print("sweeps", model.n_iter_, "patterns", model.n_patterns_, flush=True)
@@ -22,7 +22,8 @@ print("predict", model.predict(frames[:3]).tolist(), flush=True)
 
 
 def test_ctrl_c_keeps_the_state_reached():
-    proc = subprocess.Popen([sys.executable, "-c", SCRIPT], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    script = SCRIPT.format(noise=0.5)  # a given noise: no pilot fits, sweeps start at once
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stdout.readline().strip() == "fitting"
         time.sleep(6)  # initialisation takes well under a second; sweeps are under way
@@ -35,3 +36,21 @@ def test_ctrl_c_keeps_the_state_reached():
     sweeps = int(out.split("sweeps")[1].split()[0])
     assert 1 <= sweeps < 100000
     assert "predict [" in out
+
+
+def test_ctrl_c_during_the_noise_pilots_stops_the_fit():
+    """noise_var="auto" runs short pilot fits first; Ctrl-C there ends the fit (there is no
+    state to keep yet) instead of being taken as the end of one pilot."""
+    script = SCRIPT.format(noise=repr("auto"))
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "fitting"
+        time.sleep(1.0)  # the pilots take several seconds
+        proc.send_signal(signal.SIGINT)
+        t = time.perf_counter()
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode != 0 and "KeyboardInterrupt" in err, (out, err)
+    assert "sweeps" not in out
+    assert time.perf_counter() - t < 30

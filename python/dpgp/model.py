@@ -202,7 +202,9 @@ class DPGP:
         settings = {**self.get_params(), "iterations": PILOT_SWEEPS, "assignment": "map", "noise_var": noise_var,
                     "length_scale_prior": length_scale_prior, "preset": None, "progress": False,
                     "n_iter_no_change": None, "store_labels": False, "proposal": "full", "checkpoint": None}  # fmt: skip
-        pilot = type(self)(**settings).fit(train)
+        pilot = type(self)(**settings)
+        pilot._keep_state_on_interrupt = False  # Ctrl-C in a pilot stops the whole fit
+        pilot.fit(train)
         return float(pilot.score_samples(test, positions=False).sum())
 
     # --- fitting ----------------------------------------------------------------------------------
@@ -314,6 +316,8 @@ class DPGP:
                 if self.checkpoint is not None and self.n_iter_ % self.checkpoint_every == 0:
                     previous = self._save_checkpoint(stable, traces)
         except KeyboardInterrupt:
+            if not getattr(self, "_keep_state_on_interrupt", True):
+                raise
             # Mid-sweep: the checkpoint keeps the last complete state, this model the state reached.
             interrupted = True
             warnings.warn(f"fit interrupted after {self.n_iter_} sweeps; the model keeps the state reached", stacklevel=3)
