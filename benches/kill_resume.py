@@ -163,8 +163,8 @@ class _Recording(dpgp.DPGP):
         self.copies.append(copy)
 
 
-def resume_every_checkpoint(frames: dpgp.Frames, settings: dict, directory: Path) -> tuple[int, list[str]]:
-    """Fit with checkpoints, then resume from each one: (checkpoints, differences found)."""
+def resume_every_checkpoint(frames: dpgp.Frames, settings: dict, directory: Path) -> tuple[dpgp.DPGP, list[str]]:
+    """Fit with checkpoints, then resume from each one: (the fit, differences found)."""
     model = _Recording(**settings, checkpoint=str(directory / "fit.ckpt"), progress=False)
     model.copies = []
     model.fit(frames)
@@ -172,26 +172,40 @@ def resume_every_checkpoint(frames: dpgp.Frames, settings: dict, directory: Path
     for copy in model.copies:
         resumed = dpgp.DPGP.resume(copy)
         found += [f"{copy.name}: {d}" for d in differences(model, resumed)]
-    return len(model.copies), found
+    return model, found
+
+
+# Settings beyond the grid, on exact/informed/gibbs.
+EXTRAS = [
+    dict(pattern_moments=True), dict(length_scale_fraction=0.5), dict(alpha=2.0), dict(length_scales=(3.0, 30.0)),
+    dict(n_iter_no_change=2, ari_tol=0.9), dict(store_labels=False),
+]
 
 
 def matrix(n_frames: int) -> bool:
     frames = dpgp.read_frames(DATA)[:n_frames] if DATA.exists() else dpgp.datasets.synthetic("highway", n_frames, seed=1)
     print(f"resume from every checkpoint: {frames!r}, 9 sweeps, checkpoint every 2 (noise_var 1.0)")
     ok = True
+    grid = [dict(likelihood=lik, proposal=prop, assignment=asg, seed=seed)
+            for lik, prop, asg, seed in itertools.product(["exact", "hsgp"], ["full", "informed"], ["gibbs", "map"], [0, 1])]  # fmt: skip
+    grid += [dict(likelihood="exact", proposal="informed", assignment="gibbs", seed=0, **e) for e in EXTRAS]
     with tempfile.TemporaryDirectory() as tmp:
-        for lik, prop, asg, seed, threads in itertools.product(
-            ["exact", "hsgp"], ["full", "informed"], ["gibbs", "map"], [0, 1], [1, 2]
-        ):
-            d = Path(tmp) / f"{lik}-{prop}-{asg}-{seed}-{threads}"
-            d.mkdir()
-            settings = dict(likelihood=lik, proposal=prop, assignment=asg, seed=seed, n_threads=threads,
-                            iterations=9, checkpoint_every=2, noise_var=1.0, store_labels=True)  # fmt: skip
-            t = time.perf_counter()
-            n, found = resume_every_checkpoint(frames, settings, d)
-            ok &= not found
-            print(f"  {lik:<6} {prop:<8} {asg:<6} seed {seed} threads {threads}: {n} checkpoints, "
-                  f"{'all identical' if not found else found} ({time.perf_counter() - t:.1f} s)", flush=True)  # fmt: skip
+        for i, variant in enumerate(grid):
+            fits = []
+            for threads in (1, 2):
+                d = Path(tmp) / f"{i}-{threads}"
+                d.mkdir()
+                settings = {"iterations": 9, "checkpoint_every": 2, "noise_var": 1.0, "store_labels": True, **variant}
+                t = time.perf_counter()
+                model, found = resume_every_checkpoint(frames, {**settings, "n_threads": threads}, d)
+                fits.append(model)
+                ok &= not found
+                name = " ".join(f"{k}={v}" for k, v in variant.items())
+                print(f"  {name} threads {threads}: {len(model.copies)} checkpoints, "
+                      f"{'all identical' if not found else found} ({time.perf_counter() - t:.1f} s)", flush=True)  # fmt: skip
+            across = differences(*fits)
+            ok &= not across
+            print(f"    1 thread vs 2: {'identical' if not across else across}")
     return ok
 
 
