@@ -135,3 +135,11 @@ def test_bad_input():
         d.sample_counts(-1)
     with pytest.raises(dpgp.InvalidInputError, match="pseudocount"):
         dpgp.EmpiricalDistributions.from_frames(f, pseudocount=-1)
+
+
+def test_stored_histograms_that_overflow_or_hold_no_vehicles_are_refused():
+    d = dpgp.EmpiricalDistributions.from_frames(toy_frames()).to_dict()
+    with pytest.raises(dpgp.InvalidInputError, match="overflow"):
+        dpgp.EmpiricalDistributions.from_dict({**d, "count_hist": [1e308, 1e308]})
+    with pytest.raises(dpgp.InvalidInputError, match="empty"):
+        dpgp.EmpiricalDistributions.from_dict({**d, "count_hist": [5.0, 0.0, 0.0]})

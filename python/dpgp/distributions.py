@@ -60,7 +60,9 @@ class EmpiricalDistributions:
         counts = ch.copy()
         counts[1:] += self.pseudocount  # never frames with 0 vehicles: make_frames drops them
         pos = ph + self.pseudocount
-        if counts.sum() <= 0 or pos.sum() <= 0:
+        if not (np.isfinite(counts.sum()) and np.isfinite(pos.sum())):
+            raise InvalidInputError("the histograms' totals overflow: counts must be frame and vehicle counts")
+        if counts[1:].sum() <= 0 or pos.sum() <= 0:
             raise InvalidInputError("the histograms are empty: build them from at least one frame")
         self._count_p = counts / counts.sum()
         area = (r[1] - r[0]) / ph.shape[0] * (r[3] - r[2]) / ph.shape[1]
