@@ -541,28 +541,45 @@ impl Sampler {
         self.cache = vec![Vec::new(); self.data.len()];
         self.alpha = alpha;
         let data = Arc::clone(&self.data);
-        for (g, &ls) in length_scales.iter().enumerate() {
-            let members: Vec<(usize, FrameRef)> = (0..labels.len())
-                .filter(|&i| labels[i] == g)
-                .map(|i| (i, data.frame(i)))
-                .collect();
-            if members.is_empty() {
-                continue;
-            }
-            let n: usize = members.iter().map(|m| m.1.xy.len()).sum();
-            let groups = self.settings.base.groups().len();
-            self.check_memory(self.settings.likelihood.pattern_bytes(n, groups))?;
-            let mut pattern = self
-                .settings
-                .likelihood
-                .pattern(self.pattern_params(ls), &members)?;
-            if self.settings.pattern_moments
-                && let Some(p) = pattern.with_own_moments(self.moment_floor())?
-            {
-                pattern = p;
-            }
-            let k = self.add_pattern(pattern);
-            for (i, _) in members {
+        let mut members: Vec<Vec<usize>> = vec![Vec::new(); length_scales.len()];
+        for (i, &g) in labels.iter().enumerate() {
+            members[g].push(i);
+        }
+        let groups: Vec<usize> = (0..members.len())
+            .filter(|&g| !members[g].is_empty())
+            .collect();
+        let n_groups = self.settings.base.groups().len();
+        let needed: usize = groups
+            .iter()
+            .map(|&g| {
+                let n = members[g].iter().map(|&i| data.frame(i).xy.len()).sum();
+                self.settings.likelihood.pattern_bytes(n, n_groups)
+            })
+            .sum();
+        self.check_memory(needed)?;
+        // Patterns are built independently (in parallel) and added in group order, so the
+        // state is the same whatever the number of threads.
+        let floor = self.moment_floor();
+        let built: Vec<Result<Box<dyn PatternModel>>> = groups
+            .par_iter()
+            .map(|&g| {
+                let frames: Vec<(usize, FrameRef)> =
+                    members[g].iter().map(|&i| (i, data.frame(i))).collect();
+                let pattern = self
+                    .settings
+                    .likelihood
+                    .pattern(self.pattern_params(length_scales[g]), &frames)?;
+                if self.settings.pattern_moments
+                    && let Some(p) = pattern.with_own_moments(floor)?
+                {
+                    return Ok(p);
+                }
+                Ok(pattern)
+            })
+            .collect();
+        for (&g, pattern) in groups.iter().zip(built) {
+            let k = self.add_pattern(pattern?);
+            for &i in &members[g] {
                 self.labels[i] = k;
             }
         }
