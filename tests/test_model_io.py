@@ -147,6 +147,18 @@ def test_corrupted_files_are_refused(fitted, tmp_path):
             dpgp.DPGP.load(tmp_path / "bad.npz")
 
 
+def test_a_member_flagged_as_encrypted_is_refused(fitted, tmp_path):
+    """One flipped bit in a central-directory entry marks the member encrypted; zipfile then
+    raises RuntimeError, which must reach the user as a ModelFileError (fuzz model_files:177)."""
+    _, path = fitted
+    data = bytearray(path.read_bytes())
+    central = data.find(b"PK\x01\x02")  # the first central-directory entry
+    data[central + 8] |= 0x01  # general-purpose flag bit 0: encrypted
+    (tmp_path / "bad.npz").write_bytes(bytes(data))
+    with pytest.raises(dpgp.ModelFileError, match="corrupted"):
+        dpgp.DPGP.load(tmp_path / "bad.npz")
+
+
 def test_foreign_files_are_refused(fitted, tmp_path):
     _, path = fitted
     csv = tmp_path / "frames.csv"

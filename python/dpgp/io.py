@@ -206,6 +206,8 @@ def _read(path: str) -> dict[str, np.ndarray]:
         raise ModelFileError(f"{path} is not a dpgp model file (not a readable .npz archive): {e}") from None
     except (zipfile.BadZipFile, zlib.error, EOFError, OSError, KeyError, NotImplementedError) as e:
         raise ModelFileError(f"{path} is truncated or corrupted ({type(e).__name__}: {e})") from None
+    except RuntimeError as e:  # zipfile: a member flagged as encrypted (dpgp never encrypts)
+        raise ModelFileError(f"{path} is corrupted or not written by dpgp ({e})") from None
     except MemoryError:
         raise ModelFileError(f"{path} declares an array too large to read; the file is corrupted") from None
 
