@@ -60,7 +60,9 @@ class EmpiricalDistributions:
         counts = ch.copy()
         counts[1:] += self.pseudocount  # never frames with 0 vehicles: make_frames drops them
         pos = ph + self.pseudocount
-        if not (np.isfinite(counts.sum()) and np.isfinite(pos.sum())):
+        with np.errstate(over="ignore"):
+            finite = np.isfinite(counts.sum()) and np.isfinite(pos.sum())
+        if not finite:
             raise InvalidInputError("the histograms' totals overflow: counts must be frame and vehicle counts")
         if counts[1:].sum() <= 0 or pos.sum() <= 0:
             raise InvalidInputError("the histograms are empty: build them from at least one frame")
