@@ -121,6 +121,24 @@ def test_newer_version_is_refused(fitted, tmp_path):
     assert "9.0.0" in str(e.value)
 
 
+def test_files_with_one_noise_variance_load_as_a_pair(fitted, tmp_path):
+    """Files written before the noise variance was per component hold one number."""
+    model, path = fitted
+
+    def one_noise(name, arr):
+        if name != "metadata":
+            return arr
+        meta = json.loads(str(arr))
+        meta["resolved"]["noise_var"] = 0.7
+        meta["params"]["noise_var"] = 0.7
+        return np.array(json.dumps(meta))
+
+    _rewrite(path, tmp_path / "old.npz", one_noise)
+    old = dpgp.DPGP.load(tmp_path / "old.npz")
+    assert old.noise_var_ == (0.7, 0.7) and old.params_.noise_var == (0.7, 0.7)
+    assert np.all(np.isfinite(old.score_samples(model.frames_[:5])))
+
+
 def test_truncated_files_are_refused(fitted, tmp_path):
     _, path = fitted
     data = path.read_bytes()
