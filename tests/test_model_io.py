@@ -104,18 +104,27 @@ def _rewrite(src, dst, change) -> None:
     np.savez(dst, **out)
 
 
-def test_newer_version_is_refused(fitted, tmp_path):
-    _, path = fitted
+def _rewrite_metadata(src, dst, edit) -> None:
+    """Copy the archive with ``edit(meta)`` applied to its JSON metadata (in place)."""
 
-    def bump(name, arr):
+    def change(name, arr):
         if name != "metadata":
             return arr
         meta = json.loads(str(arr))
-        meta["format_version"] = mio.FORMAT_VERSION + 1
-        meta["dpgp_version"] = "9.0.0"
+        edit(meta)
         return np.array(json.dumps(meta))
 
-    _rewrite(path, tmp_path / "new.npz", bump)
+    _rewrite(src, dst, change)
+
+
+def test_newer_version_is_refused(fitted, tmp_path):
+    _, path = fitted
+
+    def bump(meta):
+        meta["format_version"] = mio.FORMAT_VERSION + 1
+        meta["dpgp_version"] = "9.0.0"
+
+    _rewrite_metadata(path, tmp_path / "new.npz", bump)
     with pytest.raises(dpgp.ModelFileError, match="newer|upgrade") as e:
         dpgp.DPGP.load(tmp_path / "new.npz")
     assert "9.0.0" in str(e.value)
@@ -125,15 +134,11 @@ def test_files_with_one_noise_variance_load_as_a_pair(fitted, tmp_path):
     """Files written before the noise variance was per component hold one number."""
     model, path = fitted
 
-    def one_noise(name, arr):
-        if name != "metadata":
-            return arr
-        meta = json.loads(str(arr))
+    def one_noise(meta):
         meta["resolved"]["noise_var"] = 0.7
         meta["params"]["noise_var"] = 0.7
-        return np.array(json.dumps(meta))
 
-    _rewrite(path, tmp_path / "old.npz", one_noise)
+    _rewrite_metadata(path, tmp_path / "old.npz", one_noise)
     old = dpgp.DPGP.load(tmp_path / "old.npz")
     assert old.noise_var_ == (0.7, 0.7) and old.params_.noise_var == (0.7, 0.7)
     assert np.all(np.isfinite(old.score_samples(model.frames_[:5])))

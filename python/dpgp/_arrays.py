@@ -7,6 +7,13 @@ import numpy as np
 
 from .exceptions import InvalidInputError, ShapeError
 
+#: Largest magnitude of a velocity, a centred position or a length scale whose squares and
+#: sums stay finite in double precision, with room to spare (fits refuse larger values; model
+#: files holding them are damaged).
+MAX_MAGNITUDE = 1e100
+#: Smallest length scale whose square is still a normal double.
+MIN_LENGTH_SCALE = 1e-150
+
 
 def as_float_array(name: str, a: object) -> np.ndarray:
     try:

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from ._arrays import MAX_MAGNITUDE, MIN_LENGTH_SCALE
 from .exceptions import InvalidInputError, ModelFileError
 
 #: The metadata key and array names a checkpoint adds to a model file.
@@ -164,8 +165,8 @@ def _resume_arrays(arrays: dict[str, np.ndarray], n_frames: int) -> tuple[np.nda
     labels, ls = labels.astype(np.int64), ls.astype(np.float64)
     if len(labels) and (labels.min() < 0 or labels.max() >= len(ls) or len(np.unique(labels)) != len(ls)):
         raise ModelFileError("the checkpoint's resume labels do not name exactly its resume patterns")
-    if not ((ls >= 1e-150).all() and (ls <= 1e100).all()):
-        raise ModelFileError("the checkpoint's resume length scales must lie in [1e-150, 1e100]")
+    if not ((ls >= MIN_LENGTH_SCALE).all() and (ls <= MAX_MAGNITUDE).all()):
+        raise ModelFileError(f"the checkpoint's resume length scales must lie in [{MIN_LENGTH_SCALE:g}, {MAX_MAGNITUDE:g}]")
     return labels, ls
 
 

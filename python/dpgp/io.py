@@ -54,6 +54,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ._arrays import MAX_MAGNITUDE as _MAX_MAGNITUDE
+from ._arrays import MIN_LENGTH_SCALE
 from .checkpoint import META_KEY as RESUME_KEY
 from .checkpoint import parse as parse_resume
 from .exceptions import DpgpError, ModelFileError
@@ -65,11 +67,6 @@ FORMAT = "dpgp-model"
 FORMAT_VERSION = 2  # 2: "resolved" (what the "auto" settings and the preset resolved to)
 
 _REQUIRED = ("metadata", "frame_ids", "frame_offsets", "frame_xy", "frame_v", "labels", "length_scales")
-
-#: The bound ``fit`` puts on velocities and centred positions (``dpgp.model._MAX_MAGNITUDE``):
-#: beyond it the GP's sums of squares overflow, so a file holding such values did not come
-#: from a fit and would load into a model that scores to -inf or NaN.
-_MAX_MAGNITUDE = 1e100
 
 
 def _jsonable(value: Any) -> Any:
@@ -375,8 +372,8 @@ def _check_numbers(frames: Any, length_scales: np.ndarray, alpha: Any) -> None:
                 f"{name} holds values of magnitude {size:.3g}, beyond the {_MAX_MAGNITUDE:g} a fit accepts; the file is corrupted"
             )
     # Squared length scales must stay normal floats; a fit never comes near these bounds.
-    if not ((length_scales >= 1e-150).all() and (length_scales <= _MAX_MAGNITUDE).all()):
-        raise ModelFileError(f"length_scales must lie in [1e-150, {_MAX_MAGNITUDE:g}]; the file is corrupted")
+    if not ((length_scales >= MIN_LENGTH_SCALE).all() and (length_scales <= _MAX_MAGNITUDE).all()):
+        raise ModelFileError(f"length_scales must lie in [{MIN_LENGTH_SCALE:g}, {_MAX_MAGNITUDE:g}]; the file is corrupted")
     if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not (np.isfinite(alpha) and alpha > 0):
         raise ModelFileError(f"alpha must be a positive number, got {alpha!r}; the file is corrupted")
 
@@ -416,7 +413,7 @@ def _engine(meta: dict[str, Any]) -> tuple[str, Any]:
 def _resolved(meta: dict[str, Any]) -> Any:
     """The assignment, σ_n² and length-scale prior the fit resolved (never re-estimated: the
     saved model is what was fitted)."""
-    from .defaults import Resolved
+    from .defaults import Resolved, _positive_pair
 
     r = meta.get("resolved")
     if r is None:  # version 1: the settings were the values
@@ -427,20 +424,10 @@ def _resolved(meta: dict[str, Any]) -> Any:
         }  # fmt: skip
     scores = r.get("noise_scores")
     return Resolved(**{
-        **r, "length_scale_prior": tuple(float(x) for x in r["length_scale_prior"]), "noise_var": _noise_pair(r["noise_var"]),
+        **r, "length_scale_prior": tuple(float(x) for x in r["length_scale_prior"]),
+        "noise_var": _positive_pair("noise_var", r["noise_var"]),  # files before per-component noise: one number
         "noise_scores": None if scores is None else tuple(tuple(float(x) for x in row) for row in scores),
     })  # fmt: skip
-
-
-def _noise_pair(value: Any) -> tuple[float, float]:
-    """σ_n² per velocity component (files before per-component noise hold one number)."""
-    try:
-        x = np.broadcast_to(np.asarray(value, dtype=float), (2,))
-    except (TypeError, ValueError):
-        raise ModelFileError(f"noise_var must be a positive number or a pair, got {value!r}; the file is corrupted") from None
-    if not (np.all(np.isfinite(x)) and np.all(x > 0)):
-        raise ModelFileError(f"noise_var must be positive and finite, got {value!r}; the file is corrupted")
-    return (float(x[0]), float(x[1]))
 
 
 __all__ = ["save", "load", "read_model_file", "parse", "ModelFile", "read_metadata", "FORMAT", "FORMAT_VERSION"]

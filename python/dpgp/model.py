@@ -13,6 +13,7 @@ import numpy as np
 
 from . import _core
 from . import checkpoint as ckpt
+from ._arrays import MAX_MAGNITUDE as _MAX_MAGNITUDE
 from ._resources import default_memory_budget, parse_bytes
 from .exceptions import DpgpError, InvalidInputError, MemoryBudgetError, ModelFileError, NotFittedError, ShapeError
 from .fitted import FittedPatterns
@@ -653,11 +654,6 @@ def _resume_target(file: Any, iterations: Any) -> int:
 
 def _is_int(x: object) -> bool:
     return isinstance(x, (int, np.integer)) and not isinstance(x, bool)
-
-
-#: Largest magnitude of a velocity or position (after centring) whose squares and sums stay
-#: finite in double precision, with room to spare.
-_MAX_MAGNITUDE = 1e100
 
 
 def _check_magnitudes(frames: Frames, what: str) -> None:
