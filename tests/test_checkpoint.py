@@ -79,13 +79,31 @@ def test_resuming_from_every_checkpoint_gives_the_uninterrupted_fit(frames, tmp_
     assert no_temps(tmp_path) == []
 
 
-def test_the_data_would_catch_a_chain_that_parts(frames, tmp_path):
-    """The test data are sensitive: a fit that does not rebuild its sampler at checkpoints (a
-    plain fit) already differs from one that does, so a resume that skipped the rebuild would
-    fail the test above. Hence the docstring's caveat: with checkpoints differs from without."""
-    plain = dpgp.DPGP(**{**SETTINGS, "likelihood": "exact", "proposal": "full"}).fit(frames)
-    checkpointed = dpgp.DPGP(**{**SETTINGS, "likelihood": "exact", "proposal": "full"}, checkpoint=str(tmp_path / "c")).fit(frames)
-    assert "history_" in differences(plain, checkpointed)
+class NoRebuild(dpgp.DPGP):
+    """A fit that keeps its incremental state instead of rebuilding at the cadence (as fits
+    without checkpoints did before issue 17)."""
+
+    def _save_checkpoint(self, stable, traces):  # noqa: ANN001
+        return np.asarray(self._sampler.labels())
+
+
+@pytest.mark.parametrize("variant", [dict(likelihood="exact", proposal="full"), dict(likelihood="hsgp", proposal="informed", n_threads=2)])
+def test_a_fit_gives_the_same_result_with_or_without_checkpoints(frames, tmp_path, variant):
+    """Whether a fit writes checkpoints is an operational choice: same data, settings and seed
+    give bitwise the same labels, length scales, alpha and history either way (issue 17)."""
+    settings = {**SETTINGS, **variant}
+    plain = dpgp.DPGP(**settings).fit(frames)
+    checkpointed = dpgp.DPGP(**settings, checkpoint=str(tmp_path / "c")).fit(frames)
+    assert differences(plain, checkpointed) == []
+    assert len(plain.checkpoint_seconds_["reset"]) == len(checkpointed.checkpoint_seconds_["reset"]) == 1 + 7 // 2
+    assert plain.checkpoint_seconds_["write"] == [] and len(checkpointed.checkpoint_seconds_["write"]) == 1 + 7 // 2
+
+
+def test_the_data_would_catch_a_chain_that_parts(frames):
+    """The test data are sensitive: a fit that does not rebuild its sampler at the cadence
+    differs from one that does, so the identity above and the resume tests can fail."""
+    settings = {**SETTINGS, "likelihood": "exact", "proposal": "full"}
+    assert "history_" in differences(NoRebuild(**settings).fit(frames), dpgp.DPGP(**settings).fit(frames))
 
 
 def test_extending_a_chain_equals_the_longer_fit(frames, tmp_path):
@@ -187,17 +205,27 @@ def test_a_truncated_checkpoint_is_a_model_file_error(checkpoint_bytes, tmp_path
 
 
 def test_flipped_bits_are_a_model_file_error(checkpoint_bytes, tmp_path):
+    """Each flipped bit is detected (ModelFileError) or harmless: the resumed chain is then
+    bitwise the clean one's (a flip in a zip header's timestamp changes nothing read)."""
+    clean_path = tmp_path / "clean.ckpt"
+    clean_path.write_bytes(checkpoint_bytes)
+    clean = dpgp.DPGP.resume(clean_path, iterations=3)
     rng = np.random.default_rng(0)
     path = tmp_path / "flipped.ckpt"
+    detected, harmless = 0, 0
     for _ in range(20):
         data = bytearray(checkpoint_bytes)
         i = int(rng.integers(len(data)))
         data[i] ^= 1 << int(rng.integers(8))
         path.write_bytes(bytes(data))
         try:
-            dpgp.DPGP.resume(path, iterations=3)  # a flip inside a zip's slack may leave it valid
+            resumed = dpgp.DPGP.resume(path, iterations=3)
         except ModelFileError:
-            pass
+            detected += 1
+        else:
+            assert differences(resumed, clean) == [], f"a flip of byte {i} went undetected and changed the chain"
+            harmless += 1
+    assert detected + harmless == 20 and detected >= 15, (detected, harmless)
 
 
 @pytest.mark.parametrize(

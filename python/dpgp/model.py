@@ -95,11 +95,12 @@ class DPGP:
         checkpoint is a model file (:meth:`load` reads it). A fit killed at any point and resumed
         gives bitwise the labels, length scales, α and history (but the seconds) of the same fit
         run without interruption. At each checkpoint the fit rebuilds its sampler from the state
-        it wrote, as resuming does (:mod:`dpgp.checkpoint` says why), so a fit with checkpoints
-        may differ from the same fit without them in the rounding of its factors, and from there
-        in its draws. ``checkpoint_seconds_`` records each checkpoint's ``"reset"`` and ``"write"``
+        it wrote, as resuming does (:mod:`dpgp.checkpoint` says why); a fit without checkpoints
+        rebuilds at the same cadence, so both give bitwise the same result.
+        ``checkpoint_seconds_`` records each rebuild's ``"reset"`` and each write's ``"write"``
         seconds.
-    checkpoint_every : sweeps between checkpoints.
+    checkpoint_every : sweeps between checkpoints, and between the sampler's canonical rebuilds
+        (after the initialisation and every ``checkpoint_every`` sweeps, with or without a file).
     """
 
     def __init__(
@@ -286,7 +287,7 @@ class DPGP:
         self.checkpoint_seconds_: dict[str, list[float]] = {"reset": [], "write": []}
         if self.checkpoint is not None:
             self._data_sha256 = ckpt.fingerprint(frames)
-        self._sweeps(stable=0, traces=[], checkpoint_now=self.checkpoint is not None)
+        self._sweeps(stable=0, traces=[], checkpoint_now=True)
         return self
 
     def _sweeps(self, stable: int, traces: list[np.ndarray], checkpoint_now: bool = False) -> None:
@@ -314,7 +315,7 @@ class DPGP:
                 stable = stable + 1 if (same_k and ari >= self.ari_tol) else 0
                 previous = labels
                 self.converged_ = self.n_iter_no_change is not None and stable >= self.n_iter_no_change
-                if self.checkpoint is not None and self.n_iter_ % self.checkpoint_every == 0:
+                if self.n_iter_ % self.checkpoint_every == 0:  # with or without a file: one result
                     previous = self._save_checkpoint(stable, traces)
         except KeyboardInterrupt:
             if not getattr(self, "_keep_state_on_interrupt", True):
@@ -342,19 +343,22 @@ class DPGP:
             self._write_checkpoint(traces)  # the finished model, with the last resume point
 
     def _save_checkpoint(self, stable: int, traces: list[np.ndarray]) -> np.ndarray:
-        """Write the chain's state to ``checkpoint`` and continue from it exactly as a resumed
-        chain does: rebuild the sampler from the state written (:mod:`dpgp.checkpoint` says why).
-        Returns the sampler's labels after the rebuild."""
+        """Rebuild the sampler from its own state in canonical order, as a resumed chain does
+        (:mod:`dpgp.checkpoint` says why), and with ``checkpoint`` set write that state there.
+        Every fit rebuilds at this cadence whether or not it writes a file, so that writing
+        checkpoints never changes the result. Returns the sampler's labels after the rebuild."""
         t = time.perf_counter()
         self._sync()
         self._sampler.set_state(self.labels_, self.length_scales_, self.alpha_)
         self._sync()
         reset = time.perf_counter()
+        self.checkpoint_seconds_["reset"].append(reset - t)
+        if self.checkpoint is None:
+            return np.asarray(self._sampler.labels())
         self._resume_point = ckpt.ResumePoint(
             self.n_iter_, self.labels_, self.length_scales_, self.alpha_, stable, self._data_sha256
         )
         self._write_checkpoint(traces)
-        self.checkpoint_seconds_["reset"].append(reset - t)
         self.checkpoint_seconds_["write"].append(time.perf_counter() - reset)
         return np.asarray(self._sampler.labels())
 
