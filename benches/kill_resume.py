@@ -2,11 +2,13 @@
 what a checkpoint costs.
 
     nice python benches/kill_resume.py            # 20 fits, each SIGKILLed at a random point and
-                                                  # resumed, against uninterrupted twins
+                                                  # resumed, against uninterrupted twins with and
+                                                  # without checkpoints (issue 17)
     nice python benches/kill_resume.py --matrix   # resume from every checkpoint of short fits over
                                                   # likelihood x proposal x assignment x seed x threads
     nice python benches/kill_resume.py --cost     # checkpoint cost on NGSIM US-101, 1000 frames,
-                                                  # default settings: seconds and share of a sweep
+                                                  # default settings, checkpoint_every=10: the
+                                                  # rebuild's and the write's share of the fit
 
 A resumed fit must equal its twin bitwise in labels, length scales, alpha, history (but seconds),
 label trace, sweeps and convergence. Every fit runs in a child process (``--child``), so a kill
@@ -98,7 +100,7 @@ def kill_table(n_fits: int, data: str, n_frames: int, iterations: int, every: in
     root = Path(tempfile.mkdtemp(prefix="dpgp-kill-"))
     rows, ok = [], True
     print(f"{n_fits} fits of {data} ({n_frames} frames), {iterations} sweeps, checkpoint every {every}; "
-          "each killed by SIGKILL at a random point, then resumed")  # fmt: skip
+          "each killed by SIGKILL at a random point, then resumed; against the same fit with and without checkpoints")  # fmt: skip
     header = f"{'fit':>3}  {'likelihood':<6} {'proposal':<8} {'assign':<6} {'seed':>4}  {'twin s':>6}  {'kill at s':>9}  {'ckpt sweep':>10}  {'temp':>4}  {'identical':<9}"
     print(header)
     try:
@@ -111,6 +113,10 @@ def kill_table(n_fits: int, data: str, n_frames: int, iterations: int, every: in
             status, twin_seconds = run_child({**base, "checkpoint": str(d / "twin.ckpt"), "out": str(d / "twin.npz")})
             if status != "finished":
                 raise RuntimeError(f"fit {i}: the twin {status}")
+            # The same fit without checkpoints: checkpointing must not change the result (issue 17).
+            status, _ = run_child({**base, "checkpoint": None, "out": str(d / "plain.npz")})
+            if status != "finished":
+                raise RuntimeError(f"fit {i}: the fit without checkpoints {status}")
             # Anywhere from the interpreter's start to the end of the last sweep; a child that
             # finished first (the machine was less busy than for its twin) is run again, its
             # checkpoint removed, and killed earlier.
@@ -133,7 +139,9 @@ def kill_table(n_fits: int, data: str, n_frames: int, iterations: int, every: in
                 shutil.copy(d / "killed.npz", d / "resumed.npz")
             if status != "finished":
                 raise RuntimeError(f"fit {i}: the resumed fit {status}")
-            diff = differences(dpgp.DPGP.load(d / "twin.npz"), dpgp.DPGP.load(d / "resumed.npz"))
+            twin = dpgp.DPGP.load(d / "twin.npz")
+            diff = differences(twin, dpgp.DPGP.load(d / "resumed.npz"))
+            diff += [f"plain:{x}" for x in differences(twin, dpgp.DPGP.load(d / "plain.npz"))]
             left = len(list(d.glob(".dpgp-*.tmp")))
             ok &= not diff and not left
             verdict = "yes" if not diff else "NO: " + ",".join(diff)
@@ -145,7 +153,7 @@ def kill_table(n_fits: int, data: str, n_frames: int, iterations: int, every: in
     finally:
         shutil.rmtree(root, ignore_errors=True)
     n_same = sum(r.rstrip().endswith("yes") for r in rows)
-    print(f"identical to the uninterrupted twin: {n_same}/{n_fits}")
+    print(f"identical: with checkpoints = without = killed and resumed: {n_same}/{n_fits}")
     print("(temp: checkpoint temporary files left by the kill > left after resuming)")
     return ok
 
@@ -210,23 +218,23 @@ def matrix(n_frames: int) -> bool:
 
 
 # --- cost -------------------------------------------------------------------------------------------
-def cost(n_frames: int, iterations: int) -> None:
-    """Checkpoint every sweep of a default fit and compare each checkpoint's seconds to a sweep's."""
+def cost(n_frames: int, iterations: int, every: int) -> None:
+    """What a checkpoint costs on a default fit: the canonical rebuild every fit does at the
+    cadence (with or without a file) and the file write, each as a share of the fit."""
     frames = dpgp.read_frames(DATA)[:n_frames]
+    print(f"US-101 {frames!r}, default settings, {iterations} sweeps, checkpoint_every={every}")
     with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "us101.ckpt"
-        t = time.perf_counter()
-        model = dpgp.DPGP(iterations=iterations, checkpoint=str(path), checkpoint_every=1, progress=False).fit(frames)
-        total = time.perf_counter() - t
-        size = path.stat().st_size
-    sweep = np.median(model.history_["seconds"])
-    reset, write = (np.median(model.checkpoint_seconds_[k]) for k in ("reset", "write"))
-    print(f"US-101 {frames!r}, default settings ({model.likelihood_}, {model.proposal}, {model.n_patterns_} patterns "
-          f"at the end), {iterations} sweeps, a checkpoint after every sweep; fit {total:.1f} s")  # fmt: skip
-    print(f"  median sweep          {sweep:.3f} s")
-    print(f"  median checkpoint     {reset + write:.3f} s = {(reset + write) / sweep:.0%} of a sweep "
-          f"(re-set {reset:.3f} s, write {write:.3f} s; file {size / 1e6:.2f} MB)")  # fmt: skip
-    print(f"  with checkpoint_every=10 (default): {(reset + write) / (10 * sweep):.1%} of the fit's sweep time")
+        for label, path in (("without a file", None), ("with a file", str(Path(tmp) / "us101.ckpt"))):
+            t = time.perf_counter()
+            model = dpgp.DPGP(iterations=iterations, checkpoint=path, checkpoint_every=every, progress=False).fit(frames)
+            total = time.perf_counter() - t
+            reset, write = (float(np.sum(model.checkpoint_seconds_[k])) for k in ("reset", "write"))
+            sweep = float(np.median(model.history_["seconds"]))
+            n = len(model.checkpoint_seconds_["reset"])
+            print(f"  {label:<15} ({model.likelihood_}, {model.proposal}, {model.n_patterns_} patterns): fit {total:.1f} s, "
+                  f"median sweep {sweep:.3f} s; {n} rebuilds {reset:.2f} s = {reset / total:.1%} of the fit"
+                  + (f"; writes {write:.2f} s = {write / total:.1%} (file {Path(path).stat().st_size / 1e6:.2f} MB)" if path else ""),
+                  flush=True)  # fmt: skip
 
 
 def main() -> int:
@@ -238,14 +246,16 @@ def main() -> int:
     p.add_argument("--data", default="us101", help="'us101' (the first --frames frames) or a synthetic kind")
     p.add_argument("--frames", type=int, default=None, help="frames (default: 200 for kills and the matrix, 1000 for the cost)")
     p.add_argument("--iterations", type=int, default=None, help="sweeps (default: 30 for kills, 40 for the cost)")
-    p.add_argument("--every", type=int, default=3, help="checkpoint_every of the kill fits")
+    p.add_argument("--every", type=int, default=None, help="checkpoint_every (default: 3 for the kill fits, 10 for the cost)")
     p.add_argument("--seed", type=int, default=0, help="seed of the kill times and the fits' seeds")
     args = p.parse_args()
+    args.every_set = args.every is not None
+    args.every = args.every if args.every_set else 3
     if args.child:
         child(json.loads(args.child))
         return 0
     if args.cost:
-        cost(args.frames or 1000, args.iterations or 40)
+        cost(args.frames or 1000, args.iterations or 40, args.every if args.every_set else 10)
         return 0
     if args.matrix:
         return 0 if matrix(args.frames or 200) else 1

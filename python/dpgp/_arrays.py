@@ -13,6 +13,19 @@ from .exceptions import InvalidInputError, ShapeError
 MAX_MAGNITUDE = 1e100
 #: Smallest length scale whose square is still a normal double.
 MIN_LENGTH_SCALE = 1e-150
+#: Range of the DP concentration α a fit accepts (and a model file may hold): the log joint's
+#: ``log Γ(α) - log Γ(α + N)``, ``-1/(2α)`` and the new-pattern weight ``log(α / m)`` stay finite.
+ALPHA_RANGE = (1e-100, 1e100)
+
+
+def alpha_in_range(alpha: object) -> bool:
+    """Whether ``alpha`` is a real number (not a bool) inside :data:`ALPHA_RANGE`."""
+    if isinstance(alpha, bool) or not isinstance(alpha, (int, float, np.integer, np.floating)):
+        return False
+    try:
+        return ALPHA_RANGE[0] <= float(alpha) <= ALPHA_RANGE[1]
+    except OverflowError:  # an int past the float range
+        return False
 
 
 def as_float_array(name: str, a: object) -> np.ndarray:
@@ -46,3 +59,46 @@ def check_finite(name: str, a: np.ndarray) -> None:
             f"{name} contains {int(bad.sum())} non-finite value(s) (NaN or inf), first at row {int(idx[0])}; "
             "drop or impute them first"
         )
+
+
+def is_path(value: object) -> bool:
+    """A file path as Python takes one: ``str``, ``bytes`` or an ``os.PathLike``."""
+    import os
+
+    return isinstance(value, (str, bytes, os.PathLike))
+
+
+def as_path(value: object) -> str:
+    """``value`` (``str``, ``bytes`` or ``os.PathLike``) as a ``str`` path; bytes are decoded
+    as ``os.fsdecode`` does, so every byte name round-trips. ``TypeError`` for anything that is
+    not a path at all, as ``open`` raises."""
+    import os
+
+    if not is_path(value):
+        raise TypeError(f"expected a file path (str, bytes or os.PathLike), got {type(value).__name__}")
+    return os.fsdecode(os.fspath(value))
+
+
+def column_floats(values: object, name: object, where: str = "") -> np.ndarray:
+    """A table column (a pandas Series or array) as float64, where an integer too large for a
+    double (past 1.8e308) is a :class:`~dpgp.DataFormatError` naming the column and row rather
+    than Python's ``OverflowError``."""
+    from .exceptions import DataFormatError
+
+    arr = values.to_numpy() if hasattr(values, "to_numpy") else np.asarray(values)
+    try:
+        return np.asarray(arr, dtype=np.float64)
+    except OverflowError:
+        pass
+    out = np.empty(len(arr))
+    for i, x in enumerate(arr):
+        try:
+            out[i] = float(x)
+        except OverflowError:
+            raise DataFormatError(
+                f"{where + ': ' if where else ''}column {name!r} holds a number too large for a double "
+                f"(beyond 1.8e308) at row {i}: {str(x)[:20]}...; is this the right column?"
+            ) from None
+        except (TypeError, ValueError):
+            out[i] = np.nan  # reported by the caller's check of missing values
+    return out

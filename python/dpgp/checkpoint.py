@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from ._arrays import MAX_MAGNITUDE, MIN_LENGTH_SCALE
+from ._arrays import ALPHA_RANGE, MAX_MAGNITUDE, MIN_LENGTH_SCALE, alpha_in_range, as_path, is_path
 from .exceptions import InvalidInputError, ModelFileError
 
 #: The metadata key and array names a checkpoint adds to a model file.
@@ -76,10 +76,8 @@ class ResumePoint:
 
 def check_settings(checkpoint: Any, every: Any) -> None:
     """Types and ranges only (a model file may name a path of another machine)."""
-    if checkpoint is not None and (not isinstance(checkpoint, (str, os.PathLike)) or not os.fspath(checkpoint)):
+    if checkpoint is not None and (not is_path(checkpoint) or not as_path(checkpoint)):
         raise InvalidInputError(f"checkpoint must be None or a file path, got {checkpoint!r}")
-    if isinstance(checkpoint, os.PathLike) and not isinstance(os.fspath(checkpoint), str):
-        raise InvalidInputError(f"checkpoint must be a text path, got {checkpoint!r}")
     if not (isinstance(every, (int, np.integer)) and not isinstance(every, bool) and 1 <= every <= 10**9):
         raise InvalidInputError(f"checkpoint_every must be an integer in [1, 1e9] (sweeps), got {every!r}")
 
@@ -87,7 +85,7 @@ def check_settings(checkpoint: Any, every: Any) -> None:
 def check_path(path: Any) -> str:
     """Refuse, before a fit starts or resumes, a checkpoint path that cannot be written, and
     remove the temporary files a writer killed mid-write left beside it."""
-    path = os.fspath(path)
+    path = as_path(path)
     directory = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(directory):
         raise FileNotFoundError(f"checkpoint {path}: the directory {directory} does not exist; create it first")
@@ -128,8 +126,8 @@ def parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], frames: Any) -> R
         raise ModelFileError(f"the checkpoint's sweeps_done {done!r} and n_iter {n_iter!r} are not counts with sweeps_done <= n_iter")
     if not (_count(stable) and stable <= done):
         raise ModelFileError(f"the checkpoint's stopping-rule counter {stable!r} is not a count <= sweeps_done")
-    if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not (np.isfinite(alpha) and alpha > 0):
-        raise ModelFileError(f"the checkpoint's alpha {alpha!r} is not a positive number")
+    if not alpha_in_range(alpha):
+        raise ModelFileError(f"the checkpoint's alpha {alpha!r} is not a number in [{ALPHA_RANGE[0]:g}, {ALPHA_RANGE[1]:g}]")
     lengths = {k: len(v) for k, v in history.items()} if isinstance(history, dict) else {}
     if sorted(lengths) != sorted(HISTORY_KEYS) or any(n != n_iter for n in lengths.values()):
         raise ModelFileError(f"the checkpoint's history needs {HISTORY_KEYS} with {n_iter} entries each, has {lengths}")

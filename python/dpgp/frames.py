@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Iterator, overload
 
 import numpy as np
 
-from ._arrays import as_vector, check_finite
+from ._arrays import as_path, as_vector, check_finite, column_floats, is_path
 from .exceptions import DataFormatError, InvalidInputError, ShapeError
 
 if TYPE_CHECKING:
@@ -67,6 +67,15 @@ class Frames:
         v: np.ndarray,
         labels: np.ndarray | None = None,
     ) -> None:
+        # Sizes before any conversion: an array of 1e11 zero-byte items (a damaged model file)
+        # would otherwise be converted to 745 GiB of int64 before its length is seen.
+        if np.ndim(xy) != 2 or np.shape(xy)[1:] != (2,) or np.shape(v) != np.shape(xy):
+            raise ShapeError(f"xy and v must both have shape (n, 2), got {np.shape(xy)} and {np.shape(v)}")
+        if np.ndim(offsets) != 1 or np.shape(offsets)[0] != len(ids) + 1 or len(ids) > len(xy):
+            raise ShapeError("offsets must run from 0 to the number of rows, one more entry than there are frames")
+        for name, a in (("offsets", offsets), ("xy", xy), ("v", v)):
+            if isinstance(a, np.ndarray) and (a.dtype.kind not in "biuf" or a.dtype.itemsize == 0):
+                raise ShapeError(f"{name} must hold numbers, got dtype {a.dtype}")
         offsets = np.ascontiguousarray(offsets, dtype=np.int64)
         if offsets.ndim != 1 or len(offsets) != len(ids) + 1 or offsets[0] != 0 or offsets[-1] != len(xy):
             raise ShapeError("offsets must run from 0 to the number of rows, one more entry than there are frames")
@@ -250,7 +259,7 @@ def _read_table(path: str | os.PathLike) -> pd.DataFrame:
     """A framed table from disk, read by the same sniffing reader as trajectory files."""
     from .tracks import _read_table as read_delimited_or_parquet
 
-    path = os.fspath(path)
+    path = as_path(path)
     if not os.path.exists(path):
         raise FileNotFoundError(f"no such file: {path}")
     return read_delimited_or_parquet(path, None)
@@ -273,7 +282,7 @@ def read_frames(
     """
     import pandas as pd
 
-    if isinstance(source, (str, os.PathLike)):
+    if is_path(source):
         df = _read_table(source)
     elif hasattr(source, "to_pandas") and not isinstance(source, pd.DataFrame):
         df = source.to_pandas()  # polars
@@ -284,7 +293,10 @@ def read_frames(
     cols = _find_columns(list(df.columns), {"frame": frame, "x": x, "y": y, "vx": vx, "vy": vy})
     values = {}
     for role in ("x", "y", "vx", "vy"):
-        col = pd.to_numeric(df[cols[role]], errors="coerce").to_numpy(dtype=np.float64)
+        try:
+            col = column_floats(pd.to_numeric(df[cols[role]], errors="coerce"), cols[role])
+        except OverflowError:  # pandas meets an integer past the float range
+            col = column_floats(df[cols[role]], cols[role])
         bad = ~np.isfinite(col)
         if bad.any():
             raise DataFormatError(

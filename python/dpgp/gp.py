@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _core
-from ._arrays import as_float_array, as_pairs
-from .exceptions import ShapeError
+from ._arrays import MAX_MAGNITUDE, as_float_array, as_pairs
+from .exceptions import InvalidInputError, ShapeError
 
 
 def _pair(name: str, value: object) -> tuple[float, float]:
@@ -54,9 +54,35 @@ class GPParams:
         return (*self.length_scales, *self.signal_var, *self.noise_var, *self.mean)
 
 
+def check_scales(v: np.ndarray, params: GPParams, what: str = "v") -> None:
+    """Refuse velocities and parameters whose GP log density is not finite in double precision
+    (:class:`~dpgp.InvalidInputError` naming the limit): ``|mean|``, ``σ²`` and ``σ_n²`` past
+    1e100 (variances 1e200), or a velocity whose residual ``|v - mean|`` is more than 1e100
+    noise standard deviations (its squared Mahalanobis term would overflow to -inf)."""
+    mean, signal, noise = (np.asarray(getattr(params, k), dtype=float) for k in ("mean", "signal_var", "noise_var"))
+    if np.max(np.abs(mean)) > MAX_MAGNITUDE or max(np.max(signal), np.max(noise)) > MAX_MAGNITUDE**2:
+        raise InvalidInputError(
+            f"mean {tuple(mean.tolist())}, signal_var {tuple(signal.tolist())} or noise_var {tuple(noise.tolist())} is beyond the limits "
+            f"|mean| <= {MAX_MAGNITUDE:g}, variances <= {MAX_MAGNITUDE**2:g}; convert the velocities to sensible units"
+        )
+    v = np.asarray(v, dtype=float).reshape(-1, 2)
+    if len(v):
+        with np.errstate(over="ignore"):
+            worst = float(np.max(np.abs(v - mean) / np.sqrt(noise)))
+        if not worst <= MAX_MAGNITUDE:
+            raise InvalidInputError(
+                f"{what} holds a velocity {worst:.3g} noise standard deviations from the mean, beyond the "
+                f"{MAX_MAGNITUDE:g} whose squared term stays finite; convert the velocities to sensible units or raise noise_var"
+            )
+
+
 def log_marginal_likelihood(xy: object, v: object, params: GPParams) -> float:
-    """``log p(v | xy)`` summed over both outputs; ``xy`` and ``v`` have shape ``(n, 2)``."""
-    return _core.log_marginal_likelihood(as_pairs("xy", xy), as_pairs("v", v), params.as_tuple())
+    """``log p(v | xy)`` summed over both outputs; ``xy`` and ``v`` have shape ``(n, 2)``.
+    Velocities too far from the mean for a finite log density raise :class:`~dpgp.InvalidInputError`
+    (:func:`check_scales`)."""
+    v = as_pairs("v", v)
+    check_scales(v, params, "v")
+    return _core.log_marginal_likelihood(as_pairs("xy", xy), v, params.as_tuple())
 
 
 def log_predictive(train_xy: object, train_v: object, test_xy: object, test_v: object, params: GPParams) -> float:
@@ -65,12 +91,11 @@ def log_predictive(train_xy: object, train_v: object, test_xy: object, test_v: o
     Equals ``log_marginal_likelihood(train ∪ test) - log_marginal_likelihood(train)``: the score
     of a frame against a motion pattern.
     """
+    train_v, test_v = as_pairs("train_v", train_v), as_pairs("test_v", test_v)
+    check_scales(train_v, params, "train_v")
+    check_scales(test_v, params, "test_v")
     return _core.log_predictive(
-        as_pairs("train_xy", train_xy),
-        as_pairs("train_v", train_v),
-        as_pairs("test_xy", test_xy),
-        as_pairs("test_v", test_v),
-        params.as_tuple(),
+        as_pairs("train_xy", train_xy), train_v, as_pairs("test_xy", test_xy), test_v, params.as_tuple()
     )
 
 
@@ -80,9 +105,9 @@ def posterior(train_xy: object, train_v: object, query_xy: object, params: GPPar
     Returns ``(mean, var)``, each of shape ``(m, 2)`` (columns ``vx``, ``vy``). Add
     ``params.noise_var`` to ``var`` for the variance of a new observed velocity.
     """
-    return _core.posterior(
-        as_pairs("train_xy", train_xy), as_pairs("train_v", train_v), as_pairs("query_xy", query_xy), params.as_tuple()
-    )
+    train_v = as_pairs("train_v", train_v)
+    check_scales(train_v, params, "train_v")
+    return _core.posterior(as_pairs("train_xy", train_xy), train_v, as_pairs("query_xy", query_xy), params.as_tuple())
 
 
-__all__ = ["GPParams", "log_marginal_likelihood", "log_predictive", "posterior"]
+__all__ = ["GPParams", "check_scales", "log_marginal_likelihood", "log_predictive", "posterior"]

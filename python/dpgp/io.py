@@ -55,7 +55,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ._arrays import MAX_MAGNITUDE as _MAX_MAGNITUDE
-from ._arrays import MIN_LENGTH_SCALE
+from ._arrays import ALPHA_RANGE, MIN_LENGTH_SCALE, alpha_in_range, as_path
 from .checkpoint import META_KEY as RESUME_KEY
 from .checkpoint import parse as parse_resume
 from .exceptions import DpgpError, ModelFileError
@@ -78,8 +78,8 @@ def _jsonable(value: Any) -> Any:
         return _jsonable(value.tolist())
     if isinstance(value, np.generic):
         return value.item()
-    if isinstance(value, os.PathLike):  # a checkpoint path among the settings
-        return os.fspath(value)
+    if isinstance(value, (bytes, os.PathLike)):  # a checkpoint path among the settings
+        return as_path(value)
     return value
 
 
@@ -144,8 +144,9 @@ def save(model: DPGP, path: str | os.PathLike, resume: Any = None, compress: boo
         arrays["label_trace"] = np.asarray(model.label_trace_, dtype=np.int64)
     if resume is not None:
         arrays.update(resume.arrays())
-    path = os.fspath(path)
+    path = as_path(path)
     directory = os.path.dirname(os.path.abspath(path))
+    _check_renames_allowed(directory, path)
     fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path), suffix=".tmp", dir=directory)
     try:
         with os.fdopen(fd, "wb") as fh:
@@ -160,6 +161,35 @@ def save(model: DPGP, path: str | os.PathLike, resume: Any = None, compress: boo
         except OSError:
             pass
         raise
+
+
+#: Linux inode flags (``chattr``): in an append-only or immutable directory a file can be
+#: created (append-only) but neither renamed nor removed, so a temporary file could never go.
+_FS_IOC_GETFLAGS, _FS_IMMUTABLE_FL, _FS_APPEND_FL = 0x80086601, 0x10, 0x20
+
+
+def _check_renames_allowed(directory: str, path: str) -> None:
+    """Refuse, before a temporary file exists, a directory where it could be neither renamed
+    into place nor removed (``chattr +a`` / ``+i``): ``PermissionError`` naming it."""
+    try:
+        import fcntl
+        import struct
+
+        fd = os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except (ImportError, OSError):
+        return  # not Linux, or a directory we cannot open: mkstemp says what is wrong
+    try:
+        flags = struct.unpack("l", fcntl.ioctl(fd, _FS_IOC_GETFLAGS, b"\0" * 8))[0]
+    except OSError:
+        return  # a file system without inode flags
+    finally:
+        os.close(fd)
+    if flags & (_FS_IMMUTABLE_FL | _FS_APPEND_FL):
+        kind = "immutable" if flags & _FS_IMMUTABLE_FL else "append-only"
+        raise PermissionError(
+            13, f"cannot write {path} atomically: its directory {directory} is {kind} (chattr), so a temporary file "
+            "could be neither renamed into place nor removed; write elsewhere or clear the flag", path
+        )
 
 
 def temp_prefix(path: str) -> str:
@@ -221,7 +251,9 @@ def _check_declared_sizes(path: str, archive: zipfile.ZipFile) -> None:
                 shape, _, dtype = read_header(fh, max_header_size=10_000)
             except (ValueError, SyntaxError, TypeError, tokenize.TokenError) as e:  # numpy parses it as Python
                 raise ModelFileError(f"{path}: member {info.filename} has an unreadable header ({e}); the file is corrupted") from None
-        need = int(np.prod(shape, dtype=object)) * dtype.itemsize  # Python ints: no overflow
+        # Python ints: no overflow. An item of zero bytes ('V0', 'U0') still counts one: else a
+        # member of 1e11 empty items reads as nothing and its conversion allocates 745 GiB.
+        need = int(np.prod(shape, dtype=object)) * max(dtype.itemsize, 1)
         if need > info.file_size:
             raise ModelFileError(
                 f"{path}: member {info.filename} declares shape {shape} ({need:.3g} bytes) but holds "
@@ -253,7 +285,7 @@ def _meta(path: str, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
 def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
     """The JSON metadata of a model file (format, versions, settings, history, φ/ψ), checked
     like :func:`load` does but without rebuilding the model."""
-    path = os.fspath(path)
+    path = as_path(path)
     return _meta(path, _read(path))
 
 
@@ -285,7 +317,7 @@ class ModelFile:
 def read_model_file(path: str | os.PathLike) -> ModelFile:
     """Read and check a model written by :func:`save`; :class:`~dpgp.ModelFileError` if the
     file is truncated, corrupted, not a model file, of a newer format version or inconsistent."""
-    path = os.fspath(path)
+    path = as_path(path)
     arrays = _read(path)
     return parse(_meta(path, arrays), arrays, path)
 
@@ -314,9 +346,10 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
     from .distributions import EmpiricalDistributions
     from .frames import Frames
     from .framing import FramingSummary
-    from .gp import GPParams
+    from .gp import GPParams, check_scales
 
     settings = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["settings"].items()}
+    _check_counts(arrays)
     labels_file = arrays.get("frame_labels")
     frames = Frames(arrays["frame_ids"], arrays["frame_offsets"], arrays["frame_xy"], arrays["frame_v"], labels_file)
     if meta.get("frames_summary") is not None:
@@ -334,6 +367,10 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
     _check_numbers(frames, ls, meta["alpha"])
     p = meta["params"]
     params = GPParams(tuple(p["length_scales"]), tuple(p["signal_var"]), p["noise_var"], tuple(p["mean"]))
+    try:
+        check_scales(frames.v, params, "frame_v")
+    except DpgpError as e:
+        raise ModelFileError(f"the model's numbers are beyond what a fit accepts ({e}); the file is corrupted") from None
     likelihood, basis = _engine(meta)
     history = {k: list(v) for k, v in meta.get("history", {}).items()}
     for key, values in history.items():
@@ -359,6 +396,20 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
     )  # fmt: skip
 
 
+def _check_counts(arrays: dict[str, np.ndarray]) -> None:
+    """Refuse, before any conversion allocates, arrays whose items are not numbers or text or
+    take no bytes (a declared shape of 1e11 empty items converts to 745 GiB of int64)."""
+    for name, a in arrays.items():
+        if not isinstance(a, np.ndarray) or a.dtype.kind not in "biufU" or (a.size and a.dtype.itemsize == 0):
+            raise ModelFileError(f"member {name!r} holds {getattr(a, 'dtype', type(a).__name__)} items, not numbers or text")
+    n_rows = arrays["frame_xy"].size // 2 if "frame_xy" in arrays else 0
+    for name in ("frame_ids", "frame_offsets", "labels", "frame_labels", "resume_labels"):
+        if name in arrays and arrays[name].size > n_rows + 1:
+            raise ModelFileError(f"member {name!r} has {arrays[name].size} entries for {n_rows} vehicle observations")
+    if "label_trace" in arrays and arrays["label_trace"].size > (n_rows + 1) * 10**7:
+        raise ModelFileError(f"member 'label_trace' has {arrays['label_trace'].size} entries; the file is corrupted")
+
+
 def _check_numbers(frames: Any, length_scales: np.ndarray, alpha: Any) -> None:
     """The numbers a fit would have refused (NaN, inf, magnitudes past 1e100, α or length
     scales <= 0) mean a damaged file: refuse them here rather than load a model that gives NaN."""
@@ -374,8 +425,8 @@ def _check_numbers(frames: Any, length_scales: np.ndarray, alpha: Any) -> None:
     # Squared length scales must stay normal floats; a fit never comes near these bounds.
     if not ((length_scales >= MIN_LENGTH_SCALE).all() and (length_scales <= _MAX_MAGNITUDE).all()):
         raise ModelFileError(f"length_scales must lie in [{MIN_LENGTH_SCALE:g}, {_MAX_MAGNITUDE:g}]; the file is corrupted")
-    if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not (np.isfinite(alpha) and alpha > 0):
-        raise ModelFileError(f"alpha must be a positive number, got {alpha!r}; the file is corrupted")
+    if not alpha_in_range(alpha):
+        raise ModelFileError(f"alpha must be a number in [{ALPHA_RANGE[0]:g}, {ALPHA_RANGE[1]:g}], got {alpha!r}; the file is corrupted")
 
 
 def _resolved_dict(model: DPGP) -> dict[str, Any]:

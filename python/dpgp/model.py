@@ -13,12 +13,13 @@ import numpy as np
 
 from . import _core
 from . import checkpoint as ckpt
+from ._arrays import ALPHA_RANGE, alpha_in_range
 from ._arrays import MAX_MAGNITUDE as _MAX_MAGNITUDE
 from ._resources import default_memory_budget, parse_bytes
 from .exceptions import DpgpError, InvalidInputError, MemoryBudgetError, ModelFileError, NotFittedError, ShapeError
 from .fitted import FittedPatterns
 from .frames import Frames, read_frames
-from .gp import GPParams, _pair
+from .gp import GPParams, _pair, check_scales
 from .hsgp import _basis_counts, basis_for
 from .metrics import adjusted_rand_index, canonical_labels
 
@@ -233,11 +234,11 @@ class DPGP:
         f = self.length_scale_fraction
         if isinstance(f, bool) or not isinstance(f, (int, float, np.integer, np.floating)) or not 0 < f <= 1:
             raise InvalidInputError(f"length_scale_fraction must be a number in (0, 1], got {f!r}")
-        al = self.alpha
-        if al is not None and (
-            isinstance(al, bool) or not isinstance(al, (int, float, np.integer, np.floating)) or not 0 < al < float("inf")
-        ):
-            raise InvalidInputError(f"alpha must be None (sampled) or a positive number, got {al!r}")
+        if self.alpha is not None and not alpha_in_range(self.alpha):
+            raise InvalidInputError(
+                f"alpha must be None (sampled) or a number in [{ALPHA_RANGE[0]:g}, {ALPHA_RANGE[1]:g}] (beyond it the log "
+                f"joint is not finite in double precision), got {self.alpha!r}"
+            )
         t = self.ari_tol
         if isinstance(t, bool) or not isinstance(t, (int, float, np.integer, np.floating)) or not 0 <= t <= 1:
             raise InvalidInputError(f"ari_tol must be a number in [0, 1], got {t!r}")
@@ -266,6 +267,7 @@ class DPGP:
         a, b = self.length_scale_prior_
         ls0 = (a * b, a * b) if self.length_scales is None else _pair("length_scales", self.length_scales)
         self.params_ = GPParams(ls0, tuple(signal_var), self.noise_var_, tuple(mean))
+        check_scales(frames.v, self.params_, "the training data")
         self._resolve_engine(frames)
         self._sampler = self._new_sampler(frames)
         self.frames_ = frames
@@ -456,6 +458,7 @@ class DPGP:
         """(N, K+1): log [prior weight × likelihood] of each pattern, then of a new pattern."""
         frames = _as_frames(frames)
         _check_magnitudes(frames, "the frames to score")
+        check_scales(frames.v, self.params_, "the frames to score")
         return self._fitted().log_joint_terms(frames)
 
     def predict_proba(self, frames: Frames | Any) -> np.ndarray:

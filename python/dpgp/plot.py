@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ._arrays import as_path
 from .exceptions import InvalidInputError
 from .simulation import LOW_DATA_THRESHOLD, Simulation, default_roi
 
@@ -263,7 +264,7 @@ def animate(
     (dots,) = ax.plot([], [], "o", color="tab:red", ms=5)
     label = ax.set_title("")
     writer = PillowWriter(fps=fps)
-    with writer.saving(fig, os.fspath(path), dpi):
+    with writer.saving(fig, as_path(path), dpi):
         for t in range(sim.steps + 1):
             inside = sim.in_roi[t]
             dots.set_data(sim.positions[t, inside, 0], sim.positions[t, inside, 1])

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ._arrays import as_path
 from .distributions import EmpiricalDistributions
 from .exceptions import InvalidInputError
 from .fitted import FittedPatterns, as_fitted
@@ -90,7 +91,7 @@ class Scenarios:
 
     def to_csv(self, path: str | os.PathLike) -> None:
         """Write :meth:`to_pandas` as CSV (full float precision)."""
-        self.to_pandas().to_csv(path, index=False, float_format="%.17g")
+        self.to_pandas().to_csv(as_path(path), index=False, float_format="%.17g")
 
     def to_sumo(self, path: str | os.PathLike, vtype: str = "DEFAULT_VEHTYPE") -> None:
         """Write SUMO floating-car data (``<fcd-export>``; gzip if ``path`` ends in ``.gz``).
@@ -130,13 +131,14 @@ class Scenarios:
             lines.append("    </timestep>")
         lines.append("</fcd-export>\n")
         text = "\n".join(lines).encode("utf-8")
-        opener = gzip.open if os.fspath(path).endswith(".gz") else open
+        path = as_path(path)
+        opener = gzip.open if path.endswith(".gz") else open
         with opener(path, "wb") as fh:
             fh.write(text)
 
     def save(self, path: str | os.PathLike, format: str | None = None) -> None:
         """Write ``"csv"`` or ``"sumo"`` (default: SUMO for ``.xml``/``.xml.gz``, else CSV)."""
-        fmt = format or ("sumo" if os.fspath(path).lower().endswith((".xml", ".xml.gz")) else "csv")
+        fmt = format or ("sumo" if as_path(path).lower().endswith((".xml", ".xml.gz")) else "csv")
         if fmt == "csv":
             self.to_csv(path)
         elif fmt == "sumo":

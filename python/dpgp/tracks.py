@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
+from ._arrays import as_path, column_floats, is_path
 from .exceptions import DataFormatError, InvalidInputError
 
 if TYPE_CHECKING:
@@ -257,17 +258,17 @@ def read_tracks(
     if preset is not None:
         preset = _PRESET_ALIASES.get(str(preset).lower(), str(preset).lower())
         if preset == "ngsim":
-            if not isinstance(source, (str, os.PathLike)):
+            if not is_path(source):
                 raise InvalidInputError("preset='ngsim' reads a file; pass its path")
             return read_ngsim(source)
         if preset not in _PRESETS:
             raise InvalidInputError(f"unknown preset {preset!r}; choose one of {sorted(_PRESETS) + ['ngsim']}")
     spec = dict(_PRESETS.get(preset or "", {}))
-    where = os.fspath(source) if isinstance(source, (str, os.PathLike)) else type(source).__name__
+    where = as_path(source) if is_path(source) else type(source).__name__
 
     if preset == "sumo":
         df = _read_sumo(source)
-    elif isinstance(source, (str, os.PathLike)):
+    elif is_path(source):
         path = _existing(source)
         if path.lower().endswith((".xml", ".xml.gz")):
             df = _read_sumo(path)
@@ -287,6 +288,7 @@ def read_tracks(
     if preset == "interaction" and id is None and "case_id" in df.columns:
         spec["id"] = ["case_id", "track_id"]  # track ids restart in every case
     cols = _resolve_columns(df, given, spec, where, use_auto=preset is None)
+    _check_unique_columns(df, cols, where)
     scale = spec.get("time_scale", 1.0) if time_scale is None else time_scale
     _check_positive("time_scale", scale)
     out = _build_tracks(df, cols, float(scale), sort, where)
@@ -355,7 +357,7 @@ def _build_tracks(df: pd.DataFrame, cols: dict[str, Any], time_scale: float, sor
     values = {}
     for role in ("t", "x", "y", "vx", "vy"):
         if role in cols:
-            values[role] = _numeric(df[cols[role]], cols[role], where).to_numpy(dtype=np.float64)
+            values[role] = column_floats(_numeric(df[cols[role]], cols[role], where), cols[role], where)
     if time_scale != 1.0:
         values["t"] = values["t"] * time_scale
     for role, arr in values.items():
@@ -449,7 +451,7 @@ def _read_sumo(source: Any) -> pd.DataFrame:
     """SUMO FCD output as a flat table ``time, kind, id, x, y, vx, vy, speed, angle, ...``."""
     import pandas as pd
 
-    if isinstance(source, (str, os.PathLike)):
+    if is_path(source):
         path = _existing(source)
         if path.lower().endswith((".xml", ".xml.gz")) or _first_line(path).lstrip().startswith("<"):
             df = _read_sumo_xml(path)
@@ -551,7 +553,7 @@ def _read_sumo_csv(df: pd.DataFrame, where: str) -> pd.DataFrame:
 # ---------------------------------------------------------------------------------------------
 
 def _existing(path: str | os.PathLike) -> str:
-    path = os.fspath(path)
+    path = as_path(path)
     if not os.path.exists(path):
         raise FileNotFoundError(f"no such file: {path}")
     if os.path.isdir(path):
@@ -615,6 +617,14 @@ def _read_table(path: str, names: list[str] | None) -> pd.DataFrame:
         raise DataFormatError(f"{path} is not a readable table ({type(e).__name__}: {e})") from None
 
 
+def _check_unique_columns(df: pd.DataFrame, cols: dict[str, Any], where: str) -> None:
+    """A column the table names twice is ambiguous (pandas returns both): say which."""
+    chosen = [c for v in cols.values() if v is not None for c in (v if isinstance(v, list) else [v])]
+    twice = sorted({str(c) for c in chosen if int((df.columns == c).sum()) > 1})
+    if twice:
+        raise DataFormatError(f"{where}: the table has more than one column named {twice}; rename or drop the duplicates")
+
+
 def _numeric(col: pd.Series, name: object, where: str) -> pd.Series:
     """Numbers, accepting thousands separators ("1,156"); unparsable text raises."""
     import pandas as pd
@@ -635,7 +645,7 @@ def _numeric(col: pd.Series, name: object, where: str) -> pd.Series:
 
 def _check_finite_columns(df: pd.DataFrame, names: Sequence[str], where: str) -> None:
     for name in names:
-        arr = df[name].to_numpy(dtype=np.float64)
+        arr = column_floats(df[name], name, where)
         bad = ~np.isfinite(arr)
         if bad.any():
             raise InvalidInputError(
