@@ -311,6 +311,9 @@ HOSTILE_SCALARS = [
     True, None, "1", "x", "", b"1", [1], (1, 2), {}, 1 + 2j, np.float32(2.5), np.int64(-5), np.array([1.0, 2.0]),
     np.nan, np.uint64(2**64 - 1), object(),
 ]
+#: Extreme but finite magnitudes (issue 17): each must work with finite results or be refused
+#: up front with a typed error naming the limit.
+EXTREME = [1e154, -1e154, 1e200, 1e300, 1.7e308, -1.7e308, 5e-324, 1e-200, 1e-154, 2.2250738585072014e-308]
 HOSTILE_TEXT = ["nan", "inf", "-inf", "", " ", "1e309", "-0", "abc", "1,000", '"', "\x00", "NULL", "１２", "0x1F", "--1", "1e-400", "None"]
 
 
@@ -430,7 +433,7 @@ def write_corrupted(draw: Draw, ctx: Context, d: Path, name: str) -> Path:
 # ---------------------------------------------------------------------------------------------
 def case_readers(draw: Draw, ctx: Context, d: Path) -> Any:
     name = draw.choice(sorted(ctx.data), "file")
-    path = write_corrupted(draw, ctx, d, name)
+    path = as_drawn_path(draw, write_corrupted(draw, ctx, d, name))
     reader = draw.choice(["read_frames", "read_tracks", "read_ngsim", "tracks+frames", "preset"], "reader")
     if reader == "read_frames":
         return dpgp.read_frames(path)
@@ -451,7 +454,9 @@ def case_readers(draw: Draw, ctx: Context, d: Path) -> Any:
 
 
 def case_arrays(draw: Draw, ctx: Context, d: Path) -> Any:
-    target = draw.choice(["from_arrays", "from_arrays", "select", "synthetic", "distributions", "ari", "read_frames_df"], "target")
+    target = draw.choice(["from_arrays", "from_arrays", "select", "synthetic", "distributions", "ari", "read_frames_df", "gp", "gp"], "target")
+    if target == "gp":
+        return gp_case(draw)
     if target in ("from_arrays", "select"):
         frame, x, y, vx, vy = tiny_frames_arrays(draw)
         cols = [frame, x, y, vx, vy]
@@ -513,6 +518,26 @@ def case_arrays(draw: Draw, ctx: Context, d: Path) -> Any:
     return dpgp.read_frames(df, **draw.choice([{}, {"x": "nope"}, {"frame": "x"}, {"vx": 3}], "names"))
 
 
+def gp_case(draw: Draw) -> Any:
+    """dpgp.gp's functions on extreme magnitudes of positions, velocities and parameters (issue
+    17): a finite log density or a typed refusal, never -inf or NaN."""
+    from dpgp import gp
+
+    n = draw.integer(1, 5, "n")
+    xy = np.column_stack([scale_values(draw, n, "x"), scale_values(draw, n, "y")])
+    v = np.column_stack([scale_values(draw, n, "vx"), scale_values(draw, n, "vy")])
+    pick = lambda valid, label: draw.maybe(valid, [*EXTREME, 0.0, -1.0, NAN], label)  # noqa: E731
+    params = gp.GPParams((pick([5.0], "wx"), pick([3.0], "wy")), pick([1.0, 2.0], "signal_var"),
+                         pick([0.5, 1.0], "noise_var"), pick([0.0, 1.0], "mean"))  # fmt: skip
+    fn = draw.choice(["lml", "predictive", "posterior"], "function")
+    if fn == "lml":
+        return gp.log_marginal_likelihood(xy, v, params)
+    k = draw.integer(0, n, "split")
+    if fn == "predictive":
+        return gp.log_predictive(xy[:k], v[:k], xy[k:], v[k:], params)
+    return gp.posterior(xy, v, xy[k:] if k < n else xy, params)
+
+
 def hostile_tracks(draw: Draw) -> Any:
     """A tracks table with hostile ids, times and positions."""
     import pandas as pd
@@ -560,25 +585,25 @@ SETTINGS = {
     "iterations": ([0, 1], [-1, 1.5, "1", None, True, 2**64, -(2**63), NAN]),
     "assignment": (["gibbs", "map"], ["GIBBS", None, 3, ""]),
     "likelihood": (["exact", "auto", "hsgp"], ["approx", None, 1]),
-    "length_scale_prior": ([(10.0, 1.0), (2.0, 0.5), "auto"], [(0, 1), (-1, 1), (NAN, 1), (1e308, 1e308), (1,), "ab", None, (1e-300, 1e-300), (INF, 1)]),
-    "length_scales": ([None, (5.0, 5.0)], [(0, 1), (INF, 1), (1e-300, 1e-300), (1e300, 1e300), (-1, 1), "x", (NAN, NAN)]),
-    "noise_var": ([1.0, 0.5], [0, -1, NAN, INF, 1e-300, 1e300, "1", None, 1e-30]),
-    "signal_var": ([None, 1.0, (2.0, 3.0)], [0, -1, NAN, INF, 1e300, 1e-300, "x", (1, 2, 3)]),
-    "mean": ([None, 0.0, (1.0, -1.0)], [1e300, NAN, INF, -1e308, "x", (1,)]),
-    "alpha": ([None, 1.0], [0, -1, NAN, INF, 1e-300, 1e300, "x", True]),
+    "length_scale_prior": ([(10.0, 1.0), (2.0, 0.5), "auto"], [(0, 1), (-1, 1), (NAN, 1), (1e308, 1e308), (1,), "ab", None, (1e-300, 1e-300), (INF, 1), *[(e, 1.0) for e in EXTREME[:5]], (1.0, 1e-300)]),
+    "length_scales": ([None, (5.0, 5.0)], [(0, 1), (INF, 1), (1e-300, 1e-300), (1e300, 1e300), (-1, 1), "x", (NAN, NAN), *[(e, e) for e in EXTREME if e > 0]]),
+    "noise_var": ([1.0, 0.5], [0, -1, NAN, INF, 1e-300, 1e300, "1", None, 1e-30, *[e for e in EXTREME if e > 0]]),
+    "signal_var": ([None, 1.0, (2.0, 3.0)], [0, -1, NAN, INF, 1e300, 1e-300, "x", (1, 2, 3), *[e for e in EXTREME if e > 0]]),
+    "mean": ([None, 0.0, (1.0, -1.0)], [1e300, NAN, INF, -1e308, "x", (1,), *EXTREME[:6]]),
+    "alpha": ([None, 1.0], [0, -1, NAN, INF, 1e-300, 1e300, "x", True, 1e308, 5e-324, 1e154, 1e-154, 1e100, 1e-100, 1e101]),
     "new_pattern_samples": ([1, 3], [0, -1, 2**63, 2**64, 2**31, 1.5, "3", None, Unsafe(10**9)]),
-    "length_scale_fraction": ([1.0, 0.5], [0, -1, NAN, 2, INF, "x", None]),
+    "length_scale_fraction": ([1.0, 0.5], [0, -1, NAN, 2, INF, "x", None, 5e-324, 1e-300]),
     "pattern_moments": ([False, True], ["yes", None, 2]),
     "seed": ([0, 7], [-1, 2**64, 2**70, "s", None, 1.5, -(2**70)]),
     # (n_threads=10**6 starts thousands of threads before failing: never in-process, see the runner)
     "n_threads": ([None, 1, 2], [0, -1, 2**64, "2", 1.5]),
     "n_iter_no_change": ([None, 1], [0, -1, NAN, "x", 1.5]),
-    "ari_tol": ([0.99], [NAN, -1, 2, "x"]),
+    "ari_tol": ([0.99], [NAN, -1, 2, "x", 5e-324]),
     "store_labels": ([False, True], ["x", None]),
     "preset": ([None, "paper"], ["PAPER", 3, ""]),
     "proposal": (["informed", "full"], ["gibbs", None]),
     "n_basis": ([None, (4, 4)], [(0, 0), (-1, 2), (10**9, 10**9), "x", (2.5, 3), 5]),
-    "memory_budget": ([None], [0, -1, "x", 1, NAN, 2**70, "1 GB"]),
+    "memory_budget": ([None], [0, -1, "x", 1, NAN, 2**70, "1 GB", 1e300, 5e-324]),
 }
 
 
@@ -598,6 +623,12 @@ def case_fit(draw: Draw, ctx: Context, d: Path) -> Any:
     model = dpgp.DPGP(**hostile_settings(draw))
     if isinstance(model.iterations, (int, np.integer)) and model.iterations > 1:
         model.iterations = 1  # keep fits tiny; a long fit is no defect
+    if draw.boolean("checkpoint", 0.1):  # a checkpoint path as str, bytes or Path, maybe unwritable
+        if draw.boolean("checkpoint_readonly", 0.5):
+            with readonly_target(draw, d) as target:
+                model.checkpoint = as_drawn_path(draw, target)
+                return model.fit(frames)
+        model.checkpoint = as_drawn_path(draw, d / "fit.ckpt")
     model.fit(frames)
     # A fitted model must also be usable: score, predict, query its field, simulate a few steps.
     use = draw.choice(["none", "proba", "score", "field", "simulate"], "then")
@@ -615,6 +646,13 @@ def case_fit(draw: Draw, ctx: Context, d: Path) -> Any:
 def _npz_members(data: bytes) -> dict[str, np.ndarray]:
     with np.load(io.BytesIO(data), allow_pickle=False) as z:
         return {k: z[k] for k in z.files}
+
+
+def _npy_header(descr: str, shape: tuple[int, ...]) -> bytes:
+    """An .npy member that is only a header declaring ``descr`` items of ``shape``."""
+    header = repr({"descr": descr, "fortran_order": False, "shape": shape}).encode("latin1")
+    header += b" " * (64 - (10 + len(header) + 1) % 64) + b"\n"
+    return b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header
 
 
 def _npy_with_shape(arr: np.ndarray, shape: tuple[int, ...]) -> bytes:
@@ -638,16 +676,18 @@ META_PATHS = [
     ("distributions", "version"), ("distributions", "pseudocount"), ("timings",), ("converged",),
     ("resume",), ("resume", "sweeps_done"), ("resume", "stable"), ("resume", "alpha"), ("resume", "data_sha256"),
     ("settings", "checkpoint"), ("settings", "checkpoint_every"),
+    ("resolved", "noise_var"), ("resolved", "length_scale_prior"), ("params", "length_scales"),
 ]
 META_VALUES = [None, -1, 0, 1, 1e308, -1e308, 1e-320, "x", [], {}, [1, 2, 3], True, 2**63, 2**70, NAN, INF,
-               -INF, [NAN, 1.0], [[1.0]], [1e308, 1e308], [0.0, 0.0], "DELETE", "DEEP"]
+               -INF, [NAN, 1.0], [[1.0]], [1e308, 1e308], [0.0, 0.0], "DELETE", "DEEP",
+               *EXTREME, [1e154, 1e154], [5e-324, 5e-324], [1e200, 1.0], [1e-200, 1e-200]]
 
 
 def damaged_model_file(draw: Draw, ctx: Context, d: Path) -> Path:
     # A model file, or a checkpoint (a model file with a resume point: DPGP(checkpoint=...)).
     base = ctx.checkpoint if draw.boolean("checkpoint", 0.3) else ctx.model[1]
     path = d / draw.choice(["model.npz", "model", "model.npy"], "name")
-    how = draw.choice(["truncate", "flip", "metadata", "metadata", "member", "member", "shape", "foreign"], "damage")
+    how = draw.choice(["truncate", "flip", "metadata", "metadata", "member", "member", "shape", "huge", "foreign"], "damage")
     data = base
     if how == "truncate":
         data = base[: draw.integer(0, len(base) - 1, "at")]
@@ -656,6 +696,20 @@ def damaged_model_file(draw: Draw, ctx: Context, d: Path) -> Path:
         for _ in range(draw.integer(1, 16, "bits")):
             buf[draw.index(len(buf))] ^= 1 << draw.integer(0, 7, "bit")
         data = bytes(buf)
+    elif how == "huge":
+        # A member declaring a huge array (issue 17): of zero-byte items (it reads as nothing,
+        # then converts to 745 GiB), or of real items past the data held.
+        arrays = _npz_members(base)
+        name = draw.choice(sorted(arrays), "member")
+        descr = draw.choice(["|V0", "<U0", "|S0", "<f8", "<i8"], "descr")
+        shape = draw.choice([(10**11,), (10**11, 2), (2**40,), (10**11, 0), (0, 10**11)], "shape")
+        buf = io.BytesIO()
+        with zipfile.ZipFile(buf, "w") as z:
+            for k, v in arrays.items():
+                raw = io.BytesIO()
+                np.save(raw, v, allow_pickle=False)
+                z.writestr(k + ".npy", _npy_header(descr, shape) if k == name else raw.getvalue())
+        data = buf.getvalue()
     elif how in ("metadata", "member", "shape"):
         arrays = _npz_members(base)
         if how == "metadata":
@@ -685,7 +739,8 @@ def damaged_model_file(draw: Draw, ctx: Context, d: Path) -> Path:
                  old.astype(str), np.zeros((0,)), np.full(old.shape, NAN), -np.abs(old.astype(float)) if old.dtype.kind in "iuf" else old,
                  np.array(5), np.zeros((2, 3, 4)), old.astype(complex) if old.dtype.kind in "iuf" else old,
                  np.full(old.shape, 2**62, dtype=np.int64), np.array(["x"] * max(1, len(old) if old.ndim else 1)),
-                 np.full(old.shape, 1e308) if old.dtype.kind in "iuf" else old, "DELETE"],
+                 np.full(old.shape, 1e308) if old.dtype.kind in "iuf" else old, "DELETE",
+                 *[old * e if old.dtype.kind == "f" else old for e in (1e154, 1e200, 1e-200, 5e-324, 1e99)]],
                 "replacement",
             )
             if isinstance(arrays[name], str):
@@ -727,8 +782,54 @@ def damaged_model_file(draw: Draw, ctx: Context, d: Path) -> Path:
     return path
 
 
+def as_drawn_path(draw: Draw, path: Path) -> Any:
+    """``path`` as str, bytes or a Path: every place that takes a path takes all three."""
+    kind = draw.choice(["path", "str", "bytes"], "path_type")
+    return {"path": path, "str": str(path), "bytes": os.fsencode(str(path))}[kind]
+
+
+@contextlib.contextmanager
+def readonly_target(draw: Draw, d: Path):
+    """A save target that cannot be written as asked (issue 17): a read-only file, a read-only
+    or append-only directory (``chattr +a``: a file can be created there but neither renamed nor
+    removed), or an existing directory. The flags are cleared afterwards so the case's
+    directory can go."""
+    kind = draw.choice(["readonly_file", "readonly_dir", "append_only_dir", "immutable_file", "dir"], "target")
+    sub = d / "target"
+    sub.mkdir()
+    target = sub / "model.npz"
+    undo: list[Callable[[], Any]] = []
+    if kind in ("readonly_file", "immutable_file"):
+        target.write_bytes(b"old")
+        if kind == "readonly_file":
+            target.chmod(0o444)
+        elif _chattr("+i", target):
+            undo.append(lambda: _chattr("-i", target))
+    elif kind == "readonly_dir":
+        sub.chmod(0o555)
+        undo.append(lambda: sub.chmod(0o755))
+    elif kind == "append_only_dir" and _chattr("+a", sub):
+        undo.append(lambda: _chattr("-a", sub))
+    elif kind == "dir":
+        target.mkdir()
+    try:
+        yield target
+    finally:
+        for f in undo:
+            f()
+
+
+def _chattr(flag: str, path: Path) -> bool:
+    import subprocess
+
+    try:
+        return subprocess.run(["chattr", flag, str(path)], capture_output=True, timeout=10).returncode == 0
+    except (OSError, subprocess.SubprocessError):
+        return False
+
+
 def case_model_files(draw: Draw, ctx: Context, d: Path) -> Any:
-    path = damaged_model_file(draw, ctx, d)
+    path = as_drawn_path(draw, damaged_model_file(draw, ctx, d))
     if draw.boolean("resume", 0.2):
         # Continues the chain (and checkpoints to the damaged file's path); a plain model file
         # is a typed error. Always a small total: None would finish the file's own iterations,
@@ -741,7 +842,7 @@ def case_model_files(draw: Draw, ctx: Context, d: Path) -> Any:
         read_metadata(path)  # the raw metadata, as stored: only its reading is checked
         return None
     model = dpgp.DPGP.load(path)
-    use = draw.choice(["proba", "score", "field", "simulate", "scenarios", "save", "save_over_dir"], "then")
+    use = draw.choice(["proba", "score", "field", "simulate", "scenarios", "save", "save_over_dir", "save_readonly", "cond"], "then")
     frames = model.frames_[:1]
     if use == "proba":
         return model, model.predict_proba(frames)
@@ -753,6 +854,12 @@ def case_model_files(draw: Draw, ctx: Context, d: Path) -> Any:
         return model, model.simulate(0, steps=3)
     if use == "scenarios":
         return model, model.sample_scenarios(2, steps=3, seed=0)
+    if use == "cond":
+        return model, model.conditional_log_probs(0)
+    if use == "save_readonly":
+        with readonly_target(draw, d) as target:
+            model.save(as_drawn_path(draw, target))
+        return model
     target = d / "again.npz"
     if use == "save_over_dir":
         target.mkdir()  # the final rename fails: the temporary file must go

@@ -25,20 +25,13 @@ import fuzz_cases as fc
 # Examples per surface: about 1,000 in all, well under a minute and a half.
 EXAMPLES = {"readers": 160, "arrays": 200, "framing": 160, "fit": 130, "model_files": 150, "model_use": 130, "cli": 100}
 
-# Open defects in files this suite's author does not own (model.py, io.py, simulation.py,
-# scenarios.py, gp.py, defaults.py, the Rust core): (surface, outcome kind, text in the detail).
-# Each has an xfail reproducer below; the slice tolerates exactly these and fails on any other.
-KNOWN_OPEN = [
-    ("model_use", "untyped", "at dpgp/model.py"),
-    ("model_use", "nonfinite", ""),
-    ("fit", "untyped", "at dpgp/model.py"),
-    ("fit", "untyped", "at dpgp/defaults.py"),
-    ("fit", "nonfinite", ""),
-]
+# No outcome is tolerated: every defect the slice meets fails it (issue 17). An open defect
+# gets a precise reproducer marked xfail below, never an entry that excuses a class of outcomes.
+KNOWN_OPEN: list[tuple[str, str, str]] = []
 
 
 def known_open(surface: str, outcome: fc.Outcome) -> bool:
-    return any(s == surface and k == outcome.kind and text in outcome.detail for s, k, text in KNOWN_OPEN)
+    return any(s == surface and k == outcome.kind and text == outcome.detail for s, k, text in KNOWN_OPEN)
 
 
 @pytest.fixture(scope="module")
