@@ -63,14 +63,17 @@ def test_bad_budgets_are_typed_errors():
 UNDER_ULIMIT = """
 import resource, sys, time
 import dpgp
-from dpgp._resources import default_memory_budget
+from dpgp._resources import default_memory_budget, threads_reservation
 
 likelihood, n_frames, headroom = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 frames = dpgp.datasets.synthetic("highway", n_frames, seed=0)
 with open("/proc/self/status") as fh:
     used = next(int(line.split()[1]) * 1024 for line in fh if line.startswith("VmSize:"))
-resource.setrlimit(resource.RLIMIT_AS, (used + headroom, resource.RLIM_INFINITY))  # ulimit -v
-assert default_memory_budget() <= headroom // 2, default_memory_budget()
+# ulimit -v: the headroom for the patterns on top of what the two worker threads (and their
+# driver) reserve, faer's GEMM arena of twice the L3 among it: the same test whatever the cache
+reserved = threads_reservation(2)
+resource.setrlimit(resource.RLIMIT_AS, (used + reserved + headroom, resource.RLIM_INFINITY))
+assert default_memory_budget(2) <= headroom // 2, default_memory_budget(2)
 model = dpgp.DPGP(likelihood=likelihood, iterations=2, progress=False, noise_var=1.0,
                   length_scale_prior=(10.0, 1.0), n_threads=2)
 try:
@@ -99,6 +102,67 @@ def test_the_default_budget_respects_an_address_space_limit(likelihood, n_frames
     r = subprocess.run([sys.executable, "-c", UNDER_ULIMIT, *args], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     assert r.stdout.strip() == outcome
+
+
+UNDER_TIGHT_ULIMIT = """
+import resource, sys
+import dpgp
+from dpgp import _resources
+
+if sys.argv[1] == "fake":  # a machine whose CPU reports a 480 MiB L3 (issue 17)
+    _resources._cache_sizes = lambda: (48 * 2**10, 2 * 2**20, 480 * 2**20)
+frames = dpgp.datasets.synthetic("highway", 400, seed=0)
+with open("/proc/self/status") as fh:
+    used = next(int(line.split()[1]) * 1024 for line in fh if line.startswith("VmSize:"))
+# less than one thread's GEMM arena, far more than the patterns of this fit need
+room = min(_resources.gemm_arena_bytes() // 2, 600 * 2**20)
+resource.setrlimit(resource.RLIMIT_AS, (used + room, resource.RLIM_INFINITY))
+model = dpgp.DPGP(likelihood="exact", iterations=2, progress=False, noise_var=1.0,
+                  length_scale_prior=(10.0, 1.0), n_threads=1)
+try:
+    model.fit(frames)
+    print("fitted")
+except dpgp.MemoryBudgetError as e:
+    print("stopped:", e)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/status")
+@pytest.mark.parametrize("cache", ["real", "fake"])
+def test_a_limit_below_the_gemm_arena_is_a_typed_stop_not_an_abort(cache):
+    """faer's x86 GEMM reserves twice the L3 per thread that runs a product. Under an
+    address-space limit that cannot hold even one arena, the fit stops before any work with a
+    MemoryBudgetError that names it; before, the first large product aborted the interpreter
+    ("memory allocation of ... bytes failed" in private_gemm_x86::gemm). "fake": the accounting
+    of a CPU reporting a 480 MiB L3, on this machine."""
+    r = subprocess.run([sys.executable, "-c", UNDER_TIGHT_ULIMIT, cache], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.startswith("stopped:") and "n_threads=1" in r.stdout and "L3" in r.stdout, r.stdout
+
+
+def test_the_gemm_arena_is_derived_from_the_cache_as_faer_does(tmp_path, monkeypatch):
+    """private-gemm-x86: each level's size over the CPUs sharing it, times the CPUs sharing an
+    L1, L3 times the physical cores; arena = 2 × L3 rounded up to pages."""
+    from dpgp import _resources
+
+    def cache(cpu, index, level, kind, size, shared):
+        d = tmp_path / f"cpu{cpu}" / "cache" / f"index{index}"
+        d.mkdir(parents=True)
+        for name, value in (("level", level), ("type", kind), ("size", size), ("shared_cpu_list", shared)):
+            (d / name).write_text(f"{value}\n")
+
+    for cpu in range(4):
+        cache(cpu, 0, 1, "Data", "48K", str(cpu))
+        cache(cpu, 1, 1, "Instruction", "32K", str(cpu))
+        cache(cpu, 2, 2, "Unified", "2048K", str(cpu))
+        cache(cpu, 3, 3, "Unified", "491520K", "0-3")  # 480 MiB shared by four CPUs
+    monkeypatch.setattr(_resources, "_physical_cores", lambda: 4)
+    assert _resources._cache_sizes(str(tmp_path)) == (48 * 2**10, 2 * 2**20, 480 * 2**20)
+    monkeypatch.setattr(_resources, "_cache_sizes", lambda: (48 * 2**10, 2 * 2**20, 480 * 2**20))
+    assert _resources.gemm_arena_bytes() == 1006632960  # the allocation the issue saw fail
+    assert _resources.threads_reservation(3) == 4 * (1006632960 + 72 * 2**20)
+    monkeypatch.setattr(_resources, "_cache_sizes", lambda: (0, 0, 0))  # unknown: faer's defaults
+    assert _resources.gemm_arena_bytes() == 2 * 2 * 2**20  # L3 = max(2 MiB, 4 × L2 of 256 KiB), twice
 
 
 def test_the_cgroup_limit_bounds_the_available_memory(tmp_path, monkeypatch):

@@ -15,7 +15,7 @@ from . import _core
 from . import checkpoint as ckpt
 from ._arrays import ALPHA_RANGE, alpha_in_range
 from ._arrays import MAX_MAGNITUDE as _MAX_MAGNITUDE
-from ._resources import default_memory_budget, parse_bytes
+from ._resources import check_thread_reservations, default_memory_budget, parse_bytes
 from .exceptions import DpgpError, InvalidInputError, MemoryBudgetError, ModelFileError, NotFittedError, ShapeError
 from .fitted import FittedPatterns
 from .frames import Frames, read_frames
@@ -376,7 +376,8 @@ class DPGP:
         """Choose the likelihood (``likelihood_``), its basis (``basis_``) and the memory budget
         (``memory_budget_``) for ``frames``."""
         budget = parse_bytes("memory_budget", self.memory_budget)
-        self.memory_budget_ = budget if budget is not None else default_memory_budget()
+        check_thread_reservations(self.n_threads)
+        self.memory_budget_ = budget if budget is not None else default_memory_budget(self.n_threads)
         likelihood = self.likelihood
         if likelihood == "auto":
             n = frames.n_points
@@ -620,7 +621,7 @@ class DPGP:
         )  # fmt: skip
         model.likelihood_, model.basis_ = file.likelihood, file.basis
         budget = parse_bytes("memory_budget", model.memory_budget)  # this machine's budget
-        model.memory_budget_ = budget if budget is not None else default_memory_budget()
+        model.memory_budget_ = budget if budget is not None else default_memory_budget(model.n_threads)
         model._sampler = model._new_sampler(file.frames)
         model.frames_ = file.frames
         model._sampler.set_state(file.labels, file.length_scales, file.alpha)
