@@ -846,16 +846,16 @@ def case_model_files(draw: Draw, ctx: Context, d: Path) -> Any:
     frames = model.frames_[:1]
     if use == "proba":
         return model, model.predict_proba(frames)
-    if use == "score":
-        return model, model.score_samples(frames)
+    if use == "score":  # a documented log density: -inf where ψ has no mass (a position outside its ROI)
+        return (model, model.score_samples(frames)), True
     if use == "field":
         return model, model.velocity_field(0, frames.xy)
     if use == "simulate":
         return model, model.simulate(0, steps=3)
     if use == "scenarios":
         return model, model.sample_scenarios(2, steps=3, seed=0)
-    if use == "cond":
-        return model, model.conditional_log_probs(0)
+    if use == "cond":  # -inf: frame 0's own pattern when it holds only frame 0 (as in model_use)
+        return (model, model.conditional_log_probs(0)), True
     if use == "save_readonly":
         with readonly_target(draw, d) as target:
             model.save(as_drawn_path(draw, target))
@@ -1031,6 +1031,9 @@ def cli_argv(draw: Draw, ctx: Context, d: Path) -> list[str]:
             "--iterations", draw.choice(["0", "-1", "x"], "iterations"), "--no-progress"]
 
 
+_PROGRESS = __import__("re").compile(r"^dpgp (sweeps|chains): +\d+%\|")
+
+
 def case_cli(draw: Draw, ctx: Context, d: Path) -> Outcome:
     from dpgp.cli import main
 
@@ -1051,7 +1054,8 @@ def case_cli(draw: Draw, ctx: Context, d: Path) -> Outcome:
         return Outcome("cli", f"traceback printed: {text[-300:]!r}")
     if code == 0:
         return Outcome("valid", "exit 0")
-    lines = [line for line in text.splitlines() if line.strip()]
+    # Progress bars (tqdm redraws with \r, "dpgp sweeps: ...") are not error lines.
+    lines = [line for line in text.replace("\r", "\n").splitlines() if line.strip() and not _PROGRESS.match(line)]
     if not isinstance(code, int):
         return Outcome("cli", f"main returned {code!r}, not an exit status")
     if len(lines) != 1 or not lines[0].startswith("dpgp"):

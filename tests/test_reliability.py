@@ -101,6 +101,24 @@ def test_a_model_file_with_extreme_finite_numbers_is_refused(tiny, tmp_path, edi
         dpgp.DPGP.load(path)
 
 
+@pytest.mark.parametrize("prior", [(1.7e308, 1.0), (1.0, 1e300), (1e-200, 1.0), (1e99, 1e99)])
+def test_a_length_scale_prior_past_its_limits_is_refused(prior):  # (1.7e308, 1): a NaN log joint (fuzz)
+    frames = dpgp.datasets.synthetic("intersection", n_frames=8, seed=0, vehicles=(2, 4))
+    with pytest.raises(dpgp.InvalidInputError, match="1e\\+100"):
+        dpgp.DPGP(length_scale_prior=prior, iterations=1, progress=False, noise_var=1.0).fit(frames)
+
+
+def test_a_budget_past_what_the_core_counts_limits_nothing():  # 2**70 was OverflowError (fuzz)
+    frames = dpgp.datasets.synthetic("intersection", n_frames=8, seed=0, vehicles=(2, 4))
+    model = dpgp.DPGP(memory_budget=2**70, iterations=1, progress=False, noise_var=1.0).fit(frames)
+    assert model.memory_budget_ == 2**63 - 1
+
+
+def test_a_time_axis_too_long_to_hold_is_refused_even_without_vehicles(tiny):  # was numpy's MemoryError (fuzz)
+    with pytest.raises(dpgp.InvalidInputError, match="fewer steps"):
+        tiny[0].sample_scenarios(0, steps=2 * 10**8, dt=1e-300)
+
+
 # --- 3. temporary files ---------------------------------------------------------------------------------
 def _chattr(flag: str, path: Path) -> bool:
     if shutil.which("chattr") is None:
@@ -201,6 +219,19 @@ def test_an_integer_past_the_float_range_is_a_data_format_error(tmp_path):
     df = pd.DataFrame({"frame": [0, 1], "x": [1, 10**400], "y": [1, 2], "vx": [1, 2], "vy": [1, 2]})
     with pytest.raises(dpgp.DataFormatError, match="too large for a double"):
         dpgp.read_frames(df)
+
+
+def test_an_ngsim_column_named_like_an_output_column_is_a_data_format_error(tmp_path):  # was ValueError (fuzz)
+    path = tmp_path / "ngsim.csv"
+    path.write_text("Vehicle_ID,Frame_ID,x,Local_X,Local_Y\n1,1,2,0.0,0.0\n1,2,2,1.0,0.0\n")
+    with pytest.raises(dpgp.DataFormatError, match="clash"):
+        dpgp.read_ngsim(path)
+
+
+def test_saving_over_a_directory_names_the_target(tiny, tmp_path):
+    with pytest.raises(IsADirectoryError, match="directory") as e:
+        tiny[0].save(tmp_path)
+    assert ".tmp" not in str(e.value) and list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize(

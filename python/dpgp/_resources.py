@@ -7,6 +7,8 @@ import re
 
 from .exceptions import InvalidInputError
 
+#: Largest budget (bytes) the core takes; larger ones limit nothing and are taken as this.
+MAX_BUDGET = 2**63 - 1
 #: Share of the memory available at the start of a fit that its patterns may hold by default.
 DEFAULT_MEMORY_SHARE = 0.5
 
@@ -218,4 +220,5 @@ def parse_bytes(name: str, value: object) -> int | None:
         value = float(m.group(1)) * _UNITS[unit]
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 1 or value != value or value == float("inf"):
         raise InvalidInputError(f"{name} must be a positive number of bytes or a size such as '4GB', got {value!r}")
-    return int(value)
+    # Past 2^63 - 1 bytes (8 EiB, more than any machine) a budget limits nothing: the core takes a u64.
+    return int(min(value, MAX_BUDGET))

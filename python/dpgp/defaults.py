@@ -55,6 +55,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ._arrays import MAX_MAGNITUDE, MIN_LENGTH_SCALE
 from .exceptions import InvalidInputError
 from .frames import Frames
 from .gp import _pair
@@ -239,6 +240,13 @@ def _gamma(name: str, value: Any) -> tuple[float, float]:
     a, b = _pair(name, value)
     if not (np.isfinite(a) and np.isfinite(b) and a > 0 and b > 0):
         raise InvalidInputError(f"{name} must be 'auto' or a Gamma (shape, scale) with both positive, got {value!r}")
+    # The chain starts at the prior mean a·b and evaluates log Γ(a) and x/b: past these limits
+    # its log joint is not finite in double precision (issue 17).
+    if not (1e-100 <= a <= MAX_MAGNITUDE and 1e-100 <= b <= MAX_MAGNITUDE and MIN_LENGTH_SCALE <= a * b <= MAX_MAGNITUDE):
+        raise InvalidInputError(
+            f"{name} {value!r}: shape and scale must lie in [1e-100, {MAX_MAGNITUDE:g}] and their product (the prior mean "
+            f"length scale) in [{MIN_LENGTH_SCALE:g}, {MAX_MAGNITUDE:g}]; convert the positions to sensible units"
+        )
     return (a, b)
 
 

@@ -145,6 +145,8 @@ def save(model: DPGP, path: str | os.PathLike, resume: Any = None, compress: boo
     if resume is not None:
         arrays.update(resume.arrays())
     path = as_path(path)
+    if os.path.isdir(path):
+        raise IsADirectoryError(21, "a model file cannot replace a directory; give a file path", path)
     directory = os.path.dirname(os.path.abspath(path))
     _check_renames_allowed(directory, path)
     fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path), suffix=".tmp", dir=directory)

@@ -197,6 +197,7 @@ def rollouts(
 ) -> list[Simulation]:
     """Many rollouts in one call into the core (run in parallel): ``starts[i]`` (l_i, 2) through
     pattern ``patterns[i]``, stochastic with ``seeds[i]`` when ``seeds`` is given."""
+    _check_rows(int(steps) + 1, f"a time axis of {steps} steps", "ask for fewer steps")  # allocated even for no rollout
     sizes = np.array([len(s) for s in starts], dtype=np.int64)
     offsets = np.r_[0, np.cumsum(sizes)].astype(np.int64)
     start = np.ascontiguousarray(np.concatenate(starts) if starts else np.zeros((0, 2)), dtype=np.float64)

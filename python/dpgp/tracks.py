@@ -157,6 +157,9 @@ def read_ngsim(path: str | os.PathLike, *, split_gap: float = 1.0) -> pd.DataFra
     per_id = pd.Series(track).groupby(df["Vehicle_ID"].to_numpy()).nunique()
     report["vehicle_ids_with_several_tracks"] = int((per_id > 1).sum())
 
+    clash = [c for c in ("track", "t", "x", "y", "scene") if c in df.columns]
+    if clash:  # not NGSIM columns: a renamed or foreign header field
+        raise DataFormatError(f"{path}: column(s) {clash} clash with the tracks table's own columns; rename them")
     out = df.drop(columns=["Local_X", "Local_Y"])
     out.insert(0, "track", track.astype(np.int64))
     out.insert(1, "t", frame * NGSIM_FRAME_SECONDS)
