@@ -68,7 +68,8 @@ _STANDING = 1e-9  # speeds below this (in the table's units per second) keep the
 _EXTRA_SIZE_COLUMNS = ("length", "width", "height")
 
 
-def _xosc() -> Any:
+def require_scenariogeneration() -> Any:
+    """scenariogeneration's ``xosc`` module, or an ImportError that says what to install."""
     try:
         from scenariogeneration import xosc
     except ImportError:
@@ -128,7 +129,7 @@ def write_openscenario(
     Returns the paths written. Each file is written to a temporary file and renamed, so an
     interrupted export leaves only whole files.
     """
-    xosc = _xosc()
+    xosc = require_scenariogeneration()
     df = scenarios.to_pandas()
     n = len(scenarios)
     path = Path(path)
@@ -530,7 +531,7 @@ def _bar(total: int, progress: bool) -> Any:
 
 def schema_path(minor: int = OSC_MINOR) -> Path:
     """The ``OpenSCENARIO_1_<minor>.xsd`` that scenariogeneration installs (beside its package)."""
-    xosc = _xosc()
+    xosc = require_scenariogeneration()
     name = f"OpenSCENARIO_1_{minor}.xsd" if minor != 3 else "OpenSCENARIO_1_3_1.xsd"
     candidates = [Path(xosc.__file__).resolve().parents[2] / "schemas" / name]
     try:
@@ -581,7 +582,7 @@ def read_openscenario(path: str | os.PathLike) -> pd.DataFrame:
     """
     import pandas as pd
 
-    xosc = _xosc()
+    xosc = require_scenariogeneration()
     scenario = xosc.Scenario.parse(ET.parse(os.fspath(path)).getroot())
     rows: dict[str, list[Any]] = {c: [] for c in ("entity", "t", "x", "y", "heading")}
     followed: set[str] = set()
@@ -632,4 +633,4 @@ def read_openscenario(path: str | os.PathLike) -> pd.DataFrame:
     return df
 
 
-__all__ = ["write_openscenario", "read_openscenario", "validate", "schema_path", "headings", "DEFAULT_SIZES", "OSC_MINOR", "UNITS"]
+__all__ = ["write_openscenario", "require_scenariogeneration", "read_openscenario", "validate", "schema_path", "headings", "DEFAULT_SIZES", "OSC_MINOR", "UNITS"]
