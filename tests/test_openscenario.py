@@ -150,6 +150,21 @@ def test_headings_of_standing_vehicles():
     assert abs(h[1] - h[0]) < 0.1
 
 
+def test_headings_of_many_runs_at_once_match_numpy_per_run():
+    rng = np.random.default_rng(0)
+    lengths = rng.integers(1, 30, size=40)
+    starts = np.r_[0, np.cumsum(lengths)[:-1]]
+    angle = np.cumsum(rng.normal(0, 1.5, size=lengths.sum()))  # turns often cross ±π
+    vx, vy = np.cos(angle), np.sin(angle)
+    vx[::7] = vy[::7] = 0.0  # some standing rows
+    got = osc.headings(vx, vy, starts)
+    for a, n in zip(starts, lengths):
+        np.testing.assert_array_equal(got[a : a + n], osc.headings(vx[a : a + n], vy[a : a + n]))
+        moving = np.hypot(vx[a : a + n], vy[a : a + n]) > 0
+        if moving.all():  # oracle: numpy's unwrap of the velocity angles
+            np.testing.assert_allclose(got[a : a + n], np.unwrap(np.arctan2(vy[a : a + n], vx[a : a + n])), atol=1e-12)
+
+
 def test_vehicles_that_leave_the_roi_are_deleted_when_their_rows_end(written, scenarios):
     _, paths = written
     end = scenarios.to_pandas()["t"].max()

@@ -155,6 +155,8 @@ def write_openscenario(
     order = np.lexsort((df["t"].to_numpy(), df["vehicle"].to_numpy(), df["scenario"].to_numpy()))
     cols = {c: df[c].to_numpy()[order] for c in df.columns}
     bounds = np.searchsorted(cols["scenario"].astype(np.int64), np.arange(n + 1))
+    new_run = np.r_[True, (cols["scenario"][1:] != cols["scenario"][:-1]) | (cols["vehicle"][1:] != cols["vehicle"][:-1])]
+    cols["_heading"] = headings(cols["vx"], cols["vy"], np.flatnonzero(new_run[: len(order)]))  # all at once
     end = float(cols["t"].max()) if len(order) else 0.0  # every scenario runs as long as the longest
     seed_text = "none" if seed is None else str(int(seed))
     header = {
@@ -215,10 +217,10 @@ def _objects(
     y = ((part["y"] - origin[1]) * scale).tolist()
     t = part["t"].astype(np.float64).tolist()
     out = []
+    h = (part["_heading"] if "_heading" in part else headings(part["vx"], part["vy"], starts)).tolist()
     for a, b in zip(starts.tolist(), stops.tolist()):
-        h = headings(part["vx"][a:b], part["vy"][a:b]).tolist()
         out.append(
-            _Object(f"{kind}{int(veh[a])}", kind, _row_size(part, a, box, scale), t[a:b], x[a:b], y[a:b], h,
+            _Object(f"{kind}{int(veh[a])}", kind, _row_size(part, a, box, scale), t[a:b], x[a:b], y[a:b], h[a:b],
                     t[b - 1] if t[b - 1] < end else None)
         )  # fmt: skip
     return out
@@ -307,14 +309,23 @@ class _Template:
         self.skeleton = (
             text.replace(entity, "@ENTITIES@").replace(private, "@INIT@").replace(group, "@GROUPS@")
         )
-        self.private = _fmt(private, ("$ix", "$iy", "$ih"))
+        # pieces split at the name, so that an object's name is put in by str.join
+        self.private = _fmt(private, ("$ix", "$iy", "$ih")).split(self._NAME)
         group_head, rest = group.split(follow)
-        self.group_head = group_head
-        self.follow_head, follow_tail = follow.split(first + second)
-        self.follow_tail = follow_tail
-        self.leave = _fmt(leave, ("$leave",))
-        self.group_tail = rest.replace(leave, "")
-        self.vertex = _fmt(second, ("$vt", "$vx", "$vy", "$vh"))
+        follow_head, follow_tail = follow.split(first + second)
+        self.group_head = group_head.split(self._NAME)
+        self.follow_head, self.follow_tail = follow_head.split(self._NAME), follow_tail.split(self._NAME)
+        self.leave = _fmt(leave, ("$leave",)).split(self._NAME)
+        self.group_tail = rest.replace(leave, "").split(self._NAME)
+        self._vertex = second
+        self._vertices: dict[int, str] = {}
+
+    def vertices(self, o: _Object) -> str:
+        """The polyline's vertices of ``o``: one format string for all of them (one per count)."""
+        k = len(o.t)
+        if k not in self._vertices:
+            self._vertices[k] = "".join(_fmt(self._vertex, ("$vt", "$vx", "$vy", "$vh"), 4 * i) for i in range(k))
+        return self._vertices[k].format(*[v for row in zip(o.t, o.x, o.y, o.h) for v in row])
 
     def entity(self, o: _Object) -> str:
         key = (o.kind, o.size)
@@ -327,24 +338,22 @@ class _Template:
     def render(self, objs: list[_Object], s: int, pattern: int, text: str) -> bytes:
         groups = []
         for o in objs:
+            name = o.name
             parts = []
             if len(o.t) >= 2:
-                vertices = "".join(self.vertex.format(*v) for v in zip(o.t, o.x, o.y, o.h))
-                parts.append(self.follow_head + vertices + self.follow_tail)
+                parts += [name.join(self.follow_head), self.vertices(o), name.join(self.follow_tail)]
             if o.leaves is not None:
-                parts.append(self.leave.format(o.leaves))
+                parts.append(name.join(self.leave).format(o.leaves))
             if parts:
-                groups.append((self.group_head + "".join(parts) + self.group_tail).replace(self._NAME, o.name))
+                groups += [name.join(self.group_head), *parts, name.join(self.group_tail)]
         if not groups:
             return _serialize(_scenario(self.xosc, objs, self.header, s, pattern, text).get_element())
-        init = "".join(self.private.format(o.x[0], o.y[0], o.h[0]).replace(self._NAME, o.name) for o in objs)
+        init = "".join(o.name.join(self.private).format(o.x[0], o.y[0], o.h[0]) for o in objs)
+        head, rest = self.skeleton.split("@ENTITIES@")
         out = (
-            self.skeleton.replace("@ENTITIES@", "".join(self.entity(o) for o in objs))
-            .replace("@INIT@", init)
-            .replace("@GROUPS@", "".join(groups))
-            .replace("@S@", str(int(s)))
-            .replace("@P@", str(int(pattern)))
-            .replace("@D@", text.translate(_ESCAPES))
+            head.replace("@S@", str(int(s))).replace("@P@", str(int(pattern))).replace("@D@", text.translate(_ESCAPES))
+            + "".join(self.entity(o) for o in objs)
+            + rest.replace("@INIT@", init).replace("@GROUPS@", "".join(groups)).replace("@S@", str(int(s)))
         )
         return out.encode("utf-8")
 
@@ -357,11 +366,12 @@ def _block(text: str, start: str, end: str) -> str:
     return text[a:b]
 
 
-def _fmt(piece: str, names: tuple[str, ...]) -> str:
-    """``piece`` as a format string with the quoted placeholders ``names`` as fields 0, 1, ..."""
+def _fmt(piece: str, names: tuple[str, ...], first: int = 0) -> str:
+    """``piece`` as a format string with the quoted placeholders ``names`` as fields ``first``,
+    ``first + 1``, ..."""
     out = piece.replace("{", "{{").replace("}", "}}")
     for i, name in enumerate(names):
-        out = out.replace(f'"{name}"', f'"{{{i}}}"')
+        out = out.replace(f'"{name}"', f'"{{{first + i}}}"')
     return out
 
 
@@ -382,19 +392,35 @@ def _object(xosc: Any, name: str, kind: str, size: tuple[float, float, float]) -
     return xosc.Vehicle(name, xosc.VehicleCategory.car, bb, front, rear, *_PERFORMANCE)
 
 
-def headings(vx: np.ndarray, vy: np.ndarray) -> np.ndarray:
-    """Heading (radians, counter-clockwise from +x) of each velocity, unwrapped along the rows;
-    a row whose speed is (near) zero takes the last moving row's heading (before the first
-    moving row: the first moving row's; none moving: 0)."""
+def headings(vx: np.ndarray, vy: np.ndarray, starts: np.ndarray | None = None) -> np.ndarray:
+    """Heading (radians, counter-clockwise from +x) of each velocity, unwrapped along the rows
+    (each step taken to (-π, π], as ``np.unwrap``); a row whose speed is (near) zero takes the
+    last moving row's heading (before the first moving row: the first moving row's; none moving:
+    0). ``starts``: the first rows of independent runs (vehicles), each treated on its own."""
     vx, vy = np.asarray(vx, dtype=np.float64), np.asarray(vy, dtype=np.float64)
+    n = len(vx)
+    starts = np.zeros(1 if n else 0, dtype=np.int64) if starts is None else np.asarray(starts, dtype=np.int64)
+    if n == 0:
+        return np.zeros(0)
+    run = np.zeros(n, dtype=np.int64)
+    run[starts[1:]] = 1
+    run = np.cumsum(run)
+    first, stop = starts[run], np.r_[starts[1:], n][run]
     moving = np.hypot(vx, vy) > _STANDING
-    if not moving.any():
-        return np.zeros(len(vx))
-    h = np.arctan2(vy, vx)
-    idx = np.where(moving, np.arange(len(h)), -1)
-    idx = np.maximum.accumulate(idx)
-    idx[idx < 0] = int(np.flatnonzero(moving)[0])
-    return np.unwrap(h[idx])
+    rows = np.arange(n)
+    last = np.maximum.accumulate(np.where(moving, rows, -1))  # last moving row at or before
+    following = np.minimum.accumulate(np.where(moving, rows, n)[::-1])[::-1]  # first at or after
+    src = np.where(last >= first, last, np.where(following < stop, following, -1))
+    h = np.where(src >= 0, np.arctan2(vy, vx)[np.maximum(src, 0)], 0.0)
+    step = np.diff(h)
+    wrapped = np.mod(step + np.pi, 2 * np.pi) - np.pi
+    wrapped[(wrapped == -np.pi) & (step > 0)] = np.pi
+    # whole turns added at each step, counted in integers so that a run's result does not
+    # depend on the runs before it
+    turns = np.r_[0, np.where(np.abs(step) < np.pi, 0, np.rint((wrapped - step) / (2 * np.pi))).astype(np.int64)]
+    turns[starts] = 0  # no unwrapping across runs
+    total = np.cumsum(turns)
+    return h + 2 * np.pi * (total - total[first])
 
 
 def _row_size(part: dict[str, np.ndarray], row: int, box: tuple[float, float, float], scale: float) -> tuple[float, float, float]:
