@@ -325,6 +325,14 @@ def test_bad_arguments(scenarios, tmp_path, options, match):
         scenarios.to_openscenario(tmp_path, **{"units": "m", **options})
 
 
+def test_non_finite_positions_are_refused(tmp_path):
+    df = pd.DataFrame({"scenario": [0, 0], "vehicle": [0, 0], "t": [0.0, 0.5], "x": [0.0, np.nan], "y": [0.0, 1.0],
+                       "vx": [1.0, 1.0], "vy": [0.0, 0.0]})  # fmt: skip
+    with pytest.raises(InvalidInputError, match="'x'"):
+        osc.write_openscenario(_Table(df, 1), tmp_path, units="m")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_one_file_for_many_scenarios_is_refused(scenarios, tmp_path):
     with pytest.raises(InvalidInputError, match="directory"):
         scenarios.to_openscenario(tmp_path / "all.xosc", units="m")

@@ -150,6 +150,10 @@ def write_openscenario(
     if missing:
         raise DataFormatError(f"the scenarios' table has no column(s) {missing}")
 
+    for c in ("t", "x", "y", "vx", "vy"):
+        if not np.all(np.isfinite(df[c].to_numpy(dtype=np.float64))):
+            raise InvalidInputError(f"the scenarios' column {c!r} holds NaN or infinite values; OpenSCENARIO needs numbers")
+
     from . import __version__
 
     order = np.lexsort((df["t"].to_numpy(), df["vehicle"].to_numpy(), df["scenario"].to_numpy()))
