@@ -388,7 +388,7 @@ def _object(xosc: Any, name: str, kind: str, size: tuple[float, float, float]) -
     length, width, height = size
     bb = xosc.BoundingBox(width, length, height, 0.0, 0.0, height / 2)
     if kind == "pedestrian":
-        return xosc.Pedestrian(name, _PEDESTRIAN_MASS, xosc.PedestrianCategory.pedestrian, bb, model="pedestrian")
+        return xosc.Pedestrian(name, _PEDESTRIAN_MASS, xosc.PedestrianCategory.pedestrian, bb)
     wheel = min(0.6, height / 2)
     track = 0.85 * width
     front = xosc.Axle(0.5, wheel, track, 0.3 * length, wheel / 2)  # axles a wheelbase of 0.6 length apart
