@@ -293,18 +293,18 @@ def _generate(args: argparse.Namespace) -> int:
     from . import DPGP
 
     model = DPGP.load(args.model)
-    xosc = args.format == "xosc" or (args.format is None and not args.output.lower().endswith((".csv", ".xml", ".xml.gz")) and (
-        args.output.lower().endswith(".xosc") or os.path.isdir(args.output)))  # fmt: skip
-    if xosc:
+    one_file = args.output.lower().endswith(".xosc")
+    xosc = args.format == "xosc" or (args.format is None and (one_file or os.path.isdir(args.output)))
+    if xosc:  # checked before generating: a missing extra or a wrong path is said at once
         from .openscenario import require_scenariogeneration
 
-        require_scenariogeneration()  # before generating: a missing extra is said at once
-        if args.output.lower().endswith(".xosc") and args.n != 1:
+        require_scenariogeneration()
+        if one_file and args.n != 1:
             raise InvalidInputError(f"{args.output} names one .xosc file but -n is {args.n}; give a directory")
-    if xosc and args.seed is None:  # an OpenSCENARIO file records its seed: draw one to record
-        import secrets
+        if args.seed is None:  # a file records its seed: draw one to record
+            import secrets
 
-        args.seed = secrets.randbelow(2**31)
+            args.seed = secrets.randbelow(2**31)
     scen = model.sample_scenarios(
         args.n, steps=args.steps, pattern=args.pattern, seed=args.seed, dt=args.dt, method=args.method,
         stochastic=not args.mean,
