@@ -293,10 +293,30 @@ def _generate(args: argparse.Namespace) -> int:
     from . import DPGP
 
     model = DPGP.load(args.model)
+    one_file = args.output.lower().endswith(".xosc")
+    xosc = args.format == "xosc" or (args.format is None and (one_file or os.path.isdir(args.output)))
+    if xosc:  # checked before generating: a missing extra or a wrong path is said at once
+        from .openscenario import require_scenariogeneration
+
+        require_scenariogeneration()
+        if one_file and args.n != 1:
+            raise InvalidInputError(f"{args.output} names one .xosc file but -n is {args.n}; give a directory")
+        if args.seed is None:  # a file records its seed: draw one to record
+            import secrets
+
+            args.seed = secrets.randbelow(2**31)
     scen = model.sample_scenarios(
         args.n, steps=args.steps, pattern=args.pattern, seed=args.seed, dt=args.dt, method=args.method,
         stochastic=not args.mean,
     )  # fmt: skip
+    if xosc:
+        paths = scen.to_openscenario(
+            args.output, model, units=args.units, origin=args.origin or (0.0, 0.0), road_network=args.road_network,
+            seed=args.seed, description=f"dpgp generate {os.path.basename(args.model)}", progress=sys.stderr.isatty(),
+        )  # fmt: skip
+        print(scen)
+        print(f"wrote {len(paths)} OpenSCENARIO file(s) to {args.output}")
+        return 0
     scen.save(args.output, format=args.format)
     print(scen)
     print(f"wrote {args.output}")
@@ -476,9 +496,13 @@ def build_parser() -> argparse.ArgumentParser:
                        "distribution, positions from the pattern's data, velocities from its GP, then a rollout.")  # fmt: skip
     p.add_argument("model", help="model file written by 'dpgp fit'")
     p.add_argument("-n", type=int, required=True, help="number of scenarios")
-    p.add_argument("-o", "--output", required=True, help="file to write")
-    p.add_argument("--format", choices=("csv", "sumo"),
-                   help="'csv' (scenario, vehicle, t, x, y, vx, vy) or 'sumo' (FCD XML); default from the extension")  # fmt: skip
+    p.add_argument("-o", "--output", required=True, help="file to write (xosc: a directory, or a .xosc file for -n 1)")
+    p.add_argument("--format", choices=("csv", "sumo", "xosc"),
+                   help="'csv' (scenario, vehicle, t, x, y, vx, vy), 'sumo' (FCD XML) or 'xosc' (ASAM OpenSCENARIO 1.2, "
+                   "one file per scenario; needs dpgp[openscenario]); default from the extension")  # fmt: skip
+    p.add_argument("--units", choices=("m", "ft"), help="xosc: the model's position unit, if it does not record it")
+    p.add_argument("--origin", type=float, nargs=2, metavar=("X", "Y"), help="xosc: subtract this point (model units)")
+    p.add_argument("--road-network", help="xosc: OpenDRIVE file to reference (path written as given)")
     p.add_argument("--steps", type=int, default=100, help="number of time steps per scenario")
     p.add_argument("--pattern", type=int, help="draw every scenario from this pattern (default: by weight)")
     p.add_argument("--dt", type=float, help="time step in seconds (default: the training frames', else 0.5)")
@@ -527,7 +551,7 @@ def main(argv: list[str] | None = None) -> int:
         return e.code if isinstance(e.code, int) else 2
     try:
         return int(args.func(args))
-    except (DpgpError, OSError, ValueError) as e:
+    except (DpgpError, OSError, ValueError, ImportError) as e:  # ImportError: an optional extra is missing
         msg = " ".join(str(e).split()) or type(e).__name__
         print(f"dpgp: error: {msg}", file=sys.stderr)
         return 1

@@ -16,6 +16,7 @@ import numpy as np
 
 from .exceptions import DataFormatError, InvalidInputError
 from .frames import Frames
+from .provenance import describe_tracks
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -59,6 +60,10 @@ class FramingSummary:
     n_frames: int
     n_empty_frames: int  # grid times with no vehicle in the ROI: dropped
     n_scenes: int
+    # What exports need (dpgp.provenance): "m"/"ft", "vehicle"/"pedestrian", (length, width)
+    length_unit: str | None = None
+    object_type: str | None = None
+    object_size: tuple[float, float] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -67,7 +72,8 @@ class FramingSummary:
         roi = "none" if self.roi is None else "x [{:g}, {:g}], y [{:g}, {:g}]".format(*self.roi)
         lines = [
             f"{self.n_frames} frames, {self.n_points} vehicle observations "
-            f"(dt {self.dt:g} s, ROI {roi}, units {self.units or 'as in the table'}, "
+            f"(dt {self.dt:g} s, ROI {roi}, units {self.units or 'as in the table'}"
+            f"{' (' + self.length_unit + ')' if self.length_unit else ''}, "
             f"velocity from {self.velocity}{', smoothed ' + str(self.smoothing) if self.smoothing else ''})",
             f"input: {self.n_rows} rows, {self.n_tracks} tracks"
             + (f", {self.n_scenes} scenes" if self.n_scenes > 1 else "")
@@ -290,6 +296,7 @@ def _resample(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, uni
         n_single_sample_segments=int(single.sum()),
         n_unsmoothed_segments=0 if smoothing is None else int(((seg_len < smoothing[0]) & (cnt > 0)).sum()),
         n_resampled=G, n_scenes=1 if sc is None else len(np.unique(seg_scene)),
+        **describe_tracks(tracks, units_name, scale),
     )
     if G > _MAX_RESAMPLED:
         raise InvalidInputError(

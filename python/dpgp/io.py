@@ -49,7 +49,7 @@ import tempfile
 import tokenize
 import zipfile
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -355,8 +355,9 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
     labels_file = arrays.get("frame_labels")
     frames = Frames(arrays["frame_ids"], arrays["frame_offsets"], arrays["frame_xy"], arrays["frame_v"], labels_file)
     if meta.get("frames_summary") is not None:
-        s = dict(meta["frames_summary"])
-        for key in ("roi", "smoothing"):
+        known = {f.name for f in fields(FramingSummary)}  # a newer writer's extra keys are ignored
+        s = {k: v for k, v in meta["frames_summary"].items() if k in known}
+        for key in ("roi", "smoothing", "object_size"):
             if s.get(key) is not None:
                 s[key] = tuple(s[key])
         frames.summary = FramingSummary(**s)

@@ -136,6 +136,15 @@ class Scenarios:
         with opener(path, "wb") as fh:
             fh.write(text)
 
+    def to_openscenario(self, path: str | os.PathLike, model: Any = None, **options: Any) -> list:
+        """Write ASAM OpenSCENARIO 1.2 files, one per scenario (``path``: a directory, or a
+        ``.xosc`` file for one scenario); needs ``pip install dpgp[openscenario]``. ``options``:
+        ``units``, ``origin``, ``road_network``, ``object_type``, ``size``, ``seed``,
+        ``description``, ``date``, ``progress``; see :func:`dpgp.openscenario.write_openscenario`."""
+        from .openscenario import write_openscenario
+
+        return write_openscenario(self, path, model, **options)
+
     def save(self, path: str | os.PathLike, format: str | None = None) -> None:
         """Write ``"csv"`` or ``"sumo"`` (default: SUMO for ``.xml``/``.xml.gz``, else CSV)."""
         fmt = format or ("sumo" if as_path(path).lower().endswith((".xml", ".xml.gz")) else "csv")
