@@ -15,6 +15,7 @@ steps; FDE in the data's length units (Peachtree: feet; the others: metres).
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -25,34 +26,22 @@ import dpgp
 from dpgp.evaluate import split_in_time
 from dpgp.realism import FEATURES
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 COLLISION_FLOOR = 0.005  # the issue's floor for "at most twice the recorded collision rate"
 
 
 def datasets() -> dict:
-    """name -> (loader returning (frames, tracks), length unit)."""
-
-    def peachtree():
-        tracks = dpgp.read_ngsim(DATA / "ngsim_peachtree_raw.csv")
-        return dpgp.make_frames(tracks, roi=(-20, 30, 0, 80), dt=0.5), tracks
-
-    def eth_ucy(name):
-        def load():
-            tracks = dpgp.read_tracks(DATA / name, preset="eth_ucy")
-            return dpgp.make_frames(tracks, dt=0.4), tracks
-
-        return load
+    """name -> (loader returning (frames, tracks), length unit): the data sets with tracks of
+    benches/evaluate.py, framed as there, and the SUMO junction."""
+    from evaluate import datasets as evaluate_datasets  # benches/evaluate.py, this folder
 
     def sumo():
         tracks = dpgp.read_tracks(DATA / "sumo_grid_intersection_fcd.xml.gz", preset="sumo")
         return dpgp.make_frames(tracks, dt=0.5), tracks
 
-    return {
-        "peachtree": (peachtree, "ft"),
-        "eth": (eth_ucy("eth_ucy_biwi_eth.txt"), "m"),
-        "zara01": (eth_ucy("eth_ucy_crowds_zara01.txt"), "m"),
-        "sumo_junction": (sumo, "m"),
-    }
+    theirs = evaluate_datasets()
+    return {**{k: theirs[k] for k in ("peachtree", "eth", "zara01")}, "sumo_junction": (sumo, "m")}
 
 
 def measure(name: str, load, unit: str, iterations: int, plots: Path | None) -> dict:

@@ -15,6 +15,7 @@ import dpgp
 from dpgp import evaluate as ev
 from dpgp import realism as rl
 from dpgp.cli import main
+from test_evaluate import tracks_table as straight_tracks
 
 WEIGHTS = {"speed": 0.05, "acceleration": 0.05, "turn_rate": 0.05, "angular_acceleration": 0.05,
            "nearest_distance": 0.10, "collision": 0.25, "count": 0.10, "position": 0.10}  # fmt: skip
@@ -349,18 +350,6 @@ def test_ways_in():
     assert rl.data_agent(ngsim_like) == "vehicle"
     ngsim_like.attrs["dpgp"] = {"units": "m", "format": "eth_ucy"}
     assert rl.data_agent(ngsim_like) == "pedestrian"
-
-
-def straight_tracks() -> pd.DataFrame:
-    """Ten vehicles on straight lines at 10 Hz for 24 s: northbound at 8 m/s, eastbound at 4 m/s."""
-    rows = []
-    t = np.round(np.arange(0, 24, 0.1), 6)
-    for v in range(10):
-        keep = t >= v * 2.0
-        tt = t[keep] - v * 2.0
-        x, y = (np.full_like(tt, 3.0), -40 + 8.0 * tt) if v % 2 else (-40 + 4.0 * tt, np.full_like(tt, -3.0))
-        rows.append(pd.DataFrame({"track": v, "t": t[keep], "x": x, "y": y}))
-    return pd.concat(rows, ignore_index=True)
 
 
 def test_model_evaluate_and_the_command_line_report_realism(tmp_path):
