@@ -371,7 +371,7 @@ class Realism:
                 shares = [rec.collision_rate, gen.collision_rate]
                 bars = ax.bar(["recorded", source], shares, color=["#b0b0b0", "#1f4e99"])
                 ax.bar_label(bars, fmt="%.3f")
-                ax.set_ylabel(f"share of object steps closer than {gen.collision_distance:.3g}")
+                ax.set_ylabel(f"share of object steps closer than {gen.collision_distance:.3g} (data units)")
             else:
                 edges = self.bins.edges[name]
                 for f, label, style in ((rec, "recorded", dict(color="#808080", alpha=0.5)), (gen, source, dict(color="#1f4e99", histtype="step", lw=2))):
