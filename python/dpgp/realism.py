@@ -615,11 +615,12 @@ def model_realism(
     n = len(test_frames)
     generated = model.sample_scenarios(n, steps=steps, seed=seed).to_pandas()
     train = model.frames_
+    conv = getattr(getattr(test_frames, "summary", None), "units", None)  # both periods framed like the test one
     reference = {
-        "recorded": recorded_windows(tracks, train, steps, roi=roi, dt=dt),
+        "recorded": recorded_windows(tracks, train, steps, roi=roi, dt=dt, units=conv),
         "blind": position_blind_scenarios(train, n, steps, dt, roi=roi, seed=seed),
     }
-    test = recorded_windows(tracks, test_frames, steps, roi=roi, dt=dt)
+    test = recorded_windows(tracks, test_frames, steps, roi=roi, dt=dt, units=conv)
     units = units if units is not None else (data_units(tracks, test_frames) or "m")
     return realism(generated, test, reference, agent=agent or data_agent(tracks), units=units, dt=dt)
 
