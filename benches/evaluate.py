@@ -40,12 +40,18 @@ def datasets() -> dict:
 
         return load
 
+    def sumo_grid():
+        tracks = dpgp.read_tracks(DATA / "sumo_grid_intersection_fcd.xml.gz", preset="sumo")
+        return dpgp.make_frames(tracks, dt=1.0), tracks
+
     return {
         "us101": (frames_file("ngsim_us101_frames.tsv"), "ft"),
         "peachtree": (peachtree, "ft"),
         "eth": (eth_ucy("eth_ucy_biwi_eth.txt"), "m"),
         "zara01": (eth_ucy("eth_ucy_crowds_zara01.txt"), "m"),
         "sumo_left_turn": (frames_file("sumo_left_turn_frames.csv"), "m"),
+        "lankershim": (frames_file("ngsim_lankershim_frames.csv"), "ft"),
+        "sumo_grid": (sumo_grid, "m"),
     }
 
 
