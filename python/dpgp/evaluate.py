@@ -6,8 +6,9 @@ Protocol: a split in time (:func:`split_in_time`, first 70% of the frames to tra
 **Log density** of the test velocities given their positions, in nats per vehicle (the sum over
 test frames divided by the number of test vehicles; higher is better):
 
-- ``dpgp``: ``DPGP.score_samples(test, positions=False)``, the mixture's predictive density of
-  each frame's velocities, jointly over its vehicles;
+- ``dpgp``: ``DPGP.score_samples(test, positions=False, average=True)``, the mixture's
+  posterior predictive density of each frame's velocities, jointly over its vehicles, averaged
+  over the fit's kept posterior draws after burn-in (:mod:`dpgp.posterior`);
 - ``single_gp``: one GP for all training frames (K = 1, the same kernel family and the data's
   signal variances and means), on up to :data:`SINGLE_GP_POINTS` training observations (whole
   frames spread evenly in time); σ_n² and a common length scale chosen by held-out score inside
@@ -66,12 +67,14 @@ class Evaluation:
     ``constant_velocity``), columns ``log_density`` (nats per vehicle) and ``ade_{h}s`` /
     ``fde_{h}s`` per horizon (NaN where a method does not apply or there are no tracks).
     ``frame_scores``: per test frame, the log density of each method and the vehicle count.
-    ``rollouts``: per horizon, ADE/FDE of each method and the vehicles counted."""
+    ``rollouts``: per horizon, ADE/FDE of each method and the vehicles counted.
+    ``states_averaged``: the posterior states the ``dpgp`` density is averaged over."""
 
     table: pd.DataFrame
     frame_scores: pd.DataFrame
     rollouts: pd.DataFrame | None
     units: dict[str, Any] = field(default_factory=dict)
+    states_averaged: int = 1  # posterior states the dpgp density averages over
 
     def plot(self) -> Figure:
         """Log density per vehicle by method, and ADE/FDE against horizon (when tracks were given)."""
@@ -100,10 +103,12 @@ class Evaluation:
         return f"Evaluation(\n{self.table.to_string(float_format=lambda x: f'{x:.3f}')}\n)"
 
 
-def evaluate(model: Any, test_frames: Frames, tracks: Any = None, horizons: Any = (1, 2, 4)) -> Evaluation:
+def evaluate(model: Any, test_frames: Frames, tracks: Any = None, horizons: Any = (1, 2, 4), average: bool = True) -> Evaluation:
     """Score ``model`` (a fitted :class:`~dpgp.DPGP`) and the baselines on ``test_frames``; see
     the module docstring. ``tracks``: the raw tracks table the frames were made from (for
-    rollouts); the frames must then carry ``summary`` (``make_frames`` sets it)."""
+    rollouts); the frames must then carry ``summary`` (``make_frames`` sets it). ``average``:
+    score the model by its posterior predictive over the kept draws (:mod:`dpgp.posterior`;
+    ``states_averaged`` says over how many states), else by its final state."""
     import pandas as pd
 
     model._check_fitted()
@@ -118,7 +123,7 @@ def evaluate(model: Any, test_frames: Frames, tracks: Any = None, horizons: Any 
     train = model.frames_
     sizes = test_frames.sizes
     scores = {
-        "dpgp": np.asarray(model.score_samples(test_frames, positions=False), dtype=np.float64),
+        "dpgp": np.asarray(model.score_samples(test_frames, positions=False, average=average), dtype=np.float64),
         "single_gp": SingleGP.fit(train).score_frames(test_frames),
         "position_blind": position_blind_scores(train, test_frames),
     }
@@ -135,7 +140,10 @@ def evaluate(model: Any, test_frames: Frames, tracks: Any = None, horizons: Any 
                 table.loc[m, f"fde_{h}"] = row[f"{m}_fde"]
     table["n_test_frames"] = len(test_frames)
     table["n_test_vehicles"] = int(sizes.sum())
-    return Evaluation(table, frame_scores, rollouts, _units(test_frames))
+    from .posterior import used
+
+    states = 1 + (len(used(getattr(model, "draws_", None), getattr(model, "n_iter_", 0) or 0)) if average else 0)
+    return Evaluation(table, frame_scores, rollouts, _units(test_frames), states)
 
 
 # --- baselines ---------------------------------------------------------------------------------
