@@ -2,15 +2,17 @@
 
 **Cost model** (seconds per Gibbs sweep, default settings: gibbs assignment, informed proposals,
 every pattern's length scales slice-sampled each sweep). With ``n_k`` the training points of
-pattern ``k``, ``N`` the frames and ``M`` the hsgp basis size:
+pattern ``k``, ``l_f`` the vehicles of frame ``f`` and ``M`` the hsgp basis size:
 
-- exact: ``a0 N + a2 Σ n_k² + a3 Σ n_k³``. A pattern's moves are rank-``l`` updates of its
-  ``n_k × n_k`` factor and its length-scale steps refactor it (``n_k³``); building its kernel
-  matrix costs ``n_k²`` exponentials.
-- hsgp: ``b0 N + b2 Σ n_k s_k² + b3 Σ s_k³`` with ``s_k = min(n_k, M)``: a move or score is
-  ``O(l M²)`` per frame (``Σ n_k M²`` over a sweep) and a length-scale step one ``M × M``
-  Cholesky; a pattern with fewer points than basis functions uses a dense ``n_k × n_k`` factor
-  of the reduced-rank kernel instead, hence ``s_k``.
+- exact: ``a1 Σ_f l_f² + a2 Σ n_k² + a3 Σ n_k³``. A pattern's moves are rank-``l`` updates of
+  its ``n_k × n_k`` factor and its length-scale steps refactor it (``n_k³``); building its
+  kernel matrix costs ``n_k²`` exponentials; each frame's new-pattern term (Algorithm 8's
+  auxiliary patterns) builds ``l_f × l_f`` kernels.
+- hsgp: ``b1 M Σ_f l_f² + b2 Σ n_k s_k² + b3 Σ s_k³ + b4 M Σ_{n_k ≤ M} n_k²`` with
+  ``s_k = min(n_k, M)``: a move or score is ``O(l s_k²)`` (``Σ n_k s_k²`` over a sweep) and a
+  length-scale step one ``s_k × s_k`` Cholesky; a pattern with fewer points than basis
+  functions uses a dense ``n_k × n_k`` factor of the reduced-rank kernel, each of whose entries
+  sums ``M`` terms (``b4``), as do the new-pattern term's kernels (``b1``).
 
 The coefficients (:data:`COEFFICIENTS`) were fitted by non-negative least squares to timed
 sweeps on this 2-core machine (``python benches/engine_cost.py calibrate``; docs/engines-and-scores.md
@@ -21,8 +23,9 @@ two engines on one machine, so what matters is their ratio.
 kernel is a kernel of its own), so the engine is chosen once, before the chain starts, and never
 switched mid-fit:
 
-1. exact's worst case, every point in one pattern, is predicted no slower than hsgp's best
-   (one pattern) and fits the memory budget: exact, without further work;
+1. exact's worst case, every point in one pattern, is predicted no slower than hsgp's best case
+   (its per-frame term alone, a bound below any partition) and fits the memory budget: exact,
+   without further work;
 2. otherwise the pattern sizes are predicted by the hsgp sampler's own sequential
    initialisation (cheap: ``O(l M²)`` a frame), and the engine predicted faster on those sizes
    runs; exact also needs its largest pattern's factors within the memory budget. If hsgp wins,
@@ -43,31 +46,34 @@ import numpy as np
 
 ENGINES = ("exact", "hsgp")
 
-#: Seconds per sweep = coefficients · features (:func:`features`); fitted on this machine by
-#: ``python benches/engine_cost.py calibrate``. Order: per frame, squared term, cubed term.
-COEFFICIENTS: dict[str, tuple[float, float, float]] = {
+#: Seconds per sweep = coefficients · features (:func:`features`), in the features' order; fitted
+#: on this machine by ``python benches/engine_cost.py calibrate`` then ``fit``.
+COEFFICIENTS: dict[str, tuple[float, ...]] = {
     "exact": (2.0e-5, 1.0e-8, 1.0e-10),
-    "hsgp": (2.0e-5, 1.0e-9, 1.0e-9),
+    "hsgp": (2.0e-7, 1.0e-9, 1.0e-9, 1.0e-9),
 }
 
 
-def features(engine: str, pattern_points: object, n_frames: int, basis_size: int | None = None) -> np.ndarray:
-    """The cost model's features of one sweep: ``[N, Σ n_k², Σ n_k³]`` for exact,
-    ``[N, Σ n_k s_k², Σ s_k³]`` with ``s_k = min(n_k, M)`` for hsgp."""
+def features(engine: str, pattern_points: object, frame_sizes: object, basis_size: int | None = None) -> np.ndarray:
+    """The cost model's features of one sweep (module docstring): ``[Σ l_f², Σ n_k², Σ n_k³]``
+    for exact, ``[M Σ l_f², Σ n_k s_k², Σ s_k³, M Σ_{n_k ≤ M} n_k²]`` for hsgp."""
     n = np.asarray(pattern_points, dtype=np.float64).ravel()
+    frames_sq = float((np.asarray(frame_sizes, dtype=np.float64) ** 2).sum())
     if engine == "exact":
-        return np.array([float(n_frames), float((n**2).sum()), float((n**3).sum())])
+        return np.array([frames_sq, float((n**2).sum()), float((n**3).sum())])
     if engine == "hsgp":
         if basis_size is None or basis_size < 1:
             raise ValueError("the hsgp cost needs the basis size M")
-        s = np.minimum(n, float(basis_size))
-        return np.array([float(n_frames), float((n * s**2).sum()), float((s**3).sum())])
+        m = float(basis_size)
+        s = np.minimum(n, m)
+        return np.array([m * frames_sq, float((n * s**2).sum()), float((s**3).sum()), m * float((n[n <= m] ** 2).sum())])
     raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
 
 
-def sweep_seconds(engine: str, pattern_points: object, n_frames: int, basis_size: int | None = None) -> float:
-    """Predicted seconds of one sweep of ``engine`` with patterns of these sizes (points)."""
-    return float(np.dot(COEFFICIENTS[engine], features(engine, pattern_points, n_frames, basis_size)))
+def sweep_seconds(engine: str, pattern_points: object, frame_sizes: object, basis_size: int | None = None) -> float:
+    """Predicted seconds of one sweep of ``engine`` with patterns of these sizes (points) over
+    frames of these sizes (vehicles)."""
+    return float(np.dot(COEFFICIENTS[engine], features(engine, pattern_points, frame_sizes, basis_size)))
 
 
 def exact_bytes(largest_pattern_points: int) -> int:
@@ -93,24 +99,25 @@ class Choice:
         return asdict(self)
 
 
-def choose_upfront(n_points: int, n_frames: int, basis_size: int, memory_budget: int | None) -> Choice | None:
+def choose_upfront(frame_sizes: object, basis_size: int, memory_budget: int | None) -> Choice | None:
     """Step 1 of the rule: exact if its worst case (all points in one pattern) is predicted no
-    slower than hsgp's best case (one pattern) and fits the budget; None when the pattern sizes
-    must be predicted first."""
-    exact = sweep_seconds("exact", [n_points], n_frames)
-    hsgp = sweep_seconds("hsgp", [n_points], n_frames, basis_size)
+    slower than hsgp's least cost over all partitions (its per-frame term alone) and fits the
+    budget; None when the pattern sizes must be predicted first."""
+    n_points = int(np.sum(frame_sizes))
+    exact = sweep_seconds("exact", [n_points], frame_sizes)
+    hsgp = sweep_seconds("hsgp", [], frame_sizes, basis_size)
     fits = memory_budget is None or exact_bytes(n_points) <= memory_budget
     if fits and exact <= hsgp:
         return Choice("exact", basis_size, "worst case", exact, hsgp, fits)
     return None
 
 
-def choose(pattern_points: object, n_frames: int, basis_size: int, memory_budget: int | None) -> Choice:
+def choose(pattern_points: object, frame_sizes: object, basis_size: int, memory_budget: int | None) -> Choice:
     """Step 2 of the rule: the engine predicted faster on these pattern sizes (points), exact
     only if its largest pattern fits the memory budget. Ties go to exact (no approximation)."""
     n = np.asarray(pattern_points, dtype=np.float64).ravel()
-    exact = sweep_seconds("exact", n, n_frames)
-    hsgp = sweep_seconds("hsgp", n, n_frames, basis_size)
+    exact = sweep_seconds("exact", n, frame_sizes)
+    hsgp = sweep_seconds("hsgp", n, frame_sizes, basis_size)
     largest = int(n.max()) if len(n) else 0
     fits = memory_budget is None or exact_bytes(largest) <= memory_budget
     engine = "exact" if fits and exact <= hsgp else "hsgp"

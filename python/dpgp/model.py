@@ -395,7 +395,7 @@ class DPGP:
             from .engine_cost import choose_upfront
 
             basis = self._basis(frames)
-            choice = choose_upfront(frames.n_points, len(frames), basis.size, self.memory_budget_)
+            choice = choose_upfront(frames.sizes, basis.size, self.memory_budget_)
             if choice is None:  # fit predicts the pattern sizes by hsgp's initialisation
                 likelihood, self._auto_pending = "hsgp", True
             else:
@@ -421,7 +421,7 @@ class DPGP:
 
         self._auto_pending = False
         points = pattern_points(np.asarray(self._sampler.labels(), dtype=np.int64), frames.sizes)
-        choice = choose(points[points > 0], len(frames), self.basis_.size, self.memory_budget_)
+        choice = choose(points[points > 0], frames.sizes, self.basis_.size, self.memory_budget_)
         self.engine_choice_ = choice.to_dict()
         if choice.engine == "exact":
             self.likelihood_, self.basis_, self._sampler = "exact", None, None
