@@ -88,7 +88,7 @@ def calibrate(out: str) -> None:
 
 
 def fit(path: str) -> None:
-    from scipy.optimize import nnls
+    from scipy.optimize import least_squares, nnls
 
     rows = [json.loads(line) for line in open(path)]
     # One point per configuration: the median over its sweeps after the second (the first ones
@@ -104,11 +104,15 @@ def fit(path: str) -> None:
         y = np.array([np.median([x["seconds"] for x in v]) for k, v in configs.items() if k[2] == engine])
         scale = X.max(axis=0)
         scale[scale == 0] = 1
-        coef, _ = nnls(X / scale / y[:, None], np.ones(len(y)))  # relative error
-        coef = coef / scale
+        start, _ = nnls(X / scale / y[:, None], np.ones(len(y)))  # relative error, then log error:
+        # predictions too low and too high by the same factor weigh the same
+        fit = least_squares(lambda c: np.log(X / scale @ c + 1e-12) - np.log(y), start + 1e-6, bounds=(0, np.inf))
+        coef = fit.x / scale
         rel = X @ coef / y - 1
+        log_err = np.abs(np.log(X @ coef / y))
         print(f"{engine}: coefficients {tuple(float(f'{c:.3g}') for c in coef)}; {len(y)} configurations; "
-              f"relative error median {np.median(np.abs(rel)):.2f}, max {np.max(np.abs(rel)):.2f}")  # fmt: skip
+              f"relative error median {np.median(np.abs(rel)):.2f}, max {np.max(np.abs(rel)):.2f}; "
+              f"factor off median {np.exp(np.median(log_err)):.2f}, max {np.exp(np.max(log_err)):.2f}")  # fmt: skip
         for i in np.argsort(-np.abs(rel)):
             print(f"   {r[i]['scene']} {r[i]['frames']}: {y[i]:.4f} s, predicted {X[i] @ coef:.4f} s")
 
