@@ -161,12 +161,14 @@ def test_auto_picks_exact_for_small_data_and_hsgp_for_large(monkeypatch):
     frames = dpgp.datasets.synthetic("highway", n_frames=20, seed=1)
     kw = dict(iterations=1, noise_var=1.0, length_scale_prior=(10.0, 1.0), progress=False)
     assert dpgp.DPGP(**kw).fit(frames).likelihood_ == "exact"
-    monkeypatch.setattr(dpgp.model, "AUTO_EXACT_MAX_POINTS", 50)
+    # exact made costly: the cost model (dpgp.engine_cost) picks hsgp
+    monkeypatch.setitem(dpgp.engine_cost.COEFFICIENTS, "exact", (1.0, 1.0, 1.0))
     assert dpgp.DPGP(**kw).fit(frames).likelihood_ == "hsgp"
-    # a budget too small for exact's worst case (all points in one pattern) also picks hsgp
-    monkeypatch.setattr(dpgp.model, "AUTO_EXACT_MAX_POINTS", 10**6)
-    frames = dpgp.datasets.synthetic("highway", n_frames=400, seed=1)  # ~4,800 points: ~1 GB
-    assert dpgp.DPGP(memory_budget="500MB", **kw).fit(frames).likelihood_ == "hsgp"
+    # a budget too small for exact's largest pattern also picks hsgp, even where exact is cheap
+    monkeypatch.setitem(dpgp.engine_cost.COEFFICIENTS, "exact", (0.0, 0.0, 0.0))
+    frames = dpgp.datasets.synthetic("highway", n_frames=400, seed=1)  # ~4,800 points, 3 patterns
+    m = dpgp.DPGP(memory_budget="50MB", **kw).fit(frames)
+    assert m.likelihood_ == "hsgp" and m.engine_choice_["exact_fits"] is False
 
 
 def test_large_fit_is_the_same_with_one_or_two_threads():

@@ -153,16 +153,17 @@ def _run_block(frames: Frames | None, settings: dict[str, Any], seed: int, state
     return _Block({name: cols[:, j] for j, name in enumerate(_TRACES)}, labels, _state_of(model))
 
 
-def _resolve(frames: Frames | None, settings: dict[str, Any], seed: int) -> dict[str, Any] | None:
+def _resolve(frames: Frames | None, settings: dict[str, Any], seed: int) -> tuple[dict[str, Any] | None, str]:
     """What the "auto" settings resolve to on the frames (a fit with no sweeps resolves them),
-    or None where the model has nothing to resolve. Run once per fit_chains, so that every
-    chain samples the same model."""
+    or None where the model has nothing to resolve, and the likelihood (``"auto"`` decides it
+    by predicted cost, dpgp.engine_cost). Run once per fit_chains, so that every chain samples
+    the same model."""
     from .model import DPGP
 
     frames = _WORKER_FRAMES if frames is None else frames
     model = DPGP(**{**settings, "seed": seed, "progress": False}, iterations=0).fit(frames)
     defaults = getattr(model, "defaults_", None)
-    return None if defaults is None else defaults.to_dict()
+    return (None if defaults is None else defaults.to_dict()), model.likelihood_
 
 
 def _explicit(settings: dict[str, Any], resolved: dict[str, Any] | None) -> dict[str, Any]:
@@ -431,14 +432,14 @@ class _Runner:
             self.engine.cancel([future])
             raise
         try:
-            self.resolved = future.result()
+            self.resolved, likelihood = future.result()
         except KeyboardInterrupt:
             raise
         except BaseException as e:  # noqa: BLE001
             if isinstance(e, DpgpError):
                 raise
             raise ChainsFailedError(f"resolving the settings failed: {type(e).__name__}: {e}") from e
-        self.chain_settings = _explicit(self.settings, self.resolved)
+        self.chain_settings = {**_explicit(self.settings, self.resolved), "likelihood": likelihood}
 
     def run(self, until: str | None, iterations: int, rhat: float, min_ess: float, max_iterations: int, max_seconds: float | None) -> None:
         start = time.perf_counter()

@@ -179,4 +179,6 @@ def at_resume_point(file: Any) -> Any:
     state.pop("pattern_ids_", None)  # the model's ids; the sampler names the resume point's own
     if "label_trace_" in state:
         state["label_trace_"] = state["label_trace_"][:n]
+    if state.get("draws_") is not None:  # what is kept is a function of the sweep count (dpgp.posterior)
+        state["draws_"] = state["draws_"].up_to(n)
     return replace(file, labels=p.labels, length_scales=p.length_scales, alpha=p.alpha, state=state)

@@ -6,8 +6,9 @@ Protocol: a split in time (:func:`split_in_time`, first 70% of the frames to tra
 **Log density** of the test velocities given their positions, in nats per vehicle (the sum over
 test frames divided by the number of test vehicles; higher is better):
 
-- ``dpgp``: ``DPGP.score_samples(test, positions=False)``, the mixture's predictive density of
-  each frame's velocities, jointly over its vehicles;
+- ``dpgp``: ``DPGP.score_samples(test, positions=False, average=True)``, the mixture's
+  posterior predictive density of each frame's velocities, jointly over its vehicles, averaged
+  over the fit's kept posterior draws after burn-in (:mod:`dpgp.posterior`);
 - ``single_gp``: one GP for all training frames (K = 1, the same kernel family and the data's
   signal variances and means), on up to :data:`SINGLE_GP_POINTS` training observations (whole
   frames spread evenly in time); σ_n² and a common length scale chosen by held-out score inside
@@ -75,13 +76,15 @@ class Evaluation:
     ``frame_scores``: per test frame, the log density of each method and the vehicle count.
     ``rollouts``: per horizon, ADE/FDE of each method and the vehicles counted.
     ``realism``: the :class:`dpgp.realism.Realism` of generated scenarios (when tracks were
-    given; its meta-scores are also the table's ``realism`` column)."""
+    given; its meta-scores are also the table's ``realism`` column).
+    ``states_averaged``: the posterior states the ``dpgp`` density is averaged over."""
 
     table: pd.DataFrame
     frame_scores: pd.DataFrame
     rollouts: pd.DataFrame | None
     units: dict[str, Any] = field(default_factory=dict)
     realism: Realism | None = None
+    states_averaged: int = 1  # posterior states the dpgp density averages over
 
     def plot(self) -> Figure:
         """Log density per vehicle by method, and ADE/FDE against horizon (when tracks were given)."""
@@ -111,13 +114,22 @@ class Evaluation:
 
 
 def evaluate(
-    model: Any, test_frames: Frames, tracks: Any = None, horizons: Any = (1, 2, 4), *, agent: str | None = None, seed: int | None = 0
+    model: Any,
+    test_frames: Frames,
+    tracks: Any = None,
+    horizons: Any = (1, 2, 4),
+    average: bool = True,
+    *,
+    agent: str | None = None,
+    seed: int | None = 0,
 ) -> Evaluation:
     """Score ``model`` (a fitted :class:`~dpgp.DPGP`) and the baselines on ``test_frames``; see
     the module docstring. ``tracks``: the raw tracks table the frames were made from (for
     rollouts and realism); the frames must then carry ``summary`` (``make_frames`` sets it).
-    ``agent`` (``"vehicle"``/``"pedestrian"``, default: from the tracks' format) and ``seed``:
-    the realism score's collision rule and generated scenarios."""
+    ``average``: score the model by its posterior predictive over the kept draws
+    (:mod:`dpgp.posterior`; ``states_averaged`` says over how many states), else by its final
+    state. ``agent`` (``"vehicle"``/``"pedestrian"``, default: from the tracks' format) and
+    ``seed``: the realism score's collision rule and generated scenarios."""
     import pandas as pd
 
     model._check_fitted()
@@ -132,7 +144,7 @@ def evaluate(
     train = model.frames_
     sizes = test_frames.sizes
     scores = {
-        "dpgp": np.asarray(model.score_samples(test_frames, positions=False), dtype=np.float64),
+        "dpgp": np.asarray(model.score_samples(test_frames, positions=False, average=average), dtype=np.float64),
         "single_gp": SingleGP.fit(train).score_frames(test_frames),
         "position_blind": position_blind_scores(train, test_frames),
     }
@@ -152,7 +164,10 @@ def evaluate(
                 table.loc[m, f"fde_{h}"] = row[f"{m}_fde"]
     table["n_test_frames"] = len(test_frames)
     table["n_test_vehicles"] = int(sizes.sum())
-    return Evaluation(table, frame_scores, rollouts, _units(test_frames), real)
+    from .posterior import used
+
+    states = 1 + (len(used(getattr(model, "draws_", None), getattr(model, "n_iter_", 0) or 0)) if average else 0)
+    return Evaluation(table, frame_scores, rollouts, _units(test_frames), realism=real, states_averaged=states)
 
 
 # --- baselines ---------------------------------------------------------------------------------

@@ -17,7 +17,16 @@ name                dtype, shape            content
 ``length_scales``   float64 (K, 2)          ``(w_x, w_y)`` per pattern
 ``pattern_ids``     uint64 (K,)             the sampler's stable pattern ids
 ``label_trace``     int64 (sweeps, N), opt.  labels per sweep (``store_labels=True``)
+``draw_sweeps``     int64 (D,), optional    sweeps of the kept posterior draws (below)
+``draw_labels``     int32 (D, N), optional  their labels (patterns by size within each draw)
+``draw_n_patterns`` int64 (D,), optional    patterns per draw
+``draw_length_s…``  float64 (ΣK, 2), opt.   ``draw_length_scales``: their length scales, draw by draw
+``draw_alpha``      float64 (D,), optional  their α
 ==================  ======================  ===================================================
+
+The ``draw_*`` members (:mod:`dpgp.posterior`) are the thinned posterior states that
+posterior-averaged scores use; files without them (written before them) load with no draws, and
+readers that know nothing of them read the model as before, so they need no new version.
 
 ``metadata`` holds ``format`` (``"dpgp-model"``), ``format_version``, ``dpgp_version``,
 ``settings`` (``DPGP.get_params()``), ``params`` (the global GP parameters), ``alpha``,
@@ -142,6 +151,8 @@ def save(model: DPGP, path: str | os.PathLike, resume: Any = None, compress: boo
         arrays["frame_labels"] = _ids_array(frames.labels)
     if getattr(model, "label_trace_", None) is not None:
         arrays["label_trace"] = np.asarray(model.label_trace_, dtype=np.int64)
+    if getattr(model, "draws_", None) is not None:
+        arrays.update(model.draws_.arrays())
     if resume is not None:
         arrays.update(resume.arrays())
     path = as_path(path)
@@ -349,6 +360,7 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
     from .frames import Frames
     from .framing import FramingSummary
     from .gp import GPParams, check_scales
+    from .posterior import Draws
 
     settings = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["settings"].items()}
     _check_counts(arrays)
@@ -392,6 +404,11 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
         state["label_trace_"] = np.asarray(arrays["label_trace"], dtype=np.int64)
     if meta.get("chain_summary") is not None:
         state["chain_summary_"] = meta["chain_summary"]
+    draws = Draws.from_arrays(arrays, len(frames), MIN_LENGTH_SCALE, _MAX_MAGNITUDE)  # None: a file before them
+    if draws is not None:
+        state["draws_"] = draws
+    if isinstance((meta.get("engine") or {}).get("choice"), dict):
+        state["engine_choice_"] = meta["engine"]["choice"]
     d = meta.get("distributions")
     return ModelFile(
         path, settings, frames, labels, ls, float(meta["alpha"]), params, _resolved(meta), likelihood, basis, state,
@@ -450,6 +467,7 @@ def _engine_dict(model: DPGP) -> dict[str, Any]:
         "likelihood": getattr(model, "likelihood_", "exact"),
         "basis": None if basis is None else basis.to_dict(),
         "memory_budget": getattr(model, "memory_budget_", None),
+        "choice": getattr(model, "engine_choice_", None),  # likelihood="auto"'s decision (dpgp.engine_cost)
     }
 
 

@@ -22,14 +22,11 @@ from .frames import Frames, read_frames
 from .gp import GPParams, _pair, check_scales
 from .hsgp import _basis_counts, basis_for
 from .metrics import adjusted_rand_index, canonical_labels
+from .posterior import MAX_DRAWS, Draws
 
 _ASSIGNMENTS = ("gibbs", "map")
 _LIKELIHOODS = ("auto", "exact", "hsgp")
 _PROPOSALS = ("full", "informed")
-#: ``likelihood="auto"`` runs the exact GP up to this many training points (vehicle
-#: observations), where one pattern holding them all still factors in well under a second,
-#: and the reduced-rank GP beyond.
-AUTO_EXACT_MAX_POINTS = 3000
 
 
 class DPGP:
@@ -43,9 +40,10 @@ class DPGP:
     likelihood : ``"exact"``: the full GP, whose cost grows with the cube of a pattern's size;
         ``"hsgp"``: the Hilbert-space reduced-rank GP (Solin & Särkkä 2020) on a basis over a box
         around the data, whose moves, scores and length-scale steps cost the same whatever the
-        pattern's size (memory ``K · M²``); ``"auto"`` (default): exact up to
-        ``AUTO_EXACT_MAX_POINTS`` training points if its worst case fits the memory budget, hsgp
-        beyond. Which one ran: ``likelihood_``.
+        pattern's size (memory ``K · M²``); ``"auto"`` (default): the engine whose sweep a cost
+        model calibrated on both predicts to be faster, decided before the chain starts (from
+        the worst case, else from hsgp's initialisation) and never switched mid-fit
+        (:mod:`dpgp.engine_cost`). Which one ran: ``likelihood_``; why: ``engine_choice_``.
     n_basis : ``(m_x, m_y)`` basis functions per axis for hsgp; ``None`` sizes them from the data's
         extent and the lower tail of the length-scale prior (:func:`dpgp.hsgp.basis_for`).
     proposal : ``"informed"`` (default): Metropolis-within-Gibbs; each frame proposes a pattern
@@ -102,6 +100,10 @@ class DPGP:
         seconds.
     checkpoint_every : sweeps between checkpoints, and between the sampler's canonical rebuilds
         (after the initialisation and every ``checkpoint_every`` sweeps, with or without a file).
+    posterior_draws : the most posterior states (labels, length scales, α of a sweep) the fit
+        keeps, thinned evenly over the chain, for posterior-averaged scores (``average=True`` of
+        :meth:`score_samples` and :meth:`predict_proba`; :meth:`evaluate` by default). Memory:
+        ``posterior_draws · (4 N + 16 K + 16)`` bytes (:mod:`dpgp.posterior`). 0 keeps none.
     """
 
     def __init__(
@@ -130,6 +132,7 @@ class DPGP:
         memory_budget: int | str | None = None,
         checkpoint: str | os.PathLike | None = None,
         checkpoint_every: int = 10,
+        posterior_draws: int = MAX_DRAWS,
     ) -> None:
         self.iterations = iterations
         self.assignment = assignment
@@ -155,6 +158,7 @@ class DPGP:
         self.memory_budget = memory_budget
         self.checkpoint = checkpoint
         self.checkpoint_every = checkpoint_every
+        self.posterior_draws = posterior_draws
 
     # --- scikit-learn conventions ---------------------------------------------------------------
     def get_params(self, deep: bool = True) -> dict[str, Any]:
@@ -202,7 +206,10 @@ class DPGP:
         from .defaults import PILOT_SWEEPS
 
         # proposal "full": the exact argmax, unit-free whatever the main fit's proposal
-        settings = {**self.get_params(), "iterations": PILOT_SWEEPS, "assignment": "map", "noise_var": noise_var,
+        # Pilots are small: with likelihood="auto" they keep the previous rule (exact up to 3,000
+        # points) rather than pay auto's hsgp probe 24 times (dpgp.engine_cost).
+        likelihood = self.likelihood if self.likelihood != "auto" else ("exact" if train.n_points <= 3000 else "hsgp")
+        settings = {**self.get_params(), "likelihood": likelihood, "iterations": PILOT_SWEEPS, "assignment": "map", "noise_var": noise_var,
                     "length_scale_prior": length_scale_prior, "preset": None, "progress": False,
                     "n_iter_no_change": None, "store_labels": False, "proposal": "full", "checkpoint": None}  # fmt: skip
         pilot = type(self)(**settings)
@@ -243,6 +250,8 @@ class DPGP:
         if isinstance(t, bool) or not isinstance(t, (int, float, np.integer, np.floating)) or not 0 <= t <= 1:
             raise InvalidInputError(f"ari_tol must be a number in [0, 1], got {t!r}")
         ckpt.check_settings(self.checkpoint, self.checkpoint_every)
+        if not (_is_int(self.posterior_draws) and 0 <= self.posterior_draws <= 100_000):
+            raise InvalidInputError(f"posterior_draws must be an integer in [0, 100000], got {self.posterior_draws!r}")
 
     def fit(self, frames: Frames | Any, y: None = None) -> DPGP:
         """Fit the mixture to training frames (a :class:`~dpgp.Frames` or a framed DataFrame)."""
@@ -272,12 +281,15 @@ class DPGP:
         self._sampler = self._new_sampler(frames)
         self.frames_ = frames
         self.history_: dict[str, list] = {k: [] for k in ckpt.HISTORY_KEYS}
+        self.draws_ = Draws(len(frames))
         self.__dict__.pop("label_trace_", None)
         self.converged_ = False
         self.n_iter_ = 0
         t = time.perf_counter()
         try:
             self._sampler.initialize()
+            if self._auto_pending:
+                self._settle_auto(frames)
         except KeyboardInterrupt:
             # Some frames have no pattern yet: there is no state to keep.
             self.__dict__.pop("labels_", None)
@@ -310,6 +322,7 @@ class DPGP:
                 if self.store_labels:
                     traces.append(canonical_labels(labels))
                 self.n_iter_ += 1
+                self._keep_draw()
                 if bar is not None:
                     bar.update(1)
                     bar.set_postfix(K=k, alpha=f"{alpha:.3g}", moved=moves)
@@ -343,6 +356,13 @@ class DPGP:
         self._sync()
         if self.checkpoint is not None and not interrupted and self._resume_point.sweeps_done != self.n_iter_:
             self._write_checkpoint(traces)  # the finished model, with the last resume point
+
+    def _keep_draw(self) -> None:
+        """Keep the state after this sweep if the thinning asks for it (:mod:`dpgp.posterior`)."""
+        from .posterior import state_of
+
+        draws = self.__dict__.setdefault("draws_", Draws(len(self.frames_)))
+        draws.record(self.n_iter_, lambda: state_of(self._sampler), int(self.posterior_draws))
 
     def _save_checkpoint(self, stable: int, traces: list[np.ndarray]) -> np.ndarray:
         """Rebuild the sampler from its own state in canonical order, as a resumed chain does
@@ -379,22 +399,44 @@ class DPGP:
         check_thread_reservations(self.n_threads)
         self.memory_budget_ = budget if budget is not None else default_memory_budget(self.n_threads)
         likelihood = self.likelihood
-        if likelihood == "auto":
-            n = frames.n_points
-            # Worst case of exact: every point in one pattern, one factor per output group,
-            # each in a buffer that doubles as it grows.
-            worst = 8 * 2 * (1 << max(n - 1, 1).bit_length()) ** 2
-            fits = self.memory_budget_ is None or worst <= self.memory_budget_
-            likelihood = "exact" if n <= AUTO_EXACT_MAX_POINTS and fits else "hsgp"
+        self.engine_choice_, self._auto_pending = None, False
+        basis = None
+        if likelihood == "auto":  # by predicted cost (dpgp.engine_cost)
+            from .engine_cost import choose_upfront
+
+            basis = self._basis(frames)
+            choice = choose_upfront(frames.sizes, basis.size, self.memory_budget_)
+            if choice is None:  # fit predicts the pattern sizes by hsgp's initialisation
+                likelihood, self._auto_pending = "hsgp", True
+            else:
+                likelihood, self.engine_choice_ = choice.engine, choice.to_dict()
         self.likelihood_ = likelihood
         self.basis_ = None
         if likelihood == "hsgp":
-            self.basis_ = basis_for(
-                frames.xy,
-                self.length_scale_prior_,
-                None if self.length_scales is None else _pair("length_scales", self.length_scales),
-                None if self.n_basis is None else _basis_counts(self.n_basis),
-            )
+            self.basis_ = basis or self._basis(frames)
+
+    def _basis(self, frames: Frames) -> Any:
+        return basis_for(
+            frames.xy,
+            self.length_scale_prior_,
+            None if self.length_scales is None else _pair("length_scales", self.length_scales),
+            None if self.n_basis is None else _basis_counts(self.n_basis),
+        )
+
+    def _settle_auto(self, frames: Frames) -> None:
+        """Step 2 of ``likelihood="auto"`` (:mod:`dpgp.engine_cost`), once hsgp has initialised:
+        predict both engines' sweeps from its pattern sizes; if exact is faster, start the exact
+        sampler afresh (its own initialisation: the chain is then ``likelihood="exact"``'s)."""
+        from .engine_cost import choose, pattern_points
+
+        self._auto_pending = False
+        points = pattern_points(np.asarray(self._sampler.labels(), dtype=np.int64), frames.sizes)
+        choice = choose(points[points > 0], frames.sizes, self.basis_.size, self.memory_budget_)
+        self.engine_choice_ = choice.to_dict()
+        if choice.engine == "exact":
+            self.likelihood_, self.basis_, self._sampler = "exact", None, None
+            self._sampler = self._new_sampler(frames)
+            self._sampler.initialize()
 
     def _new_sampler(self, frames: Frames) -> _core.Sampler:
         """A core sampler over ``frames`` with this model's settings and ``params_``; shared by
@@ -462,9 +504,24 @@ class DPGP:
         check_scales(frames.v, self.params_, "the frames to score")
         return self._fitted().log_joint_terms(frames)
 
-    def predict_proba(self, frames: Frames | Any) -> np.ndarray:
+    def _averaged(self, frames: Frames | Any) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior-averaged log density (positions left out) and pattern probabilities of
+        ``frames`` over the kept draws after burn-in and the final state (:mod:`dpgp.posterior`)."""
+        from .posterior import averaged, used
+
+        frames = _as_frames(frames)
+        terms = self._log_joint_terms(frames)
+        draws = getattr(self, "draws_", None)
+        states = [(draws.labels[i], draws.length_scales[i], draws.alpha[i]) for i in used(draws, self.n_iter_)]
+        return averaged(terms, self.labels_, states, lambda: self._new_sampler(self.frames_), frames)
+
+    def predict_proba(self, frames: Frames | Any, average: bool = False) -> np.ndarray:
         """Posterior probability of each pattern for each frame: shape (N, K+1), the last column
-        being "a new pattern"."""
+        being "a new pattern". ``average=True``: averaged over the kept posterior draws, their
+        patterns matched to this model's through the training frames they share
+        (:mod:`dpgp.posterior`)."""
+        if average:
+            return self._averaged(frames)[1]
         t = self._log_joint_terms(frames)
         t -= t.max(axis=1, keepdims=True)
         p = np.exp(t)
@@ -474,15 +531,20 @@ class DPGP:
         """The most probable existing pattern (index into ``weights_``) of each frame."""
         return np.argmax(self._log_joint_terms(frames)[:, :-1], axis=1)
 
-    def score_samples(self, frames: Frames | Any, positions: bool = True) -> np.ndarray:
+    def score_samples(self, frames: Frames | Any, positions: bool = True, average: bool = False) -> np.ndarray:
         """log p(frame | model) per frame, the paper's frame likelihood under the fitted mixture:
         ``log φ(l) + Σ_j log ψ(x_j, y_j) + log Σ_k π_k p(V | X, D_k)`` with π the DP's predictive
         weights (a new pattern included). ``positions=False`` leaves out the φ and ψ terms (the
-        density of the velocities given the positions)."""
+        density of the velocities given the positions). ``average=True``: the posterior
+        predictive, the mixture density averaged over the kept posterior draws after burn-in and
+        the final state (:mod:`dpgp.posterior`); ``False``: the final state only."""
         frames = _as_frames(frames)
-        t = self._log_joint_terms(frames)
-        m = t.max(axis=1, keepdims=True)
-        out = (m + np.log(np.exp(t - m).sum(axis=1, keepdims=True)))[:, 0]
+        if average:
+            out = self._averaged(frames)[0]
+        else:
+            t = self._log_joint_terms(frames)
+            m = t.max(axis=1, keepdims=True)
+            out = (m + np.log(np.exp(t - m).sum(axis=1, keepdims=True)))[:, 0]
         if positions:
             from .scenarios import distributions
 
@@ -636,17 +698,26 @@ class DPGP:
         return model
 
     def evaluate(
-        self, test_frames: Frames | Any, tracks: Any = None, horizons: Any = (1, 2, 4), *, agent: str | None = None, seed: int | None = 0
+        self,
+        test_frames: Frames | Any,
+        tracks: Any = None,
+        horizons: Any = (1, 2, 4),
+        average: bool = True,
+        *,
+        agent: str | None = None,
+        seed: int | None = 0,
     ) -> Any:
         """Held-out evaluation against baselines (:mod:`dpgp.evaluate`): log density of the test
         velocities per vehicle for this model, a single GP and a position-blind Gaussian, and,
         given the raw ``tracks``, rollout ADE/FDE at ``horizons`` (seconds) against constant
         velocity and the realism of generated scenarios (``.realism``, :mod:`dpgp.realism`;
-        ``agent`` and ``seed`` its collision rule and scenarios). Returns
-        :class:`dpgp.evaluate.Evaluation` (``.table``, ``.plot()``)."""
+        ``agent`` and ``seed`` its collision rule and scenarios). ``average`` (default True): the
+        model's density is the posterior predictive over the kept draws
+        (``score_samples(average=True)``). Returns :class:`dpgp.evaluate.Evaluation`
+        (``.table``, ``.plot()``)."""
         from .evaluate import evaluate
 
-        return evaluate(self, _as_frames(test_frames), tracks, horizons, agent=agent, seed=seed)
+        return evaluate(self, _as_frames(test_frames), tracks, horizons, average, agent=agent, seed=seed)
 
 
 def _resume_target(file: Any, iterations: Any) -> int:

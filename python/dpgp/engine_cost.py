@@ -1,0 +1,133 @@
+"""``likelihood="auto"``: pick the engine (exact GP or hsgp) whose sweep is predicted to be faster.
+
+**Cost model** (seconds per Gibbs sweep, default settings: gibbs assignment, informed proposals,
+every pattern's length scales slice-sampled each sweep). With ``n_k`` the training points of
+pattern ``k``, ``l_f`` the vehicles of frame ``f`` and ``M`` the hsgp basis size:
+
+- exact: ``a1 Σ_f l_f² + a2 Σ n_k² + a3 Σ n_k³``. A pattern's moves are rank-``l`` updates of
+  its ``n_k × n_k`` factor and its length-scale steps refactor it (``n_k³``); building its
+  kernel matrix costs ``n_k²`` exponentials; each frame's new-pattern term (Algorithm 8's
+  auxiliary patterns) builds ``l_f × l_f`` kernels.
+- hsgp: ``b1 M Σ_f l_f² + b2 Σ n_k s_k² + b3 Σ s_k³ + b4 M Σ_{n_k ≤ M} n_k²`` with
+  ``s_k = min(n_k, M)``: a move or score is ``O(l s_k²)`` (``Σ n_k s_k²`` over a sweep) and a
+  length-scale step one ``s_k × s_k`` Cholesky; a pattern with fewer points than basis
+  functions uses a dense ``n_k × n_k`` factor of the reduced-rank kernel, each of whose entries
+  sums ``M`` terms (``b4``), as do the new-pattern term's kernels (``b1``).
+
+The coefficients (:data:`COEFFICIENTS`) were fitted by non-negative least squares to timed
+sweeps on this 2-core machine (``python benches/engine_cost.py calibrate``; docs/engines-and-scores.md
+gives the design and the fit's errors). Other machines differ in scale, but the rule compares the
+two engines on one machine, so what matters is their ratio.
+
+**The rule** (:func:`choose`). The two engines target different models (hsgp's reduced-rank
+kernel is a kernel of its own), so the engine is chosen once, before the chain starts, and never
+switched mid-fit:
+
+1. exact's worst case, every point in one pattern, is predicted no slower than hsgp's best case
+   (its per-frame term alone, a bound below any partition) and fits the memory budget: exact,
+   without further work;
+2. otherwise the pattern sizes are predicted by the hsgp sampler's own sequential
+   initialisation (cheap: ``O(l M²)`` a frame), and the engine predicted faster on those sizes
+   runs; exact also needs its largest pattern's factors within the memory budget. If hsgp wins,
+   the fit continues from that initialisation (so ``auto`` is then bitwise ``likelihood="hsgp"``);
+   if exact wins, the exact sampler starts afresh from its own initialisation (bitwise
+   ``likelihood="exact"``).
+
+Accuracy: either way the chain targets an exact model; hsgp's kernel stays within its documented
+error of the squared exponential (README, "How it is fast": median 0.011 nats per frame on
+US-101), which ``tests/test_hsgp.py`` checks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+ENGINES = ("exact", "hsgp")
+
+#: Seconds per sweep = coefficients · features (:func:`features`), in the features' order; fitted
+#: on this machine by ``python benches/engine_cost.py calibrate`` then ``fit``.
+COEFFICIENTS: dict[str, tuple[float, ...]] = {
+    "exact": (2.02e-6, 7.19e-7, 8.09e-10),
+    "hsgp": (3.31e-10, 0.0, 2.84e-9, 4.17e-9),
+}
+
+
+def features(engine: str, pattern_points: object, frame_sizes: object, basis_size: int | None = None) -> np.ndarray:
+    """The cost model's features of one sweep (module docstring): ``[Σ l_f², Σ n_k², Σ n_k³]``
+    for exact, ``[M Σ l_f², Σ n_k s_k², Σ s_k³, M Σ_{n_k ≤ M} n_k²]`` for hsgp."""
+    n = np.asarray(pattern_points, dtype=np.float64).ravel()
+    frames_sq = float((np.asarray(frame_sizes, dtype=np.float64) ** 2).sum())
+    if engine == "exact":
+        return np.array([frames_sq, float((n**2).sum()), float((n**3).sum())])
+    if engine == "hsgp":
+        if basis_size is None or basis_size < 1:
+            raise ValueError("the hsgp cost needs the basis size M")
+        m = float(basis_size)
+        s = np.minimum(n, m)
+        return np.array([m * frames_sq, float((n * s**2).sum()), float((s**3).sum()), m * float((n[n <= m] ** 2).sum())])
+    raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
+
+
+def sweep_seconds(engine: str, pattern_points: object, frame_sizes: object, basis_size: int | None = None) -> float:
+    """Predicted seconds of one sweep of ``engine`` with patterns of these sizes (points) over
+    frames of these sizes (vehicles)."""
+    return float(np.dot(COEFFICIENTS[engine], features(engine, pattern_points, frame_sizes, basis_size)))
+
+
+def exact_bytes(largest_pattern_points: int) -> int:
+    """Memory exact needs for its largest pattern: one factor per output group, each in a buffer
+    that doubles as it grows (the budget check of the previous rule, kept)."""
+    return 8 * 2 * (1 << max(int(largest_pattern_points) - 1, 1).bit_length()) ** 2
+
+
+@dataclass(frozen=True)
+class Choice:
+    """What :func:`choose` decided and why: ``engine``; ``basis`` (hsgp's M); ``sizes_from``
+    (``"worst case"`` or ``"hsgp initialisation"``); the predicted seconds per sweep of both
+    engines on those sizes; ``exact_fits`` (exact's largest pattern within the memory budget)."""
+
+    engine: str
+    basis: int
+    sizes_from: str
+    exact_seconds: float
+    hsgp_seconds: float
+    exact_fits: bool
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def choose_upfront(frame_sizes: object, basis_size: int, memory_budget: int | None) -> Choice | None:
+    """Step 1 of the rule: exact if its worst case (all points in one pattern) is predicted no
+    slower than hsgp's least cost over all partitions (its per-frame term alone) and fits the
+    budget; None when the pattern sizes must be predicted first."""
+    n_points = int(np.sum(frame_sizes))
+    exact = sweep_seconds("exact", [n_points], frame_sizes)
+    hsgp = sweep_seconds("hsgp", [], frame_sizes, basis_size)
+    fits = memory_budget is None or exact_bytes(n_points) <= memory_budget
+    if fits and exact <= hsgp:
+        return Choice("exact", basis_size, "worst case", exact, hsgp, fits)
+    return None
+
+
+def choose(pattern_points: object, frame_sizes: object, basis_size: int, memory_budget: int | None) -> Choice:
+    """Step 2 of the rule: the engine predicted faster on these pattern sizes (points), exact
+    only if its largest pattern fits the memory budget. Ties go to exact (no approximation)."""
+    n = np.asarray(pattern_points, dtype=np.float64).ravel()
+    exact = sweep_seconds("exact", n, frame_sizes)
+    hsgp = sweep_seconds("hsgp", n, frame_sizes, basis_size)
+    largest = int(n.max()) if len(n) else 0
+    fits = memory_budget is None or exact_bytes(largest) <= memory_budget
+    engine = "exact" if fits and exact <= hsgp else "hsgp"
+    return Choice(engine, basis_size, "hsgp initialisation", exact, hsgp, fits)
+
+
+def pattern_points(labels: np.ndarray, frame_sizes: np.ndarray) -> np.ndarray:
+    """Training points per pattern, from per-frame labels and vehicle counts."""
+    labels = np.asarray(labels, dtype=np.int64)
+    return np.bincount(labels, weights=np.asarray(frame_sizes, dtype=np.float64)) if len(labels) else np.zeros(0)
+
+
+__all__ = ["COEFFICIENTS", "Choice", "choose", "choose_upfront", "exact_bytes", "features", "pattern_points", "sweep_seconds"]

@@ -1,0 +1,208 @@
+"""Posterior draws a fit keeps, and scores averaged over them (the posterior predictive).
+
+A fitted model's last state is one draw from the posterior over partitions and hyperparameters;
+scoring only it ignores how uncertain the fit is. The fit therefore keeps a thinned set of its
+states, a :class:`Draws`: per kept sweep, the labels (patterns by decreasing size), each
+pattern's length scales and α. Those are all a state needs: the sampler refactors every pattern
+from them (``Sampler.set_state``), as loading a model file does.
+
+**Thinning under a memory bound.** At most ``max_draws`` states are held. After ``t`` sweeps the
+kept sweeps are the multiples of ``thin(t)``, the least power of two with ``t // thin ≤ max_draws``;
+as ``t`` grows past the bound, every other draw is dropped and the step doubles. What is kept is a
+function of ``t`` alone, so a resumed chain keeps what the uninterrupted one would. Memory:
+``max_draws · (4 N + 16 K + 16)`` bytes for ``N`` frames and ``K`` patterns a draw.
+
+**Averaging.** Scores use the kept draws after a burn-in of the first half of the sweeps, and
+the final state (itself a draw); ``S`` states in all. For a test frame ``V`` and state ``s``,
+``log p_s(V) = log Σ_j π_sj p(V | D_sj) `` (the DP's predictive weights, a new pattern included),
+and the posterior predictive is the average of the densities::
+
+    log p(V | D) = logsumexp_s log p_s(V) − log S.
+
+``predict_proba`` reports probabilities over the *final* state's patterns (and "new"). Patterns of
+other draws are matched to them softly through the training frames they share:
+``P(k | V) = Σ_s Σ_j p(s, j | V) |D_sj ∩ D_k| / |D_sj|``, with ``p(s, j | V) ∝ π_sj p(V | D_sj)``
+over all draws and patterns (each draw weighted by how well it explains ``V``, as the posterior
+given ``V`` does), and the "new" column ``Σ_s p(s, new | V)``. With one draw this is the final
+state's conditional exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+#: Default bound on the states a fit keeps (``DPGP(posterior_draws=...)``).
+MAX_DRAWS = 40
+
+
+def thin_for(sweeps: int, max_draws: int) -> int:
+    """The step between kept sweeps after ``sweeps`` sweeps: the least power of two ``p`` with
+    ``sweeps // p <= max_draws`` (``max_draws = 0``: nothing is kept; returns 0)."""
+    if max_draws <= 0:
+        return 0
+    p = 1
+    while sweeps // p > max_draws:
+        p *= 2
+    return p
+
+
+@dataclass
+class Draws:
+    """Kept states: ``sweeps`` (D,), ``labels`` (D, N) int32 (patterns by decreasing size),
+    ``length_scales`` (one (K_d, 2) array a draw), ``alpha`` (D,)."""
+
+    n_frames: int
+    sweeps: list[int] = field(default_factory=list)
+    labels: list[np.ndarray] = field(default_factory=list)
+    length_scales: list[np.ndarray] = field(default_factory=list)
+    alpha: list[float] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.sweeps)
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in self.labels) + sum(a.nbytes for a in self.length_scales) + 16 * len(self)
+
+    def record(self, sweep: int, state: Callable[[], tuple[np.ndarray, np.ndarray, float]], max_draws: int) -> None:
+        """After sweep ``sweep``: drop what the thinning no longer keeps, then keep this state
+        (``state()``: labels, length scales, α) if its sweep is a multiple of the step."""
+        step = thin_for(sweep, max_draws)
+        keep = [i for i, s in enumerate(self.sweeps) if step and s % step == 0]
+        if len(keep) != len(self):
+            self._select(keep)
+        if step and sweep % step == 0 and (not self.sweeps or self.sweeps[-1] != sweep):
+            labels, length_scales, alpha = state()
+            self.sweeps.append(int(sweep))
+            self.labels.append(np.asarray(labels, dtype=np.int32).copy())
+            self.length_scales.append(np.asarray(length_scales, dtype=np.float64).reshape(-1, 2).copy())
+            self.alpha.append(float(alpha))
+
+    def up_to(self, sweep: int) -> Draws:
+        """The draws of sweeps ``<= sweep`` (a checkpoint's resume point)."""
+        out = Draws(self.n_frames, list(self.sweeps), list(self.labels), list(self.length_scales), list(self.alpha))
+        out._select([i for i, s in enumerate(self.sweeps) if s <= sweep])
+        return out
+
+    def _select(self, idx: list[int]) -> None:
+        self.sweeps = [self.sweeps[i] for i in idx]
+        self.labels = [self.labels[i] for i in idx]
+        self.length_scales = [self.length_scales[i] for i in idx]
+        self.alpha = [self.alpha[i] for i in idx]
+
+    # --- model-file members (dpgp.io) ----------------------------------------------------------
+    def arrays(self) -> dict[str, np.ndarray]:
+        d = len(self)
+        return {
+            "draw_sweeps": np.asarray(self.sweeps, dtype=np.int64),
+            "draw_labels": np.asarray(self.labels, dtype=np.int32).reshape(d, self.n_frames),
+            "draw_n_patterns": np.asarray([len(w) for w in self.length_scales], dtype=np.int64),
+            "draw_length_scales": np.concatenate(self.length_scales) if d else np.zeros((0, 2)),
+            "draw_alpha": np.asarray(self.alpha, dtype=np.float64),
+        }
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray], n_frames: int, min_ls: float, max_ls: float) -> Draws | None:
+        """The draws a model file holds (None if it holds none: files before posterior draws);
+        ``ValueError`` naming what is inconsistent."""
+        names = ("draw_sweeps", "draw_labels", "draw_n_patterns", "draw_length_scales", "draw_alpha")
+        present = [n for n in names if n in arrays]
+        if not present:
+            return None
+        if len(present) != len(names):
+            raise ValueError(f"the posterior draws need all of {names}, the file has {present}")
+        sweeps, labels, counts, ls, alpha = (arrays[n] for n in names)
+        d = len(sweeps)
+        if (sweeps.dtype.kind not in "iu" or labels.dtype.kind not in "iu" or counts.dtype.kind not in "iu"
+                or labels.shape != (d, n_frames) or counts.shape != (d,) or alpha.shape != (d,)
+                or ls.ndim != 2 or ls.shape[1:] != (2,) or int(counts.sum()) != len(ls)):  # fmt: skip
+            raise ValueError(f"the posterior draws' shapes do not fit {d} draws of {n_frames} frames")
+        if d and (np.any(np.diff(sweeps) <= 0) or sweeps.min() < 1):
+            raise ValueError("the posterior draws' sweeps must increase from 1")
+        if not (np.all(np.isfinite(alpha)) and np.all(alpha > 0)):
+            raise ValueError("the posterior draws' alpha must be positive")
+        if not ((ls >= min_ls).all() and (ls <= max_ls).all()):
+            raise ValueError(f"the posterior draws' length scales must lie in [{min_ls:g}, {max_ls:g}]")
+        parts = np.split(ls.astype(np.float64), np.cumsum(counts)[:-1]) if d else []
+        for lab, k in zip(labels, counts):
+            if n_frames and (lab.min() < 0 or lab.max() >= k or len(np.unique(lab)) != k):
+                raise ValueError("a posterior draw's labels do not name exactly its patterns")
+        return cls(n_frames, [int(s) for s in sweeps], [np.asarray(x, dtype=np.int32) for x in labels], list(parts),
+                   [float(a) for a in alpha])  # fmt: skip
+
+
+def state_of(sampler: object) -> tuple[np.ndarray, np.ndarray, float]:
+    """A sampler's state as a draw: labels with patterns by decreasing size (ties by slot), their
+    length scales (K, 2) and α."""
+    patterns = sampler.patterns()  # (slot, id, n_frames, wx, wy)
+    order = sorted(range(len(patterns)), key=lambda j: (-patterns[j][2], patterns[j][0]))
+    slots = np.array([patterns[j][0] for j in order], dtype=np.int64)
+    raw = np.asarray(sampler.labels(), dtype=np.int64)
+    lookup = np.zeros(int(slots.max()) + 1 if len(slots) else 1, dtype=np.int64)
+    lookup[slots] = np.arange(len(slots))
+    ls = np.array([[patterns[j][3], patterns[j][4]] for j in order], dtype=np.float64).reshape(-1, 2)
+    return lookup[raw], ls, float(sampler.alpha())
+
+
+def used(draws: Draws | None, n_iter: int) -> list[int]:
+    """Indices of the kept draws that scores average over: those after the burn-in (the first
+    half of the ``n_iter`` sweeps), but not the final state's own sweep (the caller adds it)."""
+    if draws is None:
+        return []
+    return [i for i, s in enumerate(draws.sweeps) if n_iter // 2 < s < n_iter]
+
+
+def _draw_terms(sampler: object, state: tuple[np.ndarray, np.ndarray, float], frames: object) -> tuple[np.ndarray, np.ndarray]:
+    """For one state: (n_test, K+1) log [DP weight × likelihood] per pattern (state label order)
+    and a new one, and the (K,) training-frame counts per pattern."""
+    labels, ls, alpha = state
+    sampler.set_state(np.asarray(labels, dtype=np.int64), ls, alpha)
+    cur, _, _ = state_of(sampler)
+    if not np.array_equal(cur, labels):  # set_state keeps label k in slot order k
+        raise RuntimeError("the sampler did not take the draw's labels")
+    patterns = sampler.patterns()
+    order = sorted(range(len(patterns)), key=lambda j: (-patterns[j][2], patterns[j][0]))
+    per_slot, new = sampler.score_frames(frames.xy, frames.v, frames.offsets)
+    scores = np.asarray(per_slot, dtype=np.float64).reshape(len(frames), -1)[:, order]
+    counts = np.bincount(labels, minlength=len(ls)).astype(np.float64)
+    n = counts.sum()
+    log_prior = np.log(np.r_[counts, alpha]) - np.log(n + alpha)
+    return np.column_stack([scores, np.asarray(new, dtype=np.float64)]) + log_prior, counts
+
+
+def averaged(
+    final_terms: np.ndarray,
+    final_labels: np.ndarray,
+    states: list[tuple[np.ndarray, np.ndarray, float]],
+    new_sampler: Callable[[], object],
+    frames: object,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Posterior-averaged ``(log density (n_test,), probabilities (n_test, K_final + 1))`` over the
+    final state (its joint terms ``final_terms`` and labels) and the other kept ``states``
+    (module docstring). ``new_sampler`` builds a sampler over the training frames to score a
+    state with (called once, only if there are other states)."""
+    k_final = final_terms.shape[1] - 1
+    # One block per state: terms (n_test, K_s + 1) and the soft map of its patterns onto the final
+    # ones ((K_s + 1, K_final + 1), "new" to "new").
+    blocks = [(final_terms, np.eye(k_final + 1))]
+    if states:
+        sampler = new_sampler()
+        for state in states:
+            terms, counts = _draw_terms(sampler, state, frames)
+            overlap = np.zeros((len(counts) + 1, k_final + 1))
+            np.add.at(overlap, (np.asarray(state[0], dtype=np.int64), np.asarray(final_labels, dtype=np.int64)), 1.0)
+            overlap[:-1] /= counts[:, None]
+            overlap[-1, -1] = 1.0
+            blocks.append((terms, overlap))
+    top = np.max([t.max(axis=1) for t, _ in blocks], axis=0)[:, None]
+    weights = [np.exp(t - top) for t, _ in blocks]
+    per_state = np.column_stack([w.sum(axis=1) for w in weights])  # p_s(V) / e^top
+    log_density = top[:, 0] + np.log(per_state.sum(axis=1)) - np.log(len(blocks))
+    proba = sum(w @ o for w, (_, o) in zip(weights, blocks))
+    return log_density, proba / proba.sum(axis=1, keepdims=True)
+
+
+__all__ = ["Draws", "MAX_DRAWS", "averaged", "state_of", "thin_for", "used"]

@@ -1,0 +1,93 @@
+"""likelihood="auto" by predicted cost (dpgp.engine_cost): the rule on constructed cases, and that
+auto's fit is bitwise the fit of the engine it picks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import dpgp
+from dpgp import engine_cost as ec
+
+
+def test_features_are_the_documented_sums():
+    n, frames = [10, 200, 3000], [3, 4]  # points per pattern; vehicles per frame
+    np.testing.assert_array_equal(ec.features("exact", n, frames), [25, 100 + 40_000 + 9_000_000, 1000 + 8_000_000 + 27_000_000_000])
+    s = np.minimum(n, 500)  # a pattern smaller than the basis uses its dense n x n factor
+    np.testing.assert_array_equal(
+        ec.features("hsgp", n, frames, 500), [500 * 25, (np.array(n) * s**2).sum(), (s**3).sum(), 500 * (100 + 40_000)]
+    )
+    with pytest.raises(ValueError):
+        ec.features("hsgp", n, frames)
+    with pytest.raises(ValueError):
+        ec.features("vecchia", n, frames)
+
+
+def test_rule_on_constructed_cases(monkeypatch):
+    monkeypatch.setattr(ec, "COEFFICIENTS", {"exact": (1e-6, 0.0, 1e-9), "hsgp": (1e-7, 1e-9, 1e-9, 0.0)})
+    M = 400
+    # tiny data: exact's worst case (one pattern of 300 points) beats hsgp's least cost: exact, no probe
+    c = ec.choose_upfront([10] * 30, M, None)
+    assert c is not None and c.engine == "exact" and c.sizes_from == "worst case"
+    # exact's worst case is slower: the sizes must be predicted first
+    many = [10] * 2000
+    assert ec.choose_upfront(many, M, None) is None
+    # many small patterns: exact is cheaper (Σ n³ small)
+    small = ec.choose([500] * 40, many, M, None)
+    assert small.engine == "exact" and small.exact_seconds < small.hsgp_seconds
+    # one large pattern: its n³ makes exact the slower one
+    big = ec.choose([19_000, 500, 500], many, M, None)
+    assert big.engine == "hsgp" and big.exact_seconds > big.hsgp_seconds
+    # the switch happens where the predictions cross
+    sizes = np.arange(100, 6000, 50)
+    picks = [ec.choose([n], many, M, None).engine for n in sizes]
+    cross = [ec.sweep_seconds("exact", [n], many) <= ec.sweep_seconds("hsgp", [n], many, M) for n in sizes]
+    assert picks == ["exact" if x else "hsgp" for x in cross] and "exact" in picks and "hsgp" in picks
+    # memory: exact needs its largest pattern's factors within the budget
+    assert ec.choose([500] * 40, many, M, ec.exact_bytes(500) - 1).engine == "hsgp"
+    assert ec.choose([500] * 40, many, M, ec.exact_bytes(500)).engine == "exact"
+    assert ec.choose_upfront([10] * 30, M, ec.exact_bytes(300) - 1) is None
+
+
+def test_exact_bytes_matches_the_doubling_buffers():
+    assert ec.exact_bytes(1000) == 8 * 2 * 1024**2
+    assert ec.exact_bytes(1024) == 8 * 2 * 1024**2
+    assert ec.exact_bytes(1025) == 8 * 2 * 2048**2
+
+
+def _same_fit(a, b):
+    np.testing.assert_array_equal(a.labels_, b.labels_)
+    assert a.history_["log_joint"] == b.history_["log_joint"]
+    np.testing.assert_array_equal(a.length_scales_, b.length_scales_)
+
+
+@pytest.mark.parametrize("winner", ["exact", "hsgp"])
+def test_auto_after_the_probe_is_the_engine_it_picks(monkeypatch, winner):
+    """Undecided up front, auto initialises hsgp, predicts both engines from its pattern sizes and
+    runs the winner: bitwise the explicit engine's fit (never a switch mid-chain)."""
+    frames = dpgp.datasets.synthetic("intersection", n_frames=50, seed=4)
+    kw = dict(iterations=3, noise_var=0.5, length_scale_prior=(10.0, 1.0), seed=7, progress=False, posterior_draws=2)
+    n = frames.n_points
+    if winner == "exact":
+        # exact pays n³, hsgp a flat half of exact's worst case per frame: exact is slower for one
+        # pattern of every point (so auto probes) and faster on the probe's several patterns
+        m = dpgp.hsgp.basis_for(frames.xy, (10.0, 1.0)).size  # the basis the fit sizes
+        flat = 0.5e-9 * n**3 / ec.features("hsgp", [], frames.sizes, m)[0]
+        coefficients = {"exact": (0.0, 0.0, 1e-9), "hsgp": (flat, 0.0, 0.0, 0.0)}
+    else:  # exact's per-frame cost dwarfs hsgp's, whatever the sizes
+        coefficients = {"exact": (1.0, 0.0, 0.0), "hsgp": (1e-9, 0.0, 0.0, 0.0)}
+    monkeypatch.setattr(ec, "COEFFICIENTS", coefficients)
+    auto = dpgp.DPGP(**kw).fit(frames)
+    assert auto.engine_choice_["sizes_from"] == "hsgp initialisation"
+    assert auto.likelihood_ == winner
+    explicit = dpgp.DPGP(likelihood=winner, **kw).fit(frames)
+    _same_fit(auto, explicit)
+    assert auto.basis_ == explicit.basis_
+
+
+def test_choice_is_saved_with_the_model(tmp_path):
+    frames = dpgp.datasets.synthetic("highway", n_frames=20, seed=1)
+    m = dpgp.DPGP(iterations=1, noise_var=1.0, progress=False).fit(frames)
+    m.save(tmp_path / "m.npz")
+    back = dpgp.DPGP.load(tmp_path / "m.npz")
+    assert back.engine_choice_ == m.engine_choice_ and back.engine_choice_["engine"] == "exact"
