@@ -21,15 +21,7 @@ import dpgp
 from dpgp.gp import GPParams, log_marginal_likelihood, log_predictive, posterior
 
 import fuzz_cases as fc
-
-
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
-    frames = dpgp.datasets.synthetic("intersection", n_frames=12, seed=0, vehicles=(2, 5))
-    model = dpgp.DPGP(iterations=1, seed=0, progress=False, noise_var=1.0).fit(frames)
-    path = tmp_path_factory.mktemp("reliability") / "tiny.npz"
-    model.save(path)
-    return model, path
+from test_fuzz import tiny  # noqa: F401 - the fuzz suite's tiny fitted model and its file
 
 
 def _members(path: Path) -> dict[str, np.ndarray]:
