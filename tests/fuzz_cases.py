@@ -453,6 +453,14 @@ def case_readers(draw: Draw, ctx: Context, d: Path) -> Any:
     return dpgp.make_frames(tracks, dt=draw.maybe([0.5, 0.4, 1.0], [1e-9, 1e300, 0.0], "dt"))
 
 
+def _astype(c: np.ndarray, dtype: Any) -> np.ndarray:
+    """``c`` converted, or ``c`` itself where it does not convert (an earlier damage made it text)."""
+    try:
+        return c.astype(dtype)
+    except (TypeError, ValueError):
+        return c
+
+
 def case_arrays(draw: Draw, ctx: Context, d: Path) -> Any:
     target = draw.choice(["from_arrays", "from_arrays", "select", "synthetic", "distributions", "ari", "read_frames_df", "gp", "gp"], "target")
     if target == "gp":
@@ -465,8 +473,8 @@ def case_arrays(draw: Draw, ctx: Context, d: Path) -> Any:
             c = cols[i] if isinstance(cols[i], np.ndarray) and cols[i].ndim == 1 else np.zeros(len(frame))
             cols[i] = draw.choice(
                 [c[:-1], np.r_[c, c[:1]], c.reshape(-1, 1), c.astype(str), [],
-                 None, "abc", 3.0, np.array([]), c.astype(complex), c.astype(np.float32),
-                 np.full(len(c), NAN), np.array([[1, 2], [3, 4]]), c.astype(bool), list(c),
+                 None, "abc", 3.0, np.array([]), _astype(c, complex), _astype(c, np.float32),
+                 np.full(len(c), NAN), np.array([[1, 2], [3, 4]]), _astype(c, bool), list(c),
                  np.array(["2020-01-01"] * len(c), dtype="datetime64[ns]"), np.full(len(c), None)],
                 f"col{i}",
             )

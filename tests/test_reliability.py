@@ -21,15 +21,7 @@ import dpgp
 from dpgp.gp import GPParams, log_marginal_likelihood, log_predictive, posterior
 
 import fuzz_cases as fc
-
-
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
-    frames = dpgp.datasets.synthetic("intersection", n_frames=12, seed=0, vehicles=(2, 5))
-    model = dpgp.DPGP(iterations=1, seed=0, progress=False, noise_var=1.0).fit(frames)
-    path = tmp_path_factory.mktemp("reliability") / "tiny.npz"
-    model.save(path)
-    return model, path
+from test_fuzz import tiny  # noqa: F401 - the fuzz suite's tiny fitted model and its file
 
 
 def _members(path: Path) -> dict[str, np.ndarray]:
@@ -117,6 +109,18 @@ def test_a_budget_past_what_the_core_counts_limits_nothing():  # 2**70 was Overf
 def test_a_time_axis_too_long_to_hold_is_refused_even_without_vehicles(tiny):  # was numpy's MemoryError (fuzz)
     with pytest.raises(dpgp.InvalidInputError, match="fewer steps"):
         tiny[0].sample_scenarios(0, steps=2 * 10**8, dt=1e-300)
+
+
+def test_a_model_file_with_an_extreme_length_scale_prior_is_refused(tiny, tmp_path):  # a NaN log joint (fuzz)
+    path = _with_metadata(tiny[1], tmp_path / "prior.npz", lambda m: m["resolved"].__setitem__("length_scale_prior", [1e308, 1e308]))
+    with pytest.raises(dpgp.ModelFileError, match="length_scale_prior"):
+        dpgp.DPGP.load(path)
+
+
+def test_an_roi_wider_than_the_float_range_is_refused():  # was an IndexError from an overflowing bin (fuzz)
+    frames = dpgp.datasets.synthetic("intersection", n_frames=4, seed=0, vehicles=(2, 3))
+    with pytest.raises(dpgp.InvalidInputError, match="wider than the floating-point range"):
+        dpgp.EmpiricalDistributions.from_frames(frames, roi=(0, 1e308, -1e308, 1e308))
 
 
 # --- 3. temporary files ---------------------------------------------------------------------------------

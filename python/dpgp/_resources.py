@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 
@@ -53,6 +54,7 @@ def gemm_arena_bytes() -> int:
     return 2 * (-(-l3 // _PAGE) * _PAGE)
 
 
+@functools.lru_cache(maxsize=8)
 def _cache_sizes(root: str = "/sys/devices/system/cpu") -> tuple[int, int, int]:
     """(L1 data, L2, L3) bytes as private-gemm-x86 reads them: each level's size over the CPUs
     sharing it, L1-sharing CPUs counted in, L3 times the physical cores; 0 where unknown."""
@@ -95,6 +97,7 @@ def _count_cpus(cpu_list: str) -> int:
     return n
 
 
+@functools.lru_cache(maxsize=1)
 def _physical_cores() -> int:
     """Distinct (physical id, core id) pairs of /proc/cpuinfo, as the num_cpus crate counts."""
     try:

@@ -211,6 +211,8 @@ def _roi(roi: Any) -> tuple[float, float, float, float]:
         r = ()
     if len(r) != 4 or not np.all(np.isfinite(r)) or not (r[0] < r[1] and r[2] < r[3]):
         raise InvalidInputError(f"roi must be (x_min, x_max, y_min, y_max) with min < max, got {roi!r}")
+    if not (np.isfinite(r[1] - r[0]) and np.isfinite(r[3] - r[2])):  # bins over an infinite width
+        raise InvalidInputError(f"roi {roi!r} is wider than the floating-point range (1.8e308); convert to sensible units")
     return r  # type: ignore[return-value]
 
 

@@ -66,9 +66,10 @@ def check_scales(v: np.ndarray, params: GPParams, what: str = "v") -> None:
             f"|mean| <= {MAX_MAGNITUDE:g}, variances <= {MAX_MAGNITUDE**2:g}; convert the velocities to sensible units"
         )
     v = np.asarray(v, dtype=float).reshape(-1, 2)
-    if len(v):
-        with np.errstate(over="ignore"):
-            worst = float(np.max(np.abs(v - mean) / np.sqrt(noise)))
+    finite = np.isfinite(v)  # NaN and inf: the core's own error names them
+    if finite.any():
+        with np.errstate(over="ignore", invalid="ignore"):
+            worst = float(np.max((np.abs(v - mean) / np.sqrt(noise))[finite]))
         if not worst <= MAX_MAGNITUDE:
             raise InvalidInputError(
                 f"{what} holds a velocity {worst:.3g} noise standard deviations from the mean, beyond the "

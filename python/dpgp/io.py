@@ -485,7 +485,7 @@ def _engine(meta: dict[str, Any]) -> tuple[str, Any]:
 def _resolved(meta: dict[str, Any]) -> Any:
     """The assignment, σ_n² and length-scale prior the fit resolved (never re-estimated: the
     saved model is what was fitted)."""
-    from .defaults import Resolved, _positive_pair
+    from .defaults import Resolved, _gamma, _positive_pair
 
     r = meta.get("resolved")
     if r is None:  # version 1: the settings were the values
@@ -496,7 +496,7 @@ def _resolved(meta: dict[str, Any]) -> Any:
         }  # fmt: skip
     scores = r.get("noise_scores")
     return Resolved(**{
-        **r, "length_scale_prior": tuple(float(x) for x in r["length_scale_prior"]),
+        **r, "length_scale_prior": _gamma("length_scale_prior", r["length_scale_prior"]),  # a fit's own limits
         "noise_var": _positive_pair("noise_var", r["noise_var"]),  # files before per-component noise: one number
         "noise_scores": None if scores is None else tuple(tuple(float(x) for x in row) for row in scores),
     })  # fmt: skip
