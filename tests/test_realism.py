@@ -339,7 +339,7 @@ def test_recorded_windows_follow_the_frames_objects():
 
 
 def test_ways_in():
-    assert ev.realism is rl.realism
+    assert ev.realism is rl.realism and dpgp.evaluate.realism is rl.realism  # without importing dpgp.evaluate first
     tracks = tracks_table()
     frames = dpgp.make_frames(tracks, roi=(-1.0, 9.0, -1.0, 9.0), dt=0.5)
     assert rl.data_units(tracks, frames) is None
