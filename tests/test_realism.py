@@ -6,6 +6,8 @@ typed errors, and the ways in (dpgp.evaluate.realism, model.evaluate, dpgp evalu
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pandas as pd
@@ -340,6 +342,8 @@ def test_recorded_windows_follow_the_frames_objects():
 
 def test_ways_in():
     assert ev.realism is rl.realism
+    fresh = subprocess.run([sys.executable, "-c", "import dpgp; print(dpgp.evaluate.realism.__module__)"], capture_output=True, text=True)
+    assert fresh.stdout.strip() == "dpgp.realism", fresh.stderr  # without importing dpgp.evaluate first
     tracks = tracks_table()
     frames = dpgp.make_frames(tracks, roi=(-1.0, 9.0, -1.0, 9.0), dt=0.5)
     assert rl.data_units(tracks, frames) is None
