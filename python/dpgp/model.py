@@ -459,8 +459,9 @@ class DPGP:
         """(N, K+1): log [prior weight × likelihood] of each pattern, then of a new pattern."""
         frames = _as_frames(frames)
         _check_magnitudes(frames, "the frames to score")
+        fitted = self._fitted()  # NotFittedError before anything reads the fitted parameters
         check_scales(frames.v, self.params_, "the frames to score")
-        return self._fitted().log_joint_terms(frames)
+        return fitted.log_joint_terms(frames)
 
     def predict_proba(self, frames: Frames | Any) -> np.ndarray:
         """Posterior probability of each pattern for each frame: shape (N, K+1), the last column
