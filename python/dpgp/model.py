@@ -501,8 +501,9 @@ class DPGP:
         """(N, K+1): log [prior weight × likelihood] of each pattern, then of a new pattern."""
         frames = _as_frames(frames)
         _check_magnitudes(frames, "the frames to score")
+        fitted = self._fitted()  # NotFittedError before anything reads the fitted parameters
         check_scales(frames.v, self.params_, "the frames to score")
-        return self._fitted().log_joint_terms(frames)
+        return fitted.log_joint_terms(frames)
 
     def _averaged(self, frames: Frames | Any) -> tuple[np.ndarray, np.ndarray]:
         """Posterior-averaged log density (positions left out) and pattern probabilities of
