@@ -13,6 +13,7 @@ name                dtype, shape            content
 ``frame_xy``        float64 (n, 2)          positions, one row per vehicle observation
 ``frame_v``         float64 (n, 2)          velocities
 ``frame_labels``    (N,), optional          ground-truth labels the frames carried
+``frame_tracks``    int64 (n,), optional    track id of each row (``make_frames`` keeps it)
 ``labels``          int64 (N,)              fitted pattern of each frame (patterns by size)
 ``length_scales``   float64 (K, 2)          ``(w_x, w_y)`` per pattern
 ``pattern_ids``     uint64 (K,)             the sampler's stable pattern ids
@@ -140,6 +141,8 @@ def save(model: DPGP, path: str | os.PathLike, resume: Any = None, compress: boo
     }
     if frames.labels is not None:
         arrays["frame_labels"] = _ids_array(frames.labels)
+    if frames.tracks is not None:  # what generation learns motion from (issue 15)
+        arrays["frame_tracks"] = np.asarray(frames.tracks, dtype=np.int64)
     if getattr(model, "label_trace_", None) is not None:
         arrays["label_trace"] = np.asarray(model.label_trace_, dtype=np.int64)
     if resume is not None:
@@ -318,7 +321,9 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
 
     settings = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["settings"].items()}
     labels_file = arrays.get("frame_labels")
-    frames = Frames(arrays["frame_ids"], arrays["frame_offsets"], arrays["frame_xy"], arrays["frame_v"], labels_file)
+    frames = Frames(
+        arrays["frame_ids"], arrays["frame_offsets"], arrays["frame_xy"], arrays["frame_v"], labels_file, arrays.get("frame_tracks")
+    )
     if meta.get("frames_summary") is not None:
         s = dict(meta["frames_summary"])
         for key in ("roi", "smoothing"):
