@@ -97,6 +97,7 @@ def save(model: DPGP, path: str | os.PathLike, resume: Any = None, compress: boo
     the members uncompressed (still CRC-checked), which writes about ten times faster."""
     model._check_fitted()
     from . import __version__
+    from .motion import motion_model
     from .scenarios import distributions
 
     frames = model.frames_
@@ -122,6 +123,7 @@ def save(model: DPGP, path: str | os.PathLike, resume: Any = None, compress: boo
         "log_joint": getattr(model, "log_joint_", None),
         "frames_summary": None if summary is None else summary.to_dict(),
         "distributions": distributions(model).to_dict(),
+        "motion": motion_model(model._fitted()).to_dict(),  # what generation learns from the tracks
         "resolved": _resolved_dict(model),
         "engine": _engine_dict(model),
     }
@@ -283,6 +285,7 @@ class ModelFile:
     state: dict[str, Any]
     distributions: Any
     resume: Any = None
+    motion: Any = None  # a dpgp.motion.MotionModel; None in files written before issue 15
 
 
 def read_model_file(path: str | os.PathLike) -> ModelFile:
@@ -315,6 +318,7 @@ def _build(cls: type[DPGP], meta: dict[str, Any], arrays: dict[str, np.ndarray])
 
 def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> ModelFile:
     from .distributions import EmpiricalDistributions
+    from .motion import MotionModel
     from .frames import Frames
     from .framing import FramingSummary
     from .gp import GPParams
@@ -361,6 +365,7 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
     return ModelFile(
         path, settings, frames, labels, ls, float(meta["alpha"]), params, _resolved(meta), likelihood, basis, state,
         None if d is None else EmpiricalDistributions.from_dict(d), parse_resume(meta, arrays, frames),
+        None if meta.get("motion") is None else MotionModel.from_dict(meta["motion"]),
     )  # fmt: skip
 
 
