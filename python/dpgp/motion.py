@@ -7,12 +7,13 @@ applies it; ``docs/generation.md`` explains the rules.
 field of its frame's pattern ``k``. For the same track in consecutive frames (``dt`` apart,
 matched by the track ids :func:`dpgp.make_frames` keeps) the lag-one regression of ``r_{t+dt}``
 on ``r_t``, pooled over both components, gives ``ρ``; the time constant of an Ornstein–Uhlenbeck
-process is ``τ = −dt / ln ρ``. The spread ``σ`` (per component) is the root mean square of the
+process is ``τ = −dt / ln ρ``, at most :data:`MAX_TAU` (a field that explains little leaves a
+residual that barely decays: the rollout then keeps close to constant velocity). The spread ``σ`` (per component) is the root mean square of the
 pattern's residuals. A pattern with fewer than :data:`MIN_PAIRS` consecutive pairs takes the
 estimate pooled over all patterns. Frames without track ids give no pairs: ``τ`` is then
 :data:`DEFAULT_TAU`.
 
-**Agents.** ``"pedestrians"`` when 90% of the training speeds are below
+**Agents.** ``"pedestrians"`` when 99% of the training speeds are below
 :data:`PEDESTRIAN_SPEED` (data units per second), else ``"vehicles"``.
 
 **Car-following** (vehicles, IDM). In every training frame, a vehicle's leader is the nearest
@@ -48,7 +49,8 @@ from .frames import Frames
 MIN_PAIRS = 50  # consecutive residual pairs for a pattern's own τ
 MIN_DISTANCES = 20  # nearest-neighbour distances for a pattern's own spacing
 DEFAULT_TAU = 2.0  # seconds, when the frames carry no track ids
-PEDESTRIAN_SPEED = 3.0  # 90th percentile speed below this: pedestrians
+PEDESTRIAN_SPEED = 5.0  # 99th percentile speed below this (data units per second): pedestrians
+MAX_TAU = 30.0  # seconds: a residual more persistent than this is held at this time constant
 AGENTS = ("auto", "vehicles", "pedestrians")
 _FORMAT_VERSION = 1
 _KIND = {"free": 0, "vehicles": 1, "pedestrians": 2}
@@ -124,13 +126,12 @@ class MotionModel:
         )
 
 
-def field_means(fit: FittedPatterns, frames: Frames, labels: np.ndarray) -> np.ndarray:
-    """(n, 2): each row's posterior mean velocity under its frame's pattern ``labels[f]``."""
-    row_label = np.repeat(labels, frames.sizes)
+def field_means(fit: FittedPatterns, xy: np.ndarray, row_label: np.ndarray) -> np.ndarray:
+    """(n, 2): the posterior mean velocity at each position ``xy[i]`` under pattern ``row_label[i]``."""
     order = np.argsort(row_label, kind="stable")
     ks, starts = np.unique(row_label[order], return_index=True)
     offsets = np.r_[starts, len(order)].astype(np.int64)
-    xy = np.ascontiguousarray(frames.xy[order])
+    xy = np.ascontiguousarray(xy[order])
     means = np.asarray(_core.field_means(fit.sampler, [int(fit.slots[k]) for k in ks], xy, offsets))
     out = np.empty_like(means)
     out[order] = means
@@ -165,7 +166,7 @@ def learn_residual(r0: np.ndarray, r1: np.ndarray, dt: float) -> tuple[float, fl
     pooled) under an OU process sampled every ``dt``."""
     den = float((r0 * r0).sum())
     rho = float((r0 * r1).sum()) / den if den > 0 else 0.0
-    rho = float(np.clip(rho, 1e-3, 1 - 1e-6))
+    rho = float(np.clip(rho, 1e-3, np.exp(-dt / MAX_TAU)))
     return -dt / np.log(rho), rho
 
 
@@ -211,10 +212,12 @@ def leader_gaps(frames: Frames, lateral: float) -> tuple[np.ndarray, np.ndarray,
 def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     """Learn a :class:`MotionModel` from a fitted model's training frames (see the module docs)."""
     frames, labels, dt, K = fit.frames, fit.labels, fit.dt, fit.n_patterns
-    resid = frames.v - field_means(fit, frames, labels)
-    a, b = consecutive_pairs(frames, dt)
     row_label = np.repeat(labels, frames.sizes)
-    pooled_tau = learn_residual(resid[a], resid[b], dt)[0] if len(a) else DEFAULT_TAU
+    resid = frames.v - field_means(fit, frames.xy, row_label)
+    a, b = consecutive_pairs(frames, dt)
+    # both ends of a pair against the first frame's pattern, as a rollout keeps its pattern
+    r0, r1 = resid[a], frames.v[b] - field_means(fit, frames.xy[b], row_label[a])
+    pooled_tau = learn_residual(r0, r1, dt)[0] if len(a) else DEFAULT_TAU
     tau, pairs = np.full(K, pooled_tau), np.zeros(K, np.int64)
     sigma = np.tile(np.sqrt((resid**2).mean(axis=0)), (K, 1))
     pair_label = row_label[a]
@@ -223,7 +226,7 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     for k in range(K):
         mine = pair_label == k
         if mine.sum() >= MIN_PAIRS:
-            tau[k], pairs[k] = learn_residual(resid[a[mine]], resid[b[mine]], dt)[0], int(mine.sum())
+            tau[k], pairs[k] = learn_residual(r0[mine], r1[mine], dt)[0], int(mine.sum())
         rows = row_label == k
         if rows.sum() >= 2:
             sigma[k] = np.sqrt((resid[rows] ** 2).mean(axis=0))
@@ -234,7 +237,7 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     if agents not in AGENTS:
         raise ValueError(f"agents must be one of {AGENTS}, got {agents!r}")
     if agents == "auto":
-        agents = "pedestrians" if np.percentile(speed, 90) < PEDESTRIAN_SPEED else "vehicles"
+        agents = "pedestrians" if np.percentile(speed, 99) < PEDESTRIAN_SPEED else "vehicles"
     nn_floor = float(np.percentile(nn_all, 1)) if len(nn_all) else 0.0
     if agents == "pedestrians":
         personal = float(np.percentile(nn_all, 5)) if len(nn_all) else 0.0

@@ -280,6 +280,8 @@ def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistri
     placement, draws and rollouts run in parallel in the core, one seed per scenario."""
     from .motion import motion_model
 
+    if len(patterns) == 0:
+        return Scenarios([], patterns, np.zeros(0, dtype=np.int64))
     requested = pattern_counts(fit, patterns, rng)
     seeds = [int(s) for s in rng.integers(0, 2**63, size=len(patterns), dtype=np.uint64)]
     ks = np.unique(patterns)

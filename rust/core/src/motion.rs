@@ -324,7 +324,11 @@ pub fn drive(
                             r
                         }
                     };
-                    vel[j] = [mean[a][0] + resid[j][0], mean[a][1] + resid[j][1]];
+                    // own velocities exactly (mean + (v - mean) can differ in the last bit)
+                    vel[j] = match v0 {
+                        Some(v) => v[j],
+                        None => [mean[a][0] + resid[j][0], mean[a][1] + resid[j][1]],
+                    };
                 }
             } else {
                 let mut rng = seed.map(|s| stream(s, t as u64, Phase::Simulate, NOISE_ENTITY));

@@ -14,6 +14,8 @@ use crate::simulate::Roi;
 
 /// Draws per vehicle before it is left out.
 pub const TRIES: usize = 200;
+/// Share of a bin kept clear of its edges by a draw.
+const EDGE: f64 = 1e-5;
 
 /// A histogram of positions over `roi`: `nx * ny` bins (x-major: bin `ix * ny + iy`), uniform
 /// inside a bin; `cumulative` holds the running sums of the bin weights.
@@ -67,9 +69,12 @@ impl Grid {
         let (ix, iy) = (b / self.ny, b % self.ny);
         let wx = (self.roi.x_max - self.roi.x_min) / self.nx as f64;
         let wy = (self.roi.y_max - self.roi.y_min) / self.ny as f64;
+        // 1e-5 of a bin away from its edges, so that the bin a position falls in is never in
+        // doubt (ψ's binning puts a point within 1e-6 of a bin below an edge in the upper bin)
+        let inner = |u: f64| EDGE + (1.0 - 2.0 * EDGE) * u;
         [
-            self.roi.x_min + (ix as f64 + rng.random::<f64>()) * wx,
-            self.roi.y_min + (iy as f64 + rng.random::<f64>()) * wy,
+            self.roi.x_min + (ix as f64 + inner(rng.random::<f64>())) * wx,
+            self.roi.y_min + (iy as f64 + inner(rng.random::<f64>())) * wy,
         ]
     }
 }
