@@ -26,6 +26,7 @@ from .model import DPGP
 from .scenarios import Scenarios
 from .simulation import Simulation
 from .tracks import read_ngsim, read_tracks
+from . import evaluate, realism  # dpgp.evaluate.realism(...) without importing the module first
 
 __version__: str = _core.__version__
 
@@ -62,3 +63,4 @@ __all__ = [
     "resample_tracks",
     "adjusted_rand_index",
 ]
+__all__ += ["evaluate", "realism"]

@@ -323,8 +323,14 @@ def _evaluate(args: argparse.Namespace) -> int:
         frames = make_frames(tracks, roi=roi, dt=0.5 if dt is None else dt, units=units)
     test = frames if args.split == 0 else split_in_time(frames, args.split)[1]
     print(f"{args.data}: {len(test)} test frames ({test.n_points} vehicles)" + (f", the last {1 - args.split:.0%}" if args.split else ""))
-    ev = model.evaluate(test, tracks=tracks, horizons=args.horizons)
+    ev = model.evaluate(test, tracks=tracks, horizons=args.horizons, agent=args.agent)
     print(ev.table.to_string(float_format=lambda x: f"{x:.3f}"))
+    if ev.realism is not None:
+        print("realism (WOSAC-style, dpgp.realism):")
+        print(ev.realism.table.to_string(float_format=lambda x: f"{x:.3f}", na_rep=""))
+        if args.realism_plot:
+            ev.realism.plot().savefig(args.realism_plot, dpi=100)
+            print(f"wrote {args.realism_plot}")
     if args.output:
         ev.table.to_csv(args.output)
         print(f"wrote {args.output}")
@@ -490,7 +496,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("evaluate", help="score a model on held-out data against baselines", formatter_class=fmt,
                        description="Held-out log density of the velocities per vehicle for the model, a single GP and "
                        "a position-blind Gaussian (both fitted to the model's training frames); for trajectory "
-                       "input, also rollout ADE/FDE against constant velocity. DATA is framed like the training "
+                       "input, also rollout ADE/FDE against constant velocity and the WOSAC-style realism of generated "
+                       "scenarios (dpgp.realism). DATA is framed like the training "
                        "data (its dt, ROI and units).")  # fmt: skip
     p.add_argument("model", help="model file written by 'dpgp fit'")
     p.add_argument("data", help="the data: framed table, trajectories or SUMO FCD XML")
@@ -503,6 +510,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dt", type=float, help="time step in seconds (default: the model's)")
     p.add_argument("-o", "--output", help="write the table as CSV")
     p.add_argument("--plot", help="write the figure (PNG)")
+    p.add_argument("--agent", choices=("vehicle", "pedestrian"),
+                   help="realism's collision distance (2 m / 0.3 m); default: pedestrian for ETH/UCY, else vehicle")
+    p.add_argument("--realism-plot", help="write the realism figure, per-feature histograms (PNG)")
     p.set_defaults(func=_evaluate)
 
     p = sub.add_parser("demo", help="fit built-in synthetic data and write every figure", formatter_class=fmt,

@@ -24,6 +24,12 @@ MAP pattern); ``constant_velocity`` moves each vehicle with its velocity in that
 where the vehicles really went (the tracks resampled to the same grid), at each horizon ``h``
 (seconds): FDE is the distance at ``h``, ADE the mean distance over the steps up to ``h``,
 averaged over the vehicles still in the ROI at ``h``. In the data's length units.
+
+**Realism**, given the raw tracks: the WOSAC-style score of :mod:`dpgp.realism` for as many
+generated scenarios of :data:`dpgp.realism.SCENARIO_SECONDS` (4 s) as test frames, against the
+test period's recorded windows, with the training period's windows and the position-blind
+generator as references (:func:`dpgp.realism.model_realism`); :func:`realism` is
+:func:`dpgp.realism.realism`.
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ from .defaults import NOISE_GRID, refine_grid, vehicle_spacing
 from .exceptions import InvalidInputError, ShapeError
 from .frames import Frames
 from .gp import GPParams
+from .realism import Realism, model_realism, realism
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -66,12 +73,15 @@ class Evaluation:
     ``constant_velocity``), columns ``log_density`` (nats per vehicle) and ``ade_{h}s`` /
     ``fde_{h}s`` per horizon (NaN where a method does not apply or there are no tracks).
     ``frame_scores``: per test frame, the log density of each method and the vehicle count.
-    ``rollouts``: per horizon, ADE/FDE of each method and the vehicles counted."""
+    ``rollouts``: per horizon, ADE/FDE of each method and the vehicles counted.
+    ``realism``: the :class:`dpgp.realism.Realism` of generated scenarios (when tracks were
+    given; its meta-scores are also the table's ``realism`` column)."""
 
     table: pd.DataFrame
     frame_scores: pd.DataFrame
     rollouts: pd.DataFrame | None
     units: dict[str, Any] = field(default_factory=dict)
+    realism: Realism | None = None
 
     def plot(self) -> Figure:
         """Log density per vehicle by method, and ADE/FDE against horizon (when tracks were given)."""
@@ -100,10 +110,14 @@ class Evaluation:
         return f"Evaluation(\n{self.table.to_string(float_format=lambda x: f'{x:.3f}')}\n)"
 
 
-def evaluate(model: Any, test_frames: Frames, tracks: Any = None, horizons: Any = (1, 2, 4)) -> Evaluation:
+def evaluate(
+    model: Any, test_frames: Frames, tracks: Any = None, horizons: Any = (1, 2, 4), *, agent: str | None = None, seed: int | None = 0
+) -> Evaluation:
     """Score ``model`` (a fitted :class:`~dpgp.DPGP`) and the baselines on ``test_frames``; see
     the module docstring. ``tracks``: the raw tracks table the frames were made from (for
-    rollouts); the frames must then carry ``summary`` (``make_frames`` sets it)."""
+    rollouts and realism); the frames must then carry ``summary`` (``make_frames`` sets it).
+    ``agent`` (``"vehicle"``/``"pedestrian"``, default: from the tracks' format) and ``seed``:
+    the realism score's collision rule and generated scenarios."""
     import pandas as pd
 
     model._check_fitted()
@@ -125,8 +139,11 @@ def evaluate(model: Any, test_frames: Frames, tracks: Any = None, horizons: Any 
     frame_scores = pd.DataFrame({"frame": test_frames.ids, "n_vehicles": sizes, **scores})
     table = pd.DataFrame(index=pd.Index(METHODS, name="method"))
     table["log_density"] = [scores[m].sum() / sizes.sum() if m in scores else np.nan for m in METHODS]
-    rollouts = None
+    rollouts = real = None
     if tracks is not None:
+        real = model_realism(model, test_frames, tracks, agent=agent, seed=seed)
+        table.loc["dpgp", "realism"] = real.scores.loc["meta", "generated"]
+        table.loc["position_blind", "realism"] = real.scores.loc["meta", "blind"]
         rollouts = rollout_errors(model, test_frames, tracks, horizons)
         for _, row in rollouts.iterrows():
             h = f"{row['horizon']:g}s"
@@ -135,7 +152,7 @@ def evaluate(model: Any, test_frames: Frames, tracks: Any = None, horizons: Any 
                 table.loc[m, f"fde_{h}"] = row[f"{m}_fde"]
     table["n_test_frames"] = len(test_frames)
     table["n_test_vehicles"] = int(sizes.sum())
-    return Evaluation(table, frame_scores, rollouts, _units(test_frames))
+    return Evaluation(table, frame_scores, rollouts, _units(test_frames), real)
 
 
 # --- baselines ---------------------------------------------------------------------------------
@@ -344,4 +361,4 @@ def _units(frames: Frames) -> dict[str, Any]:
     return {"length": units or "data units", "dt": getattr(summary, "dt", None)}
 
 
-__all__ = ["Evaluation", "evaluate", "split_in_time", "SingleGP", "position_blind_scores", "rollout_errors", "TRAIN_FRACTION"]
+__all__ = ["Evaluation", "evaluate", "realism", "split_in_time", "SingleGP", "position_blind_scores", "rollout_errors", "TRAIN_FRACTION"]

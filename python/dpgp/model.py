@@ -636,14 +636,18 @@ class DPGP:
             model.__dict__.setdefault("_cache", {})["motion"] = (file.frames, file.motion)
         return model
 
-    def evaluate(self, test_frames: Frames | Any, tracks: Any = None, horizons: Any = (1, 2, 4)) -> Any:
+    def evaluate(
+        self, test_frames: Frames | Any, tracks: Any = None, horizons: Any = (1, 2, 4), *, agent: str | None = None, seed: int | None = 0
+    ) -> Any:
         """Held-out evaluation against baselines (:mod:`dpgp.evaluate`): log density of the test
         velocities per vehicle for this model, a single GP and a position-blind Gaussian, and,
         given the raw ``tracks``, rollout ADE/FDE at ``horizons`` (seconds) against constant
-        velocity. Returns :class:`dpgp.evaluate.Evaluation` (``.table``, ``.plot()``)."""
+        velocity and the realism of generated scenarios (``.realism``, :mod:`dpgp.realism`;
+        ``agent`` and ``seed`` its collision rule and scenarios). Returns
+        :class:`dpgp.evaluate.Evaluation` (``.table``, ``.plot()``)."""
         from .evaluate import evaluate
 
-        return evaluate(self, _as_frames(test_frames), tracks, horizons)
+        return evaluate(self, _as_frames(test_frames), tracks, horizons, agent=agent, seed=seed)
 
 
 def _resume_target(file: Any, iterations: Any) -> int:

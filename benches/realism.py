@@ -1,0 +1,115 @@
+"""Realism of generated scenarios on the shared real data (issue 15): for each data set with
+tracks, split in time 70/30, fit with every default (``--iterations`` sweeps), generate as many
+4 s scenarios as test frames with ``sample_scenarios`` and score them against the test period's
+recorded windows (:mod:`dpgp.realism`), with the training period's own windows ("recorded") and
+the position-blind generator ("blind") as references; plus rollout FDE at 1 s and 4 s of
+``simulate`` from the recorded test frames against constant velocity (``model.evaluate``).
+Prints one table, then the issue's targets met or missed.
+
+    python benches/realism.py [--iterations 20] [--only peachtree,eth,zara01,sumo_junction] [--plots DIR]
+
+Scores are WOSAC-style likelihoods (higher is better); collision rates are shares of object
+steps; FDE in the data's length units (Peachtree: feet; the others: metres).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+
+import dpgp
+from dpgp.evaluate import split_in_time
+from dpgp.realism import FEATURES
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+COLLISION_FLOOR = 0.005  # the issue's floor for "at most twice the recorded collision rate"
+
+
+def datasets() -> dict:
+    """name -> (loader returning (frames, tracks), length unit): the data sets with tracks of
+    benches/evaluate.py, framed as there, and the SUMO junction."""
+    from evaluate import datasets as evaluate_datasets  # benches/evaluate.py, this folder
+
+    def sumo():
+        tracks = dpgp.read_tracks(DATA / "sumo_grid_intersection_fcd.xml.gz", preset="sumo")
+        return dpgp.make_frames(tracks, dt=0.5), tracks
+
+    theirs = evaluate_datasets()
+    return {**{k: theirs[k] for k in ("peachtree", "eth", "zara01")}, "sumo_junction": (sumo, "m")}
+
+
+def measure(name: str, load, unit: str, iterations: int, plots: Path | None) -> dict:
+    t0 = time.perf_counter()
+    frames, tracks = load()
+    train, test = split_in_time(frames)
+    model = dpgp.DPGP(iterations=iterations, seed=0, progress=False).fit(train)
+    fit_s = time.perf_counter() - t0
+    ev = model.evaluate(test, tracks=tracks, horizons=(1, 4))
+    r, t = ev.realism, ev.table
+    row: dict = {"data": name, "train/test frames": f"{len(train)}/{len(test)}", "K": model.n_patterns_}
+    for f in (*FEATURES, "meta"):
+        for src in ("generated", "recorded", "blind"):
+            row[f"{f} [{'dpgp' if src == 'generated' else src}]"] = r.scores.loc[f, src]
+    row["realism ratio"] = r.ratio
+    rates = r.collision_rates
+    row["collision rate dpgp"] = rates["generated"]
+    row["collision rate recorded (test)"] = rates["test"]
+    row["collision rate blind"] = rates["blind"]
+    row["length unit"] = unit
+    for h in ("1", "4"):
+        row[f"FDE@{h}s dpgp"] = t.loc["dpgp", f"fde_{h}s"]
+        row[f"FDE@{h}s const. velocity"] = t.loc["constant_velocity", f"fde_{h}s"]
+    row["fit s"] = fit_s
+    row["evaluate s"] = time.perf_counter() - t0 - fit_s
+    row["seconds"] = time.perf_counter() - t0
+    if plots is not None:
+        plots.mkdir(parents=True, exist_ok=True)
+        r.plot().savefig(plots / f"realism_{name}.png", dpi=80)
+    return row
+
+
+def targets(row: dict, unit: str) -> list[str]:
+    """The issue's 'Must show' targets, each 'met' or 'MISSED' with the figures."""
+    out = []
+    ratio = row["realism ratio"]
+    out.append(f"realism ratio >= 0.8: {'met' if ratio >= 0.8 else 'MISSED'} ({ratio:.2f})")
+    gen, rec = row["collision rate dpgp"], row["collision rate recorded (test)"]
+    bound = max(2 * rec, COLLISION_FLOOR)
+    out.append(f"collision rate <= max(2 x recorded, 0.5%): {'met' if gen <= bound else 'MISSED'} ({gen:.2%} vs bound {bound:.2%})")
+    f4, c4 = row["FDE@4s dpgp"], row["FDE@4s const. velocity"]
+    out.append(f"FDE@4s <= constant velocity: {'met' if f4 <= c4 else 'MISSED'} ({f4:.2f} vs {c4:.2f} {unit})")
+    f1, c1 = row["FDE@1s dpgp"], row["FDE@1s const. velocity"]
+    out.append(f"FDE@1s within 10% of constant velocity: {'met' if f1 <= 1.1 * c1 else 'MISSED'} ({f1:.2f} vs {c1:.2f} {unit})")
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--iterations", type=int, default=20, help="Gibbs sweeps per fit")
+    ap.add_argument("--only", help="comma-separated subset of the data sets")
+    ap.add_argument("--plots", type=Path, help="write each data set's realism figure (PNG) into this folder")
+    args = ap.parse_args()
+    rows, checks = [], {}
+    for name, (load, unit) in datasets().items():
+        if args.only and name not in args.only.split(","):
+            continue
+        row = measure(name, load, unit, args.iterations, args.plots)
+        rows.append(row)
+        checks[name] = targets(row, unit)
+        print(f"{name}: done in {row['seconds']:.0f} s", flush=True)
+    table = pd.DataFrame(rows).set_index("data")
+    with pd.option_context("display.width", 250, "display.max_columns", 40, "display.max_rows", 100):
+        print(table.T.to_string(float_format=lambda x: f"{x:.3g}"))
+    for name, lines in checks.items():
+        print(f"{name}:")
+        for line in lines:
+            print(f"  {line}")
+
+
+if __name__ == "__main__":
+    main()
