@@ -5,7 +5,9 @@ generator, for the paper's pure-field dynamics against the residual and interact
     python benches/generation.py throughput [--dynamics interactive|field] [--models DIR] [--reps 3]
 
 ``quality``: each shared data set with tracks is split in time (first 70% of the frames to fit
-with every default, the last 30% to test). It prints, per dynamics, the share of object-steps
+with every default, the last 30% to test). It prints, per dynamics, the realism score of
+:func:`dpgp.realism.model_realism` (ratio, meta-score and every feature's score, collision
+rates), the share of object-steps
 with another object closer than 2 m (vehicles) or 0.3 m (pedestrians), centre to centre, in as
 many generated scenarios of 4 s as there are test frames, against the recorded test frames; and
 rollout FDE at 1 and 4 s from every test frame against constant velocity
@@ -34,6 +36,7 @@ import dpgp
 from dpgp.evaluate import rollout_errors, split_in_time
 from dpgp.framing import FT_TO_M
 from dpgp.motion import motion_model
+from dpgp.realism import FEATURES, model_realism
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 DYNAMICS = ("field", "relaxed", "interactive")
@@ -100,6 +103,9 @@ class _Dynamics:
     def simulate(self, *args, **kwargs):
         return self._model.simulate(*args, dynamics=self._dynamics, **kwargs)
 
+    def sample_scenarios(self, *args, **kwargs):
+        return self._model.sample_scenarios(*args, dynamics=self._dynamics, **kwargs)
+
 
 def quality(names: list[str], models: Path | None) -> None:
     rows = []
@@ -115,16 +121,23 @@ def quality(names: list[str], models: Path | None) -> None:
             scen = model.sample_scenarios(len(test), steps=steps, seed=0, dynamics=dyn)
             gen = overlap_share(scenario_steps(scen), thr)
             err = rollout_errors(_Dynamics(model, dyn), test, tracks, (1.0, 4.0)).set_index("horizon")
+            real = model_realism(_Dynamics(model, dyn), test, tracks, seed=0)
+            scores = real.scores
             rows.append({
-                "data": name, "dynamics": dyn, "overlap generated": gen, "overlap recorded": recorded,
+                "data": name, "dynamics": dyn, "realism ratio": real.ratio,
+                "meta": scores.loc["meta", "generated"], "meta recorded": scores.loc["meta", "recorded"],
+                "meta blind": scores.loc["meta", "blind"],
+                "collisions": real.collision_rates["generated"], "collisions recorded": real.collision_rates["recorded"],
+                **{f: scores.loc[f, "generated"] for f in FEATURES},
+                "overlap generated": gen, "overlap recorded": recorded,
                 "FDE@1s": err.loc[1.0, "dpgp_fde"], "CV FDE@1s": err.loc[1.0, "constant_velocity_fde"],
                 "FDE@4s": err.loc[4.0, "dpgp_fde"], "CV FDE@4s": err.loc[4.0, "constant_velocity_fde"],
                 "vehicles/scenario": float(np.mean(scen.counts)), "recorded vehicles/frame": float(np.mean(test.sizes)),
             })  # fmt: skip
         print(f"{name}: {time.perf_counter() - t0:.0f} s ({motion_model(model._fitted())})", flush=True)
     table = pd.DataFrame(rows).set_index(["data", "dynamics"])
-    with pd.option_context("display.width", 250, "display.max_columns", 20):
-        print(table.to_string(float_format=lambda x: f"{x:.3g}"))
+    with pd.option_context("display.width", 250, "display.max_columns", 40):
+        print(table.T.to_string(float_format=lambda x: f"{x:.3g}"))
 
 
 def throughput(dynamics: str, models: Path | None, reps: int) -> None:

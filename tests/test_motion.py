@@ -147,3 +147,61 @@ def test_bad_dynamics_are_typed_errors(kwargs, match):
         model.simulate(0, steps=3, **kwargs)
     with pytest.raises(InvalidInputError, match=match):
         model.sample_scenarios(2, steps=3, seed=0, **kwargs)
+
+
+def _min_distance(xy: np.ndarray) -> float:
+    if len(xy) < 2:
+        return np.inf
+    d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    np.fill_diagonal(d, np.inf)
+    return float(d.min())
+
+
+def test_generated_scenes_keep_the_recorded_spacing():
+    model = dpgp.DPGP.load(FIXTURES / "field_model.npz")
+    spacing = motion.motion_model(model._fitted()).spacing
+    assert np.all(spacing > 0)
+    joint = model.sample_scenarios(300, steps=0, seed=3)
+    assert all(_min_distance(s.positions[0]) >= spacing[s.pattern] for s in joint)
+    # counts come from the pattern's own frames (a crowded scene may come out smaller)
+    sizes = model.frames_.sizes
+    assert all(c <= sizes[model.labels_ == k].max() for c, k in zip(joint.counts, joint.patterns))
+    # the test has power: positions drawn independently (the earlier generator) do overlap
+    independent = model.sample_scenarios(300, steps=0, seed=3, dynamics="field")
+    assert sum(_min_distance(s.positions[0]) < spacing[s.pattern] for s in independent) > 10
+
+
+def test_seeds_give_the_same_scenarios_for_1_and_2_threads():
+    frames = dpgp.make_frames(ou_tracks(1.0, 0.4, n_tracks=20, steps=30), dt=0.5)
+    settings = dict(iterations=2, seed=0, progress=False, noise_var=1.0, length_scale_prior=(10.0, 1.0), proposal="full")
+    one, two = (dpgp.DPGP(n_threads=t, **settings).fit(frames) for t in (1, 2))
+    np.testing.assert_array_equal(one.labels_, two.labels_)
+    for kw in (dict(), dict(stochastic=False), dict(dynamics="relaxed")):
+        a = one.sample_scenarios(150, steps=12, seed=8, **kw).to_pandas()
+        b = two.sample_scenarios(150, steps=12, seed=8, **kw).to_pandas()
+        pd.testing.assert_frame_equal(a, b, check_exact=True)
+    a = one.simulate(3, steps=12, stochastic=True, seed=4)
+    b = two.simulate(3, steps=12, stochastic=True, seed=4)
+    np.testing.assert_array_equal(a.positions, b.positions)
+    assert not np.array_equal(a.positions, one.simulate(3, steps=12, stochastic=True, seed=5).positions)
+
+
+def test_interaction_keeps_generated_vehicles_apart():
+    model = dpgp.DPGP.load(FIXTURES / "field_model.npz")
+    threshold = 2.0  # the collision distance for vehicles (the synthetic data are in metres)
+
+    def share(scen) -> float:
+        close = total = 0
+        for s in scen:
+            for t in range(s.steps + 1):
+                xy = s.positions[t][s.in_roi[t]]
+                total += len(xy)
+                if len(xy) > 1:
+                    d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+                    np.fill_diagonal(d, np.inf)
+                    close += int((d.min(axis=1) < threshold).sum())
+        return close / total
+
+    field = share(model.sample_scenarios(200, steps=16, seed=1, dynamics="field"))
+    interactive = share(model.sample_scenarios(200, steps=16, seed=1))
+    assert interactive < 0.5 * field, (interactive, field)
