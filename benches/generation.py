@@ -135,6 +135,8 @@ def quality(names: list[str], models: Path | None) -> None:
                 "vehicles/scenario": float(np.mean(scen.counts)), "recorded vehicles/frame": float(np.mean(test.sizes)),
             })  # fmt: skip
         print(f"{name}: {time.perf_counter() - t0:.0f} s ({motion_model(model._fitted())})", flush=True)
+        mine = pd.DataFrame([r for r in rows if r["data"] == name]).set_index("dynamics").drop(columns="data")
+        print(mine.T.to_string(float_format=lambda x: f"{x:.3g}"), flush=True)
     table = pd.DataFrame(rows).set_index(["data", "dynamics"])
     with pd.option_context("display.width", 250, "display.max_columns", 40):
         print(table.T.to_string(float_format=lambda x: f"{x:.3g}"))

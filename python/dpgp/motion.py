@@ -3,13 +3,14 @@ velocity deviates from its pattern's field over time, how vehicles keep their ga
 apart a scene's vehicles stand. The Rust core (``rust/core/src/motion.rs``, ``placement.rs``)
 applies it; ``docs/generation.md`` explains the rules.
 
-**Residual** (per pattern). ``r = v − m_k(x)``, a vehicle's velocity minus the posterior mean
-field of its frame's pattern ``k``. For the same track in consecutive frames (``dt`` apart,
-matched by the track ids :func:`dpgp.make_frames` keeps) the lag-one regression of ``r_{t+dt}``
-on ``r_t``, pooled over both components, gives ``ρ``; the time constant of an Ornstein–Uhlenbeck
-process is ``τ = −dt / ln ρ``, at most :data:`MAX_TAU` (a field that explains little leaves a
+**Residual** (per pattern). A vehicle's velocity relaxes toward the posterior mean field
+``m_k`` of its frame's pattern ``k`` at its position: ``v' − m_k(x') = ρ (v − m_k(x')) + noise``
+for the velocities ``v, v'`` of the same track in consecutive frames (``dt`` apart, matched by
+the track ids :func:`dpgp.make_frames` keeps) and the later position ``x'``. The regression of
+``v' − m_k(x')`` on ``v − m_k(x')``, pooled over both components, gives ``ρ``; the time constant
+of the Ornstein–Uhlenbeck process is ``τ = −dt / ln ρ``, at most :data:`MAX_TAU` (a field that explains little leaves a
 residual that barely decays: the rollout then keeps close to constant velocity). The spread ``σ`` (per component) is the root mean square of the
-pattern's residuals. A pattern with fewer than :data:`MIN_PAIRS` consecutive pairs takes the
+pattern's residuals ``v − m_k(x)``. A pattern with fewer than :data:`MIN_PAIRS` consecutive pairs takes the
 estimate pooled over all patterns. Frames without track ids give no pairs: ``τ`` is then
 :data:`DEFAULT_TAU`.
 
@@ -26,10 +27,11 @@ of followers moving at least 30% of the median speed within ``s0 + 3 s × speed`
 comfortable deceleration ``b``: the 90th percentiles of the tracks' speed increases and
 decreases per second.
 
-**Personal distance.** Pedestrians: the 5th percentile of nearest-neighbour distances.
-Vehicles: the 1st percentile, at most half the jam distance (a last guard; IDM keeps the gaps).
+**Personal distance.** Pedestrians: the :data:`SPACING_PERCENTILE` (5th) percentile of
+nearest-neighbour distances. Vehicles: the same, at most half the jam distance (a last guard;
+IDM keeps the gaps).
 
-**Spacing** (per pattern, for placing a generated scene's vehicles): the 1st percentile of the
+**Spacing** (per pattern, for placing a generated scene's vehicles): the 5th percentile of the
 nearest-neighbour distances in the pattern's frames (the pooled one for a pattern with fewer
 than :data:`MIN_DISTANCES`).
 """
@@ -48,6 +50,10 @@ from .frames import Frames
 
 MIN_PAIRS = 50  # consecutive residual pairs for a pattern's own τ
 MIN_DISTANCES = 20  # nearest-neighbour distances for a pattern's own spacing
+#: The recorded minimum spacing, robustly: this percentile of the nearest-neighbour distances
+#: (the closest few percent of recorded pairs are mostly tracking noise: 7% of the Peachtree
+#: export's vehicles overlap a neighbour within 2 m, centre to centre)
+SPACING_PERCENTILE = 5.0
 DEFAULT_TAU = 2.0  # seconds, when the frames carry no track ids
 PEDESTRIAN_SPEED = 5.0  # 99th percentile speed below this (data units per second): pedestrians
 MAX_TAU = 30.0  # seconds: a residual more persistent than this is held at this time constant
@@ -162,8 +168,8 @@ def consecutive_pairs(frames: Frames, dt: float) -> tuple[np.ndarray, np.ndarray
 
 
 def learn_residual(r0: np.ndarray, r1: np.ndarray, dt: float) -> tuple[float, float]:
-    """(τ, ρ) of the lag-one regression of ``r1`` on ``r0`` ((n, 2) each, both components
-    pooled) under an OU process sampled every ``dt``."""
+    """(τ, ρ) of the regression through 0 of ``r1`` on ``r0`` ((n, 2) each, both components
+    pooled): an OU process sampled every ``dt``."""
     den = float((r0 * r0).sum())
     rho = float((r0 * r1).sum()) / den if den > 0 else 0.0
     rho = float(np.clip(rho, 1e-3, np.exp(-dt / MAX_TAU)))
@@ -215,14 +221,16 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     row_label = np.repeat(labels, frames.sizes)
     resid = frames.v - field_means(fit, frames.xy, row_label)
     a, b = consecutive_pairs(frames, dt)
-    # both ends of a pair against the first frame's pattern, as a rollout keeps its pattern
-    r0, r1 = resid[a], frames.v[b] - field_means(fit, frames.xy[b], row_label[a])
+    # both velocities of a pair against the field at the later position, under the first
+    # frame's pattern, as a rollout relaxes toward the field where it now is (motion.rs)
+    later = field_means(fit, frames.xy[b], row_label[a])
+    r0, r1 = frames.v[a] - later, frames.v[b] - later
     pooled_tau = learn_residual(r0, r1, dt)[0] if len(a) else DEFAULT_TAU
     tau, pairs = np.full(K, pooled_tau), np.zeros(K, np.int64)
     sigma = np.tile(np.sqrt((resid**2).mean(axis=0)), (K, 1))
     pair_label = row_label[a]
     nn_all = nearest_distances(frames)
-    spacing = np.full(K, np.percentile(nn_all, 1) if len(nn_all) else 0.0)
+    spacing = np.full(K, np.percentile(nn_all, SPACING_PERCENTILE) if len(nn_all) else 0.0)
     for k in range(K):
         mine = pair_label == k
         if mine.sum() >= MIN_PAIRS:
@@ -232,15 +240,15 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
             sigma[k] = np.sqrt((resid[rows] ** 2).mean(axis=0))
         nn = nearest_distances(frames[np.flatnonzero(labels == k)])
         if len(nn) >= MIN_DISTANCES:
-            spacing[k] = np.percentile(nn, 1)
+            spacing[k] = np.percentile(nn, SPACING_PERCENTILE)
     speed = np.hypot(frames.v[:, 0], frames.v[:, 1])
     if agents not in AGENTS:
         raise ValueError(f"agents must be one of {AGENTS}, got {agents!r}")
     if agents == "auto":
         agents = "pedestrians" if np.percentile(speed, 99) < PEDESTRIAN_SPEED else "vehicles"
-    nn_floor = float(np.percentile(nn_all, 1)) if len(nn_all) else 0.0
+    nn_floor = float(np.percentile(nn_all, SPACING_PERCENTILE)) if len(nn_all) else 0.0
     if agents == "pedestrians":
-        personal = float(np.percentile(nn_all, 5)) if len(nn_all) else 0.0
+        personal = nn_floor
         return MotionModel(agents, tau, sigma, pairs, spacing, max(personal, 1e-9))
     lateral = 0.25 * float(np.median(nn_all)) if len(nn_all) else 1.0
     gap, u, lead = leader_gaps(frames, lateral)

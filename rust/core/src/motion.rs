@@ -5,18 +5,21 @@
 //! One step, from recorded time `t` to `t + 1` (forward Euler, as the paper's rollout):
 //!
 //! 1. positions move with the current actual velocities: `x ← x + dt v`;
-//! 2. the residual follows an Ornstein–Uhlenbeck process, exactly discretised:
-//!    `r ← ρ r + σ √(1 − ρ²) z` with `ρ = exp(−dt / τ)` (`z = 0` in mean mode), so it relaxes
-//!    toward 0 with time constant `τ` and has stationary spread `σ` per component;
-//! 3. desired velocity `d = mean field(x) + r`;
-//! 4. interaction turns desired into actual velocities ([`Rule`]): vehicles follow the leader
+//! 2. each agent's desired velocity `w` relaxes toward the field's mean `m(x)` at its new
+//!    position as an Ornstein–Uhlenbeck process, exactly discretised:
+//!    `w ← m(x) + ρ (w − m(x)) + σ √(1 − ρ²) z` with `ρ = exp(−dt / τ)` (`z = 0` in mean
+//!    mode): the residual `w − m` decays with time constant `τ` and has stationary spread `σ`
+//!    per component. The deviation is measured at the new position, so a field that changes
+//!    along the path is followed with the lag `τ` (a first-order lag of the velocity), and a
+//!    large `τ` keeps an agent close to constant velocity;
+//! 3. interaction turns desired into actual velocities ([`Rule`]): vehicles follow the leader
 //!    in a corridor ahead by the Intelligent Driver Model (IDM, Treiber et al. 2000), the
-//!    desired speed being `|d|`; every agent then keeps a personal distance from its
+//!    desired speed being `|w|`; every agent then keeps a personal distance from its
 //!    neighbours (the part of a pair's approach that would bring it closer than the distance is
 //!    removed, half from each).
 //!
-//! The residual is the driver's own deviation from the field; braking behind a leader does not
-//! change it, so a vehicle resumes its preferred speed (at IDM's acceleration) once free.
+//! The desired velocity is the driver's own; braking behind a leader does not change it, so a
+//! vehicle resumes its preferred speed (at IDM's acceleration) once free.
 //!
 //! Random numbers come from counter-based streams keyed by (seed, step, vehicle order), so a
 //! rollout is the same whichever thread runs it.
@@ -296,8 +299,8 @@ pub fn drive(
     out.in_roi.extend(start.iter().map(|&p| opts.roi.contains(p)));
     let rho = (-dt / motion.tau).exp();
     let kick = (1.0 - rho * rho).max(0.0).sqrt();
-    let mut resid = vec![[0.0; 2]; l];
-    let mut vel = vec![[0.0; 2]; l];
+    let mut want = vec![[0.0; 2]; l]; // desired velocities
+    let mut vel = vec![[0.0; 2]; l]; // actual velocities
     for t in 0..=opts.steps {
         let row = t * l;
         let active: Vec<usize> = (0..l).filter(|&j| out.in_roi[row + j]).collect();
@@ -311,24 +314,21 @@ pub fn drive(
             if t == 0 {
                 let mut rng = seed.map(|s| stream(s, 0, Phase::Simulate, NOISE_ENTITY));
                 for (a, &j) in active.iter().enumerate() {
-                    resid[j] = match v0 {
-                        Some(v) => [v[j][0] - mean[a][0], v[j][1] - mean[a][1]],
+                    // own velocities exactly; else the GP draw plus a stationary residual
+                    want[j] = match v0 {
+                        Some(v) => v[j],
                         None => {
-                            let mut r = info.offset[a];
+                            let mut w = [mean[a][0] + info.offset[a][0], mean[a][1] + info.offset[a][1]];
                             if let Some(rng) = rng.as_mut() {
-                                for (d, rd) in r.iter_mut().enumerate() {
+                                for (d, wd) in w.iter_mut().enumerate() {
                                     let z: f64 = StandardNormal.sample(rng);
-                                    *rd += motion.sigma[d] * z;
+                                    *wd += motion.sigma[d] * z;
                                 }
                             }
-                            r
+                            w
                         }
                     };
-                    // own velocities exactly (mean + (v - mean) can differ in the last bit)
-                    vel[j] = match v0 {
-                        Some(v) => v[j],
-                        None => [mean[a][0] + resid[j][0], mean[a][1] + resid[j][1]],
-                    };
+                    vel[j] = want[j];
                 }
             } else {
                 let mut rng = seed.map(|s| stream(s, t as u64, Phase::Simulate, NOISE_ENTITY));
@@ -340,9 +340,9 @@ pub fn drive(
                             Some(rng) => StandardNormal.sample(rng),
                             None => 0.0,
                         };
-                        resid[j][d] = rho * resid[j][d] + motion.sigma[d] * kick * z;
+                        want[j][d] = mean[a][d] + rho * (want[j][d] - mean[a][d]) + motion.sigma[d] * kick * z;
                     }
-                    desired.push([mean[a][0] + resid[j][0], mean[a][1] + resid[j][1]]);
+                    desired.push(want[j]);
                     current.push(vel[j]);
                 }
                 let actual = interact(&x, &current, &desired, &motion.rule, dt);
