@@ -4,14 +4,16 @@ apart a scene's vehicles stand. The Rust core (``rust/core/src/motion.rs``, ``pl
 applies it; ``docs/generation.md`` explains the rules.
 
 **Residual** (per pattern). A vehicle's velocity relaxes toward the posterior mean field
-``m_k`` of its frame's pattern ``k`` at its position: ``v' − m_k(x') = ρ (v − m_k(x')) + noise``
-for the velocities ``v, v'`` of the same track in consecutive frames (``dt`` apart, matched by
-the track ids :func:`dpgp.make_frames` keeps) and the later position ``x'``. The regression of
-``v' − m_k(x')`` on ``v − m_k(x')``, pooled over both components, gives ``ρ``; the time constant
-of the Ornstein–Uhlenbeck process is ``τ = −dt / ln ρ``, at most :data:`MAX_TAU` (a field that explains little leaves a
+``m_k`` of its frame's pattern ``k``: the residual ``e = v − m_k(x)`` is taken to be an
+Ornstein–Uhlenbeck process, seen through velocities with white measurement noise. For the same
+track at three consecutive grid times (``dt`` apart, matched by the track ids
+:func:`dpgp.make_frames` keeps), all under the first frame's pattern, ``ρ = γ(2) / γ(1)``, the
+ratio of the residual's lag-two and lag-one autocovariances pooled over both components
+(measurement noise would bias a lag-one regression toward 0); the time constant is
+``τ = −dt / ln ρ``, at most :data:`MAX_TAU` (a field that explains little leaves a
 residual that barely decays: the rollout then keeps close to constant velocity). The spread ``σ`` (per component) is the root mean square of the
-pattern's residuals ``v − m_k(x)``. A pattern with fewer than :data:`MIN_PAIRS` consecutive pairs takes the
-estimate pooled over all patterns. Frames without track ids give no pairs: ``τ`` is then
+pattern's residuals ``v − m_k(x)``. A pattern with fewer than :data:`MIN_PAIRS` consecutive triples takes the
+estimate pooled over all patterns. Frames without track ids give no triples: ``τ`` is then
 :data:`DEFAULT_TAU`.
 
 **Agents.** ``"pedestrians"`` when 99% of the training speeds are below
@@ -48,13 +50,16 @@ from .exceptions import DataFormatError
 from .fitted import FittedPatterns
 from .frames import Frames
 
-MIN_PAIRS = 50  # consecutive residual pairs for a pattern's own τ
+MIN_PAIRS = 50  # consecutive residual triples for a pattern's own τ
 MIN_DISTANCES = 20  # nearest-neighbour distances for a pattern's own spacing
 #: The recorded minimum spacing, robustly: this percentile of the nearest-neighbour distances
 #: (the closest few percent of recorded pairs are mostly tracking noise: 7% of the Peachtree
 #: export's vehicles overlap a neighbour within 2 m, centre to centre)
 SPACING_PERCENTILE = 5.0
 DEFAULT_TAU = 2.0  # seconds, when the frames carry no track ids
+TAU_GRID = np.geomspace(0.25, 32.0, 8)  # time constants tried (s): 0.25, 0.5, ..., 32
+TAU_HORIZON = 4.0  # seconds of the training rollouts that choose τ
+TAU_FRAMES = 120  # training frames rolled out to choose τ
 PEDESTRIAN_SPEED = 5.0  # 99th percentile speed below this (data units per second): pedestrians
 MAX_TAU = 30.0  # seconds: a residual more persistent than this is held at this time constant
 AGENTS = ("auto", "vehicles", "pedestrians")
@@ -65,7 +70,7 @@ _KIND = {"free": 0, "vehicles": 1, "pedestrians": 2}
 @dataclass(frozen=True, eq=False)
 class MotionModel:
     """Learned generation parameters: per pattern ``tau`` (K,) seconds, ``sigma`` (K, 2),
-    ``pairs`` (K,) consecutive pairs behind each pattern's own τ (0: the pooled one) and
+    ``pairs`` (K,) consecutive triples behind each pattern's own τ (0: the pooled one) and
     ``spacing`` (K,); for all, ``agents``, ``personal`` and the IDM ``jam``, ``headway``,
     ``accel``, ``decel``, ``lateral`` (NaN for pedestrians)."""
 
@@ -167,11 +172,88 @@ def consecutive_pairs(frames: Frames, dt: float) -> tuple[np.ndarray, np.ndarray
     return rows[order][hit], rows[order][nxt[hit]]
 
 
-def learn_residual(r0: np.ndarray, r1: np.ndarray, dt: float) -> tuple[float, float]:
-    """(τ, ρ) of the regression through 0 of ``r1`` on ``r0`` ((n, 2) each, both components
-    pooled): an OU process sampled every ``dt``."""
-    den = float((r0 * r0).sum())
-    rho = float((r0 * r1).sum()) / den if den > 0 else 0.0
+def consecutive_triples(frames: Frames, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Row indices ``(a, b, c)``: the same track at three consecutive grid times."""
+    a, b = consecutive_pairs(frames, dt)
+    nxt = np.full(frames.n_points, -1, dtype=np.int64)
+    nxt[a] = b
+    keep = nxt[b] >= 0
+    return a[keep], b[keep], nxt[b[keep]]
+
+
+def time_constants(fit: FittedPatterns) -> tuple[np.ndarray, np.ndarray]:
+    """Per pattern, the residual's time constant that best predicts the training tracks, and how
+    many track-steps chose it (0: the pooled choice). From up to :data:`TAU_FRAMES` training
+    frames spread in time, every vehicle is rolled out from its own velocity through its frame's
+    pattern (mean mode, no interaction) for :data:`TAU_HORIZON` seconds under each ``τ`` of
+    :data:`TAU_GRID`; the mean distance to where its track really was, over the steps it was
+    recorded, is the error. The pooled ``τ`` minimises the error over all patterns (refined by
+    a parabola in ``log τ`` through the best grid point and its neighbours); a pattern with at
+    least :data:`MIN_PAIRS` track-steps takes its own minimiser."""
+    from .simulation import motion_rollouts
+
+    frames, labels, dt, K = fit.frames, fit.labels, fit.dt, fit.n_patterns
+    steps = max(1, int(round(TAU_HORIZON / dt)))
+    a, b = consecutive_pairs(frames, dt)
+    if len(a) < MIN_PAIRS:
+        return np.full(K, DEFAULT_TAU), np.zeros(K, np.int64)
+    nxt = np.full(frames.n_points, -1, dtype=np.int64)
+    nxt[a] = b
+    chosen = np.unique(np.linspace(0, len(frames) - 1, min(TAU_FRAMES, len(frames))).round().astype(np.int64))
+    rows = np.concatenate([np.arange(frames.offsets[f], frames.offsets[f + 1]) for f in chosen])
+    # truth[h, i]: row of vehicle i's track h steps later (-1: not recorded)
+    truth = np.full((steps + 1, len(rows)), -1, dtype=np.int64)
+    truth[0] = rows
+    for h in range(1, steps + 1):
+        prev = truth[h - 1]
+        truth[h] = np.where(prev >= 0, nxt[np.maximum(prev, 0)], -1)
+    known = truth[1:] >= 0
+    if known.sum() < MIN_PAIRS:
+        return np.full(K, DEFAULT_TAU), np.zeros(K, np.int64)
+    pats = labels[chosen]
+    row_pat = np.repeat(pats, frames.sizes[chosen])
+    errors = np.zeros((len(TAU_GRID), K))
+    counts = np.bincount(row_pat, weights=known.sum(axis=0), minlength=K)
+    box = (-1e300, 1e300, -1e300, 1e300)  # vehicles keep moving: their tracks say where they went
+    for g, tau in enumerate(TAU_GRID):
+        m = MotionModel("vehicles", np.full(K, tau), np.zeros((K, 2)), np.zeros(K, np.int64), np.zeros(K), 1.0)
+        sims = motion_rollouts(
+            fit, pats.tolist(), [frames.xy[frames.offsets[f] : frames.offsets[f + 1]] for f in chosen],
+            [frames.v[frames.offsets[f] : frames.offsets[f + 1]] for f in chosen], steps=steps, dt=dt, seeds=None,
+            roi=box, low_data_threshold=None, dynamics="relaxed", motion=m,
+        )  # fmt: skip
+        pred = np.concatenate([s.positions for s in sims], axis=1)[1:]  # (steps, n, 2)
+        dist = np.where(known, np.linalg.norm(pred - frames.xy[np.maximum(truth[1:], 0)], axis=-1), 0.0)
+        errors[g] = np.bincount(row_pat, weights=dist.sum(axis=0), minlength=K)
+    pooled = _refined(errors.sum(axis=1))
+    tau = np.full(K, pooled)
+    own = counts >= MIN_PAIRS
+    for k in np.flatnonzero(own):
+        tau[k] = _refined(errors[:, k])
+    return tau, np.where(own, counts, 0).astype(np.int64)
+
+
+def _refined(err: np.ndarray) -> float:
+    """The τ of :data:`TAU_GRID` with the least error, refined by a parabola in log τ."""
+    i = int(np.argmin(err))
+    x = np.log(TAU_GRID)
+    if 0 < i < len(err) - 1:
+        y0, y1, y2 = err[i - 1], err[i], err[i + 1]
+        den = y0 - 2 * y1 + y2
+        if den > 0:
+            shift = 0.5 * (y0 - y2) / den  # in grid steps, within (-0.5, 0.5)
+            return float(np.exp(x[i] + shift * (x[i + 1] - x[i])))
+    return float(TAU_GRID[i])
+
+
+def learn_residual(e0: np.ndarray, e1: np.ndarray, e2: np.ndarray, dt: float) -> tuple[float, float]:
+    """(τ, ρ) of an OU residual seen at three consecutive times ``e0, e1, e2`` ((n, 2) each,
+    both components pooled), ``dt`` apart, through noisy velocities: ``ρ = γ(2) / γ(1)``, the
+    ratio of the lag-two and lag-one autocovariances (Yule–Walker), which white measurement
+    noise in the velocities does not bias (the lag-one regression would be diluted toward 0)."""
+    g1 = float((e0 * e1).sum() + (e1 * e2).sum()) / 2
+    g2 = float((e0 * e2).sum())
+    rho = g2 / g1 if g1 > 0 else 0.0
     rho = float(np.clip(rho, 1e-3, np.exp(-dt / MAX_TAU)))
     return -dt / np.log(rho), rho
 
@@ -220,21 +302,11 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     frames, labels, dt, K = fit.frames, fit.labels, fit.dt, fit.n_patterns
     row_label = np.repeat(labels, frames.sizes)
     resid = frames.v - field_means(fit, frames.xy, row_label)
-    a, b = consecutive_pairs(frames, dt)
-    # both velocities of a pair against the field at the later position, under the first
-    # frame's pattern, as a rollout relaxes toward the field where it now is (motion.rs)
-    later = field_means(fit, frames.xy[b], row_label[a])
-    r0, r1 = frames.v[a] - later, frames.v[b] - later
-    pooled_tau = learn_residual(r0, r1, dt)[0] if len(a) else DEFAULT_TAU
-    tau, pairs = np.full(K, pooled_tau), np.zeros(K, np.int64)
+    tau, pairs = time_constants(fit)
     sigma = np.tile(np.sqrt((resid**2).mean(axis=0)), (K, 1))
-    pair_label = row_label[a]
     nn_all = nearest_distances(frames)
     spacing = np.full(K, np.percentile(nn_all, SPACING_PERCENTILE) if len(nn_all) else 0.0)
     for k in range(K):
-        mine = pair_label == k
-        if mine.sum() >= MIN_PAIRS:
-            tau[k], pairs[k] = learn_residual(r0[mine], r1[mine], dt)[0], int(mine.sum())
         rows = row_label == k
         if rows.sum() >= 2:
             sigma[k] = np.sqrt((resid[rows] ** 2).mean(axis=0))
@@ -257,7 +329,7 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     jam = float(np.percentile(slow if len(slow) >= 20 else gap, 5)) if len(gap) else 4.0 * lateral
     follow = (u > 0.3 * med) & (gap < jam + 3.0 * u)
     headway = float(np.clip(np.median((gap[follow] - jam) / u[follow]), 0.3, 3.0)) if follow.any() else 1.5
-    accel, decel = _accelerations(frames, a, b, dt, med)
+    accel, decel = _accelerations(frames, *consecutive_pairs(frames, dt), dt, med)
     personal = max(min(nn_floor, 0.5 * jam), 1e-9)
     return MotionModel(agents, tau, sigma, pairs, spacing, personal, jam, headway, accel, decel, max(lateral, 1e-9))
 
@@ -289,4 +361,4 @@ def motion_model(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     return m
 
 
-__all__ = ["MotionModel", "learn", "motion_model", "learn_residual", "consecutive_pairs", "nearest_distances", "DEFAULT_TAU"]
+__all__ = ["MotionModel", "learn", "motion_model", "learn_residual", "consecutive_pairs", "consecutive_triples", "nearest_distances", "DEFAULT_TAU"]

@@ -233,11 +233,12 @@ def check_dynamics(dynamics: Any, method: str) -> str:
     return dynamics
 
 
-def motion_records(fit: FittedPatterns, patterns: Any, dynamics: str) -> np.ndarray:
-    """(len(patterns), MOTION_FIELDS): each rollout's residual model and interaction rule."""
+def motion_records(fit: FittedPatterns, patterns: Any, dynamics: str, motion: Any = None) -> np.ndarray:
+    """(len(patterns), MOTION_FIELDS): each rollout's residual model and interaction rule, from
+    ``motion`` (a :class:`dpgp.motion.MotionModel`; default: the fitted model's)."""
     from .motion import motion_model
 
-    m = motion_model(fit)
+    m = motion_model(fit) if motion is None else motion
     rec = {int(k): m.record(int(k), interaction=dynamics == "interactive") for k in np.unique(patterns)}
     return np.array([rec[int(k)] for k in patterns], dtype=np.float64).reshape(len(patterns), -1)
 
@@ -271,6 +272,7 @@ def split(pos: np.ndarray, vel: np.ndarray, inside: np.ndarray, low: np.ndarray,
 def motion_rollouts(
     fit: FittedPatterns, patterns: list[int], starts: list[np.ndarray], velocities: list[np.ndarray], *,
     steps: int, dt: float, seeds: list[int] | None, roi: Any, low_data_threshold: float | None, dynamics: str,
+    motion: Any = None,
 ) -> list[Simulation]:  # fmt: skip
     """Rollouts by the residual model (and interaction): ``starts[i]`` (l_i, 2) from their own
     ``velocities[i]`` through pattern ``patterns[i]``, run in parallel in the core."""
@@ -279,7 +281,7 @@ def motion_rollouts(
     cat = lambda a: np.ascontiguousarray(np.concatenate(a) if a else np.zeros((0, 2)), dtype=np.float64)  # noqa: E731
     pos, vel, inside, low = _core.motion_rollouts(
         fit.sampler, [int(fit.slots[k]) for k in patterns], cat(starts), cat(velocities), offsets,
-        motion_records(fit, patterns, dynamics), float(dt), int(steps), tuple(roi), seeds, low_data_threshold,
+        motion_records(fit, patterns, dynamics, motion), float(dt), int(steps), tuple(roi), seeds, low_data_threshold,
     )  # fmt: skip
     return split(pos, vel, inside, low, sizes, patterns, steps=steps, dt=dt, stochastic=seeds is not None, roi=roi, dynamics=dynamics)
 
