@@ -36,19 +36,6 @@ def ou_tracks(tau: float, sigma: float, dt: float = 0.5, n_tracks: int = 30, ste
     return pd.DataFrame(rows, columns=["track", "t", "x", "y", "vx", "vy"])
 
 
-def test_learn_residual_recovers_tau_from_exact_ou_pairs():
-    rng = np.random.default_rng(1)
-    dt, tau = 0.4, 1.7
-    rho = np.exp(-dt / tau)
-    r0 = rng.normal(0, 0.6, (20000, 2))
-    r1 = rho * r0 + 0.6 * np.sqrt(1 - rho**2) * rng.normal(size=r0.shape)
-    est, rho_hat = motion.learn_residual(r0, r1, dt)
-    assert abs(est / tau - 1) < 0.05, est
-    # independent draws give a tiny time constant, a held residual a huge one
-    assert motion.learn_residual(r0, rng.normal(size=r0.shape), dt)[0] < 0.2
-    assert motion.learn_residual(r0, r0, dt)[0] == pytest.approx(motion.MAX_TAU)
-
-
 def test_fitted_model_recovers_a_simulated_time_constant_and_spread():
     tau, sigma = 2.0, 0.5
     frames = dpgp.make_frames(ou_tracks(tau, sigma), dt=0.5)

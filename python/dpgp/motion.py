@@ -3,18 +3,20 @@ velocity deviates from its pattern's field over time, how vehicles keep their ga
 apart a scene's vehicles stand. The Rust core (``rust/core/src/motion.rs``, ``placement.rs``)
 applies it; ``docs/generation.md`` explains the rules.
 
-**Residual** (per pattern). A vehicle's velocity relaxes toward the posterior mean field
-``m_k`` of its frame's pattern ``k``: the residual ``e = v − m_k(x)`` is taken to be an
-Ornstein–Uhlenbeck process, seen through velocities with white measurement noise. For the same
-track at three consecutive grid times (``dt`` apart, matched by the track ids
-:func:`dpgp.make_frames` keeps), all under the first frame's pattern, ``ρ = γ(2) / γ(1)``, the
-ratio of the residual's lag-two and lag-one autocovariances pooled over both components
-(measurement noise would bias a lag-one regression toward 0); the time constant is
-``τ = −dt / ln ρ``, at most :data:`MAX_TAU` (a field that explains little leaves a
-residual that barely decays: the rollout then keeps close to constant velocity). The spread ``σ`` (per component) is the root mean square of the
-pattern's residuals ``v − m_k(x)``. A pattern with fewer than :data:`MIN_PAIRS` consecutive triples takes the
-estimate pooled over all patterns. Frames without track ids give no triples: ``τ`` is then
-:data:`DEFAULT_TAU`.
+**Residual** (per pattern). A vehicle's desired velocity relaxes toward the posterior mean
+field ``m_k`` of its frame's pattern ``k`` as an Ornstein–Uhlenbeck process (``motion.rs``):
+time constant ``τ``, stationary spread ``σ``. ``τ`` is chosen to predict the training tracks
+best (:func:`time_constants`): training frames are rolled out from each vehicle's own velocity
+(matched to its later positions by the track ids :func:`dpgp.make_frames` keeps) under each
+``τ`` of :data:`TAU_GRID`, and the one with the least mean displacement error over
+:data:`TAU_HORIZON` seconds is kept, per pattern where it has :data:`MIN_PAIRS` recorded
+track-steps, else pooled. (A regression of the residual's autocorrelation was tried first and
+rejected: the fitted fields are rough at the scale of the spacing between vehicles, so the
+residual against them decorrelates within a second, and rollouts that relaxed that fast were
+much worse than constant velocity.) A large ``τ`` says the field explains little of where a
+vehicle goes next: the rollout then stays close to constant velocity. The spread ``σ`` (per
+component) is the root mean square of the pattern's residuals ``v − m_k(x)``. Frames without
+track ids give no tracks to follow: ``τ`` is then :data:`DEFAULT_TAU`.
 
 **Agents.** ``"pedestrians"`` when 99% of the training speeds are below
 :data:`PEDESTRIAN_SPEED` (data units per second), else ``"vehicles"``.
@@ -50,7 +52,7 @@ from .exceptions import DataFormatError
 from .fitted import FittedPatterns
 from .frames import Frames
 
-MIN_PAIRS = 50  # consecutive residual triples for a pattern's own τ
+MIN_PAIRS = 50  # recorded track-steps for a pattern's own τ
 MIN_DISTANCES = 20  # nearest-neighbour distances for a pattern's own spacing
 #: The recorded minimum spacing, robustly: this percentile of the nearest-neighbour distances
 #: (the closest few percent of recorded pairs are mostly tracking noise: 7% of the Peachtree
@@ -61,7 +63,6 @@ TAU_GRID = np.geomspace(0.25, 32.0, 8)  # time constants tried (s): 0.25, 0.5, .
 TAU_HORIZON = 4.0  # seconds of the training rollouts that choose τ
 TAU_FRAMES = 120  # training frames rolled out to choose τ
 PEDESTRIAN_SPEED = 5.0  # 99th percentile speed below this (data units per second): pedestrians
-MAX_TAU = 30.0  # seconds: a residual more persistent than this is held at this time constant
 AGENTS = ("auto", "vehicles", "pedestrians")
 _FORMAT_VERSION = 1
 _KIND = {"free": 0, "vehicles": 1, "pedestrians": 2}
@@ -70,7 +71,7 @@ _KIND = {"free": 0, "vehicles": 1, "pedestrians": 2}
 @dataclass(frozen=True, eq=False)
 class MotionModel:
     """Learned generation parameters: per pattern ``tau`` (K,) seconds, ``sigma`` (K, 2),
-    ``pairs`` (K,) consecutive triples behind each pattern's own τ (0: the pooled one) and
+    ``pairs`` (K,) recorded track-steps behind each pattern's own τ (0: the pooled one) and
     ``spacing`` (K,); for all, ``agents``, ``personal`` and the IDM ``jam``, ``headway``,
     ``accel``, ``decel``, ``lateral`` (NaN for pedestrians)."""
 
@@ -172,15 +173,6 @@ def consecutive_pairs(frames: Frames, dt: float) -> tuple[np.ndarray, np.ndarray
     return rows[order][hit], rows[order][nxt[hit]]
 
 
-def consecutive_triples(frames: Frames, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Row indices ``(a, b, c)``: the same track at three consecutive grid times."""
-    a, b = consecutive_pairs(frames, dt)
-    nxt = np.full(frames.n_points, -1, dtype=np.int64)
-    nxt[a] = b
-    keep = nxt[b] >= 0
-    return a[keep], b[keep], nxt[b[keep]]
-
-
 def time_constants(fit: FittedPatterns) -> tuple[np.ndarray, np.ndarray]:
     """Per pattern, the residual's time constant that best predicts the training tracks, and how
     many track-steps chose it (0: the pooled choice). From up to :data:`TAU_FRAMES` training
@@ -244,18 +236,6 @@ def _refined(err: np.ndarray) -> float:
             shift = 0.5 * (y0 - y2) / den  # in grid steps, within (-0.5, 0.5)
             return float(np.exp(x[i] + shift * (x[i + 1] - x[i])))
     return float(TAU_GRID[i])
-
-
-def learn_residual(e0: np.ndarray, e1: np.ndarray, e2: np.ndarray, dt: float) -> tuple[float, float]:
-    """(τ, ρ) of an OU residual seen at three consecutive times ``e0, e1, e2`` ((n, 2) each,
-    both components pooled), ``dt`` apart, through noisy velocities: ``ρ = γ(2) / γ(1)``, the
-    ratio of the lag-two and lag-one autocovariances (Yule–Walker), which white measurement
-    noise in the velocities does not bias (the lag-one regression would be diluted toward 0)."""
-    g1 = float((e0 * e1).sum() + (e1 * e2).sum()) / 2
-    g2 = float((e0 * e2).sum())
-    rho = g2 / g1 if g1 > 0 else 0.0
-    rho = float(np.clip(rho, 1e-3, np.exp(-dt / MAX_TAU)))
-    return -dt / np.log(rho), rho
 
 
 def nearest_distances(frames: Frames) -> np.ndarray:
@@ -361,4 +341,4 @@ def motion_model(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     return m
 
 
-__all__ = ["MotionModel", "learn", "motion_model", "learn_residual", "consecutive_pairs", "consecutive_triples", "nearest_distances", "DEFAULT_TAU"]
+__all__ = ["MotionModel", "learn", "motion_model", "time_constants", "consecutive_pairs", "nearest_distances", "DEFAULT_TAU"]
