@@ -107,7 +107,7 @@ class _Dynamics:
         return self._model.sample_scenarios(*args, dynamics=self._dynamics, **kwargs)
 
 
-def quality(names: list[str], models: Path | None) -> None:
+def quality(names: list[str], models: Path | None, dynamics: tuple[str, ...] = DYNAMICS) -> None:
     rows = []
     for name in names:
         t0 = time.perf_counter()
@@ -117,7 +117,7 @@ def quality(names: list[str], models: Path | None) -> None:
         thr = threshold / metres
         steps = int(round(4.0 / model._fitted().dt))
         recorded = overlap_share((f.xy for f in test), thr)
-        for dyn in DYNAMICS:
+        for dyn in dynamics:
             scen = model.sample_scenarios(len(test), steps=steps, seed=0, dynamics=dyn)
             gen = overlap_share(scenario_steps(scen), thr)
             err = rollout_errors(_Dynamics(model, dyn), test, tracks, (1.0, 4.0)).set_index("horizon")
@@ -163,9 +163,10 @@ def main() -> None:
     ap.add_argument("--models", type=Path, help="directory to keep fitted models in")
     ap.add_argument("--dynamics", default="interactive", choices=DYNAMICS)
     ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--compare", default=",".join(DYNAMICS), help="quality: the dynamics to compare")
     args = ap.parse_args()
     if args.what == "quality":
-        quality(args.only.split(","), args.models)
+        quality(args.only.split(","), args.models, tuple(args.compare.split(",")))
     else:
         throughput(args.dynamics, args.models, args.reps)
 
