@@ -284,19 +284,8 @@ pub fn drive(
         }
         crate::error::check_finite("start velocities", v.as_flattened())?;
     }
-    crate::error::check_finite("start positions", start.as_flattened())?;
+    let mut out = Rollout::begin(start, opts)?;
     let (l, dt) = (start.len(), opts.dt);
-    let rows = (opts.steps + 1) * l;
-    let mut out = Rollout {
-        vehicles: l,
-        steps: opts.steps,
-        positions: Vec::with_capacity(rows),
-        velocities: vec![[0.0; 2]; rows],
-        in_roi: Vec::with_capacity(rows),
-        low_data: vec![false; rows],
-    };
-    out.positions.extend_from_slice(start);
-    out.in_roi.extend(start.iter().map(|&p| opts.roi.contains(p)));
     let rho = (-dt / motion.tau).exp();
     let kick = (1.0 - rho * rho).max(0.0).sqrt();
     let mut want = vec![[0.0; 2]; l]; // desired velocities

@@ -156,23 +156,33 @@ pub struct Rollout {
     pub low_data: Vec<bool>,
 }
 
+impl Rollout {
+    /// A rollout of `start` under `opts` with only its first time recorded (checked: finite
+    /// positions, a valid time step, not too many rows).
+    pub fn begin(start: &[Point], opts: &Options) -> Result<Self> {
+        opts.validate(start.len())?;
+        crate::error::check_finite("start positions", start.as_flattened())?;
+        let rows = (opts.steps + 1) * start.len();
+        let mut out = Self {
+            vehicles: start.len(),
+            steps: opts.steps,
+            positions: Vec::with_capacity(rows),
+            velocities: vec![[0.0; 2]; rows],
+            in_roi: Vec::with_capacity(rows),
+            low_data: vec![false; rows],
+        };
+        out.positions.extend_from_slice(start);
+        out.in_roi
+            .extend(start.iter().map(|&p| opts.roi.contains(p)));
+        Ok(out)
+    }
+}
+
 /// Move the vehicles starting at `start` through `field`.
 pub fn integrate(start: &[Point], opts: &Options, field: &mut dyn Field) -> Result<Rollout> {
-    opts.validate(start.len())?;
-    crate::error::check_finite("start positions", start.as_flattened())?;
+    let mut out = Rollout::begin(start, opts)?;
     let (l, dt) = (start.len(), opts.dt);
     let rows = (opts.steps + 1) * l;
-    let mut out = Rollout {
-        vehicles: l,
-        steps: opts.steps,
-        positions: Vec::with_capacity(rows),
-        velocities: vec![[0.0; 2]; rows],
-        in_roi: Vec::with_capacity(rows),
-        low_data: vec![false; rows],
-    };
-    out.positions.extend_from_slice(start);
-    out.in_roi
-        .extend(start.iter().map(|&p| opts.roi.contains(p)));
     for t in 0..=opts.steps {
         let row = t * l;
         let active: Vec<usize> = (0..l).filter(|&j| out.in_roi[row + j]).collect();
