@@ -513,7 +513,7 @@ class DPGP:
         *,
         roi: tuple[float, float, float, float] | None = None,
         low_data_threshold: float | None = 0.5,
-        dynamics: str = "interactive",
+        dynamics: str | None = None,
     ) -> Any:
         """Roll the vehicles of ``frame`` (a training frame's index, a :class:`Frame`, or an
         ``(l, 2)``/``(l, 4)`` array) forward through pattern ``pattern`` (default: a training
@@ -525,7 +525,8 @@ class DPGP:
         ``dynamics`` (:data:`dpgp.simulation.DYNAMICS`): ``"interactive"`` (default) starts each
         vehicle from its own velocity and relaxes it toward the field by the learned residual
         model, vehicles keeping their gaps; ``"relaxed"`` without interaction; ``"field"`` the
-        paper's rollout (the mean field itself; ``method="rk4"`` needs it).
+        paper's rollout (the mean field itself; ``method="rk4"`` needs it, and ``None``, the
+        default, means ``"interactive"``, or ``"field"`` with ``method="rk4"``).
         Returns a :class:`dpgp.simulation.Simulation`."""
         from .simulation import simulate
 

@@ -214,7 +214,7 @@ def sample_scenarios(
     stochastic: bool = True,
     roi: tuple[float, float, float, float] | None = None,
     low_data_threshold: float | None = LOW_DATA_THRESHOLD,
-    dynamics: str = "interactive",
+    dynamics: str | None = None,
 ) -> Scenarios:
     """Generate ``n`` scenarios; see :meth:`dpgp.DPGP.sample_scenarios`. ``model``: a
     :class:`~dpgp.fitted.FittedPatterns` (or a fitted estimator, which hands one down)."""
@@ -240,7 +240,8 @@ def sample_scenarios(
         patterns = rng.choice(fit.n_patterns, size=n, p=fit.weights).astype(np.int64)
     else:
         patterns = np.full(n, _check_pattern(fit, pattern), dtype=np.int64)
-    if check_dynamics(dynamics, method) != "field":
+    dynamics = check_dynamics(dynamics, method)
+    if dynamics != "field":
         return _interactive(fit, patterns, psi, rng, steps=steps, dt=float(dt), stochastic=stochastic, roi=box,
                             low_data_threshold=thr, dynamics=dynamics)  # fmt: skip
     counts = psi.sample_counts(n, rng)

@@ -55,7 +55,8 @@ LOW_DATA_THRESHOLD = 0.5  # posterior / prior variance above which a point count
 MAX_ROWS = 20_000_000
 
 _METHODS = ("euler", "rk4")
-#: How vehicles move. ``"interactive"`` (the default): the field is each vehicle's desired
+#: How vehicles move. ``"interactive"`` (the default; ``dynamics=None`` is it, or ``"field"``
+#: with ``method="rk4"``): the field is each vehicle's desired
 #: velocity, its actual velocity deviates from it by an Ornstein–Uhlenbeck residual learned from
 #: the training tracks (:mod:`dpgp.motion`), and vehicles keep their gaps (IDM behind a leader)
 #: and a personal distance. ``"relaxed"``: the same without interaction. ``"field"``: the
@@ -224,6 +225,10 @@ def rollouts(
 
 
 def check_dynamics(dynamics: Any, method: str) -> str:
+    """``dynamics`` checked; ``None`` is ``"interactive"``, or ``"field"`` with ``method="rk4"``
+    (RK4 integrates the pure field only)."""
+    if dynamics is None:
+        return "field" if method == "rk4" else "interactive"
     if dynamics not in DYNAMICS:
         raise InvalidInputError(f"dynamics must be one of {DYNAMICS}, got {dynamics!r}")
     if dynamics != "field" and method != "euler":
@@ -320,7 +325,7 @@ def simulate(
     seed: int | None = None,
     roi: tuple[float, float, float, float] | None = None,
     low_data_threshold: float | None = LOW_DATA_THRESHOLD,
-    dynamics: str = "interactive",
+    dynamics: str | None = None,
 ) -> Simulation:
     """Roll the vehicles of ``frame`` forward through a pattern; see :meth:`dpgp.DPGP.simulate`.
     ``model``: a :class:`~dpgp.fitted.FittedPatterns` (or a fitted estimator, which hands one down)."""
@@ -339,7 +344,8 @@ def simulate(
     _check_rows((steps + 1) * len(xy), f"{steps} steps of {len(xy)} vehicle(s)")
     box = fit.roi if roi is None else _check_roi(roi)
     dt = fit.dt if dt is None else float(dt)
-    if check_dynamics(dynamics, method) != "field":
+    dynamics = check_dynamics(dynamics, method)
+    if dynamics != "field":
         if v is None:  # positions only: start on the field
             v = np.asarray(_core.field_means(fit.sampler, [int(fit.slots[k])], np.ascontiguousarray(xy), np.array([0, len(xy)], np.int64)))
         return motion_rollouts(
