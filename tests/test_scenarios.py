@@ -10,6 +10,7 @@ import pytest
 from scipy import stats
 
 import dpgp
+import dpgp.motion
 from dpgp import scenarios as sc
 
 
@@ -81,15 +82,18 @@ def test_fallback_to_psi_for_patterns_with_little_data(model, monkeypatch):
     assert sc.pattern_positions(model, 0, psi) is psi
 
 
-def test_velocities_are_drawn_from_the_pattern_gp(model):
-    mean = model.sample_scenarios(30, steps=0, pattern=0, seed=1, stochastic=False)
-    drawn = model.sample_scenarios(30, steps=0, pattern=0, seed=1)  # same positions, velocities drawn
+@pytest.mark.parametrize("dynamics", ["field", "interactive"])
+def test_velocities_are_drawn_from_the_pattern_gp(model, dynamics):
+    mean = model.sample_scenarios(30, steps=0, pattern=0, seed=1, stochastic=False, dynamics=dynamics)
+    drawn = model.sample_scenarios(30, steps=0, pattern=0, seed=1, dynamics=dynamics)  # same positions, velocities drawn
+    # interactive: the latent draw plus the residual's stationary spread (dpgp.motion)
+    sigma2 = 0.0 if dynamics == "field" else dpgp.motion.motion_model(model._fitted()).sigma[0] ** 2
     z = []
     for a, b in zip(mean, drawn):
         np.testing.assert_array_equal(a.positions, b.positions)
         m, var = model.velocity_field(0, a.positions[0])
         np.testing.assert_allclose(a.velocities[0], m, rtol=1e-9, atol=1e-9)
-        z.append((b.velocities[0] - m) / np.sqrt(var))
+        z.append((b.velocities[0] - m) / np.sqrt(var + sigma2))
     z = np.concatenate(z).ravel()
     # standardised draws: mean 0, variance 1 (marginally; they are correlated within a scenario)
     assert abs(z.mean()) < 0.25 and 0.6 < z.var() < 1.5

@@ -92,7 +92,7 @@ def _numpy_rollout(model, k, xy, steps, dt, method, roi):
 
 @pytest.mark.parametrize("method", ["euler", "rk4"])
 def test_model_rollout_follows_the_posterior_mean(model, method):
-    sim = model.simulate(5, steps=25, method=method)
+    sim = model.simulate(5, steps=25, method=method, dynamics="field")  # the paper's rollout
     assert isinstance(sim, Simulation) and sim.pattern == model.labels_[5]
     want = _numpy_rollout(model, sim.pattern, model.frames_[5].xy, 25, DEFAULT_DT, method, default_roi(model))
     np.testing.assert_allclose(sim.positions, want, rtol=1e-9, atol=1e-9)
@@ -118,16 +118,16 @@ def test_default_pattern_is_the_map_assignment(model):
 
 
 def test_stochastic_rollouts_are_seeded_and_vary(model):
-    a = model.simulate(0, steps=10, stochastic=True, seed=11)
-    b = model.simulate(0, steps=10, stochastic=True, seed=11)
-    c = model.simulate(0, steps=10, stochastic=True, seed=12)
-    mean = model.simulate(0, steps=10)
+    a = model.simulate(0, steps=10, stochastic=True, seed=11, dynamics="field")
+    b = model.simulate(0, steps=10, stochastic=True, seed=11, dynamics="field")
+    c = model.simulate(0, steps=10, stochastic=True, seed=12, dynamics="field")
+    mean = model.simulate(0, steps=10, dynamics="field")
     np.testing.assert_array_equal(a.positions, b.positions)
     assert not np.array_equal(a.positions, c.positions)
     assert not np.array_equal(a.positions, mean.positions)
     assert a.stochastic and not mean.stochastic
     # the seed only matters for stochastic rollouts
-    np.testing.assert_array_equal(model.simulate(0, steps=10, seed=5).positions, mean.positions)
+    np.testing.assert_array_equal(model.simulate(0, steps=10, seed=5, dynamics="field").positions, mean.positions)
     # draws scatter around the mean by about the posterior standard deviation
     _, var = model.velocity_field(a.pattern, a.positions[0])
     dev = (a.velocities[0] - mean.velocities[0]) / np.sqrt(var + 1e-12)

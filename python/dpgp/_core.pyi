@@ -35,6 +35,39 @@ def rollouts(
     seeds: list[int] | None = None,
     low_data: float | None = None,
 ) -> RolloutArrays: ...
+def motion_rollouts(
+    sampler: Sampler,
+    slots: list[int],
+    start: NDArray[np.float64],
+    velocities: NDArray[np.float64],
+    offsets: NDArray[np.int64],
+    motion: NDArray[np.float64],
+    dt: float,
+    steps: int,
+    roi: tuple[float, float, float, float] | None = None,
+    seeds: list[int] | None = None,
+    low_data: float | None = None,
+) -> RolloutArrays: ...
+def scene_rollouts(
+    sampler: Sampler,
+    slots: list[int],
+    counts: list[int],
+    grid: list[int],
+    grids: NDArray[np.float64],
+    bins: tuple[int, int],
+    grid_roi: tuple[float, float, float, float],
+    spacing: list[float],
+    motion: NDArray[np.float64],
+    seeds: list[int],
+    stochastic: bool,
+    dt: float,
+    steps: int,
+    roi: tuple[float, float, float, float] | None = None,
+    low_data: float | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], list[int]]: ...
+def field_means(
+    sampler: Sampler, slots: list[int], xy: NDArray[np.float64], offsets: NDArray[np.int64]
+) -> NDArray[np.float64]: ...
 def integrate_affine(
     start: NDArray[np.float64],
     a: tuple[tuple[float, float], tuple[float, float]],

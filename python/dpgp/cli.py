@@ -281,7 +281,7 @@ def _simulate(args: argparse.Namespace) -> int:
     model = DPGP.load(args.model)
     sim = model.simulate(
         args.frame, pattern=args.pattern, steps=args.steps, dt=args.dt, method=args.method,
-        stochastic=args.stochastic, seed=args.seed,
+        stochastic=args.stochastic, seed=args.seed, dynamics=args.dynamics,
     )  # fmt: skip
     sim.to_pandas().to_csv(args.output, index=False, float_format="%.17g")
     print(sim)
@@ -307,7 +307,7 @@ def _generate(args: argparse.Namespace) -> int:
             args.seed = secrets.randbelow(2**31)
     scen = model.sample_scenarios(
         args.n, steps=args.steps, pattern=args.pattern, seed=args.seed, dt=args.dt, method=args.method,
-        stochastic=not args.mean,
+        stochastic=not args.mean, dynamics=args.dynamics,
     )  # fmt: skip
     if xosc:
         paths = scen.to_openscenario(
@@ -493,6 +493,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=100, help="number of time steps")
     p.add_argument("--dt", type=float, help="time step in seconds (default: the training frames', else 0.5)")
     p.add_argument("--method", choices=("euler", "rk4"), default="euler", help="integration scheme")
+    p.add_argument("--dynamics", choices=("interactive", "relaxed", "field"), default=None,
+                   help="interactive (default; field with --method rk4), relaxed, or field (the paper's rollout)")
     p.add_argument("--stochastic", action="store_true", help="draw velocities from the posterior at every step")
     p.add_argument("--seed", type=int, help="seed of the stochastic draws (default: random)")
     p.set_defaults(func=_simulate)
@@ -513,6 +515,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pattern", type=int, help="draw every scenario from this pattern (default: by weight)")
     p.add_argument("--dt", type=float, help="time step in seconds (default: the training frames', else 0.5)")
     p.add_argument("--method", choices=("euler", "rk4"), default="euler", help="integration scheme")
+    p.add_argument("--dynamics", choices=("interactive", "relaxed", "field"), default=None,
+                   help="interactive (default; field with --method rk4), relaxed, or field (the paper's rollout)")
     p.add_argument("--mean", action="store_true", help="follow the posterior mean instead of drawing velocities")
     p.add_argument("--seed", type=int, help="random seed (default: random)")
     p.set_defaults(func=_generate)

@@ -21,11 +21,13 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class Frame:
-    """One frame: positions ``xy`` (l, 2) and velocities ``v`` (l, 2) of its ``l`` vehicles."""
+    """One frame: positions ``xy`` (l, 2) and velocities ``v`` (l, 2) of its ``l`` vehicles, and
+    their track ids ``tracks`` (l,) when the frames carry them (else ``None``)."""
 
     id: object
     xy: np.ndarray
     v: np.ndarray
+    tracks: np.ndarray | None = None
 
     @property
     def x(self) -> np.ndarray:
@@ -53,11 +55,13 @@ class Frames:
     Build one with :meth:`from_arrays`, :func:`dpgp.read_frames` or :func:`dpgp.make_frames`.
     ``frames[i]`` is a :class:`Frame`; ``frames[a:b]``, an index array or a boolean mask give a
     new :class:`Frames`. ``labels`` holds per-frame ground-truth pattern labels when known
-    (synthetic data), else ``None``.
+    (synthetic data), else ``None``. ``tracks`` holds per row the vehicle's track id (int64;
+    :func:`dpgp.make_frames` keeps it, so that a vehicle can be followed from frame to frame and
+    temporal statistics learned), else ``None`` (frames read without ids).
     """
 
     # summary: what dpgp.make_frames left out and why (a dpgp.FramingSummary), else None
-    __slots__ = ("ids", "offsets", "xy", "v", "labels", "summary")
+    __slots__ = ("ids", "offsets", "xy", "v", "labels", "summary", "tracks")
 
     def __init__(
         self,
@@ -66,6 +70,7 @@ class Frames:
         xy: np.ndarray,
         v: np.ndarray,
         labels: np.ndarray | None = None,
+        tracks: np.ndarray | None = None,
     ) -> None:
         # Sizes before any conversion: an array of 1e11 zero-byte items (a damaged model file)
         # would otherwise be converted to 745 GiB of int64 before its length is seen.
@@ -92,16 +97,19 @@ class Frames:
         self.xy = np.ascontiguousarray(xy, dtype=np.float64)
         self.v = np.ascontiguousarray(v, dtype=np.float64)
         self.labels = None if labels is None else np.asarray(labels)
+        self.tracks = None if tracks is None else _track_ids(tracks, len(self.xy))
         self.summary = None
 
     @classmethod
     def from_arrays(
-        cls, frame: object, x: object, y: object, vx: object, vy: object, labels: object | None = None
+        cls, frame: object, x: object, y: object, vx: object, vy: object, labels: object | None = None,
+        track: object | None = None,
     ) -> Frames:
         """Group rows by their ``frame`` value (one row per vehicle observation).
 
         Frames come out in increasing order of ``frame``; rows keep their order inside a frame.
-        ``labels``, if given, is one label per *frame* in that order.
+        ``labels``, if given, is one label per *frame* in that order; ``track``, if given, one
+        whole-number track id per row.
         """
         frame = np.asarray(frame)
         if frame.ndim != 1:
@@ -125,7 +133,8 @@ class Frames:
         xy = np.column_stack([cols["x"][order], cols["y"][order]])
         v = np.column_stack([cols["vx"][order], cols["vy"][order]])
         lab = None if labels is None else np.asarray(labels)
-        return cls(sorted_frame[starts], offsets, xy, v, lab)
+        tracks = None if track is None else _track_ids(track, len(frame))[order]
+        return cls(sorted_frame[starts], offsets, xy, v, lab, tracks)
 
     # --- sequence protocol -------------------------------------------------------------------
     def __len__(self) -> int:
@@ -142,7 +151,7 @@ class Frames:
                 raise IndexError(f"frame index {i} out of range for {n} frames")
             i = int(i) % n
             a, b = self.offsets[i], self.offsets[i + 1]
-            return Frame(self.ids[i], self.xy[a:b], self.v[a:b])
+            return Frame(self.ids[i], self.xy[a:b], self.v[a:b], None if self.tracks is None else self.tracks[a:b])
         idx = self._selection(i)
         if len(idx) == 0:
             raise ShapeError("selection is empty: a Frames needs at least one frame")
@@ -156,6 +165,7 @@ class Frames:
             self.xy[rows],
             self.v[rows],
             None if self.labels is None else self.labels[idx],
+            None if self.tracks is None else self.tracks[rows],
         )
         # A selection keeps how the frames were made (dt, ROI, units) for the model to use.
         out.summary = self.summary
@@ -211,10 +221,10 @@ class Frames:
         return (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]))
 
     def to_pandas(self) -> pd.DataFrame:
-        """One row per vehicle observation: ``frame, x, y, vx, vy``."""
+        """One row per vehicle observation: ``frame, x, y, vx, vy`` (and ``track`` when known)."""
         import pandas as pd
 
-        return pd.DataFrame(
+        df = pd.DataFrame(
             {
                 "frame": np.repeat(self.ids, self.sizes),
                 "x": self.xy[:, 0],
@@ -223,6 +233,21 @@ class Frames:
                 "vy": self.v[:, 1],
             }
         )
+        if self.tracks is not None:
+            df["track"] = self.tracks
+        return df
+
+
+def _track_ids(tracks: object, n: int) -> np.ndarray:
+    """Per-row track ids as int64: whole numbers, one per row."""
+    arr = np.asarray(tracks)
+    if arr.shape != (n,):
+        raise ShapeError(f"tracks must be one id per row ({n}), got shape {arr.shape}")
+    if arr.dtype.kind == "f" and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)):
+        arr = arr.astype(np.int64)
+    if arr.dtype.kind not in "iu":
+        raise InvalidInputError(f"track ids must be whole numbers, got dtype {arr.dtype}")
+    return np.ascontiguousarray(arr, dtype=np.int64)
 
 
 # Column names accepted by read_frames, compared case-insensitively, first match wins.

@@ -139,7 +139,8 @@ def make_frames(
     -------
     Frames
         Frame ids are the grid times in seconds (``(scene, time)`` tuples when the table has a
-        ``scene`` column). ``frames.summary`` is a :class:`FramingSummary` that counts every
+        ``scene`` column). ``frames.tracks`` holds each row's track id (the table's own
+        integer ids, else codes in the sorted order of its ids). ``frames.summary`` is a :class:`FramingSummary` that counts every
         vehicle-time left out and empty frame dropped.
     """
     res = _resample(tracks, roi, dt, velocity, smoothing, units, max_gap)
@@ -165,7 +166,8 @@ def make_frames(
     n_slots = res["n_slots"]
     xy = np.column_stack([res["x"][order], res["y"][order]])
     v = np.column_stack([res["vx"][order], res["vy"][order]])
-    frames = Frames(ids, np.r_[starts, len(ks)], xy, v)
+    # keep each vehicle's track (its code among the table's track ids) to follow it over time
+    frames = Frames(ids, np.r_[starts, len(ks)], xy, v, tracks=res["track"][order])
     summary = FramingSummary(
         **res["counts"],
         n_points=len(ks),

@@ -13,6 +13,7 @@ name                dtype, shape            content
 ``frame_xy``        float64 (n, 2)          positions, one row per vehicle observation
 ``frame_v``         float64 (n, 2)          velocities
 ``frame_labels``    (N,), optional          ground-truth labels the frames carried
+``frame_tracks``    int64 (n,), optional    track id of each row (``make_frames`` keeps it)
 ``labels``          int64 (N,)              fitted pattern of each frame (patterns by size)
 ``length_scales``   float64 (K, 2)          ``(w_x, w_y)`` per pattern
 ``pattern_ids``     uint64 (K,)             the sampler's stable pattern ids
@@ -105,6 +106,7 @@ def save(model: DPGP, path: str | os.PathLike, resume: Any = None, compress: boo
     the members uncompressed (still CRC-checked), which writes about ten times faster."""
     model._check_fitted()
     from . import __version__
+    from .motion import motion_model
     from .scenarios import distributions
 
     frames = model.frames_
@@ -130,6 +132,7 @@ def save(model: DPGP, path: str | os.PathLike, resume: Any = None, compress: boo
         "log_joint": getattr(model, "log_joint_", None),
         "frames_summary": None if summary is None else summary.to_dict(),
         "distributions": distributions(model).to_dict(),
+        "motion": motion_model(model._fitted()).to_dict(),  # what generation learns from the tracks
         "resolved": _resolved_dict(model),
         "engine": _engine_dict(model),
     }
@@ -149,6 +152,8 @@ def save(model: DPGP, path: str | os.PathLike, resume: Any = None, compress: boo
     }
     if frames.labels is not None:
         arrays["frame_labels"] = _ids_array(frames.labels)
+    if frames.tracks is not None:  # what generation learns motion from (issue 15)
+        arrays["frame_tracks"] = np.asarray(frames.tracks, dtype=np.int64)
     if getattr(model, "label_trace_", None) is not None:
         arrays["label_trace"] = np.asarray(model.label_trace_, dtype=np.int64)
     if getattr(model, "draws_", None) is not None:
@@ -325,6 +330,7 @@ class ModelFile:
     state: dict[str, Any]
     distributions: Any
     resume: Any = None
+    motion: Any = None  # a dpgp.motion.MotionModel; None in files written before issue 15
 
 
 def read_model_file(path: str | os.PathLike) -> ModelFile:
@@ -357,6 +363,7 @@ def _build(cls: type[DPGP], meta: dict[str, Any], arrays: dict[str, np.ndarray])
 
 def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> ModelFile:
     from .distributions import EmpiricalDistributions
+    from .motion import MotionModel
     from .frames import Frames
     from .framing import FramingSummary
     from .gp import GPParams, check_scales
@@ -365,7 +372,9 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
     settings = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["settings"].items()}
     _check_counts(arrays)
     labels_file = arrays.get("frame_labels")
-    frames = Frames(arrays["frame_ids"], arrays["frame_offsets"], arrays["frame_xy"], arrays["frame_v"], labels_file)
+    frames = Frames(
+        arrays["frame_ids"], arrays["frame_offsets"], arrays["frame_xy"], arrays["frame_v"], labels_file, arrays.get("frame_tracks")
+    )
     if meta.get("frames_summary") is not None:
         known = {f.name for f in fields(FramingSummary)}  # a newer writer's extra keys are ignored
         s = {k: v for k, v in meta["frames_summary"].items() if k in known}
@@ -413,6 +422,7 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
     return ModelFile(
         path, settings, frames, labels, ls, float(meta["alpha"]), params, _resolved(meta), likelihood, basis, state,
         None if d is None else EmpiricalDistributions.from_dict(d), parse_resume(meta, arrays, frames),
+        None if meta.get("motion") is None else MotionModel.from_dict(meta["motion"]),
     )  # fmt: skip
 
 

@@ -584,6 +584,7 @@ class DPGP:
         *,
         roi: tuple[float, float, float, float] | None = None,
         low_data_threshold: float | None = 0.5,
+        dynamics: str | None = None,
     ) -> Any:
         """Roll the vehicles of ``frame`` (a training frame's index, a :class:`Frame`, or an
         ``(l, 2)``/``(l, 4)`` array) forward through pattern ``pattern`` (default: a training
@@ -592,18 +593,25 @@ class DPGP:
         by ``seed``). ``dt`` defaults to the frames' time step (else 0.5 s), ``roi`` to the
         training ROI; vehicles stop when they leave it. Steps where a vehicle's posterior
         variance exceeds ``low_data_threshold`` times the prior's are flagged in ``low_data``.
+        ``dynamics`` (:data:`dpgp.simulation.DYNAMICS`): ``"interactive"`` (default) starts each
+        vehicle from its own velocity and relaxes it toward the field by the learned residual
+        model, vehicles keeping their gaps; ``"relaxed"`` without interaction; ``"field"`` the
+        paper's rollout (the mean field itself; ``method="rk4"`` needs it, and ``None``, the
+        default, means ``"interactive"``, or ``"field"`` with ``method="rk4"``).
         Returns a :class:`dpgp.simulation.Simulation`."""
         from .simulation import simulate
 
-        return simulate(self._fitted(), frame, pattern, steps, dt, method, stochastic, seed, roi, low_data_threshold)
+        return simulate(self._fitted(), frame, pattern, steps, dt, method, stochastic, seed, roi, low_data_threshold, dynamics)
 
     def sample_scenarios(
         self, n: int, steps: int = 100, pattern: int | None = None, seed: int | None = None, **options: Any
     ) -> Any:
-        """Generate ``n`` scenarios: a pattern by weight (or ``pattern``), a vehicle count from φ,
-        positions from the pattern's own position histogram (else ψ), velocities drawn from its
-        GP, then a stochastic rollout of ``steps`` steps. ``options``: ``dt``, ``method``,
-        ``stochastic``, ``roi``, ``low_data_threshold``. Returns :class:`dpgp.scenarios.Scenarios`
+        """Generate ``n`` scenarios: a pattern by weight (or ``pattern``), a vehicle count from the
+        pattern's own frames, positions drawn jointly from its position histogram with its
+        recorded spacing, velocities drawn jointly from its GP, then a rollout of ``steps`` steps
+        by the learned residual model with interaction. ``options``: ``dt``, ``method``,
+        ``stochastic``, ``roi``, ``low_data_threshold``, ``dynamics`` (``"field"``: the earlier
+        generator — counts from φ, independent positions, the paper's rollout). Returns :class:`dpgp.scenarios.Scenarios`
         (``to_pandas``, ``to_csv``, ``to_sumo``)."""
         from .scenarios import sample_scenarios
 
@@ -696,6 +704,8 @@ class DPGP:
                 setattr(model, name, value)
         if file.distributions is not None:
             model._cache = {"distributions": (file.frames, file.distributions)}
+        if file.motion is not None:
+            model.__dict__.setdefault("_cache", {})["motion"] = (file.frames, file.motion)
         return model
 
     def evaluate(

@@ -1,5 +1,13 @@
 """Generating new multi-vehicle scenarios from a fitted model (design.md §3, "Generate").
 
+By default (``dynamics="interactive"``, issue 15) a scenario is: a pattern drawn by its weight;
+a vehicle count from that pattern's own frames (a frame's size, drawn uniformly); positions drawn
+jointly from the pattern's position histogram, no two closer than the pattern's recorded
+spacing (:mod:`dpgp.motion`; a vehicle with no room is left out, so ``counts`` may fall short of
+the drawn count in a crowded scene); velocities drawn jointly from the pattern's GP; then a
+rollout by the residual model and interaction rules of :mod:`dpgp.motion` (see
+``docs/generation.md``). ``dynamics="field"`` is the earlier generator, bit for bit:
+
 A scenario is: a pattern drawn by its weight, a vehicle count drawn from φ (the training frames'
 vehicle-count distribution), positions drawn from the pattern's own position distribution (a ψ
 histogram of its frames' positions; the global ψ when it holds fewer than
@@ -29,7 +37,10 @@ from ._arrays import as_path
 from .distributions import EmpiricalDistributions
 from .exceptions import InvalidInputError
 from .fitted import FittedPatterns, as_fitted
-from .simulation import LOW_DATA_THRESHOLD, Simulation, _check, _check_pattern, _check_roi, _check_rows, rollouts
+from . import _core
+from .simulation import (
+    LOW_DATA_THRESHOLD, Simulation, _check, _check_pattern, _check_roi, _check_rows, check_dynamics, motion_records, rollouts, split,
+)  # fmt: skip
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -214,6 +225,7 @@ def sample_scenarios(
     stochastic: bool = True,
     roi: tuple[float, float, float, float] | None = None,
     low_data_threshold: float | None = LOW_DATA_THRESHOLD,
+    dynamics: str | None = None,
 ) -> Scenarios:
     """Generate ``n`` scenarios; see :meth:`dpgp.DPGP.sample_scenarios`. ``model``: a
     :class:`~dpgp.fitted.FittedPatterns` (or a fitted estimator, which hands one down)."""
@@ -239,6 +251,10 @@ def sample_scenarios(
         patterns = rng.choice(fit.n_patterns, size=n, p=fit.weights).astype(np.int64)
     else:
         patterns = np.full(n, _check_pattern(fit, pattern), dtype=np.int64)
+    dynamics = check_dynamics(dynamics, method)
+    if dynamics != "field":
+        return _interactive(fit, patterns, psi, rng, steps=steps, dt=float(dt), stochastic=stochastic, roi=box,
+                            low_data_threshold=thr, dynamics=dynamics)  # fmt: skip
     counts = psi.sample_counts(n, rng)
     own = {int(k): pattern_positions(fit, int(k), psi) for k in np.unique(patterns)}
     starts = [own[int(k)].sample_positions(int(c), rng) for k, c in zip(patterns, counts)]
@@ -256,6 +272,40 @@ def sample_scenarios(
         low_data_threshold=thr,
     )
     return Scenarios(sims, patterns, counts)
+
+
+def pattern_counts(fit: FittedPatterns, patterns: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A vehicle count per scenario: the size of a frame drawn uniformly from its pattern's own."""
+    sizes = fit.frames.sizes
+    counts = np.zeros(len(patterns), dtype=np.int64)
+    for k in np.unique(patterns):
+        mine = np.flatnonzero(patterns == k)
+        own = sizes[fit.labels == k]
+        counts[mine] = own[rng.integers(0, len(own), size=len(mine))]
+    return counts
+
+
+def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistributions, rng: np.random.Generator, *,
+                 steps: int, dt: float, stochastic: bool, roi: Any, low_data_threshold: float | None, dynamics: str) -> Scenarios:  # fmt: skip
+    """Scenes drawn from each pattern's own frames (count), joint positions with its recorded
+    spacing, velocities jointly from its GP, rolled out by the residual model and interaction;
+    placement, draws and rollouts run in parallel in the core, one seed per scenario."""
+    from .motion import motion_model
+
+    if len(patterns) == 0:
+        return Scenarios([], patterns, np.zeros(0, dtype=np.int64))
+    requested = pattern_counts(fit, patterns, rng)
+    seeds = [int(s) for s in rng.integers(0, 2**63, size=len(patterns), dtype=np.uint64)]
+    ks = np.unique(patterns)
+    grids = np.array([(h := pattern_positions(fit, int(k), psi)).position_hist.ravel() + h.pseudocount for k in ks])
+    spacing = motion_model(fit).spacing[patterns]
+    pos, vel, inside, low, sizes = _core.scene_rollouts(
+        fit.sampler, [int(fit.slots[k]) for k in patterns], requested.tolist(), np.searchsorted(ks, patterns).tolist(),
+        np.ascontiguousarray(grids.reshape(len(ks), -1), dtype=np.float64), psi.bins, tuple(psi.roi), spacing.tolist(),
+        motion_records(fit, patterns, dynamics), seeds, bool(stochastic), float(dt), int(steps), tuple(roi), low_data_threshold,
+    )  # fmt: skip
+    sims = split(pos, vel, inside, low, sizes, patterns.tolist(), steps=steps, dt=dt, stochastic=stochastic, roi=roi, dynamics=dynamics)
+    return Scenarios(sims, patterns, np.asarray(sizes, dtype=np.int64))
 
 
 __all__ = ["Scenarios", "sample_scenarios", "distributions", "pattern_positions", "MIN_OWN_POSITIONS", "MAX_SCENARIOS"]

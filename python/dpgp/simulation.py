@@ -13,6 +13,12 @@ it; RK4 adds its deviation from the mean to every stage (so RK4 integrates the m
 accurately and the noise enters as in Euler-Maruyama). Draws at successive steps are
 independent given the positions; they are joint across the vehicles of one step.
 
+With ``dynamics="interactive"`` (the default) or ``"relaxed"``, a rollout starts from each
+vehicle's own velocity (the field's mean where the frame has none) and relaxes toward the field
+by the residual model of :mod:`dpgp.motion` (``stochastic``: with its noise, seeded); it
+integrates by forward Euler only. ``dynamics="field"`` is the paper's rollout described above.
+See ``docs/generation.md``.
+
 Cost: following the mean is ``n m`` per step for a pattern of ``n`` observations and ``m``
 moving vehicles. The low-data flags and the stochastic draws need the posterior covariance,
 ``n² m`` per step; pass ``low_data_threshold=None`` for fast deterministic rollouts of large
@@ -49,6 +55,13 @@ LOW_DATA_THRESHOLD = 0.5  # posterior / prior variance above which a point count
 MAX_ROWS = 20_000_000
 
 _METHODS = ("euler", "rk4")
+#: How vehicles move. ``"interactive"`` (the default; ``dynamics=None`` is it, or ``"field"``
+#: with ``method="rk4"``): the field is each vehicle's desired
+#: velocity, its actual velocity deviates from it by an Ornstein–Uhlenbeck residual learned from
+#: the training tracks (:mod:`dpgp.motion`), and vehicles keep their gaps (IDM behind a leader)
+#: and a personal distance. ``"relaxed"``: the same without interaction. ``"field"``: the
+#: paper's rollout — every vehicle moves with the field itself (bitwise today's rollouts).
+DYNAMICS = ("interactive", "relaxed", "field")
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,6 +83,8 @@ class Simulation:
     method: str
     stochastic: bool
     roi: tuple[float, float, float, float]
+    #: "field" (the paper's rollout), "relaxed" or "interactive" (:data:`DYNAMICS`)
+    dynamics: str = "field"
 
     @property
     def steps(self) -> int:
@@ -205,12 +220,44 @@ def rollouts(
     pos, vel, inside, low = _core.rollouts(
         fit.sampler, slots, start, offsets, float(dt), int(steps), method, tuple(roi), seeds, low_data_threshold
     )
+    return split(
+        pos, vel, inside, low, sizes, patterns, steps=steps, dt=dt, stochastic=seeds is not None, roi=roi, dynamics="field", method=method
+    )
+
+
+def check_dynamics(dynamics: Any, method: str) -> str:
+    """``dynamics`` checked; ``None`` is ``"interactive"``, or ``"field"`` with ``method="rk4"``
+    (RK4 integrates the pure field only)."""
+    if dynamics is None:
+        return "field" if method == "rk4" else "interactive"
+    if dynamics not in DYNAMICS:
+        raise InvalidInputError(f"dynamics must be one of {DYNAMICS}, got {dynamics!r}")
+    if dynamics != "field" and method != "euler":
+        raise InvalidInputError(
+            f"method={method!r} integrates the pure field only: pass dynamics='field', or method='euler' for {dynamics!r} dynamics"
+        )
+    return dynamics
+
+
+def motion_records(fit: FittedPatterns, patterns: Any, dynamics: str, motion: Any = None) -> np.ndarray:
+    """(len(patterns), MOTION_FIELDS): each rollout's residual model and interaction rule, from
+    ``motion`` (a :class:`dpgp.motion.MotionModel`; default: the fitted model's)."""
+    from .motion import motion_model
+
+    m = motion_model(fit) if motion is None else motion
+    rec = {int(k): m.record(int(k), interaction=dynamics == "interactive") for k in np.unique(patterns)}
+    return np.array([rec[int(k)] for k in patterns], dtype=np.float64).reshape(len(patterns), -1)
+
+
+def split(pos: np.ndarray, vel: np.ndarray, inside: np.ndarray, low: np.ndarray, sizes: Any, patterns: list[int], *,
+          steps: int, dt: float, stochastic: bool, roi: Any, dynamics: str, method: str = "euler") -> list[Simulation]:  # fmt: skip
+    """The core's concatenated time-major arrays cut into one :class:`Simulation` per rollout."""
     t = np.arange(steps + 1) * float(dt)
     out, row = [], 0
     for i, l in enumerate(sizes):
-        rows = (steps + 1) * int(l)
-        sl = slice(row, row + rows)
-        row += rows
+        l = int(l)
+        sl = slice(row, row + (steps + 1) * l)
+        row += (steps + 1) * l
         out.append(
             Simulation(
                 positions=pos[sl].reshape(steps + 1, l, 2),
@@ -218,13 +265,31 @@ def rollouts(
                 t=t,
                 in_roi=inside[sl].reshape(steps + 1, l),
                 low_data=low[sl].reshape(steps + 1, l),
-                pattern=patterns[i],
+                pattern=int(patterns[i]),
                 method=method,
-                stochastic=seeds is not None,
+                stochastic=stochastic,
                 roi=tuple(float(v) for v in roi),  # type: ignore[arg-type]
+                dynamics=dynamics,
             )
         )
     return out
+
+
+def motion_rollouts(
+    fit: FittedPatterns, patterns: list[int], starts: list[np.ndarray], velocities: list[np.ndarray], *,
+    steps: int, dt: float, seeds: list[int] | None, roi: Any, low_data_threshold: float | None, dynamics: str,
+    motion: Any = None,
+) -> list[Simulation]:  # fmt: skip
+    """Rollouts by the residual model (and interaction): ``starts[i]`` (l_i, 2) from their own
+    ``velocities[i]`` through pattern ``patterns[i]``, run in parallel in the core."""
+    sizes = np.array([len(s) for s in starts], dtype=np.int64)
+    offsets = np.r_[0, np.cumsum(sizes)].astype(np.int64)
+    cat = lambda a: np.ascontiguousarray(np.concatenate(a) if a else np.zeros((0, 2)), dtype=np.float64)  # noqa: E731
+    pos, vel, inside, low = _core.motion_rollouts(
+        fit.sampler, [int(fit.slots[k]) for k in patterns], cat(starts), cat(velocities), offsets,
+        motion_records(fit, patterns, dynamics, motion), float(dt), int(steps), tuple(roi), seeds, low_data_threshold,
+    )  # fmt: skip
+    return split(pos, vel, inside, low, sizes, patterns, steps=steps, dt=dt, stochastic=seeds is not None, roi=roi, dynamics=dynamics)
 
 
 def _start(fit: FittedPatterns, frame: Any) -> tuple[np.ndarray, np.ndarray | None, int | None]:
@@ -261,6 +326,7 @@ def simulate(
     seed: int | None = None,
     roi: tuple[float, float, float, float] | None = None,
     low_data_threshold: float | None = LOW_DATA_THRESHOLD,
+    dynamics: str | None = None,
 ) -> Simulation:
     """Roll the vehicles of ``frame`` forward through a pattern; see :meth:`dpgp.DPGP.simulate`.
     ``model``: a :class:`~dpgp.fitted.FittedPatterns` (or a fitted estimator, which hands one down)."""
@@ -279,6 +345,14 @@ def simulate(
     _check_rows((steps + 1) * len(xy), f"{steps} steps of {len(xy)} vehicle(s)")
     box = fit.roi if roi is None else _check_roi(roi)
     dt = fit.dt if dt is None else float(dt)
+    dynamics = check_dynamics(dynamics, method)
+    if dynamics != "field":
+        if v is None:  # positions only: start on the field
+            v = np.asarray(_core.field_means(fit.sampler, [int(fit.slots[k])], np.ascontiguousarray(xy), np.array([0, len(xy)], np.int64)))
+        return motion_rollouts(
+            fit, [k], [xy], [v], steps=steps, dt=dt, seeds=_seeds(seed, 1) if stochastic else None, roi=box,
+            low_data_threshold=thr, dynamics=dynamics,
+        )[0]  # fmt: skip
     return rollouts(
         fit,
         [k],
@@ -331,4 +405,4 @@ def integrate_affine(
     )
 
 
-__all__ = ["Simulation", "simulate", "integrate_affine", "default_dt", "default_roi", "DEFAULT_DT", "LOW_DATA_THRESHOLD", "MAX_ROWS"]
+__all__ = ["Simulation", "simulate", "integrate_affine", "default_dt", "default_roi", "DEFAULT_DT", "LOW_DATA_THRESHOLD", "MAX_ROWS", "DYNAMICS"]

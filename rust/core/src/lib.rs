@@ -5,6 +5,8 @@ pub mod error;
 pub mod gp;
 pub mod kernel;
 pub mod linalg;
+pub mod motion;
+pub mod placement;
 pub mod vexp;
 
 pub use error::{Error, Result};

@@ -156,23 +156,33 @@ pub struct Rollout {
     pub low_data: Vec<bool>,
 }
 
+impl Rollout {
+    /// A rollout of `start` under `opts` with only its first time recorded (checked: finite
+    /// positions, a valid time step, not too many rows).
+    pub fn begin(start: &[Point], opts: &Options) -> Result<Self> {
+        opts.validate(start.len())?;
+        crate::error::check_finite("start positions", start.as_flattened())?;
+        let rows = (opts.steps + 1) * start.len();
+        let mut out = Self {
+            vehicles: start.len(),
+            steps: opts.steps,
+            positions: Vec::with_capacity(rows),
+            velocities: vec![[0.0; 2]; rows],
+            in_roi: Vec::with_capacity(rows),
+            low_data: vec![false; rows],
+        };
+        out.positions.extend_from_slice(start);
+        out.in_roi
+            .extend(start.iter().map(|&p| opts.roi.contains(p)));
+        Ok(out)
+    }
+}
+
 /// Move the vehicles starting at `start` through `field`.
 pub fn integrate(start: &[Point], opts: &Options, field: &mut dyn Field) -> Result<Rollout> {
-    opts.validate(start.len())?;
-    crate::error::check_finite("start positions", start.as_flattened())?;
+    let mut out = Rollout::begin(start, opts)?;
     let (l, dt) = (start.len(), opts.dt);
     let rows = (opts.steps + 1) * l;
-    let mut out = Rollout {
-        vehicles: l,
-        steps: opts.steps,
-        positions: Vec::with_capacity(rows),
-        velocities: vec![[0.0; 2]; rows],
-        in_roi: Vec::with_capacity(rows),
-        low_data: vec![false; rows],
-    };
-    out.positions.extend_from_slice(start);
-    out.in_roi
-        .extend(start.iter().map(|&p| opts.roi.contains(p)));
     for t in 0..=opts.steps {
         let row = t * l;
         let active: Vec<usize> = (0..l).filter(|&j| out.in_roi[row + j]).collect();
@@ -261,6 +271,8 @@ pub struct PatternField<'a> {
     /// Flag a point when its latent posterior variance exceeds this fraction of the prior
     /// signal variance in either output; `None` computes no flags.
     low_data: Option<f64>,
+    /// Draw at step 0 only (the start velocities of a generated scene), the mean after that.
+    draw_once: bool,
 }
 
 impl<'a> PatternField<'a> {
@@ -280,7 +292,20 @@ impl<'a> PatternField<'a> {
             pattern,
             seed,
             low_data,
+            draw_once: false,
         })
+    }
+
+    /// A field that draws jointly at step 0 only (with `seed`), then gives its mean: the start
+    /// velocities of a generated scene, for [`crate::motion::drive`].
+    pub fn drawn_once(
+        pattern: &'a dyn PatternModel,
+        seed: Option<u64>,
+        low_data: Option<f64>,
+    ) -> Result<Self> {
+        let mut f = Self::new(pattern, seed, low_data)?;
+        f.draw_once = true;
+        Ok(f)
     }
 }
 
@@ -295,7 +320,17 @@ impl Field for PatternField<'_> {
             offset: vec![[0.0; 2]; m],
             low_data: vec![false; m],
         };
-        if self.seed.is_none() && self.low_data.is_none() {
+        let seed = if self.draw_once && step > 0 { None } else { self.seed };
+        if seed.is_none() && self.low_data.is_none() {
+            return Ok(info);
+        }
+        if let (None, true, Some(f)) = (seed, self.draw_once, self.low_data) {
+            // flags only: the latent variances alone (m triangular solves, no m x m matrix)
+            let (_, var) = self.pattern.posterior(q);
+            let s2 = self.pattern.params().signal_var;
+            for (flag, v) in info.low_data.iter_mut().zip(&var) {
+                *flag = (0..2).any(|d| v[d] > f * s2[d]);
+            }
             return Ok(info);
         }
         // The latent covariance costs n² m (a triangular solve per vehicle); it gives both the
@@ -307,7 +342,7 @@ impl Field for PatternField<'_> {
                 *flag = (0..2).any(|d| cov[d][j * m + j] > f * s2[d]);
             }
         }
-        if let Some(seed) = self.seed {
+        if let Some(seed) = seed {
             // A floor of 1e-10 of the prior variance on the diagonal: the exact posterior is PSD,
             // but with rounding a variance near a dense cluster of data can come out ≤ 0.
             for (d, c) in cov.iter_mut().enumerate() {

@@ -21,7 +21,9 @@ mod _core {
     #[pymodule_export]
     use super::sampler::PySampler;
     #[pymodule_export]
-    use super::simulate::{integrate_affine, rollouts};
+    use super::simulate::{
+        field_means, integrate_affine, motion_rollouts, rollouts, scene_rollouts,
+    };
 
     #[pymodule_init]
     fn init(m: &Bound<'_, PyModule>) -> PyResult<()> {

@@ -10,10 +10,16 @@ use crate::errors::{CoreError, CoreResult};
 use crate::sampler::PySampler;
 use dpgp_core::Error;
 use dpgp_core::kernel::Point;
-use dpgp_core::simulate::{Method, Options, Roi, Rollout, integrate, rollout};
+use dpgp_core::motion::{MOTION_FIELDS, Motion, drive};
+use dpgp_core::pattern_model::PatternModel;
+use dpgp_core::placement::{Grid, place};
+use dpgp_core::rng::{Phase, stream};
+use dpgp_core::simulate::{Method, Options, PatternField, Roi, Rollout, integrate, rollout};
 
 /// Rollouts run in parallel in chunks of this many, with a Ctrl-C check between chunks.
 const CHUNK: usize = 64;
+/// Stream entity of a generated scene's placement (0: its GP draw, 1: the residual's noise).
+const PLACEMENT_ENTITY: u64 = 2;
 
 type Arrays<'py> = (
     Bound<'py, PyArray2<f64>>,
@@ -78,6 +84,45 @@ pub fn rollouts<'py>(
 ) -> PyResult<Arrays<'py>> {
     let opts = options(dt, steps, method, roi)?;
     let start: &[Point] = pairs("start", &start)?;
+    let offsets = offsets_of(&offsets, slots.len(), start.len())?;
+    check_seeds(&seeds, slots.len())?;
+    let rollouts = in_parallel(py, &sampler, &slots, |p, i| {
+        let seed = seeds.as_ref().map(|v| v[i]);
+        rollout(p, &start[offsets[i]..offsets[i + 1]], &opts, seed, low_data)
+    })?;
+    Ok(arrays(py, rollouts))
+}
+
+/// `one(pattern of slots[i], i)` for every `i`, in parallel on the sampler's pool in chunks of
+/// [`CHUNK`] (a Ctrl-C check between chunks); results in order, whatever the thread count.
+fn in_parallel<T: Send>(
+    py: Python<'_>,
+    sampler: &PySampler,
+    slots: &[usize],
+    one: impl Fn(&dyn PatternModel, usize) -> dpgp_core::Result<T> + Sync,
+) -> PyResult<Vec<T>> {
+    sampler.run(py, |s, stop| {
+        let mut out = Vec::with_capacity(slots.len());
+        for chunk in (0..slots.len()).collect::<Vec<_>>().chunks(CHUNK) {
+            if stop() {
+                return Err(Error::Interrupted);
+            }
+            let done: Vec<T> = chunk
+                .par_iter()
+                .map(|&i| {
+                    let p = s.pattern(slots[i]).ok_or_else(|| {
+                        Error::InvalidInput(format!("no pattern in slot {}", slots[i]))
+                    })?;
+                    one(p, i)
+                })
+                .collect::<dpgp_core::Result<_>>()?;
+            out.extend(done);
+        }
+        Ok(out)
+    })
+}
+
+fn offsets_of(offsets: &PyReadonlyArray1<'_, i64>, groups: usize, rows: usize) -> CoreResult<Vec<usize>> {
     let offsets: Vec<usize> = offsets
         .as_array()
         .iter()
@@ -86,48 +131,144 @@ pub fn rollouts<'py>(
                 .map_err(|_| CoreError(Error::Shape("offsets must be non-negative".into())))
         })
         .collect::<CoreResult<_>>()?;
-    if offsets.len() != slots.len() + 1
+    if offsets.len() != groups + 1
         || offsets.first() != Some(&0)
-        || offsets.last() != Some(&start.len())
+        || offsets.last() != Some(&rows)
         || offsets.windows(2).any(|w| w[1] < w[0])
     {
         return Err(CoreError(Error::Shape(
             "offsets must rise from 0 to the number of start positions, one more entry than slots"
                 .into(),
-        ))
-        .into());
+        )));
     }
-    if let Some(s) = &seeds {
-        if s.len() != slots.len() {
-            return Err(CoreError(Error::Shape(format!(
-                "{} seeds for {} rollouts",
-                s.len(),
-                slots.len()
-            )))
-            .into());
-        }
+    Ok(offsets)
+}
+
+/// One [`Motion`] per rollout from a `(rollouts, MOTION_FIELDS)` array.
+fn motions(m: &PyReadonlyArray2<'_, f64>, n: usize) -> CoreResult<Vec<Motion>> {
+    let a = m.as_array();
+    if a.nrows() != n || a.ncols() != MOTION_FIELDS {
+        return Err(CoreError(Error::Shape(format!(
+            "motion must have shape ({n}, {MOTION_FIELDS}), got ({}, {})",
+            a.nrows(),
+            a.ncols()
+        ))));
     }
-    let rollouts = sampler.run(py, |s, stop| {
-        let mut out = Vec::with_capacity(slots.len());
-        for chunk in (0..slots.len()).collect::<Vec<_>>().chunks(CHUNK) {
-            if stop() {
-                return Err(Error::Interrupted);
-            }
-            let done: Vec<Rollout> = chunk
-                .par_iter()
-                .map(|&i| {
-                    let p = s.pattern(slots[i]).ok_or_else(|| {
-                        Error::InvalidInput(format!("no pattern in slot {}", slots[i]))
-                    })?;
-                    let seed = seeds.as_ref().map(|v| v[i]);
-                    rollout(p, &start[offsets[i]..offsets[i + 1]], &opts, seed, low_data)
-                })
-                .collect::<dpgp_core::Result<_>>()?;
-            out.extend(done);
-        }
-        Ok(out)
+    a.rows()
+        .into_iter()
+        .map(|r| Motion::from_slice(&r.to_vec()).map_err(CoreError))
+        .collect()
+}
+
+fn check_seeds(seeds: &Option<Vec<u64>>, n: usize) -> CoreResult<()> {
+    match seeds {
+        Some(s) if s.len() != n => Err(CoreError(Error::Shape(format!(
+            "{} seeds for {n} rollouts",
+            s.len()
+        )))),
+        _ => Ok(()),
+    }
+}
+
+/// Interactive rollouts of recorded frames (`dpgp.simulation`, `dynamics != "field"`): group `i`
+/// (rows `offsets[i]..offsets[i+1]` of `start`, with their own `velocities`) through the
+/// pattern in `slots[i]` by `motion[i]`; the residual's innovations drawn with `seeds[i]` if
+/// given. Returns what [`rollouts`] returns.
+#[pyfunction]
+#[pyo3(signature = (sampler, slots, start, velocities, offsets, motion, dt, steps, roi=None, seeds=None, low_data=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn motion_rollouts<'py>(
+    py: Python<'py>,
+    sampler: PyRef<'py, PySampler>,
+    slots: Vec<usize>,
+    start: PyReadonlyArray2<'py, f64>,
+    velocities: PyReadonlyArray2<'py, f64>,
+    offsets: PyReadonlyArray1<'py, i64>,
+    motion: PyReadonlyArray2<'py, f64>,
+    dt: f64,
+    steps: usize,
+    roi: Option<(f64, f64, f64, f64)>,
+    seeds: Option<Vec<u64>>,
+    low_data: Option<f64>,
+) -> PyResult<Arrays<'py>> {
+    let opts = options(dt, steps, "euler", roi)?;
+    let start: &[Point] = pairs("start", &start)?;
+    let vel: &[[f64; 2]] = pairs("velocities", &velocities)?;
+    if vel.len() != start.len() {
+        return Err(CoreError(Error::Shape("one start velocity per start position".into())).into());
+    }
+    let offsets = offsets_of(&offsets, slots.len(), start.len())?;
+    let motion = motions(&motion, slots.len())?;
+    check_seeds(&seeds, slots.len())?;
+    let rollouts = in_parallel(py, &sampler, &slots, |p, i| {
+        let (a, b) = (offsets[i], offsets[i + 1]);
+        let seed = seeds.as_ref().map(|v| v[i]);
+        let mut field = PatternField::new(p, None, low_data)?;
+        drive(&start[a..b], Some(&vel[a..b]), &opts, &motion[i], seed, &mut field)
     })?;
     Ok(arrays(py, rollouts))
+}
+
+/// Generated scenes (`dpgp.scenarios`, `dynamics != "field"`): scenario `i` places up to
+/// `counts[i]` vehicles from position grid `grids[grid[i]]` (rows of bin weights, `bins`
+/// `(nx, ny)` over `grid_roi`) no closer than `spacing[i]`, draws their velocities jointly from
+/// the pattern in `slots[i]` (the mean if not `stochastic`), and rolls them out by `motion[i]`.
+/// Every draw comes from `seeds[i]`. Returns the arrays of [`rollouts`] and each scene's
+/// vehicle count.
+#[pyfunction]
+#[pyo3(signature = (sampler, slots, counts, grid, grids, bins, grid_roi, spacing, motion, seeds, stochastic, dt, steps, roi=None, low_data=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn scene_rollouts<'py>(
+    py: Python<'py>,
+    sampler: PyRef<'py, PySampler>,
+    slots: Vec<usize>,
+    counts: Vec<usize>,
+    grid: Vec<usize>,
+    grids: PyReadonlyArray2<'py, f64>,
+    bins: (usize, usize),
+    grid_roi: (f64, f64, f64, f64),
+    spacing: Vec<f64>,
+    motion: PyReadonlyArray2<'py, f64>,
+    seeds: Vec<u64>,
+    stochastic: bool,
+    dt: f64,
+    steps: usize,
+    roi: Option<(f64, f64, f64, f64)>,
+    low_data: Option<f64>,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<bool>>, Bound<'py, PyArray1<bool>>, Vec<usize>)> {
+    let n = slots.len();
+    let opts = options(dt, steps, "euler", roi)?;
+    if [counts.len(), grid.len(), spacing.len(), seeds.len()] != [n; 4] {
+        return Err(CoreError(Error::Shape(format!(
+            "counts, grid, spacing and seeds need one entry per scenario ({n})"
+        )))
+        .into());
+    }
+    let motion = motions(&motion, n)?;
+    let g_roi = Roi::new(grid_roi.0, grid_roi.1, grid_roi.2, grid_roi.3).map_err(CoreError)?;
+    let grids: Vec<Grid> = grids
+        .as_array()
+        .rows()
+        .into_iter()
+        .map(|w| Grid::new(g_roi, bins.0, bins.1, &w.to_vec()))
+        .collect::<dpgp_core::Result<_>>()
+        .map_err(CoreError)?;
+    if let Some(&g) = grid.iter().find(|&&g| g >= grids.len()) {
+        return Err(CoreError(Error::Shape(format!("grid {g} of {} grids", grids.len()))).into());
+    }
+    if let Some(s) = spacing.iter().find(|s| !(s.is_finite() && **s >= 0.0)) {
+        return Err(CoreError(Error::InvalidInput(format!("spacing must be finite and >= 0, got {s}"))).into());
+    }
+    let rollouts = in_parallel(py, &sampler, &slots, |p, i| {
+        let mut rng = stream(seeds[i], 0, Phase::Simulate, PLACEMENT_ENTITY);
+        let start = place(&grids[grid[i]], counts[i], spacing[i], &mut rng);
+        let seed = stochastic.then_some(seeds[i]);
+        let mut field = PatternField::drawn_once(p, seed, low_data)?;
+        drive(&start, None, &opts, &motion[i], seed, &mut field)
+    })?;
+    let sizes = rollouts.iter().map(|r| r.vehicles).collect();
+    let (pos, vel, inside, low) = arrays(py, rollouts);
+    Ok((pos, vel, inside, low, sizes))
 }
 
 /// Roll vehicles through the affine field `v(p) = a p + b` (`a` row-major): constant for
@@ -161,4 +302,23 @@ pub fn integrate_affine<'py>(
         .detach(|| integrate(start, &opts, &mut field))
         .map_err(CoreError)?;
     Ok(arrays(py, vec![r]))
+}
+
+/// The posterior mean field of the pattern in `slots[i]` at rows `offsets[i]..offsets[i+1]` of
+/// `xy` (no variances: `n m` per group), groups in parallel. For learning the residual model.
+#[pyfunction]
+pub fn field_means<'py>(
+    py: Python<'py>,
+    sampler: PyRef<'py, PySampler>,
+    slots: Vec<usize>,
+    xy: PyReadonlyArray2<'py, f64>,
+    offsets: PyReadonlyArray1<'py, i64>,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let xy: &[Point] = pairs("xy", &xy)?;
+    let offsets = offsets_of(&offsets, slots.len(), xy.len())?;
+    dpgp_core::error::check_finite("xy", xy.as_flattened()).map_err(CoreError)?;
+    let means = in_parallel(py, &sampler, &slots, |p, i| {
+        Ok(p.predict_mean(&xy[offsets[i]..offsets[i + 1]]))
+    })?;
+    Ok(to_numpy(py, means.into_iter().flatten().collect()))
 }
