@@ -53,8 +53,11 @@ impl NoisePrior {
 /// Least noise, as a share of the velocity variance, a candidate may take: below it the
 /// factors of repeated positions fail in double precision (model.py's MIN_NOISE_RATIO).
 const MIN_RATIO: f64 = 1e-10;
-/// Slice width on the log scale.
-const WIDTH: f64 = 1.0;
+/// Slice width on the log scale: about four posterior sds of `log σ_n²`, which shrinks like
+/// `sqrt(2 / points)`; set by the data's size only, so the update stays a valid slice step.
+fn width(points: usize) -> f64 {
+    (4.0 * (2.0 / points.max(1) as f64).sqrt()).clamp(0.05, 1.0)
+}
 
 impl Sampler {
     /// The noise pair the chain is at (fixed, or the last draw).
@@ -129,7 +132,7 @@ impl Sampler {
                 .sum();
             let f0 = prior.log_density(x0, scale[d]) + data_term;
             let mut last: Option<(f64, Vec<Box<dyn PatternModel>>)> = None;
-            let (x, _) = slice_step(x0, f0, WIDTH, &mut rng, |x| {
+            let (x, _) = slice_step(x0, f0, width(self.data.xy.len()), &mut rng, |x| {
                 let v = x.exp();
                 if !(v.is_finite() && v >= MIN_RATIO * scale[d]) {
                     return f64::NEG_INFINITY;

@@ -180,7 +180,7 @@ impl PySampler {
         split_merge_pairs: &str,
         noise_prior: Option<(f64, f64)>,
     ) -> PyResult<Self> {
-        let pairs = match split_merge_pairs {
+        let pair_choice = match split_merge_pairs {
             "uniform" => PairChoice::Uniform,
             "informed" => PairChoice::Informed,
             other => {
@@ -238,7 +238,7 @@ impl PySampler {
             memory_budget,
             split_merge: SplitMerge {
                 moves_per_sweep: split_merge,
-                pairs,
+                pairs: pair_choice,
             },
             noise_prior: noise_prior.map(|(log_mean, sd)| NoisePrior { log_mean, sd }),
         };
