@@ -78,7 +78,7 @@ NOISE_GRID = tuple(10.0 ** np.arange(-3.5, 0.1, 0.5))  # ρ: noise variance / si
 NOISE_PRIOR = (float(np.log(0.1)), 2.0)
 #: Split–merge moves per sweep (``split_merge="auto"``): chosen by ESS per second of the log
 #: joint and K on NGSIM US-101 (docs/inference.md).
-SPLIT_MERGE_MOVES = 20
+SPLIT_MERGE_MOVES = 10
 
 
 @dataclass(frozen=True)

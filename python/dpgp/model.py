@@ -77,7 +77,7 @@ class DPGP:
     split_merge : split–merge moves (docs/inference.md) after each sweep's frame updates; 0
         turns them off; ``"auto"`` (default): :data:`dpgp.defaults.SPLIT_MERGE_MOVES`. Their
         proposals and acceptances per sweep are in ``history_`` (``split_proposed``, ...).
-    split_merge_pairs : ``"uniform"`` (default) or ``"informed"``: how the second frame of a
+    split_merge_pairs : ``"informed"`` (default) or ``"uniform"``: how the second frame of a
         move's pair is drawn (half the time by similar mean velocity when informed).
     preset : ``"paper"``: the paper's settings wherever ``"auto"`` is left — Gamma(10, 1)
         length scales (feet), σ_n² = 1 ((ft/s)²) — and map assignment. :meth:`paper` builds one.
@@ -138,7 +138,7 @@ class DPGP:
         checkpoint: str | os.PathLike | None = None,
         checkpoint_every: int = 10,
         split_merge: int | str = "auto",
-        split_merge_pairs: str = "uniform",
+        split_merge_pairs: str = "informed",
     ) -> None:
         self.iterations = iterations
         self.assignment = assignment

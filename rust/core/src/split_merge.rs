@@ -306,23 +306,36 @@ impl Sampler {
         members.extend(b.members());
         let merged = self.settings.likelihood.pattern(*a.params(), &members)?;
         drop(members);
-        // The reverse split: seeds i and j, each other frame forced to the side it is on now.
-        let rest: Vec<usize> = a
-            .frames()
-            .iter()
-            .chain(b.frames())
-            .copied()
-            .filter(|&f| f != i && f != j)
-            .collect();
-        let labels = &self.labels;
-        let side = |f: usize| labels[f] == ki;
-        let reverse = self.allocate(i, j, a.as_ref(), b.length_scales(), rest, Some(&side), rng)?;
         let log_target = -self.crp_split_ratio(a.n_frames(), b.n_frames())
             + merged.log_marginal()
             - a.log_marginal()
             - b.log_marginal();
-        if !self.accept(log_target, reverse.log_q, rng) {
+        // The reverse split's log q is at most 0, so a uniform that rejects the target ratio
+        // alone rejects the move: most merges are refused before the costly reverse allocation.
+        let log_u = match self.settings.assignment {
+            Assignment::Map if log_target > 0.0 => f64::NEG_INFINITY,
+            Assignment::Map => return Ok(()),
+            Assignment::Gibbs => rng.random::<f64>().ln(),
+        };
+        if log_u >= log_target {
             return Ok(());
+        }
+        if self.settings.assignment == Assignment::Gibbs {
+            // The reverse split: seeds i and j, each other frame forced to the side it is on now.
+            let rest: Vec<usize> = a
+                .frames()
+                .iter()
+                .chain(b.frames())
+                .copied()
+                .filter(|&f| f != i && f != j)
+                .collect();
+            let labels = &self.labels;
+            let side = |f: usize| labels[f] == ki;
+            let reverse =
+                self.allocate(i, j, a.as_ref(), b.length_scales(), rest, Some(&side), rng)?;
+            if log_u >= log_target + reverse.log_q {
+                return Ok(());
+            }
         }
         self.split_merge.merge_accepted += 1;
         self.slots[ki] = None;
