@@ -46,7 +46,7 @@ def main() -> None:
                              seed=1, progress=False, **RUNS[name])  # fmt: skip
         wall = time.perf_counter() - t
         rhat, ess = ch.rhat(), ch.ess("bulk")
-        models = ch.models()
+        models = ch.models
         hist = [m.history_ for m in models if hasattr(m, "history_")]
         row = {
             "run": name, "frames": len(frames), "sweeps_per_chain": int(ch.n_sweeps), "wall_seconds": round(wall, 1),
