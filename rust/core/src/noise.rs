@@ -77,6 +77,12 @@ impl Sampler {
         }
         let slots: Vec<usize> = self.live().map(|(k, _)| k).collect();
         let ps = self.with_noise(&slots, noise)?;
+        self.install_noise(noise, &slots, ps);
+        Ok(())
+    }
+
+    /// Make `noise` the chain's noise pair and `ps` (the patterns of `slots` under it) theirs.
+    fn install_noise(&mut self, noise: [f64; 2], slots: &[usize], ps: Vec<Box<dyn PatternModel>>) {
         self.settings.base.noise_var = noise;
         for (&k, p) in slots.iter().zip(ps) {
             let v = self.fresh_version();
@@ -84,7 +90,6 @@ impl Sampler {
             slot.pattern = p;
             slot.version = v;
         }
-        Ok(())
     }
 
     /// The prior's log density of the current noise pair (0 when the noise is fixed).
@@ -160,13 +165,9 @@ impl Sampler {
                     self.with_noise(&slots, noise)?
                 }
             };
-            self.settings.base.noise_var[d] = x.exp();
-            for (&k, p) in slots.iter().zip(ps) {
-                let v = self.fresh_version();
-                let slot = self.live_slot_mut(k);
-                slot.pattern = p;
-                slot.version = v;
-            }
+            let mut noise = noise0;
+            noise[d] = x.exp();
+            self.install_noise(noise, &slots, ps);
         }
         Ok(())
     }
