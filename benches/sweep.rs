@@ -95,6 +95,8 @@ fn bench(c: &mut Criterion) {
         likelihood: Likelihood::Exact,
         proposal: Proposal::Full,
         memory_budget: None,
+        split_merge: Default::default(),
+        noise_prior: None,
     };
     let mut sampler = Sampler::new(data, settings).unwrap();
     sampler.sweep(&|| false).unwrap();

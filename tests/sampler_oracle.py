@@ -210,3 +210,50 @@ def reference_gibbs(frames, p: Params, alpha: float, sweeps: int, seed: int = 0)
             z = [seen.setdefault(x, len(seen)) for x in z]
         trace[s] = z
     return trace
+
+
+# --- the noise summed out on a grid -------------------------------------------------------------
+def log_noise_prior(log_noise: np.ndarray, signal_var: float, prior: tuple[float, float]) -> np.ndarray:
+    """Log density of log σ_n² under log(σ_n² / σ²) ~ N(prior[0], prior[1]²)."""
+    m, sd = prior
+    z = (np.asarray(log_noise) - np.log(signal_var) - m) / sd
+    return -0.5 * z**2 - np.log(sd) - 0.5 * np.log(2 * np.pi)
+
+
+def partition_posterior_noise_summed(frames, p: Params, alpha: float, prior: tuple[float, float], grid: int = 81, span: float = 5.0):
+    """``(partitions, log_probs)``: the posterior over partitions with the noise pair summed out,
+
+        p(z | V) ∝ α^K Π_k Γ(n_k) ∫∫ Π_k p(D_k | w, σ_x², σ_y²) p(σ_x²) p(σ_y²),
+
+    on a grid of ``grid`` points per component over the prior's mean ± ``span`` sds of
+    log σ_n² (trapezoid weights). The two outputs are independent GPs given the partition, so
+    log p(D | σ_x², σ_y²) = l_x(σ_x²) + l_y(σ_y²): each subset's marginal is computed on two
+    1-D lines through a reference point and added, l(a, b) = l(a, r) + l(r, b) − l(r, r)."""
+    import dataclasses
+
+    n = len(frames)
+    parts = set_partitions(n)
+    axes = []
+    for d in range(2):
+        centre = np.log(p.signal_var[d]) + prior[0]
+        axes.append(np.linspace(centre - span * prior[1], centre + span * prior[1], grid))
+    ref = (float(np.exp(axes[0][grid // 2])), float(np.exp(axes[1][grid // 2])))
+    # per subset (bitmask): l(a, r) over the x axis and l(r, b) over the y axis, and l(r, r)
+    lines: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
+    for mask in range(1, 1 << n):
+        xy, v = _rows(frames, [j for j in range(n) if mask >> j & 1])
+        lx = np.array([gp_oracle.log_marginal_likelihood(xy, v, dataclasses.replace(p, noise_var=(float(np.exp(a)), ref[1]))) for a in axes[0]])
+        ly = np.array([gp_oracle.log_marginal_likelihood(xy, v, dataclasses.replace(p, noise_var=(ref[0], float(np.exp(b))))) for b in axes[1]])
+        lines[mask] = (lx, ly, gp_oracle.log_marginal_likelihood(xy, v, dataclasses.replace(p, noise_var=ref)))
+    h = [ax[1] - ax[0] for ax in axes]
+    trap = [np.log(np.r_[0.5, np.ones(grid - 2), 0.5] * hd) for hd in h]
+    prior_x, prior_y = (log_noise_prior(axes[d], p.signal_var[d], prior) for d in range(2))
+    logw = np.empty(len(parts))
+    for t, z in enumerate(parts):
+        sx, sy, rest = prior_x + trap[0], prior_y + trap[1], 0.0
+        for k in np.unique(z):
+            members = np.flatnonzero(z == k)
+            lx, ly, lr = lines[int(sum(1 << int(j) for j in members))]
+            sx, sy, rest = sx + lx, sy + ly, rest - lr + np.log(alpha) + lgamma(len(members))
+        logw[t] = logsumexp(sx) + logsumexp(sy) + rest
+    return parts, logw - logsumexp(logw)

@@ -76,7 +76,7 @@ def test_spread_takes_frames_evenly_in_order(small):
 
 def test_auto_values_scale_with_the_units(small):
     pilot = dpgp.DPGP(seed=2)._pilot_fit
-    kw = dict(preset=None, assignment="gibbs", noise_var="auto", length_scale_prior="auto", pilot=pilot)
+    kw = dict(preset=None, assignment="gibbs", noise_var="pilot", length_scale_prior="auto", pilot=pilot)
     a = defaults.resolve(small, **kw)
     b = defaults.resolve(scaled(small, FT), **kw)
     assert b.length_scale_prior[0] == a.length_scale_prior[0]
@@ -86,7 +86,13 @@ def test_auto_values_scale_with_the_units(small):
     n_test = defaults.spread(small, defaults.PILOT_FRAMES)[28:].n_points
     for (*ra, sa), (*rb, sb) in zip(a.noise_scores, b.noise_scores):
         assert rb == pytest.approx(ra, rel=1e-9) and sb == pytest.approx(sa - 2 * n_test * np.log(FT), abs=1e-6)
-    assert (a.noise_var_source, a.length_scale_prior_source) == ("auto", "auto")
+    assert (a.noise_var_source, a.length_scale_prior_source) == ("pilot", "auto")
+    # noise_var="auto" (sampled): the chain starts at the prior's median share of each variance
+    s = defaults.resolve(small, **{**kw, "noise_var": "auto"})
+    t = defaults.resolve(scaled(small, FT), **{**kw, "noise_var": "auto"})
+    assert s.noise_var_source == "sampled" and s.noise_scores is None
+    assert s.noise_var == pytest.approx(tuple(np.exp(defaults.NOISE_PRIOR[0]) * small.v.var(axis=0)), rel=1e-12)
+    assert t.noise_var == pytest.approx(tuple(np.array(s.noise_var) * FT**2), rel=1e-12)
 
 
 def test_explicit_values_and_the_paper_preset(small):

@@ -170,7 +170,9 @@ def _explicit(settings: dict[str, Any], resolved: dict[str, Any] | None) -> dict
     """``settings`` with the resolved values in place of "auto" (and no preset)."""
     if resolved is None:
         return settings
-    out = {**settings, **{k: resolved[k] for k in ("assignment", "noise_var", "length_scale_prior")}}
+    # A noise sampled inside the chain stays "auto": each chain samples it (resolving it costs nothing).
+    keys = ("assignment", "length_scale_prior") + (() if resolved.get("noise_var_source") == "sampled" else ("noise_var",))
+    out = {**settings, **{k: resolved[k] for k in keys}}
     out["length_scale_prior"] = tuple(out["length_scale_prior"])
     if "preset" in settings:
         out["preset"] = None

@@ -45,7 +45,11 @@ from .exceptions import InvalidInputError, ModelFileError
 META_KEY = "resume"
 LABELS, LENGTH_SCALES = "resume_labels", "resume_length_scales"
 #: What ``history_`` records per sweep (a fit's and a checkpoint's).
-HISTORY_KEYS = ("n_patterns", "alpha", "log_joint", "moves", "ari", "seconds")
+HISTORY_KEYS = (
+    "n_patterns", "alpha", "log_joint", "moves", "ari", "seconds",
+    # split–merge proposals and acceptances in the sweep, and the noise pair it ended at
+    "split_proposed", "split_accepted", "merge_proposed", "merge_accepted", "noise_var_x", "noise_var_y",
+)  # fmt: skip
 
 
 def fingerprint(frames: Any) -> str:

@@ -17,7 +17,14 @@ vehicle on Peachtree and 0.23 on Zara and loses 0.11 on US-101 and 0.03 on ETH. 
 few multi-vehicle frames fall back to ``sqrt(area / vehicles per frame)`` of the positions'
 bounding box.
 
-**Noise variance** ``"auto"``: a noise variance per velocity component, σ_n,η² = ρ_η σ_η², a
+**Noise variance** ``"auto"`` (the default): sampled inside the chain (``rust/core/src/noise.rs``,
+docs/inference.md). One noise variance per velocity component, shared by the patterns, is
+slice-sampled on the log scale each sweep under the weakly informative prior
+``log(σ_n,η² / σ_η²) ~ N(log 0.1, 2²)`` (:data:`NOISE_PRIOR`), relative to the component's
+velocity variance σ_η², so the chain is the same in any units. The chain starts at the prior's
+median, ``0.1 σ_η²``. The resolved value (``noise_var_``) is then the chain's last draw.
+
+**Noise variance** ``"pilot"`` (the earlier default, kept to reproduce its figures): a noise variance per velocity component, σ_n,η² = ρ_η σ_η², a
 fraction of the component's signal variance, chosen by held-out score before sampling, the
 criterion the model is judged by (:mod:`dpgp.evaluate`). :data:`PILOT_FRAMES` frames spread
 evenly over the training frames are split in time, 70/30; a short pilot (:data:`PILOT_SWEEPS`
@@ -68,6 +75,11 @@ SPACING_MULTIPLE = 2.0  # the prior's mean, in vehicle spacings
 PILOT_FRAMES = 80  # frames of the pilots, spread evenly over the training frames
 PILOT_SWEEPS = 4  # map sweeps of each pilot fit
 NOISE_GRID = tuple(10.0 ** np.arange(-3.5, 0.1, 0.5))  # ρ: noise variance / signal variance, per component
+#: Prior of the sampled noise: log(σ_n,η² / σ_η²) ~ N(mean, sd²) (natural log), per component.
+NOISE_PRIOR = (float(np.log(0.1)), 2.0)
+#: Split–merge moves per sweep (``split_merge="auto"``): chosen by ESS per second of the log
+#: joint and K on NGSIM US-101 (docs/inference.md).
+SPLIT_MERGE_MOVES = 10
 
 
 @dataclass(frozen=True)
@@ -119,19 +131,25 @@ def resolve(
     else:
         prior, prior_source = _gamma("length_scale_prior", length_scale_prior), "user"
     if isinstance(noise_var, str):
-        if noise_var != "auto":
-            raise InvalidInputError(f"noise_var must be 'auto', a positive number or a pair of them, got {noise_var!r}")
-        if paper:
+        if noise_var not in ("auto", "pilot"):
+            raise InvalidInputError(
+                f"noise_var must be 'auto' (sampled), 'pilot', a positive number or a pair of them, got {noise_var!r}"
+            )
+        if paper and noise_var == "auto":
             sn2, noise_source = PAPER["noise_var"], "paper"
+        elif noise_var == "auto":
+            sv, _ = _moments(frames, signal_var, mean)
+            start = float(np.exp(NOISE_PRIOR[0]))
+            sn2, noise_source = (start * sv[0], start * sv[1]), "sampled"
         else:
             if pilot is None:
-                raise InvalidInputError("noise_var='auto' needs a pilot fit (DPGP.fit provides one); pass a number")
+                raise InvalidInputError("noise_var='pilot' needs a pilot fit (DPGP.fit provides one); pass a number")
             sv, _ = _moments(frames, signal_var, mean)
             sn2, trace = estimate_noise_var(frames, sv, prior, pilot)
-            noise_source = "auto"
+            noise_source = "pilot"
     else:
         sn2, noise_source = _positive_pair("noise_var", noise_var), "user"
-    return Resolved(assignment, sn2, prior, noise_source, prior_source, spacing, tuple(trace) if noise_source == "auto" else None)
+    return Resolved(assignment, sn2, prior, noise_source, prior_source, spacing, tuple(trace) if noise_source == "pilot" else None)
 
 
 # --- length-scale prior ------------------------------------------------------------------------
@@ -252,5 +270,5 @@ def _gamma(name: str, value: Any) -> tuple[float, float]:
 
 __all__ = [
     "Resolved", "resolve", "vehicle_spacing", "estimate_noise_var", "refine_grid", "spread", "Pilot",
-    "PAPER", "PRESETS",
+    "PAPER", "PRESETS", "NOISE_PRIOR", "SPLIT_MERGE_MOVES",
 ]  # fmt: skip

@@ -4,6 +4,7 @@ collapsed Gibbs sampling in the Rust core. Follows scikit-learn's conventions: s
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 import warnings
@@ -20,6 +21,7 @@ from .exceptions import DpgpError, InvalidInputError, MemoryBudgetError, ModelFi
 from .fitted import FittedPatterns
 from .frames import Frames, read_frames
 from .gp import GPParams, _pair, check_scales
+from .defaults import NOISE_PRIOR
 from .hsgp import _basis_counts, basis_for
 from .metrics import adjusted_rand_index, canonical_labels
 from .posterior import MAX_DRAWS, Draws
@@ -66,9 +68,16 @@ class DPGP:
         ``length_scale_prior_``.
     length_scales : ``None`` samples ``(w_x, w_y)`` per pattern; a pair fixes them for all patterns.
     noise_var : observation noise variance σ_n² (velocity units squared), one number for both
-        velocity components or a pair ``(x, y)``; ``"auto"`` (default): a fraction of each
-        component's velocity variance, chosen before sampling by the held-out score of short
-        pilot fits (:mod:`dpgp.defaults`). Resolved pair in ``noise_var_``.
+        velocity components or a pair ``(x, y)``, fixed; ``"auto"`` (default): sampled inside
+        the chain each sweep under a prior relative to each component's velocity variance
+        (docs/inference.md); ``"pilot"``: chosen before sampling by the held-out score of
+        short pilot fits (:mod:`dpgp.defaults`). The pair the fit ends at is ``noise_var_``,
+        each sweep's in ``history_["noise_var_x"]``, ``history_["noise_var_y"]``.
+    split_merge : split–merge moves (docs/inference.md) after each sweep's frame updates; 0
+        turns them off; ``"auto"`` (default): :data:`dpgp.defaults.SPLIT_MERGE_MOVES`. Their
+        proposals and acceptances per sweep are in ``history_`` (``split_proposed``, ...).
+    split_merge_pairs : ``"informed"`` (default) or ``"uniform"``: how the second frame of a
+        move's pair is drawn (half the time by similar mean velocity when informed).
     preset : ``"paper"``: the paper's settings wherever ``"auto"`` is left — Gamma(10, 1)
         length scales (feet), σ_n² = 1 ((ft/s)²) — and map assignment. :meth:`paper` builds one.
     signal_var, mean : per-output signal variance and mean; ``None`` takes the variance and mean
@@ -133,6 +142,8 @@ class DPGP:
         checkpoint: str | os.PathLike | None = None,
         checkpoint_every: int = 10,
         posterior_draws: int = MAX_DRAWS,
+        split_merge: int | str = "auto",
+        split_merge_pairs: str = "informed",
     ) -> None:
         self.iterations = iterations
         self.assignment = assignment
@@ -159,6 +170,8 @@ class DPGP:
         self.checkpoint = checkpoint
         self.checkpoint_every = checkpoint_every
         self.posterior_draws = posterior_draws
+        self.split_merge = split_merge
+        self.split_merge_pairs = split_merge_pairs
 
     # --- scikit-learn conventions ---------------------------------------------------------------
     def get_params(self, deep: bool = True) -> dict[str, Any]:
@@ -211,7 +224,7 @@ class DPGP:
         likelihood = self.likelihood if self.likelihood != "auto" else ("exact" if train.n_points <= 3000 else "hsgp")
         settings = {**self.get_params(), "likelihood": likelihood, "iterations": PILOT_SWEEPS, "assignment": "map", "noise_var": noise_var,
                     "length_scale_prior": length_scale_prior, "preset": None, "progress": False,
-                    "n_iter_no_change": None, "store_labels": False, "proposal": "full", "checkpoint": None}  # fmt: skip
+                    "n_iter_no_change": None, "store_labels": False, "proposal": "full", "checkpoint": None, "split_merge": 0}  # fmt: skip
         pilot = type(self)(**settings)
         pilot._keep_state_on_interrupt = False  # Ctrl-C in a pilot stops the whole fit
         pilot.fit(train)
@@ -252,6 +265,9 @@ class DPGP:
         ckpt.check_settings(self.checkpoint, self.checkpoint_every)
         if not (_is_int(self.posterior_draws) and 0 <= self.posterior_draws <= 100_000):
             raise InvalidInputError(f"posterior_draws must be an integer in [0, 100000], got {self.posterior_draws!r}")
+        _split_merge_moves(self.split_merge)
+        if self.split_merge_pairs not in ("uniform", "informed"):
+            raise InvalidInputError(f"split_merge_pairs must be 'uniform' or 'informed', got {self.split_merge_pairs!r}")
 
     def fit(self, frames: Frames | Any, y: None = None) -> DPGP:
         """Fit the mixture to training frames (a :class:`~dpgp.Frames` or a framed DataFrame)."""
@@ -313,11 +329,14 @@ class DPGP:
             bar = _progress(self.iterations, self.progress, initial=self.n_iter_)
             while self.n_iter_ < self.iterations and not self.converged_:
                 t = time.perf_counter()
+                counts = self._sampler.split_merge_counts()
                 moves, k, alpha, log_joint = self._sampler.sweep()
                 seconds = time.perf_counter() - t
                 labels = np.asarray(self._sampler.labels())
                 ari = adjusted_rand_index(previous, labels)
-                for key, val in zip(ckpt.HISTORY_KEYS, (k, alpha, log_joint, moves, ari, seconds)):
+                extra = tuple(b - a for a, b in zip(counts, self._sampler.split_merge_counts()))
+                extra += self._sampler.noise_var()
+                for key, val in zip(ckpt.HISTORY_KEYS, (k, alpha, log_joint, moves, ari, seconds, *extra)):
                     self.history_[key].append(val)
                 if self.store_labels:
                     traces.append(canonical_labels(labels))
@@ -460,6 +479,9 @@ class DPGP:
             None if self.basis_ is None else self.basis_.as_tuple(),
             self.proposal,
             self.memory_budget_,
+            _split_merge_moves(self.split_merge),
+            self.split_merge_pairs,
+            NOISE_PRIOR if getattr(self.defaults_, "noise_var_source", None) == "sampled" else None,
         )
 
     def _sync(self) -> None:
@@ -476,6 +498,10 @@ class DPGP:
         self.length_scales_ = np.array([[patterns[j][3], patterns[j][4]] for j in order]).reshape(-1, 2)
         self.pattern_ids_ = np.array([patterns[j][1] for j in order], dtype=np.uint64)
         self.alpha_ = float(self._sampler.alpha())
+        noise = tuple(float(x) for x in self._sampler.noise_var())
+        if noise != tuple(self.params_.noise_var):  # sampled inside the chain
+            self.params_ = dataclasses.replace(self.params_, noise_var=noise)
+        self.noise_var_ = noise
         self.log_joint_ = float(self._sampler.log_joint())
         self.timings_ = dict(self._sampler.timings())
 
@@ -765,6 +791,17 @@ def _check_magnitudes(frames: Frames, what: str) -> None:
 #: the noise keeps σ² R + σ_n² I positive definite; factors start failing near 1e-14 (a frame
 #: repeated 150 times), so this leaves four orders of magnitude of room.
 MIN_NOISE_RATIO = 1e-10
+
+
+def _split_merge_moves(value: Any) -> int:
+    """Split–merge moves per sweep: ``"auto"`` or a non-negative integer."""
+    from .defaults import SPLIT_MERGE_MOVES
+
+    if isinstance(value, str) and value == "auto":
+        return SPLIT_MERGE_MOVES
+    if not (_is_int(value) and 0 <= value <= 1_000_000):
+        raise InvalidInputError(f"split_merge must be 'auto' or a number of moves per sweep in [0, 1000000], got {value!r}")
+    return int(value)
 
 
 def _check_noise(noise_var: Any, signal_var: Any) -> None:

@@ -27,6 +27,13 @@ use crate::rng::{Phase, stream};
 use crate::slice::slice_step;
 use crate::special::{ln_gamma, ln_gamma_pdf, log_sum_exp};
 
+#[path = "noise.rs"]
+mod noise;
+#[path = "split_merge.rs"]
+mod split_merge;
+pub use noise::NoisePrior;
+pub use split_merge::{PairChoice, SplitMerge, SplitMergeStats};
+
 const NONE: usize = usize::MAX;
 /// Frames scored together in one triangular solve when refreshing a pattern's scores.
 const SCORE_BLOCK: usize = 64;
@@ -95,6 +102,11 @@ pub struct Settings {
     pub proposal: Proposal,
     /// Bytes the patterns' factors and the score cache may hold; `None` for no limit.
     pub memory_budget: Option<usize>,
+    /// Split–merge moves after each sweep's frame updates (split_merge.rs); off by default.
+    pub split_merge: SplitMerge,
+    /// Sample the noise pair each sweep under this prior (noise.rs); `None` keeps
+    /// `base.noise_var` fixed.
+    pub noise_prior: Option<NoisePrior>,
 }
 
 impl Settings {
@@ -117,6 +129,9 @@ impl Settings {
                 "length_scale_fraction must be in (0, 1], got {}",
                 self.length_scale_fraction
             )));
+        }
+        if let Some(p) = &self.noise_prior {
+            p.validate()?;
         }
         if self.new_pattern_samples == 0 || self.new_pattern_samples > MAX_NEW_PATTERN_SAMPLES {
             return Err(Error::InvalidInput(format!(
@@ -188,6 +203,8 @@ pub struct Timings {
     pub new_pattern: f64,
     pub length_scales: f64,
     pub alpha: f64,
+    pub split_merge: f64,
+    pub noise: f64,
 }
 
 /// How often informed proposals led to an exact evaluation, and how often those were accepted.
@@ -242,6 +259,9 @@ pub struct Sampler {
     grid: Option<Arc<CellGrid>>,
     pub timings: Timings,
     pub proposals: ProposalStats,
+    pub split_merge: SplitMergeStats,
+    /// Each frame's mean velocity, for informed split–merge pairs (computed once, on demand).
+    frame_means: std::sync::OnceLock<Arc<Vec<[f64; 2]>>>,
 }
 
 impl Sampler {
@@ -283,6 +303,8 @@ impl Sampler {
             next_version: 1,
             cache: vec![Vec::new(); n],
             timings: Timings::default(),
+            split_merge: SplitMergeStats::default(),
+            frame_means: std::sync::OnceLock::new(),
         })
     }
 
@@ -606,6 +628,16 @@ impl Sampler {
             }
             let mut rng = stream(self.settings.seed, self.sweep, Phase::Assign, i as u64);
             moves += usize::from(self.update_frame(i, &mut rng, true)?);
+        }
+        if self.settings.split_merge.moves_per_sweep > 0 {
+            let t = Instant::now();
+            self.split_merge_moves()?;
+            self.timings.split_merge += t.elapsed().as_secs_f64();
+        }
+        if self.settings.noise_prior.is_some() {
+            let t = Instant::now();
+            self.update_noise()?;
+            self.timings.noise += t.elapsed().as_secs_f64();
         }
         if self.settings.pattern_moments {
             let t = Instant::now();
@@ -1214,6 +1246,7 @@ impl Sampler {
             // InvGamma(1/2, 1/2) density of α.
             total += -0.5 * (2.0 * std::f64::consts::PI).ln() - 1.5 * a.ln() - 0.5 / a;
         }
+        total += self.noise_log_prior();
         let (pa, pb) = self.settings.length_scale_prior;
         for (_, s) in self.live() {
             total += a.ln() + ln_gamma(s.pattern.n_frames() as f64) + s.pattern.log_marginal();

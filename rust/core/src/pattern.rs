@@ -85,7 +85,10 @@ impl Pattern {
             groups: Vec::new(),
             ..self.clone_data()
         };
-        p.refactor()?;
+        // A group whose kernel and mean are unchanged keeps its factor (the noise step changes
+        // one output's noise at a time): the same numbers a refactor would give, for a copy.
+        let same = params.length_scales == self.params.length_scales && params.mean == self.params.mean;
+        p.refactor_reusing(if same { &self.groups } else { &[] })?;
         Ok(p)
     }
 
@@ -126,11 +129,24 @@ impl Pattern {
     }
 
     fn refactor(&mut self) -> Result<()> {
+        self.refactor_reusing(&[])
+    }
+
+    /// [`Pattern::refactor`], copying the groups of `reuse` (same points, length scales and
+    /// means) whose outputs and variances are unchanged.
+    fn refactor_reusing(&mut self, reuse: &[Group]) -> Result<()> {
         let n = self.xy.len();
         self.weights = Default::default();
         self.groups.clear();
         for outs in self.params.groups() {
             let (s2, noise) = self.params.group_vars(outs);
+            if let Some(g) = reuse
+                .iter()
+                .find(|g| g.outs == *outs && g.signal_var == s2 && g.noise_var == noise)
+            {
+                self.groups.push(g.clone());
+                continue;
+            }
             let ls = self.params.length_scales;
             let chol = Chol::factor(n, "training", Par::Seq, || {
                 self.corr.gram(&self.xy, ls, s2, noise)

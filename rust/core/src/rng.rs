@@ -14,6 +14,8 @@ pub enum Phase {
     Alpha = 4,
     Predict = 5,
     Simulate = 6,
+    SplitMerge = 7,
+    Noise = 8,
 }
 
 fn splitmix(mut x: u64) -> u64 {

@@ -15,7 +15,9 @@ use crate::errors::{CoreError, CoreResult};
 use crate::gp::{ParamTuple, params};
 use crate::hsgp::BasisTuple;
 use dpgp_core::Error;
-use dpgp_core::gibbs::{Assignment, Data, Proposal, Sampler, Settings};
+use dpgp_core::gibbs::{
+    Assignment, Data, NoisePrior, PairChoice, Proposal, Sampler, Settings, SplitMerge,
+};
 use dpgp_core::kernel::LengthScales;
 use dpgp_core::pattern::FrameRef;
 use dpgp_core::pattern_model::Likelihood;
@@ -154,7 +156,7 @@ impl PySampler {
 impl PySampler {
     #[new]
     #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (xy, v, offsets, assignment, params_, fixed_length_scales, length_scale_prior, alpha, new_pattern_samples, seed, n_threads, length_scale_fraction=1.0, pattern_moments=false, likelihood="exact", basis=None, proposal="full", memory_budget=None))]
+    #[pyo3(signature = (xy, v, offsets, assignment, params_, fixed_length_scales, length_scale_prior, alpha, new_pattern_samples, seed, n_threads, length_scale_fraction=1.0, pattern_moments=false, likelihood="exact", basis=None, proposal="full", memory_budget=None, split_merge=0, split_merge_pairs="uniform", noise_prior=None))]
     fn new(
         py: Python<'_>,
         xy: PyReadonlyArray2<'_, f64>,
@@ -174,7 +176,20 @@ impl PySampler {
         basis: Option<BasisTuple>,
         proposal: &str,
         memory_budget: Option<usize>,
+        split_merge: usize,
+        split_merge_pairs: &str,
+        noise_prior: Option<(f64, f64)>,
     ) -> PyResult<Self> {
+        let pair_choice = match split_merge_pairs {
+            "uniform" => PairChoice::Uniform,
+            "informed" => PairChoice::Informed,
+            other => {
+                return Err(CoreError(Error::InvalidInput(format!(
+                    "split_merge_pairs must be 'uniform' or 'informed', got {other:?}"
+                )))
+                .into());
+            }
+        };
         let likelihood = match (likelihood, basis) {
             ("exact", _) => Likelihood::Exact,
             ("hsgp", Some(b)) => Likelihood::Hsgp(Arc::new(crate::hsgp::basis(b)?)),
@@ -221,6 +236,11 @@ impl PySampler {
             likelihood,
             proposal,
             memory_budget,
+            split_merge: SplitMerge {
+                moves_per_sweep: split_merge,
+                pairs: pair_choice,
+            },
+            noise_prior: noise_prior.map(|(log_mean, sd)| NoisePrior { log_mean, sd }),
         };
         let sampler = py
             .detach(|| Sampler::new(data, settings))
@@ -296,6 +316,28 @@ impl PySampler {
         (p.proposed, p.accepted)
     }
 
+    /// (split proposed, split accepted, merge proposed, merge accepted) so far.
+    fn split_merge_counts(&self) -> (u64, u64, u64, u64) {
+        let s = self.lock().split_merge;
+        (
+            s.split_proposed,
+            s.split_accepted,
+            s.merge_proposed,
+            s.merge_accepted,
+        )
+    }
+
+    /// The noise pair the chain is at.
+    fn noise_var(&self) -> (f64, f64) {
+        let n = self.lock().noise_var();
+        (n[0], n[1])
+    }
+
+    /// Put the chain at a noise pair (a resumed chain).
+    fn set_noise_var(&self, py: Python<'_>, noise_var: (f64, f64)) -> PyResult<()> {
+        self.run(py, |s, _| s.set_noise_var([noise_var.0, noise_var.1]))
+    }
+
     /// Seconds spent per part of the sweep so far.
     fn timings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let t = self.lock().timings;
@@ -306,6 +348,8 @@ impl PySampler {
         d.set_item("new_pattern", t.new_pattern)?;
         d.set_item("length_scales", t.length_scales)?;
         d.set_item("alpha", t.alpha)?;
+        d.set_item("split_merge", t.split_merge)?;
+        d.set_item("noise", t.noise)?;
         Ok(d)
     }
 

@@ -40,6 +40,8 @@ fn settings(assignment: Assignment, seed: u64) -> Settings {
         likelihood: Likelihood::Exact,
         proposal: Proposal::Full,
         memory_budget: None,
+        split_merge: Default::default(),
+        noise_prior: None,
     }
 }
 

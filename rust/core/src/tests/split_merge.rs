@@ -1,0 +1,231 @@
+//! Split–merge moves alone (no frame-by-frame sweep) leave the posterior over partitions
+//! invariant: on 5 small frames with w and α fixed, the chain's partition frequencies match
+//! the posterior enumerated over all 52 partitions from the patterns' marginal likelihoods
+//! (which tests/pattern.rs checks against the direct formulas). Every likelihood × pair choice.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use super::*;
+use crate::gibbs::{Assignment, Data, Proposal, Settings};
+use crate::gp::GpParams;
+use crate::hsgp::Basis;
+use crate::pattern_model::Likelihood;
+
+/// Five frames of 2-3 vehicles from two loosely different fields: a posterior spread over many
+/// partitions.
+pub(crate) fn tiny() -> Data {
+    let mut s = 11u64;
+    let mut u = move || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let (mut xy, mut v, mut offsets) = (Vec::new(), Vec::new(), vec![0]);
+    for i in 0..5 {
+        let shift = 1.5 * (i % 2) as f64;
+        for _ in 0..(2 + i % 2) {
+            xy.push([6.0 * u(), 6.0 * u()]);
+            v.push([
+                1.0 + shift + 2.0 * (u() - 0.5),
+                -0.5 + 0.5 * shift + 2.0 * (u() - 0.5),
+            ]);
+        }
+        offsets.push(xy.len());
+    }
+    Data::new(xy, v, offsets).unwrap()
+}
+
+pub(crate) fn tiny_settings(likelihood: Likelihood, seed: u64) -> Settings {
+    Settings {
+        assignment: Assignment::Gibbs,
+        base: GpParams::new((3.0, 4.0), (1.0, 2.0), (1.0, 1.0), (1.0, 0.0)).unwrap(),
+        fixed_length_scales: true,
+        length_scale_prior: (10.0, 0.35),
+        alpha: Some(1.0),
+        new_pattern_samples: 1,
+        length_scale_fraction: 1.0,
+        pattern_moments: false,
+        seed,
+        likelihood,
+        proposal: Proposal::Full,
+        memory_budget: None,
+        split_merge: SplitMerge {
+            moves_per_sweep: 1,
+            pairs: PairChoice::Uniform,
+        },
+        noise_prior: None,
+    }
+}
+
+pub(crate) fn tiny_hsgp() -> Likelihood {
+    Likelihood::Hsgp(Arc::new(Basis::new([3.0, 3.0], [6.0, 6.0], [3, 3]).unwrap()))
+}
+
+/// Canonical labels (first appearance order).
+pub(crate) fn canonical(labels: &[usize]) -> Vec<usize> {
+    let mut seen = HashMap::new();
+    labels
+        .iter()
+        .map(|l| {
+            let n = seen.len();
+            *seen.entry(*l).or_insert(n)
+        })
+        .collect()
+}
+
+/// Every partition of `n` items as canonical labels.
+pub(crate) fn partitions(n: usize) -> Vec<Vec<usize>> {
+    fn grow(prefix: &mut Vec<usize>, k: usize, n: usize, out: &mut Vec<Vec<usize>>) {
+        if prefix.len() == n {
+            out.push(prefix.clone());
+            return;
+        }
+        for c in 0..=k {
+            prefix.push(c);
+            grow(prefix, k.max(c + 1), n, out);
+            prefix.pop();
+        }
+    }
+    let mut out = Vec::new();
+    grow(&mut Vec::new(), 0, n, &mut out);
+    out
+}
+
+/// `log [α^K Π Γ(n_k) p(D_k | w)]` of every partition, normalised.
+fn enumerated(data: &Data, st: &Settings) -> HashMap<Vec<usize>, f64> {
+    let alpha = st.alpha.unwrap();
+    let parts = partitions(data.len());
+    let logw: Vec<f64> = parts
+        .iter()
+        .map(|z| {
+            let k = z.iter().max().unwrap() + 1;
+            (0..k)
+                .map(|c| {
+                    let members: Vec<(usize, FrameRef)> = (0..z.len())
+                        .filter(|&i| z[i] == c)
+                        .map(|i| (i, data.frame(i)))
+                        .collect();
+                    let p = st.likelihood.pattern(st.base, &members).unwrap();
+                    alpha.ln() + ln_gamma(members.len() as f64) + p.log_marginal()
+                })
+                .sum()
+        })
+        .collect();
+    let z = crate::special::log_sum_exp(&logw);
+    parts
+        .into_iter()
+        .zip(logw)
+        .map(|(p, w)| (p, (w - z).exp()))
+        .collect()
+}
+
+fn tv(freq: &HashMap<Vec<usize>, f64>, exact: &HashMap<Vec<usize>, f64>) -> f64 {
+    0.5 * exact
+        .iter()
+        .map(|(p, e)| (freq.get(p).copied().unwrap_or(0.0) - e).abs())
+        .sum::<f64>()
+}
+
+/// Partition frequencies of a chain of `steps` split–merge moves alone, from all singletons.
+fn split_merge_only(st: Settings, steps: usize) -> (HashMap<Vec<usize>, f64>, SplitMergeStats) {
+    let data = tiny();
+    let mut s = Sampler::new(data, st).unwrap();
+    s.set_state(&[0, 1, 2, 3, 4], &[s.settings.base.length_scales; 5], 1.0)
+        .unwrap();
+    let mut counts: HashMap<Vec<usize>, f64> = HashMap::new();
+    for m in 0..steps {
+        let mut rng = stream(7, 0, Phase::SplitMerge, m as u64);
+        s.split_merge_step(&mut rng).unwrap();
+        *counts.entry(canonical(s.labels())).or_default() += 1.0;
+    }
+    for c in counts.values_mut() {
+        *c /= steps as f64;
+    }
+    (counts, s.split_merge)
+}
+
+#[test]
+fn split_merge_alone_samples_the_enumerated_posterior() {
+    for likelihood in [Likelihood::Exact, tiny_hsgp()] {
+        for pairs in [PairChoice::Uniform, PairChoice::Informed] {
+            let mut st = tiny_settings(likelihood.clone(), 1);
+            st.split_merge.pairs = pairs;
+            let exact = enumerated(&tiny(), &st);
+            let (freq, stats) = split_merge_only(st, 200_000);
+            let d = tv(&freq, &exact);
+            let name = format!("{} {pairs:?}", likelihood.name());
+            assert!(d <= 0.03, "{name}: TV {d:.4} > 0.03 ({stats:?})");
+            assert!(stats.split_accepted > 1000 && stats.merge_accepted > 1000, "{name}: {stats:?}");
+        }
+    }
+}
+
+/// The check has power: the same chain's frequencies are far from the posterior of a
+/// slightly different model (α = 2), so a ratio off by that much would fail it.
+#[test]
+fn the_check_detects_a_different_target() {
+    let st = tiny_settings(Likelihood::Exact, 1);
+    let mut other = st.clone();
+    other.alpha = Some(2.0);
+    let wrong = enumerated(&tiny(), &other);
+    let (freq, _) = split_merge_only(st, 100_000);
+    assert!(tv(&freq, &wrong) > 0.05, "TV {}", tv(&freq, &wrong));
+}
+
+#[test]
+fn split_merge_chain_is_the_same_whatever_the_thread_count() {
+    let run = |threads: usize, likelihood: Likelihood, proposal: Proposal| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let mut st = tiny_settings(likelihood, 5);
+            st.fixed_length_scales = false;
+            st.alpha = None;
+            st.new_pattern_samples = 5;
+            st.proposal = proposal;
+            st.split_merge.moves_per_sweep = 3;
+            st.split_merge.pairs = PairChoice::Informed;
+            st.noise_prior = Some(crate::gibbs::NoisePrior {
+                log_mean: 0.1f64.ln(),
+                sd: 2.0,
+            });
+            let mut s = Sampler::new(tiny(), st).unwrap();
+            let trace: Vec<f64> = (0..30).map(|_| s.sweep(&|| false).unwrap().log_joint).collect();
+            (s.labels().to_vec(), trace, s.split_merge)
+        })
+    };
+    for l in [Likelihood::Exact, tiny_hsgp()] {
+        for p in [Proposal::Full, Proposal::Informed] {
+            let (a, b) = (run(1, l.clone(), p), run(2, l.clone(), p));
+            assert_eq!(a.0, b.0);
+            assert_eq!(a.1, b.1);
+            assert_eq!(a.2, b.2);
+            assert!(a.2.split_proposed + a.2.merge_proposed == 90, "{:?}", a.2);
+        }
+    }
+}
+
+/// A split that is accepted leaves every pattern's cached factor equal to a fresh one, and the
+/// labels consistent with the patterns' members.
+#[test]
+fn accepted_moves_leave_a_consistent_state() {
+    let mut st = tiny_settings(Likelihood::Exact, 3);
+    st.split_merge.moves_per_sweep = 20;
+    let mut s = Sampler::new(tiny(), st).unwrap();
+    for _ in 0..20 {
+        s.sweep(&|| false).unwrap();
+        for p in s.patterns() {
+            let pat = s.pattern(p.slot).unwrap();
+            for &f in pat.frames() {
+                assert_eq!(s.labels()[f], p.slot);
+            }
+            let fresh = s.settings.likelihood.pattern(*pat.params(), &pat.members()).unwrap();
+            assert!((fresh.log_marginal() - pat.log_marginal()).abs() < 1e-9);
+        }
+    }
+    assert!(s.split_merge.split_accepted + s.split_merge.merge_accepted > 0);
+}
