@@ -29,14 +29,14 @@ def _fit(train, **kw):
 
 
 def _states(model):
-    """(labels, length scales, α) of every state the averaged scores use: kept draws after
-    burn-in, then the final state."""
+    """(labels, length scales, α, noise pair) of every state the averaged scores use: kept draws
+    after burn-in, then the final state."""
     d = model.draws_
-    out = [(d.labels[i].astype(np.int64), d.length_scales[i], d.alpha[i]) for i in used(d, model.n_iter_)]
-    return out + [(model.labels_, model.length_scales_, model.alpha_)]
+    out = [(d.labels[i].astype(np.int64), d.length_scales[i], d.alpha[i], d.noise_var[i]) for i in used(d, model.n_iter_)]
+    return out + [(model.labels_, model.length_scales_, model.alpha_, tuple(model.noise_var_))]
 
 
-def _oracle_terms(model, train, test, labels, ls, alpha, new_terms):
+def _oracle_terms(model, train, test, labels, ls, alpha, noise, new_terms):
     """(frames, K+1): log DP weight + log likelihood of each of the state's patterns and of a new one."""
     n = len(train)
     rows = []
@@ -44,7 +44,7 @@ def _oracle_terms(model, train, test, labels, ls, alpha, new_terms):
         terms = []
         for k in range(len(ls)):
             members = train[np.flatnonzero(labels == k)]
-            p = GPParams(tuple(ls[k]), model.params_.signal_var, model.noise_var_, model.params_.mean)
+            p = GPParams(tuple(ls[k]), model.params_.signal_var, noise, model.params_.mean)
             terms.append(np.log(len(members) / (n + alpha)) + ref_pred(members.xy, members.v, f.xy, f.v, p))
         terms.append(np.log(alpha / (n + alpha)) + new_terms[i])
         rows.append(terms)
@@ -56,8 +56,9 @@ def _oracle(model, train, test, new_terms):
     formulas of dpgp.posterior's docstring."""
     states = _states(model)
     blocks = []
-    for labels, ls, alpha in states:
-        terms = _oracle_terms(model, train, test, labels, ls, alpha, new_terms)
+    for labels, ls, alpha, noise in states:
+        new = new_terms(noise) if callable(new_terms) else new_terms
+        terms = _oracle_terms(model, train, test, labels, ls, alpha, noise, new)
         overlap = np.zeros((len(ls) + 1, model.n_patterns_ + 1))
         for j in range(len(ls)):
             for k in range(model.n_patterns_):
@@ -89,6 +90,25 @@ def test_averaged_scores_match_the_oracle_with_fixed_length_scales(data):
     )  # fmt: skip
 
 
+def test_averaged_scores_use_each_draws_own_sampled_noise(data, tmp_path):
+    """With the noise sampled in the chain, each kept draw is scored with its own noise pair."""
+    train, test = data
+    model = _fit(train, length_scales=WS, noise_var="auto", iterations=12)
+    states = _states(model)
+    assert len(states) >= 3 and len({s[3] for s in states}) >= 2  # the noise differs between draws
+
+    def new(noise):  # fixed w: a new pattern's density is the prior's, under the state's noise
+        p = GPParams(WS, model.params_.signal_var, noise, model.params_.mean)
+        return [ref_lml(f.xy, f.v, p) for f in test]
+
+    want_density, want_proba = _oracle(model, train, test, new)
+    np.testing.assert_allclose(model.score_samples(test, positions=False, average=True), want_density, rtol=1e-9)
+    np.testing.assert_allclose(model.predict_proba(test, average=True), want_proba, rtol=1e-7, atol=1e-12)
+    model.save(tmp_path / "m.npz")
+    back = dpgp.DPGP.load(tmp_path / "m.npz")  # the draws' noise survives a model file
+    np.testing.assert_allclose(back.score_samples(test, positions=False, average=True), want_density, rtol=1e-9)
+
+
 def test_averaged_scores_match_the_oracle_with_sampled_length_scales(data):
     train, test = data
     model = _fit(train)
@@ -114,7 +134,7 @@ def test_thinning_keeps_a_function_of_the_sweep_count_within_the_bound():
     n_frames, bound = 50, 16
     d = Draws(n_frames)
     for t in range(1, 1001):
-        d.record(t, lambda t=t: (np.full(n_frames, 0), np.ones((1, 2)) * t, 1.0), bound)
+        d.record(t, lambda t=t: (np.full(n_frames, 0), np.ones((1, 2)) * t, 1.0, (0.5, 0.5)), bound)
         assert len(d) <= bound
         step = thin_for(t, bound)
         assert d.sweeps == list(range(step, t + 1, step))
@@ -150,6 +170,11 @@ def test_model_file_round_trip_and_old_files(data, tmp_path):
     assert getattr(prior, "draws_", None) is None
     np.testing.assert_array_equal(prior.score_samples(test, average=True), model.score_samples(test))
     assert prior.evaluate(test).states_averaged == 1
+    # draws written before the noise was sampled: scored with the model's noise
+    np.savez(tmp_path / "nonoise.npz", **{k: v for k, v in arrays.items() if k != "draw_noise_var"})
+    nonoise = dpgp.DPGP.load(tmp_path / "nonoise.npz")
+    assert len(nonoise.draws_) == len(model.draws_) and all(v is None for v in nonoise.draws_.noise_var)
+    np.testing.assert_array_equal(nonoise.score_samples(test, average=True), model.score_samples(test, average=True))
     # damaged draws are a ModelFileError
     bad = dict(arrays, draw_labels=arrays["draw_labels"] + 100)
     np.savez(tmp_path / "bad.npz", **bad)

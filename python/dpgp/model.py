@@ -539,7 +539,8 @@ class DPGP:
         frames = _as_frames(frames)
         terms = self._log_joint_terms(frames)
         draws = getattr(self, "draws_", None)
-        states = [(draws.labels[i], draws.length_scales[i], draws.alpha[i]) for i in used(draws, self.n_iter_)]
+        own = (float(self.noise_var_[0]), float(self.noise_var_[1]))  # for draws from files without their noise
+        states = [(draws.labels[i], draws.length_scales[i], draws.alpha[i], draws.noise_var[i] or own) for i in used(draws, self.n_iter_)]
         return averaged(terms, self.labels_, states, lambda: self._new_sampler(self.frames_), frames)
 
     def predict_proba(self, frames: Frames | Any, average: bool = False) -> np.ndarray:

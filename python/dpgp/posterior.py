@@ -52,13 +52,16 @@ def thin_for(sweeps: int, max_draws: int) -> int:
 @dataclass
 class Draws:
     """Kept states: ``sweeps`` (D,), ``labels`` (D, N) int32 (patterns by decreasing size),
-    ``length_scales`` (one (K_d, 2) array a draw), ``alpha`` (D,)."""
+    ``length_scales`` (one (K_d, 2) array a draw), ``alpha`` (D,), ``noise_var`` (one
+    ``(σ_n,x², σ_n,y²)`` a draw: the noise is sampled in the chain; ``None`` for draws read from a
+    file written before it was, which are scored with the model's final noise)."""
 
     n_frames: int
     sweeps: list[int] = field(default_factory=list)
     labels: list[np.ndarray] = field(default_factory=list)
     length_scales: list[np.ndarray] = field(default_factory=list)
     alpha: list[float] = field(default_factory=list)
+    noise_var: list[tuple[float, float] | None] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.sweeps)
@@ -67,23 +70,25 @@ class Draws:
     def nbytes(self) -> int:
         return sum(a.nbytes for a in self.labels) + sum(a.nbytes for a in self.length_scales) + 16 * len(self)
 
-    def record(self, sweep: int, state: Callable[[], tuple[np.ndarray, np.ndarray, float]], max_draws: int) -> None:
+    def record(self, sweep: int, state: Callable[[], State], max_draws: int) -> None:
         """After sweep ``sweep``: drop what the thinning no longer keeps, then keep this state
-        (``state()``: labels, length scales, α) if its sweep is a multiple of the step."""
+        (``state()``: labels, length scales, α, noise pair) if its sweep is a multiple of the step."""
         step = thin_for(sweep, max_draws)
         keep = [i for i, s in enumerate(self.sweeps) if step and s % step == 0]
         if len(keep) != len(self):
             self._select(keep)
         if step and sweep % step == 0 and (not self.sweeps or self.sweeps[-1] != sweep):
-            labels, length_scales, alpha = state()
+            labels, length_scales, alpha, noise = state()
             self.sweeps.append(int(sweep))
             self.labels.append(np.asarray(labels, dtype=np.int32).copy())
             self.length_scales.append(np.asarray(length_scales, dtype=np.float64).reshape(-1, 2).copy())
             self.alpha.append(float(alpha))
+            self.noise_var.append(None if noise is None else (float(noise[0]), float(noise[1])))
 
     def up_to(self, sweep: int) -> Draws:
         """The draws of sweeps ``<= sweep`` (a checkpoint's resume point)."""
-        out = Draws(self.n_frames, list(self.sweeps), list(self.labels), list(self.length_scales), list(self.alpha))
+        out = Draws(self.n_frames, list(self.sweeps), list(self.labels), list(self.length_scales), list(self.alpha),
+                    list(self.noise_var))  # fmt: skip
         out._select([i for i, s in enumerate(self.sweeps) if s <= sweep])
         return out
 
@@ -92,6 +97,7 @@ class Draws:
         self.labels = [self.labels[i] for i in idx]
         self.length_scales = [self.length_scales[i] for i in idx]
         self.alpha = [self.alpha[i] for i in idx]
+        self.noise_var = [self.noise_var[i] for i in idx]
 
     # --- model-file members (dpgp.io) ----------------------------------------------------------
     def arrays(self) -> dict[str, np.ndarray]:
@@ -102,6 +108,8 @@ class Draws:
             "draw_n_patterns": np.asarray([len(w) for w in self.length_scales], dtype=np.int64),
             "draw_length_scales": np.concatenate(self.length_scales) if d else np.zeros((0, 2)),
             "draw_alpha": np.asarray(self.alpha, dtype=np.float64),
+            # NaN: a draw without its own noise (read from a file before the noise was sampled)
+            "draw_noise_var": np.array([(np.nan, np.nan) if v is None else v for v in self.noise_var], dtype=np.float64).reshape(d, 2),
         }
 
     @classmethod
@@ -130,13 +138,26 @@ class Draws:
         for lab, k in zip(labels, counts):
             if n_frames and (lab.min() < 0 or lab.max() >= k or len(np.unique(lab)) != k):
                 raise ValueError("a posterior draw's labels do not name exactly its patterns")
+        noise: list[tuple[float, float] | None] = [None] * d  # files before the noise was sampled
+        if "draw_noise_var" in arrays:
+            nv = arrays["draw_noise_var"]
+            if nv.shape != (d, 2) or nv.dtype.kind != "f":
+                raise ValueError(f"the posterior draws' noise variances must be a ({d}, 2) float array")
+            known = ~np.isnan(nv).any(axis=1)
+            if not (np.isfinite(nv[known]).all() and (nv[known] > 0).all() and (nv[known] <= max_ls).all()):
+                raise ValueError(f"the posterior draws' noise variances must be positive and at most {max_ls:g}")
+            noise = [(float(a), float(b)) if k else None for (a, b), k in zip(nv, known)]
         return cls(n_frames, [int(s) for s in sweeps], [np.asarray(x, dtype=np.int32) for x in labels], list(parts),
-                   [float(a) for a in alpha])  # fmt: skip
+                   [float(a) for a in alpha], noise)  # fmt: skip
 
 
-def state_of(sampler: object) -> tuple[np.ndarray, np.ndarray, float]:
+#: One kept state: labels, length scales (K, 2), α and the noise pair (None: the model's own).
+State = tuple[np.ndarray, np.ndarray, float, "tuple[float, float] | None"]
+
+
+def state_of(sampler: object) -> State:
     """A sampler's state as a draw: labels with patterns by decreasing size (ties by slot), their
-    length scales (K, 2) and α."""
+    length scales (K, 2), α and the noise pair."""
     patterns = sampler.patterns()  # (slot, id, n_frames, wx, wy)
     order = sorted(range(len(patterns)), key=lambda j: (-patterns[j][2], patterns[j][0]))
     slots = np.array([patterns[j][0] for j in order], dtype=np.int64)
@@ -144,7 +165,8 @@ def state_of(sampler: object) -> tuple[np.ndarray, np.ndarray, float]:
     lookup = np.zeros(int(slots.max()) + 1 if len(slots) else 1, dtype=np.int64)
     lookup[slots] = np.arange(len(slots))
     ls = np.array([[patterns[j][3], patterns[j][4]] for j in order], dtype=np.float64).reshape(-1, 2)
-    return lookup[raw], ls, float(sampler.alpha())
+    noise = tuple(float(x) for x in sampler.noise_var())
+    return lookup[raw], ls, float(sampler.alpha()), (noise[0], noise[1])
 
 
 def used(draws: Draws | None, n_iter: int) -> list[int]:
@@ -155,12 +177,14 @@ def used(draws: Draws | None, n_iter: int) -> list[int]:
     return [i for i, s in enumerate(draws.sweeps) if n_iter // 2 < s < n_iter]
 
 
-def _draw_terms(sampler: object, state: tuple[np.ndarray, np.ndarray, float], frames: object) -> tuple[np.ndarray, np.ndarray]:
+def _draw_terms(sampler: object, state: State, frames: object) -> tuple[np.ndarray, np.ndarray]:
     """For one state: (n_test, K+1) log [DP weight × likelihood] per pattern (state label order)
     and a new one, and the (K,) training-frame counts per pattern."""
-    labels, ls, alpha = state
+    labels, ls, alpha, noise = state
+    if noise is not None:
+        sampler.set_noise_var(noise)
     sampler.set_state(np.asarray(labels, dtype=np.int64), ls, alpha)
-    cur, _, _ = state_of(sampler)
+    cur = state_of(sampler)[0]
     if not np.array_equal(cur, labels):  # set_state keeps label k in slot order k
         raise RuntimeError("the sampler did not take the draw's labels")
     patterns = sampler.patterns()
@@ -176,7 +200,7 @@ def _draw_terms(sampler: object, state: tuple[np.ndarray, np.ndarray, float], fr
 def averaged(
     final_terms: np.ndarray,
     final_labels: np.ndarray,
-    states: list[tuple[np.ndarray, np.ndarray, float]],
+    states: list[State],
     new_sampler: Callable[[], object],
     frames: object,
 ) -> tuple[np.ndarray, np.ndarray]:
