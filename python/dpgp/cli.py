@@ -218,8 +218,13 @@ def _info(args: argparse.Namespace) -> int:
     )
     r = model.defaults_
     a, b = r.length_scale_prior
+    if r.noise_var_source == "sampled":  # r.noise_var is where the chain started; show its last draw
+        n = model.noise_var_
+        noise = f"noise variance ({n[0]:.4g}, {n[1]:.4g}) (sampled in the chain, from ({r.noise_var[0]:.4g}, {r.noise_var[1]:.4g}))"
+    else:
+        noise = f"noise variance ({r.noise_var[0]:.4g}, {r.noise_var[1]:.4g}) ({r.noise_var_source})"
     lines.append(
-        f"resolved: noise variance ({r.noise_var[0]:.4g}, {r.noise_var[1]:.4g}) ({r.noise_var_source}), length-scale prior Gamma({a:g}, {b:.4g}) "
+        f"resolved: {noise}, length-scale prior Gamma({a:g}, {b:.4g}) "
         f"({r.length_scale_prior_source}), assignment {r.assignment}"
     )
     settings = {k: v for k, v in model.get_params().items() if k not in ("progress",)}
