@@ -41,7 +41,7 @@ def test_ctrl_c_keeps_the_state_reached():
 def test_ctrl_c_during_the_noise_pilots_stops_the_fit():
     """noise_var="auto" runs short pilot fits first; Ctrl-C there ends the fit (there is no
     state to keep yet) instead of being taken as the end of one pilot."""
-    script = SCRIPT.format(noise=repr("auto"))
+    script = SCRIPT.format(noise=repr("pilot"))
     proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stdout.readline().strip() == "fitting"

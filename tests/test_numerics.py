@@ -317,11 +317,13 @@ def test_frames_of_one_vehicle(us101, likelihood):
 # --- 5. a single frame --------------------------------------------------------------------------
 
 
-def test_a_single_frame_with_the_default_noise_is_a_typed_error(us101):
-    """Now and before: noise_var="auto" holds out frames to choose the noise, so one frame is an
-    InvalidInputError that says to pass a number."""
+def test_a_single_frame_with_the_pilot_noise_is_a_typed_error(us101):
+    """noise_var="pilot" holds out frames to choose the noise, so one frame is an
+    InvalidInputError that says to pass a number; the default ("auto": sampled in the chain)
+    fits one frame."""
     with pytest.raises(dpgp.InvalidInputError, match="noise_var='auto' needs at least"):
-        fit(us101[:1])
+        fit(us101[:1], noise_var="pilot")
+    assert fit(us101[:1]).n_patterns_ == 1
 
 
 @pytest.mark.parametrize("likelihood", ["exact", "hsgp"])

@@ -55,6 +55,11 @@ ENGINES = ("exact", "hsgp")
 #: exact's.
 HSGP_MARGIN = 4.0
 
+#: A predicted exact sweep at most this many seconds is fast enough whatever hsgp would take:
+#: on tiny problems the predictions are microseconds (fixed overheads the model leaves out
+#: dominate), and exact is the model itself, so speed gives no reason to approximate it.
+EXACT_FAST_ENOUGH = 0.05
+
 #: Seconds per sweep = coefficients · features (:func:`features`), in the features' order; fitted
 #: on this machine by ``python benches/engine_cost.py calibrate`` then ``fit``.
 COEFFICIENTS: dict[str, tuple[float, ...]] = {
@@ -116,7 +121,7 @@ def choose_upfront(frame_sizes: object, basis_size: int, memory_budget: int | No
     exact = sweep_seconds("exact", [n_points], frame_sizes)
     hsgp = sweep_seconds("hsgp", [], frame_sizes, basis_size)
     fits = memory_budget is None or exact_bytes(n_points) <= memory_budget
-    if fits and exact <= HSGP_MARGIN * hsgp:
+    if fits and (exact <= HSGP_MARGIN * hsgp or exact <= EXACT_FAST_ENOUGH):
         return Choice("exact", basis_size, "worst case", exact, hsgp, fits)
     return None
 
@@ -129,7 +134,7 @@ def choose(pattern_points: object, frame_sizes: object, basis_size: int, memory_
     hsgp = sweep_seconds("hsgp", n, frame_sizes, basis_size)
     largest = int(n.max()) if len(n) else 0
     fits = memory_budget is None or exact_bytes(largest) <= memory_budget
-    engine = "exact" if fits and exact <= HSGP_MARGIN * hsgp else "hsgp"
+    engine = "exact" if fits and (exact <= HSGP_MARGIN * hsgp or exact <= EXACT_FAST_ENOUGH) else "hsgp"
     return Choice(engine, basis_size, "hsgp initialisation", exact, hsgp, fits)
 
 

@@ -307,6 +307,7 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     med = float(np.median(speed[speed > 0])) if np.any(speed > 0) else 1.0
     slow = gap[u < 0.2 * med]
     jam = float(np.percentile(slow if len(slow) >= 20 else gap, 5)) if len(gap) else 4.0 * lateral
+    jam = max(jam, 1e-9)  # duplicated positions give zero gaps; IDM needs a positive jam distance
     follow = (u > 0.3 * med) & (gap < jam + 3.0 * u)
     headway = float(np.clip(np.median((gap[follow] - jam) / u[follow]), 0.3, 3.0)) if follow.any() else 1.5
     accel, decel = _accelerations(frames, *consecutive_pairs(frames, dt), dt, med)

@@ -238,6 +238,7 @@ def sample_scenarios(
         )
     dt = fit.dt if dt is None else dt
     steps, method, thr = _check(steps, method, dt, low_data_threshold)
+    _check_rows(int(steps) + 1, f"a time axis of {steps} steps", "ask for fewer steps")  # allocated even for no scenario
     box = fit.roi if roi is None else _check_roi(roi)
     psi = distributions(fit)
     # Bound the work by the largest count φ can draw, so that whether a call is refused does not
