@@ -3,13 +3,7 @@ use crate::hsgp::Basis;
 
 /// Two obvious patterns: vehicles moving +y and vehicles moving +x, 30 frames each.
 fn two_patterns() -> Data {
-    let mut s = 7u64;
-    let mut u = move || {
-        s = s
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (s >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut u = crate::test_util::uniform(7u64);
     let (mut xy, mut v, mut offsets) = (Vec::new(), Vec::new(), vec![0]);
     for i in 0..60 {
         for _ in 0..4 {

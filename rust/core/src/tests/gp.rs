@@ -1,13 +1,7 @@
 use super::*;
 
 fn data(n: usize, seed: u64) -> (Vec<Point>, Vec<[f64; 2]>) {
-    let mut s = seed;
-    let mut u = || {
-        s = s
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (s >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut u = crate::test_util::uniform(seed);
     let xy: Vec<Point> = (0..n).map(|_| [u() * 60.0, u() * 200.0]).collect();
     let v: Vec<[f64; 2]> = xy
         .iter()

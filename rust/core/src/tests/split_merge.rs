@@ -15,13 +15,7 @@ use crate::pattern_model::Likelihood;
 /// Five frames of 2-3 vehicles from two loosely different fields: a posterior spread over many
 /// partitions.
 pub(crate) fn tiny() -> Data {
-    let mut s = 11u64;
-    let mut u = move || {
-        s = s
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (s >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut u = crate::test_util::uniform(11u64);
     let (mut xy, mut v, mut offsets) = (Vec::new(), Vec::new(), vec![0]);
     for i in 0..5 {
         let shift = 1.5 * (i % 2) as f64;

@@ -3,14 +3,20 @@
 use crate::kernel::Point;
 use crate::pattern::FrameRef;
 
-pub fn frames(seed: u64, count: usize) -> Vec<(Vec<Point>, Vec<[f64; 2]>)> {
+/// A deterministic stream of uniforms in [0, 1) (a 64-bit LCG's top 53 bits): test data
+/// that needs no random-number crate and is the same on every platform.
+pub fn uniform(seed: u64) -> impl FnMut() -> f64 {
     let mut s = seed;
-    let mut u = move || {
+    move || {
         s = s
             .wrapping_mul(6364136223846793005)
             .wrapping_add(1442695040888963407);
         (s >> 11) as f64 / (1u64 << 53) as f64
-    };
+    }
+}
+
+pub fn frames(seed: u64, count: usize) -> Vec<(Vec<Point>, Vec<[f64; 2]>)> {
+    let mut u = uniform(seed);
     (0..count)
         .map(|_| {
             let l = 2 + (u() * 6.0) as usize;
