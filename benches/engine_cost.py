@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 
 import dpgp
-from dpgp import engine_cost
 from dpgp.evaluate import split_in_time
+from dpgp.model import engine_cost
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -44,7 +44,10 @@ def _real(name: str):
 
 def scenes(names: list[str] | None = None) -> dict:
     """name -> loader of frames: every shared data set, then the synthetic scenes."""
-    out = {n: (lambda n=n: _real(n)) for n in ("us101", "peachtree", "eth", "zara01", "sumo_left_turn", "lankershim", "sumo_grid")}
+    out = {
+        n: (lambda n=n: _real(n))
+        for n in ("us101", "peachtree", "eth", "zara01", "sumo_left_turn", "lankershim", "sumo_grid")
+    }
     for kind in ("highway", "intersection"):
         for n in (200, 1000, 10000):
             out[f"synthetic_{kind}_{n}"] = lambda kind=kind, n=n: dpgp.datasets.synthetic(kind, n, seed=0)
@@ -84,7 +87,10 @@ def calibrate(out: str) -> None:
                        "seconds": m.history_["seconds"][t], "pattern_points": pts[pts > 0].tolist(),
                        "frame_sizes": sizes.tolist()}  # fmt: skip
                 fh.write(json.dumps(row) + "\n")
-            print(f"{name} {n} {lik}: M={M} K={m.n_patterns_} median sweep {np.median(m.history_['seconds'][1:]):.4f} s", flush=True)
+            print(
+                f"{name} {n} {lik}: M={M} K={m.n_patterns_} median sweep {np.median(m.history_['seconds'][1:]):.4f} s",
+                flush=True,
+            )
 
 
 def fit(path: str) -> None:
@@ -145,7 +151,9 @@ def check(names: list[str] | None, sweeps: int, max_exact: float) -> None:
             row[f"{engine}_K"] = m.n_patterns_
             row[f"{engine}_density"] = float(m.evaluate(test).table.loc["dpgp", "log_density"])
         faster = "exact" if not row["exact_sweep_s"] > row["hsgp_sweep_s"] else "hsgp"
-        row["auto_picked_faster"] = (auto.likelihood_ == faster) if np.isfinite(row["exact_sweep_s"]) else auto.likelihood_ == "hsgp"
+        row["auto_picked_faster"] = (
+            (auto.likelihood_ == faster) if np.isfinite(row["exact_sweep_s"]) else auto.likelihood_ == "hsgp"
+        )
         rows.append(row)
         print(json.dumps(row, default=float), flush=True)
     table = pd.DataFrame(rows).set_index("scene")

@@ -86,14 +86,22 @@ def check_against_dpgp(m, frames, i: int = 0) -> float:
     labels, K = np.asarray(m.labels_), m.n_patterns_
     members = [[j for j in np.flatnonzero(labels == k) if j != i] for k in range(K)]
     keep = [k for k in range(K) if members[k]]
-    u = existing_scores(frames, [members[k] for k in keep], np.asarray(m.length_scales_)[keep], i,
-                        np.var(frames.v, axis=0), 1.0, frames.v.mean(axis=0))
+    u = existing_scores(
+        frames,
+        [members[k] for k in keep],
+        np.asarray(m.length_scales_)[keep],
+        i,
+        np.var(frames.v, axis=0),
+        1.0,
+        frames.v.mean(axis=0),
+    )
     got = np.asarray(m.conditional_log_probs(i))[keep]
     return float(np.max(np.abs((u - logsumexp(u)) - (got - logsumexp(got)))))
 
 
-def numpy_sweep(frames, labels, ws, alpha, prior=(10.0, 1.0), n_aux=10, assignment="gibbs",
-                noise_var=1.0, limit=None, seed=0):
+def numpy_sweep(
+    frames, labels, ws, alpha, prior=(10.0, 1.0), n_aux=10, assignment="gibbs", noise_var=1.0, limit=None, seed=0
+):
     """One collapsed-Gibbs sweep over frames 0..limit-1; returns (labels, ws, seconds).
 
     ``labels`` (N,) take the values 0..K-1, ``ws`` is (K, 2). Patterns emptied are dropped and
@@ -118,7 +126,11 @@ def numpy_sweep(frames, labels, ws, alpha, prior=(10.0, 1.0), n_aux=10, assignme
         u[-1] = np.log(alpha) - np.log(n_aux) + logsumexp(aux_ll)
         k = int(np.argmax(u)) if assignment == "map" else int(rng.choice(len(u), p=np.exp(u - logsumexp(u))))
         if k == len(ws):
-            j = int(np.argmax(aux_ll)) if assignment == "map" else int(rng.choice(n_aux, p=np.exp(aux_ll - logsumexp(aux_ll))))
+            j = (
+                int(np.argmax(aux_ll))
+                if assignment == "map"
+                else int(rng.choice(n_aux, p=np.exp(aux_ll - logsumexp(aux_ll))))
+            )
             members.append([])
             ws.append(aux[j])
         members[k].append(i)
@@ -130,10 +142,14 @@ def numpy_sweep(frames, labels, ws, alpha, prior=(10.0, 1.0), n_aux=10, assignme
 def report_fit(m, total: float) -> float:
     secs = np.asarray(m.history_["seconds"], float)
     w = np.sort(np.asarray(m.weights_))[::-1]
-    print(f"dpgp: {len(secs)} sweeps in {total:.2f} s; median {np.median(secs):.3f} s/sweep "
-          f"(min {secs.min():.3f}, max {secs.max():.3f})")
+    print(
+        f"dpgp: {len(secs)} sweeps in {total:.2f} s; median {np.median(secs):.3f} s/sweep "
+        f"(min {secs.min():.3f}, max {secs.max():.3f})"
+    )
     print(f"  K = {m.n_patterns_}, alpha = {float(m.alpha_):.3g}; top-10 proportions: {np.round(w[:10], 3).tolist()}")
-    print(f"  patterns with >= 1% of frames: {int(np.sum(w >= 0.01))}; singletons: {int(np.sum(np.bincount(m.labels_) == 1))}")
+    print(
+        f"  patterns with >= 1% of frames: {int(np.sum(w >= 0.01))}; singletons: {int(np.sum(np.bincount(m.labels_) == 1))}"
+    )
     if hasattr(m, "timings_"):
         print("  timings_:", {k: (round(v, 3) if isinstance(v, float) else v) for k, v in dict(m.timings_).items()})
     return float(np.median(secs))
@@ -151,8 +167,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--skip-dpgp", action="store_true")
-    ap.add_argument("--length-scale-fraction", type=float, default=1.0,
-                    help="share of patterns whose length scales are resampled each sweep")
+    ap.add_argument(
+        "--length-scale-fraction",
+        type=float,
+        default=1.0,
+        help="share of patterns whose length scales are resampled each sweep",
+    )
     args = ap.parse_args()
 
     frames = dpgp.read_frames(args.data)
@@ -163,26 +183,36 @@ def main() -> None:
 
     dpgp_sweep = None
     if not args.skip_dpgp and hasattr(dpgp, "DPGP"):
-        m = dpgp.DPGP(iterations=args.iterations, assignment=args.assignment, seed=args.seed,
-                      length_scale_fraction=args.length_scale_fraction,
-                      n_threads=args.threads, progress=True)
+        m = dpgp.DPGP(
+            iterations=args.iterations,
+            assignment=args.assignment,
+            seed=args.seed,
+            length_scale_fraction=args.length_scale_fraction,
+            n_threads=args.threads,
+            progress=True,
+        )
         t = time.perf_counter()
         m.fit(frames)
         dpgp_sweep = report_fit(m, time.perf_counter() - t)
         labels, ws, alpha = np.asarray(m.labels_), np.asarray(m.length_scales_), float(m.alpha_)
-        print(f"  numpy vs dpgp conditional of frame 0 over existing patterns: max |diff| "
-              f"{check_against_dpgp(m, frames):.2e} nats")
+        print(
+            f"  numpy vs dpgp conditional of frame 0 over existing patterns: max |diff| "
+            f"{check_against_dpgp(m, frames):.2e} nats"
+        )
     else:
         print("dpgp: skipped" + ("" if hasattr(dpgp, "DPGP") else " (dpgp.DPGP does not exist yet)"))
         K = min(args.init_patterns, N)
         labels, ws, alpha = np.arange(N) % K, np.full((K, 2), 10.0), 1.0
 
     B = min(args.baseline_frames, N)
-    _, _, sec = numpy_sweep(frames, labels, ws, alpha, n_aux=args.aux, assignment=args.assignment,
-                            limit=B, seed=args.seed)
+    _, _, sec = numpy_sweep(
+        frames, labels, ws, alpha, n_aux=args.aux, assignment=args.assignment, limit=B, seed=args.seed
+    )
     sweep = sec * N / B
-    print(f"numpy: {B} of {N} frames against K = {len(ws)} patterns in {sec:.2f} s "
-          f"({sec / B * 1e3:.1f} ms/frame) -> {sweep:.1f} s per sweep (scaled by N/{B})")
+    print(
+        f"numpy: {B} of {N} frames against K = {len(ws)} patterns in {sec:.2f} s "
+        f"({sec / B * 1e3:.1f} ms/frame) -> {sweep:.1f} s per sweep (scaled by N/{B})"
+    )
     if dpgp_sweep:
         print(f"ratio numpy / dpgp seconds per sweep: {sweep / dpgp_sweep:.0f}x")
 

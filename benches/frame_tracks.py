@@ -33,7 +33,6 @@ def synthetic_tracks(n_rows: int, with_velocity: bool, interleaved: bool, seed: 
     rng = np.random.default_rng(seed)
     per = 100
     n_tracks = n_rows // per
-    n = n_tracks * per
     track = np.repeat(np.arange(n_tracks, dtype=np.int64), per)
     step = np.tile(np.arange(per, dtype=np.float64), n_tracks)
     start = np.round(rng.uniform(0, 3600, n_tracks), 1)
@@ -108,13 +107,19 @@ def main() -> None:
     tracemalloc.stop()
 
     mb = 1 << 20
-    print(f"table: {len(df):,} rows x {df.shape[1]} columns = {table / mb:,.0f} MiB"
-          f" ({'interleaved by time' if args.interleaved else 'sorted by track'}, velocity={args.velocity})")
+    print(
+        f"table: {len(df):,} rows x {df.shape[1]} columns = {table / mb:,.0f} MiB"
+        f" ({'interleaved by time' if args.interleaved else 'sorted by track'}, velocity={args.velocity})"
+    )
     print(f"frames: {n_frames:,} frames, {n_points:,} vehicle observations (dt {args.dt} s)")
     print(f"make_frames: {seconds:.2f} s")
-    print(f"peak resident memory while framing{'' if exact else ' (whole run: VmHWM reset unavailable)'}: "
-          f"{rss / mb:,.0f} MiB = {rss / table:.2f} x the table (includes the table and the interpreter)")
-    print(f"peak new allocations in make_frames (tracemalloc): {traced / mb:,.0f} MiB = {traced / table:.2f} x the table")
+    print(
+        f"peak resident memory while framing{'' if exact else ' (whole run: VmHWM reset unavailable)'}: "
+        f"{rss / mb:,.0f} MiB = {rss / table:.2f} x the table (includes the table and the interpreter)"
+    )
+    print(
+        f"peak new allocations in make_frames (tracemalloc): {traced / mb:,.0f} MiB = {traced / table:.2f} x the table"
+    )
     print(f"cpu count {os.cpu_count()}")
 
 

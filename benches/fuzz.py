@@ -53,8 +53,18 @@ def worker(surface: str, start: int, stop: int, seed: int) -> None:
             draw = fc.RandomDraw([seed, fc.SURFACES.index(surface), i])
             t = time.perf_counter()
             outcome = fc.run_case(surface, draw, ctx)
-            print(json.dumps({"done": i, "kind": outcome.kind, "detail": outcome.detail,
-                              "seconds": time.perf_counter() - t, "draws": draw.log if outcome.defect else []}), flush=True)
+            print(
+                json.dumps(
+                    {
+                        "done": i,
+                        "kind": outcome.kind,
+                        "detail": outcome.detail,
+                        "seconds": time.perf_counter() - t,
+                        "draws": draw.log if outcome.defect else [],
+                    }
+                ),
+                flush=True,
+            )
     finally:
         ctx.close()
 
@@ -77,7 +87,9 @@ def _cpu_seconds(pid: int) -> float:
         return 0.0
 
 
-def run_range(surface: str, start: int, stop: int, args: argparse.Namespace, results: list, lock: threading.Lock) -> None:
+def run_range(
+    surface: str, start: int, stop: int, args: argparse.Namespace, results: list, lock: threading.Lock
+) -> None:
     i = start
     while i < stop:
         cmd = [sys.executable, __file__, "--worker", surface, str(i), str(stop), "--seed", str(args.seed)]
@@ -103,11 +115,18 @@ def run_range(surface: str, start: int, stop: int, args: argparse.Namespace, res
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
                 if current is None:
-                    raise RuntimeError(f"fuzz worker hung before its first case: {''.join(err_tail)}")
+                    raise RuntimeError(f"fuzz worker hung before its first case: {''.join(err_tail)}") from None
                 with lock:
-                    results.append(dict(surface=surface, case=current if current is not None else i, kind="hang",
-                                        detail=f"no result within {args.timeout:g} s of CPU time or {10 * args.timeout:g} s",
-                                        seconds=args.timeout, draws=[]))
+                    results.append(
+                        dict(
+                            surface=surface,
+                            case=current if current is not None else i,
+                            kind="hang",
+                            detail=f"no result within {args.timeout:g} s of CPU time or {10 * args.timeout:g} s",
+                            seconds=args.timeout,
+                            draws=[],
+                        )
+                    )
                 break
             if line is None:  # the worker exited
                 proc.wait()
@@ -116,7 +135,16 @@ def run_range(surface: str, start: int, stop: int, args: argparse.Namespace, res
                     how = f"killed by {signal.Signals(sig).name}" if sig else f"exit status {proc.returncode}"
                     tail = " | ".join(x.strip() for x in err_tail if x.strip())[-400:]
                     with lock:
-                        results.append(dict(surface=surface, case=current, kind="crash", detail=f"{how}: {tail}", seconds=0.0, draws=[]))
+                        results.append(
+                            dict(
+                                surface=surface,
+                                case=current,
+                                kind="crash",
+                                detail=f"{how}: {tail}",
+                                seconds=0.0,
+                                draws=[],
+                            )
+                        )
                 elif proc.returncode != 0 and i < stop:
                     raise RuntimeError(f"fuzz worker failed before its first case: {''.join(err_tail)}")
                 break
@@ -126,8 +154,16 @@ def run_range(surface: str, start: int, stop: int, args: argparse.Namespace, res
                 cpu0, wall0 = _cpu_seconds(proc.pid), time.monotonic()
             elif "done" in msg:
                 with lock:
-                    results.append(dict(surface=surface, case=msg["done"], kind=msg["kind"], detail=msg["detail"],
-                                        seconds=msg["seconds"], draws=msg["draws"]))
+                    results.append(
+                        dict(
+                            surface=surface,
+                            case=msg["done"],
+                            kind=msg["kind"],
+                            detail=msg["detail"],
+                            seconds=msg["seconds"],
+                            draws=msg["draws"],
+                        )
+                    )
                 i, current = msg["done"] + 1, None
         if current is not None:
             i = current + 1  # start the next worker after the case that crashed or hung
@@ -152,7 +188,9 @@ def report(results: list, surfaces: list[str]) -> str:
         for sig, rs in sorted(groups.items(), key=lambda kv: -len(kv[1])):
             first = min(rs, key=lambda r: r["case"])
             lines.append(f"{len(rs):>6}  {sig}")
-            lines.append(f"        python benches/fuzz.py --replay {first['surface']}:{first['case']}   # {first['detail'][:160]}")
+            lines.append(
+                f"        python benches/fuzz.py --replay {first['surface']}:{first['case']}   # {first['detail'][:160]}"
+            )
     return "\n".join(lines)
 
 
@@ -186,7 +224,12 @@ def main() -> int:
     p.add_argument("--start", type=int, default=0, help="first case number")
     p.add_argument("--jobs", type=int, default=1, help="worker processes at once")
     p.add_argument("--batch", type=int, default=500, help="cases per worker process")
-    p.add_argument("--timeout", type=float, default=30.0, help="CPU seconds (ten times as many wall seconds) before a case counts as a hang")
+    p.add_argument(
+        "--timeout",
+        type=float,
+        default=30.0,
+        help="CPU seconds (ten times as many wall seconds) before a case counts as a hang",
+    )
     p.add_argument("--memory", type=int, default=4096, help="address-space limit of a worker, MiB (0: none)")
     p.add_argument("--seed", type=int, default=0, help="seed of the whole run")
     p.add_argument("--json", help="write every case's outcome here")
@@ -215,7 +258,11 @@ def main() -> int:
             except queue.Empty:
                 return
             run_range(*job, args, results, lock)
-            print(f"  {job[0]} {job[1]}..{job[2] - 1} done ({time.perf_counter() - t0:.0f} s)", file=sys.stderr, flush=True)
+            print(
+                f"  {job[0]} {job[1]}..{job[2] - 1} done ({time.perf_counter() - t0:.0f} s)",
+                file=sys.stderr,
+                flush=True,
+            )
 
     threads = [threading.Thread(target=run_jobs) for _ in range(max(1, args.jobs))]
     for t in threads:

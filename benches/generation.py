@@ -33,10 +33,10 @@ import numpy as np
 import pandas as pd
 
 import dpgp
+from dpgp.data.framing import FT_TO_M
 from dpgp.evaluate import rollout_errors, split_in_time
-from dpgp.framing import FT_TO_M
-from dpgp.motion import motion_model
-from dpgp.realism import FEATURES, model_realism
+from dpgp.evaluate.realism_checks import FEATURES, model_realism
+from dpgp.generate.motion import motion_model
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 DYNAMICS = ("field", "relaxed", "interactive")
@@ -48,7 +48,9 @@ def load(name: str):
         t = dpgp.read_ngsim(DATA / "ngsim_peachtree_raw.csv")
         return dpgp.make_frames(t, roi=(-20, 30, 0, 80), dt=0.5), t, FT_TO_M, 2.0
     if name in ("eth", "zara01"):
-        t = dpgp.read_tracks(DATA / {"eth": "eth_ucy_biwi_eth.txt", "zara01": "eth_ucy_crowds_zara01.txt"}[name], preset="eth_ucy")
+        t = dpgp.read_tracks(
+            DATA / {"eth": "eth_ucy_biwi_eth.txt", "zara01": "eth_ucy_crowds_zara01.txt"}[name], preset="eth_ucy"
+        )
         return dpgp.make_frames(t, dt=0.4), t, 1.0, 0.3
     if name == "sumo":
         t = dpgp.read_tracks(DATA / "sumo_grid_intersection_fcd.xml.gz", preset="sumo")

@@ -52,7 +52,9 @@ def main() -> None:
         tc = median_time(lambda: cho_factor(k, lower=True, check_finite=False), rep)
         tl = median_time(lambda: lml(xy, v), rep)
         f_chol, f_lml = n**3 / 3, n**3 / 3 + 4 * n**2
-        print(f"{n:>5} {tk*1e3:>10.3f} {n*n/tk/1e9:>9.3f} {tc*1e3:>9.3f} {f_chol/tc/1e9:>8.2f} {tl*1e3:>9.3f} {f_lml/tl/1e9:>8.2f}")
+        print(
+            f"{n:>5} {tk * 1e3:>10.3f} {n * n / tk / 1e9:>9.3f} {tc * 1e3:>9.3f} {f_chol / tc / 1e9:>8.2f} {tl * 1e3:>9.3f} {f_lml / tl / 1e9:>8.2f}"
+        )
 
 
 if __name__ == "__main__":

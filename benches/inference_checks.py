@@ -58,7 +58,7 @@ def defaults_cost(repeats: int) -> None:
         t = time.perf_counter()
         dpgp.DPGP(**common, noise_var=p.noise_var_, length_scale_prior=p.length_scale_prior_).fit(frames)
         rows["pilot_resolved"].append(time.perf_counter() - t)
-    from dpgp import defaults
+    from dpgp.gp import defaults
 
     resolve = {}
     for noise in ("auto", "pilot"):

@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import os
 import random
 import shutil
 import signal
@@ -124,7 +123,9 @@ def kill_table(n_fits: int, data: str, n_frames: int, iterations: int, every: in
             for attempt in range(5):
                 ckpt.unlink(missing_ok=True)
                 kill_at = rng.uniform(0.05, 0.95 - 0.2 * attempt) * twin_seconds
-                status, _ = run_child({**base, "checkpoint": str(ckpt), "out": str(d / "killed.npz")}, kill_after=kill_at)
+                status, _ = run_child(
+                    {**base, "checkpoint": str(ckpt), "out": str(d / "killed.npz")}, kill_after=kill_at
+                )
                 if status != "finished":
                     break
             temps = len(list(d.glob(".dpgp-*.tmp")))
@@ -185,13 +186,19 @@ def resume_every_checkpoint(frames: dpgp.Frames, settings: dict, directory: Path
 
 # Settings beyond the grid, on exact/informed/gibbs.
 EXTRAS = [
-    dict(pattern_moments=True), dict(length_scale_fraction=0.5), dict(alpha=2.0), dict(length_scales=(3.0, 30.0)),
-    dict(n_iter_no_change=2, ari_tol=0.9), dict(store_labels=False),
+    dict(pattern_moments=True),
+    dict(length_scale_fraction=0.5),
+    dict(alpha=2.0),
+    dict(length_scales=(3.0, 30.0)),
+    dict(n_iter_no_change=2, ari_tol=0.9),
+    dict(store_labels=False),
 ]
 
 
 def matrix(n_frames: int) -> bool:
-    frames = dpgp.read_frames(DATA)[:n_frames] if DATA.exists() else dpgp.datasets.synthetic("highway", n_frames, seed=1)
+    frames = (
+        dpgp.read_frames(DATA)[:n_frames] if DATA.exists() else dpgp.datasets.synthetic("highway", n_frames, seed=1)
+    )
     print(f"resume from every checkpoint: {frames!r}, 9 sweeps, checkpoint every 2 (noise_var 1.0)")
     ok = True
     grid = [dict(likelihood=lik, proposal=prop, assignment=asg, seed=seed)
@@ -226,7 +233,9 @@ def cost(n_frames: int, iterations: int, every: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for label, path in (("without a file", None), ("with a file", str(Path(tmp) / "us101.ckpt"))):
             t = time.perf_counter()
-            model = dpgp.DPGP(iterations=iterations, checkpoint=path, checkpoint_every=every, progress=False).fit(frames)
+            model = dpgp.DPGP(iterations=iterations, checkpoint=path, checkpoint_every=every, progress=False).fit(
+                frames
+            )
             total = time.perf_counter() - t
             reset, write = (float(np.sum(model.checkpoint_seconds_[k])) for k in ("reset", "write"))
             sweep = float(np.median(model.history_["seconds"]))
@@ -244,9 +253,13 @@ def main() -> int:
     p.add_argument("--cost", action="store_true", help="checkpoint cost on US-101")
     p.add_argument("--fits", type=int, default=20, help="kill/resume fits")
     p.add_argument("--data", default="us101", help="'us101' (the first --frames frames) or a synthetic kind")
-    p.add_argument("--frames", type=int, default=None, help="frames (default: 200 for kills and the matrix, 1000 for the cost)")
+    p.add_argument(
+        "--frames", type=int, default=None, help="frames (default: 200 for kills and the matrix, 1000 for the cost)"
+    )
     p.add_argument("--iterations", type=int, default=None, help="sweeps (default: 30 for kills, 40 for the cost)")
-    p.add_argument("--every", type=int, default=None, help="checkpoint_every (default: 3 for the kill fits, 10 for the cost)")
+    p.add_argument(
+        "--every", type=int, default=None, help="checkpoint_every (default: 3 for the kill fits, 10 for the cost)"
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the kill times and the fits' seeds")
     args = p.parse_args()
     args.every_set = args.every is not None
@@ -259,7 +272,9 @@ def main() -> int:
         return 0
     if args.matrix:
         return 0 if matrix(args.frames or 200) else 1
-    return 0 if kill_table(args.fits, args.data, args.frames or 200, args.iterations or 30, args.every, args.seed) else 1
+    return (
+        0 if kill_table(args.fits, args.data, args.frames or 200, args.iterations or 30, args.every, args.seed) else 1
+    )
 
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 import dpgp
-from dpgp import openscenario as osc
+from dpgp.generate import openscenario as osc
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 TOL = 1e-6

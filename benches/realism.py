@@ -23,7 +23,7 @@ import pandas as pd
 
 import dpgp
 from dpgp.evaluate import split_in_time
-from dpgp.realism import FEATURES
+from dpgp.evaluate.realism_checks import FEATURES
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -80,11 +80,15 @@ def targets(row: dict, unit: str) -> list[str]:
     out.append(f"realism ratio >= 0.8: {'met' if ratio >= 0.8 else 'MISSED'} ({ratio:.2f})")
     gen, rec = row["collision rate dpgp"], row["collision rate recorded (test)"]
     bound = max(2 * rec, COLLISION_FLOOR)
-    out.append(f"collision rate <= max(2 x recorded, 0.5%): {'met' if gen <= bound else 'MISSED'} ({gen:.2%} vs bound {bound:.2%})")
+    out.append(
+        f"collision rate <= max(2 x recorded, 0.5%): {'met' if gen <= bound else 'MISSED'} ({gen:.2%} vs bound {bound:.2%})"
+    )
     f4, c4 = row["FDE@4s dpgp"], row["FDE@4s const. velocity"]
     out.append(f"FDE@4s <= constant velocity: {'met' if f4 <= c4 else 'MISSED'} ({f4:.2f} vs {c4:.2f} {unit})")
     f1, c1 = row["FDE@1s dpgp"], row["FDE@1s const. velocity"]
-    out.append(f"FDE@1s within 10% of constant velocity: {'met' if f1 <= 1.1 * c1 else 'MISSED'} ({f1:.2f} vs {c1:.2f} {unit})")
+    out.append(
+        f"FDE@1s within 10% of constant velocity: {'met' if f1 <= 1.1 * c1 else 'MISSED'} ({f1:.2f} vs {c1:.2f} {unit})"
+    )
     return out
 
 

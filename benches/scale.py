@@ -64,7 +64,10 @@ def one(kind: str, n: int, likelihood: str, proposal: str, sweeps: int, paper: b
 def run(*args: object) -> dict:
     r = subprocess.run([sys.executable, __file__, "one", *map(str, args)], capture_output=True, text=True)
     if r.returncode != 0:
-        return {"error": r.stderr.strip().splitlines()[-1] if r.stderr.strip() else f"exit {r.returncode}", "args": args}
+        return {
+            "error": r.stderr.strip().splitlines()[-1] if r.stderr.strip() else f"exit {r.returncode}",
+            "args": args,
+        }
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
@@ -97,7 +100,19 @@ def main() -> None:
         return
     if a.cmd == "synthetic":
         rows = []
-        cols = ["data", "frames", "likelihood", "M", "sweeps", "median_sweep_s", "init_s", "fit_s", "peak_rss_gb", "K", "ari"]
+        cols = [
+            "data",
+            "frames",
+            "likelihood",
+            "M",
+            "sweeps",
+            "median_sweep_s",
+            "init_s",
+            "fit_s",
+            "peak_rss_gb",
+            "K",
+            "ari",
+        ]
         for kind in ("highway", "intersection"):
             for n in a.sizes:
                 for lik in ("exact", "hsgp") if n <= 1000 else ("hsgp",):
@@ -109,7 +124,18 @@ def main() -> None:
         show(rows, cols)
     else:
         rows = []
-        cols = ["likelihood", "proposal", "M", "sweeps", "median_sweep_s", "K", "ess_logjoint_per_s", "ess_k_per_s", "accepted", "noise_var"]
+        cols = [
+            "likelihood",
+            "proposal",
+            "M",
+            "sweeps",
+            "median_sweep_s",
+            "K",
+            "ess_logjoint_per_s",
+            "ess_k_per_s",
+            "accepted",
+            "noise_var",
+        ]
         for lik in ("exact", "hsgp"):
             for prop in ("full", "informed"):
                 rows.append(run("us101", 0, lik, prop, a.sweeps, True))

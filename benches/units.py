@@ -43,10 +43,14 @@ def main() -> None:
     jac = 2 * test.sizes * np.log(FT)
     ari = [dpgp.adjusted_rand_index(a, b) for a, b in zip(ft.label_trace_, me.label_trace_)]
     print(f"US-101, {len(train)} train / {len(test)} test frames, {args.iterations} sweeps, proposal={args.proposal}")
-    print(f"  K: ft {ft.n_patterns_}, m {me.n_patterns_}; ARI of the final partitions {ari[-1]:.4f} (min over sweeps {min(ari):.4f})")
+    print(
+        f"  K: ft {ft.n_patterns_}, m {me.n_patterns_}; ARI of the final partitions {ari[-1]:.4f} (min over sweeps {min(ari):.4f})"
+    )
     print(f"  noise ft {ft.noise_var_}, m / FT^2 {tuple(np.asarray(me.noise_var_) / FT**2)}")
-    print(f"  held-out log density per vehicle: ft {s_ft.sum() / test.n_points:.6f}, "
-          f"m + Jacobian {(s_m + jac).sum() / test.n_points:.6f}, max |difference| per frame {np.max(np.abs(s_m + jac - s_ft)):.2e}")
+    print(
+        f"  held-out log density per vehicle: ft {s_ft.sum() / test.n_points:.6f}, "
+        f"m + Jacobian {(s_m + jac).sum() / test.n_points:.6f}, max |difference| per frame {np.max(np.abs(s_m + jac - s_ft)):.2e}"
+    )
     print(f"  seconds: ft {t_ft:.1f}, m {t_m:.1f}")
 
 

@@ -28,9 +28,10 @@ import struct
 import tempfile
 import traceback
 import zipfile
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -165,7 +166,11 @@ def where(e: BaseException) -> str:
 def classify_exception(e: BaseException) -> Outcome:
     msg = " ".join(str(e).split())
     if isinstance(e, dpgp.DpgpError) or type(e) in _PATH_ERRORS:
-        return Outcome("typed", f"{type(e).__name__}: {msg[:160]}") if msg else Outcome("untyped", f"{type(e).__name__} without a message at {where(e)}")
+        return (
+            Outcome("typed", f"{type(e).__name__}: {msg[:160]}")
+            if msg
+            else Outcome("untyped", f"{type(e).__name__} without a message at {where(e)}")
+        )
     return Outcome("untyped", f"{type(e).__name__} at {where(e)}: {msg[:160]}")
 
 
@@ -202,7 +207,9 @@ def nonfinite(value: Any, allow_neg_inf: bool = False, depth: int = 0) -> str | 
         return nonfinite((value.xy, value.v), False, depth + 1)
     if isinstance(value, dpgp.DPGP):
         parts = {name: getattr(value, name, None) for name in ("weights_", "alpha_", "length_scales_", "log_joint_")}
-        parts["history"] = {k: np.asarray(v, dtype=float) for k, v in getattr(value, "history_", {}).items() if k != "ari"}
+        parts["history"] = {
+            k: np.asarray(v, dtype=float) for k, v in getattr(value, "history_", {}).items() if k != "ari"
+        }
         return nonfinite(parts, False, depth + 1)
     if isinstance(value, dpgp.Simulation):
         return nonfinite((value.positions, value.velocities, value.t), False, depth + 1)
@@ -307,14 +314,61 @@ def _fcd_xml(frames_csv: bytes) -> bytes:
 # ---------------------------------------------------------------------------------------------
 NAN, INF = float("nan"), float("inf")
 HOSTILE_SCALARS = [
-    0, -1, 0.5, -0.0, 1e-300, 1e300, 1e308, -1e308, NAN, INF, -INF, 2**31, 2**63, 2**64, -(2**63), 10**30,
-    True, None, "1", "x", "", b"1", [1], (1, 2), {}, 1 + 2j, np.float32(2.5), np.int64(-5), np.array([1.0, 2.0]),
-    np.nan, np.uint64(2**64 - 1), object(),
+    0,
+    -1,
+    0.5,
+    -0.0,
+    1e-300,
+    1e300,
+    1e308,
+    -1e308,
+    NAN,
+    INF,
+    -INF,
+    2**31,
+    2**63,
+    2**64,
+    -(2**63),
+    10**30,
+    True,
+    None,
+    "1",
+    "x",
+    "",
+    b"1",
+    [1],
+    (1, 2),
+    {},
+    1 + 2j,
+    np.float32(2.5),
+    np.int64(-5),
+    np.array([1.0, 2.0]),
+    np.nan,
+    np.uint64(2**64 - 1),
+    object(),
 ]
 #: Extreme but finite magnitudes (issue 17): each must work with finite results or be refused
 #: up front with a typed error naming the limit.
 EXTREME = [1e154, -1e154, 1e200, 1e300, 1.7e308, -1.7e308, 5e-324, 1e-200, 1e-154, 2.2250738585072014e-308]
-HOSTILE_TEXT = ["nan", "inf", "-inf", "", " ", "1e309", "-0", "abc", "1,000", '"', "\x00", "NULL", "１２", "0x1F", "--1", "1e-400", "None"]
+HOSTILE_TEXT = [
+    "nan",
+    "inf",
+    "-inf",
+    "",
+    " ",
+    "1e309",
+    "-0",
+    "abc",
+    "1,000",
+    '"',
+    "\x00",
+    "NULL",
+    "１２",
+    "0x1F",
+    "--1",
+    "1e-400",
+    "None",
+]
 
 
 def scale_values(draw: Draw, n: int, label: str) -> np.ndarray:
@@ -345,7 +399,13 @@ def tiny_frames_arrays(draw: Draw) -> tuple[np.ndarray, ...]:
     sizes = [draw.integer(1, 5, "vehicles") for _ in range(draw.integer(1, 3, "frames"))]
     frame = np.repeat(np.arange(len(sizes)), sizes)
     n = len(frame)
-    return frame, scale_values(draw, n, "x"), scale_values(draw, n, "y"), scale_values(draw, n, "vx"), scale_values(draw, n, "vy")
+    return (
+        frame,
+        scale_values(draw, n, "x"),
+        scale_values(draw, n, "y"),
+        scale_values(draw, n, "vx"),
+        scale_values(draw, n, "vy"),
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -355,8 +415,25 @@ def corrupt_text(draw: Draw, data: bytes) -> bytes:
     """One to three edits of a text table: truncation, bit flips, bad fields, lost header..."""
     for _ in range(draw.integer(1, 3, "edits")):
         op = draw.choice(
-            ["truncate", "flip", "drop_line", "dup_line", "field", "garbage_line", "delimiter", "no_header",
-             "header_field", "empty", "only_header", "bom", "latin1", "nul", "crlf", "blank_lines", "long_line"],
+            [
+                "truncate",
+                "flip",
+                "drop_line",
+                "dup_line",
+                "field",
+                "garbage_line",
+                "delimiter",
+                "no_header",
+                "header_field",
+                "empty",
+                "only_header",
+                "bom",
+                "latin1",
+                "nul",
+                "crlf",
+                "blank_lines",
+                "long_line",
+            ],
             "op",
         )
         lines = data.split(b"\n")
@@ -382,7 +459,10 @@ def corrupt_text(draw: Draw, data: bytes) -> bytes:
             lines[i] = sep.join(fields)
             data = b"\n".join(lines)
         elif op == "garbage_line":
-            lines.insert(draw.index(len(lines) + 1), draw.choice([b"#", b"a,b", b"1", b";;;;", b"\t\t\t", b"\xff\xfe", b"1 2 3 4 5 6 7 8 9"], "line"))
+            lines.insert(
+                draw.index(len(lines) + 1),
+                draw.choice([b"#", b"a,b", b"1", b";;;;", b"\t\t\t", b"\xff\xfe", b"1 2 3 4 5 6 7 8 9"], "line"),
+            )
             data = b"\n".join(lines)
         elif op == "delimiter" and lines:
             i = draw.index(len(lines))
@@ -440,11 +520,15 @@ def case_readers(draw: Draw, ctx: Context, d: Path) -> Any:
     if reader == "read_ngsim":
         return dpgp.read_ngsim(path, split_gap=draw.maybe([1.0, 0.5], [0, -1, NAN, "x", None], "split_gap"))
     if reader == "preset":
-        preset = draw.choice(["eth_ucy", "interaction", "highd", "ind", "sumo", "ngsim", "fcd", "bogus", None], "preset")
+        preset = draw.choice(
+            ["eth_ucy", "interaction", "highd", "ind", "sumo", "ngsim", "fcd", "bogus", None], "preset"
+        )
         return dpgp.read_tracks(path, preset=preset, sort=draw.boolean("sort"))
     kwargs: dict[str, Any] = {}
     if name in ("frames_csv", "frames_tsv", "sumo_frames"):
-        kwargs = dict(id=draw.choice(["x", "frame", "frame_idx", 0, "nope"], "id"), t=draw.choice(["frame", "frame_idx", 1], "t"))
+        kwargs = dict(
+            id=draw.choice(["x", "frame", "frame_idx", 0, "nope"], "id"), t=draw.choice(["frame", "frame_idx", 1], "t")
+        )
     elif name.startswith("eth"):
         kwargs = dict(preset="eth_ucy")
     tracks = dpgp.read_tracks(path, sort=draw.boolean("sort"), **kwargs)
@@ -462,7 +546,10 @@ def _astype(c: np.ndarray, dtype: Any) -> np.ndarray:
 
 
 def case_arrays(draw: Draw, ctx: Context, d: Path) -> Any:
-    target = draw.choice(["from_arrays", "from_arrays", "select", "synthetic", "distributions", "ari", "read_frames_df", "gp", "gp"], "target")
+    target = draw.choice(
+        ["from_arrays", "from_arrays", "select", "synthetic", "distributions", "ari", "read_frames_df", "gp", "gp"],
+        "target",
+    )
     if target == "gp":
         return gp_case(draw)
     if target in ("from_arrays", "select"):
@@ -472,19 +559,49 @@ def case_arrays(draw: Draw, ctx: Context, d: Path) -> Any:
             i = draw.index(5)
             c = cols[i] if isinstance(cols[i], np.ndarray) and cols[i].ndim == 1 else np.zeros(len(frame))
             cols[i] = draw.choice(
-                [c[:-1], np.r_[c, c[:1]], c.reshape(-1, 1), c.astype(str), [],
-                 None, "abc", 3.0, np.array([]), _astype(c, complex), _astype(c, np.float32),
-                 np.full(len(c), NAN), np.array([[1, 2], [3, 4]]), _astype(c, bool), list(c),
-                 np.array(["2020-01-01"] * len(c), dtype="datetime64[ns]"), np.full(len(c), None)],
+                [
+                    c[:-1],
+                    np.r_[c, c[:1]],
+                    c.reshape(-1, 1),
+                    c.astype(str),
+                    [],
+                    None,
+                    "abc",
+                    3.0,
+                    np.array([]),
+                    _astype(c, complex),
+                    _astype(c, np.float32),
+                    np.full(len(c), NAN),
+                    np.array([[1, 2], [3, 4]]),
+                    _astype(c, bool),
+                    list(c),
+                    np.array(["2020-01-01"] * len(c), dtype="datetime64[ns]"),
+                    np.full(len(c), None),
+                ],
                 f"col{i}",
             )
         labels = draw.choice([None, None, [0], np.arange(3), "x", [None], np.array([1.5, NAN, 2.0])], "labels")
         frames = dpgp.Frames.from_arrays(*cols, labels=labels)
         if target == "from_arrays":
             return frames
-        sel = draw.choice([slice(0, 0), slice(None, None, -1), np.array([True]), np.array([0, 0]), [], np.array([5]),
-                           np.array([-1]), np.array([0.5]), "a", None, np.array([True, False, True, False, True]),
-                           [[0]], np.array([2**63 - 1])], "selection")
+        sel = draw.choice(
+            [
+                slice(0, 0),
+                slice(None, None, -1),
+                np.array([True]),
+                np.array([0, 0]),
+                [],
+                np.array([5]),
+                np.array([-1]),
+                np.array([0.5]),
+                "a",
+                None,
+                np.array([True, False, True, False, True]),
+                [[0]],
+                np.array([2**63 - 1]),
+            ],
+            "selection",
+        )
         return frames[sel]
     if target == "synthetic":
         return dpgp.datasets.synthetic(
@@ -499,7 +616,9 @@ def case_arrays(draw: Draw, ctx: Context, d: Path) -> Any:
         frames = dpgp.Frames.from_arrays(frame, x, y, vx, vy)
         dist = dpgp.EmpiricalDistributions.from_frames(
             frames,
-            roi=draw.maybe([None], [(0, 1, 0, 1), (1, 0, 0, 1), (NAN, 1, 0, 1), (0, 1e308, -1e308, 1e308), "abcd", (0, 1)], "roi"),
+            roi=draw.maybe(
+                [None], [(0, 1, 0, 1), (1, 0, 0, 1), (NAN, 1, 0, 1), (0, 1e308, -1e308, 1e308), "abcd", (0, 1)], "roi"
+            ),
             bins=draw.maybe([(3, 4), 5], [0, -1, (1, 2, 3), 2.5, "3", 10**12, (10**6, 10**6)], "bins"),
             pseudocount=draw.maybe([0.0, 1.0], [-1, NAN, INF, "x"], "pseudocount"),
         )
@@ -507,7 +626,9 @@ def case_arrays(draw: Draw, ctx: Context, d: Path) -> Any:
         if op == "count":
             return dist.log_count_pmf(draw.choice([0, 1, 3, -1, 2.5, 10**30, NAN, "x", [1, 2], None], "l")), True
         if op == "pos":
-            return dist.log_position_density(draw.choice([[[0, 0]], [[NAN, 0]], [0, 0], "x", [[1e308, 1e308]], []], "xy")), True
+            return dist.log_position_density(
+                draw.choice([[[0, 0]], [[NAN, 0]], [0, 0], "x", [[1e308, 1e308]], []], "xy")
+            ), True
         if op == "frame":
             return dist.log_frame_density(draw.choice([[[0, 0]], [[1, 2], [3, 4]], [], "x"], "xy")), True
         n = draw.maybe([0, 3], [-1, 2.5, 10**15, None, "3"], "n")
@@ -522,7 +643,9 @@ def case_arrays(draw: Draw, ctx: Context, d: Path) -> Any:
     frame, x, y, vx, vy = tiny_frames_arrays(draw)
     df = pd.DataFrame({"frame": frame, "x": x, "y": y, "vx": vx, "vy": vy})
     if draw.boolean("rename"):
-        df = df.rename(columns={draw.choice(list(df.columns), "col"): draw.choice(["X", "", 0, "frame", "vel_x"], "name")})
+        df = df.rename(
+            columns={draw.choice(list(df.columns), "col"): draw.choice(["X", "", 0, "frame", "vel_x"], "name")}
+        )
     return dpgp.read_frames(df, **draw.choice([{}, {"x": "nope"}, {"frame": "x"}, {"vx": 3}], "names"))
 
 
@@ -564,8 +687,16 @@ def hostile_tracks(draw: Draw) -> Any:
     for _ in range(draw.integer(0, 2, "damages")):
         col = draw.choice(list(df.columns) + ["scene"], "column")
         df[col] = draw.choice(
-            [df[col].to_numpy()[::-1] if col in df else 0, np.full(n, NAN), np.full(n, "a"), np.full(n, None),
-             np.zeros(n), np.arange(n) % 2, np.full(n, 2**62), np.array([[1, 2]] * n).tolist()],
+            [
+                df[col].to_numpy()[::-1] if col in df else 0,
+                np.full(n, NAN),
+                np.full(n, "a"),
+                np.full(n, None),
+                np.zeros(n),
+                np.arange(n) % 2,
+                np.full(n, 2**62),
+                np.array([[1, 2]] * n).tolist(),
+            ],
             f"{col}.values",
         )
     return df
@@ -579,10 +710,17 @@ def case_framing(draw: Draw, ctx: Context, d: Path) -> Any:
     p = draw.choice([0.0, 0.1, 0.35], "hostility")  # some cases with valid arguments only
     return fn(
         tracks,
-        roi=draw.maybe([None, (-1e9, 1e9, -1e9, 1e9), (0, 10, 0, 10)], [(1, 0, 0, 1), (NAN, 1, 0, 1), (0, INF, 0, 1), (0, 1), "roi", (0, 1, 0, "x"), 5], "roi", p),
+        roi=draw.maybe(
+            [None, (-1e9, 1e9, -1e9, 1e9), (0, 10, 0, 10)],
+            [(1, 0, 0, 1), (NAN, 1, 0, 1), (0, INF, 0, 1), (0, 1), "roi", (0, 1, 0, "x"), 5],
+            "roi",
+            p,
+        ),
         dt=draw.maybe([0.5, 0.1, 1.0], [0, -1, NAN, INF, 1e300, 1e-300, "x", None, 2**70], "dt", p),
         velocity=draw.maybe(["auto", "diff", "columns"], ["speed", None, 1], "velocity", p),
-        smoothing=draw.maybe([None, (3, 1), (5, 2)], [(2, 1), (3, 3), (3,), (-3, 1), (3, 1.5), (10**9, 1), "x", (3, -1)], "smoothing", p),
+        smoothing=draw.maybe(
+            [None, (3, 1), (5, 2)], [(2, 1), (3, 3), (3,), (-3, 1), (3, 1.5), (10**9, 1), "x", (3, -1)], "smoothing", p
+        ),
         units=draw.maybe([None, "ft->m", 0.3048], [1e308, 1e-320, 0, -1, NAN, "km", "M->FT", True, 1e154], "units", p),
         max_gap=draw.maybe([None, 1.0], [0, -1, NAN, INF, 1e-300, "x"], "max_gap", p),
     )
@@ -593,12 +731,45 @@ SETTINGS = {
     "iterations": ([0, 1], [-1, 1.5, "1", None, True, 2**64, -(2**63), NAN]),
     "assignment": (["gibbs", "map"], ["GIBBS", None, 3, ""]),
     "likelihood": (["exact", "auto", "hsgp"], ["approx", None, 1]),
-    "length_scale_prior": ([(10.0, 1.0), (2.0, 0.5), "auto"], [(0, 1), (-1, 1), (NAN, 1), (1e308, 1e308), (1,), "ab", None, (1e-300, 1e-300), (INF, 1), *[(e, 1.0) for e in EXTREME[:5]], (1.0, 1e-300)]),
-    "length_scales": ([None, (5.0, 5.0)], [(0, 1), (INF, 1), (1e-300, 1e-300), (1e300, 1e300), (-1, 1), "x", (NAN, NAN), *[(e, e) for e in EXTREME if e > 0]]),
+    "length_scale_prior": (
+        [(10.0, 1.0), (2.0, 0.5), "auto"],
+        [
+            (0, 1),
+            (-1, 1),
+            (NAN, 1),
+            (1e308, 1e308),
+            (1,),
+            "ab",
+            None,
+            (1e-300, 1e-300),
+            (INF, 1),
+            *[(e, 1.0) for e in EXTREME[:5]],
+            (1.0, 1e-300),
+        ],
+    ),
+    "length_scales": (
+        [None, (5.0, 5.0)],
+        [
+            (0, 1),
+            (INF, 1),
+            (1e-300, 1e-300),
+            (1e300, 1e300),
+            (-1, 1),
+            "x",
+            (NAN, NAN),
+            *[(e, e) for e in EXTREME if e > 0],
+        ],
+    ),
     "noise_var": ([1.0, 0.5], [0, -1, NAN, INF, 1e-300, 1e300, "1", None, 1e-30, *[e for e in EXTREME if e > 0]]),
-    "signal_var": ([None, 1.0, (2.0, 3.0)], [0, -1, NAN, INF, 1e300, 1e-300, "x", (1, 2, 3), *[e for e in EXTREME if e > 0]]),
+    "signal_var": (
+        [None, 1.0, (2.0, 3.0)],
+        [0, -1, NAN, INF, 1e300, 1e-300, "x", (1, 2, 3), *[e for e in EXTREME if e > 0]],
+    ),
     "mean": ([None, 0.0, (1.0, -1.0)], [1e300, NAN, INF, -1e308, "x", (1,), *EXTREME[:6]]),
-    "alpha": ([None, 1.0], [0, -1, NAN, INF, 1e-300, 1e300, "x", True, 1e308, 5e-324, 1e154, 1e-154, 1e100, 1e-100, 1e101]),
+    "alpha": (
+        [None, 1.0],
+        [0, -1, NAN, INF, 1e-300, 1e300, "x", True, 1e308, 5e-324, 1e154, 1e-154, 1e100, 1e-100, 1e101],
+    ),
     "new_pattern_samples": ([1, 3], [0, -1, 2**63, 2**64, 2**31, 1.5, "3", None, Unsafe(10**9)]),
     "length_scale_fraction": ([1.0, 0.5], [0, -1, NAN, 2, INF, "x", None, 5e-324, 1e-300]),
     "pattern_moments": ([False, True], ["yes", None, 2]),
@@ -673,29 +844,93 @@ def _npy_with_shape(arr: np.ndarray, shape: tuple[int, ...]) -> bytes:
 
 
 META_PATHS = [
-    ("alpha",), ("format_version",), ("format",), ("settings",), ("params",), ("history",), ("n_iter",),
-    ("frames_summary",), ("distributions",), ("settings", "iterations"), ("settings", "new_pattern_samples"),
-    ("settings", "seed"), ("settings", "noise_var"), ("settings", "length_scale_prior"), ("settings", "alpha"),
-    ("settings", "assignment"), ("settings", "n_threads"), ("settings", "length_scales"), ("settings", "bogus"),
-    ("settings", "length_scale_fraction"), ("settings", "mean"), ("settings", "signal_var"),
-    ("params", "length_scales"), ("params", "signal_var"), ("params", "noise_var"), ("params", "mean"),
-    ("history", "log_joint"), ("history", "alpha"), ("frames_summary", "dt"), ("frames_summary", "roi"),
-    ("distributions", "count_hist"), ("distributions", "position_hist"), ("distributions", "roi"),
-    ("distributions", "version"), ("distributions", "pseudocount"), ("timings",), ("converged",),
-    ("resume",), ("resume", "sweeps_done"), ("resume", "stable"), ("resume", "alpha"), ("resume", "data_sha256"),
-    ("settings", "checkpoint"), ("settings", "checkpoint_every"),
-    ("resolved", "noise_var"), ("resolved", "length_scale_prior"), ("params", "length_scales"),
+    ("alpha",),
+    ("format_version",),
+    ("format",),
+    ("settings",),
+    ("params",),
+    ("history",),
+    ("n_iter",),
+    ("frames_summary",),
+    ("distributions",),
+    ("settings", "iterations"),
+    ("settings", "new_pattern_samples"),
+    ("settings", "seed"),
+    ("settings", "noise_var"),
+    ("settings", "length_scale_prior"),
+    ("settings", "alpha"),
+    ("settings", "assignment"),
+    ("settings", "n_threads"),
+    ("settings", "length_scales"),
+    ("settings", "bogus"),
+    ("settings", "length_scale_fraction"),
+    ("settings", "mean"),
+    ("settings", "signal_var"),
+    ("params", "length_scales"),
+    ("params", "signal_var"),
+    ("params", "noise_var"),
+    ("params", "mean"),
+    ("history", "log_joint"),
+    ("history", "alpha"),
+    ("frames_summary", "dt"),
+    ("frames_summary", "roi"),
+    ("distributions", "count_hist"),
+    ("distributions", "position_hist"),
+    ("distributions", "roi"),
+    ("distributions", "version"),
+    ("distributions", "pseudocount"),
+    ("timings",),
+    ("converged",),
+    ("resume",),
+    ("resume", "sweeps_done"),
+    ("resume", "stable"),
+    ("resume", "alpha"),
+    ("resume", "data_sha256"),
+    ("settings", "checkpoint"),
+    ("settings", "checkpoint_every"),
+    ("resolved", "noise_var"),
+    ("resolved", "length_scale_prior"),
+    ("params", "length_scales"),
 ]
-META_VALUES = [None, -1, 0, 1, 1e308, -1e308, 1e-320, "x", [], {}, [1, 2, 3], True, 2**63, 2**70, NAN, INF,
-               -INF, [NAN, 1.0], [[1.0]], [1e308, 1e308], [0.0, 0.0], "DELETE", "DEEP",
-               *EXTREME, [1e154, 1e154], [5e-324, 5e-324], [1e200, 1.0], [1e-200, 1e-200]]
+META_VALUES = [
+    None,
+    -1,
+    0,
+    1,
+    1e308,
+    -1e308,
+    1e-320,
+    "x",
+    [],
+    {},
+    [1, 2, 3],
+    True,
+    2**63,
+    2**70,
+    NAN,
+    INF,
+    -INF,
+    [NAN, 1.0],
+    [[1.0]],
+    [1e308, 1e308],
+    [0.0, 0.0],
+    "DELETE",
+    "DEEP",
+    *EXTREME,
+    [1e154, 1e154],
+    [5e-324, 5e-324],
+    [1e200, 1.0],
+    [1e-200, 1e-200],
+]
 
 
 def damaged_model_file(draw: Draw, ctx: Context, d: Path) -> Path:
     # A model file, or a checkpoint (a model file with a resume point: DPGP(checkpoint=...)).
     base = ctx.checkpoint if draw.boolean("checkpoint", 0.3) else ctx.model[1]
     path = d / draw.choice(["model.npz", "model", "model.npy"], "name")
-    how = draw.choice(["truncate", "flip", "metadata", "metadata", "member", "member", "shape", "huge", "foreign"], "damage")
+    how = draw.choice(
+        ["truncate", "flip", "metadata", "metadata", "member", "member", "shape", "huge", "foreign"], "damage"
+    )
     data = base
     if how == "truncate":
         data = base[: draw.integer(0, len(base) - 1, "at")]
@@ -743,20 +978,35 @@ def damaged_model_file(draw: Draw, ctx: Context, d: Path) -> Path:
             name = draw.choice(sorted(arrays) + ["frame_labels", "label_trace"], "member")
             old = arrays.get(name, np.zeros(3))
             arrays[name] = draw.choice(
-                [old[:-1] if old.ndim else old, old[::-1].copy() if old.ndim else old, old.astype(np.float32) if old.dtype.kind != "U" else old,
-                 old.astype(str), np.zeros((0,)), np.full(old.shape, NAN), -np.abs(old.astype(float)) if old.dtype.kind in "iuf" else old,
-                 np.array(5), np.zeros((2, 3, 4)), old.astype(complex) if old.dtype.kind in "iuf" else old,
-                 np.full(old.shape, 2**62, dtype=np.int64), np.array(["x"] * max(1, len(old) if old.ndim else 1)),
-                 np.full(old.shape, 1e308) if old.dtype.kind in "iuf" else old, "DELETE",
-                 *[old * e if old.dtype.kind == "f" else old for e in (1e154, 1e200, 1e-200, 5e-324, 1e99)]],
+                [
+                    old[:-1] if old.ndim else old,
+                    old[::-1].copy() if old.ndim else old,
+                    old.astype(np.float32) if old.dtype.kind != "U" else old,
+                    old.astype(str),
+                    np.zeros((0,)),
+                    np.full(old.shape, NAN),
+                    -np.abs(old.astype(float)) if old.dtype.kind in "iuf" else old,
+                    np.array(5),
+                    np.zeros((2, 3, 4)),
+                    old.astype(complex) if old.dtype.kind in "iuf" else old,
+                    np.full(old.shape, 2**62, dtype=np.int64),
+                    np.array(["x"] * max(1, len(old) if old.ndim else 1)),
+                    np.full(old.shape, 1e308) if old.dtype.kind in "iuf" else old,
+                    "DELETE",
+                    *[old * e if old.dtype.kind == "f" else old for e in (1e154, 1e200, 1e-200, 5e-324, 1e99)],
+                ],
                 "replacement",
             )
             if isinstance(arrays[name], str):
                 del arrays[name]
         buf = io.BytesIO()
         if how == "shape":
-            name = draw.choice(["frame_xy", "frame_v", "labels", "length_scales", "frame_offsets", "frame_ids"], "member")
-            shape = draw.choice([(2**40, 2), (10**18,), (2**31, 2**31), (0, 2), (3,), (-1, 2), (2**62, 2**62, 2)], "shape")
+            name = draw.choice(
+                ["frame_xy", "frame_v", "labels", "length_scales", "frame_offsets", "frame_ids"], "member"
+            )
+            shape = draw.choice(
+                [(2**40, 2), (10**18,), (2**31, 2**31), (0, 2), (3,), (-1, 2), (2**62, 2**62, 2)], "shape"
+            )
             with zipfile.ZipFile(buf, "w") as z:
                 for k, v in arrays.items():
                     raw = io.BytesIO()
@@ -773,7 +1023,9 @@ def damaged_model_file(draw: Draw, ctx: Context, d: Path) -> Path:
             return path
         data = {
             "empty": b"",
-            "random": bytes(np.random.default_rng(draw.integer(0, 99, "bytes_seed")).integers(0, 256, 300, dtype=np.uint8)),
+            "random": bytes(
+                np.random.default_rng(draw.integer(0, 99, "bytes_seed")).integers(0, 256, 300, dtype=np.uint8)
+            ),
             "text": b"frame,x,y,vx,vy\n0,1,2,3,4\n",
             "gz": gzip.compress(base),
         }.get(kind, b"")
@@ -850,7 +1102,9 @@ def case_model_files(draw: Draw, ctx: Context, d: Path) -> Any:
         read_metadata(path)  # the raw metadata, as stored: only its reading is checked
         return None
     model = dpgp.DPGP.load(path)
-    use = draw.choice(["proba", "score", "field", "simulate", "scenarios", "save", "save_over_dir", "save_readonly", "cond"], "then")
+    use = draw.choice(
+        ["proba", "score", "field", "simulate", "scenarios", "save", "save_over_dir", "save_readonly", "cond"], "then"
+    )
     frames = model.frames_[:1]
     if use == "proba":
         return model, model.predict_proba(frames)
@@ -878,18 +1132,53 @@ def case_model_files(draw: Draw, ctx: Context, d: Path) -> Any:
 def hostile_frame_arg(draw: Draw, model: Any) -> Any:
     n = len(model.frames_)
     return draw.maybe(
-        [0, 1, -1, model.frames_[0], model.frames_[1:2], np.array([[0.0, 0.0], [5.0, 5.0]]), np.array([[1.0, 2.0, 3.0, 4.0]])],
-        [n, -n - 1, 2**63, True, 1.5, None, "0", np.zeros((0, 2)), np.zeros((2, 3)), np.array([[NAN, 0.0]]),
-         np.array([[1e308, 1e308]]), np.array([[1e154, -1e154, 1e154, 1.0]]), [[0, 0]], model.frames_,
-         np.array([[6e6, 6e6]]), np.zeros((3,))],
+        [
+            0,
+            1,
+            -1,
+            model.frames_[0],
+            model.frames_[1:2],
+            np.array([[0.0, 0.0], [5.0, 5.0]]),
+            np.array([[1.0, 2.0, 3.0, 4.0]]),
+        ],
+        [
+            n,
+            -n - 1,
+            2**63,
+            True,
+            1.5,
+            None,
+            "0",
+            np.zeros((0, 2)),
+            np.zeros((2, 3)),
+            np.array([[NAN, 0.0]]),
+            np.array([[1e308, 1e308]]),
+            np.array([[1e154, -1e154, 1e154, 1.0]]),
+            [[0, 0]],
+            model.frames_,
+            np.array([[6e6, 6e6]]),
+            np.zeros((3,)),
+        ],
         "frame",
     )
 
 
 def case_model_use(draw: Draw, ctx: Context, d: Path) -> Any:
     model, _ = ctx.model
-    op = draw.choice(["predict", "predict_proba", "score_samples", "velocity_field", "simulate", "simulate",
-                      "sample_scenarios", "sample_scenarios", "conditional_log_probs"], "method")
+    op = draw.choice(
+        [
+            "predict",
+            "predict_proba",
+            "score_samples",
+            "velocity_field",
+            "simulate",
+            "simulate",
+            "sample_scenarios",
+            "sample_scenarios",
+            "conditional_log_probs",
+        ],
+        "method",
+    )
     if op in ("predict", "predict_proba", "score_samples"):
         frames = draw.choice(["train", "arrays", "df", "none", "list", "str"], "frames")
         if frames == "train":
@@ -904,9 +1193,26 @@ def case_model_use(draw: Draw, ctx: Context, d: Path) -> Any:
         result = getattr(model, op)(arg)
         return result, op == "score_samples"
     if op == "velocity_field":
-        k = draw.maybe([0, model.n_patterns_ - 1], [-1, model.n_patterns_, 0.0, None, "0", 2**64, True, np.int64(0), 1.5], "k")
-        xy = draw.maybe([[[0.0, 0.0]], np.zeros((3, 2))], [None, [], [0, 0], [[NAN, 0]], [[1e308, 1e308]], [[1e154, 1e154]],
-                                                           np.zeros((0, 2)), "xy", [[6e6, 6e6]], np.zeros((2, 3)), [[1 + 1j, 0]]], "xy")
+        k = draw.maybe(
+            [0, model.n_patterns_ - 1], [-1, model.n_patterns_, 0.0, None, "0", 2**64, True, np.int64(0), 1.5], "k"
+        )
+        xy = draw.maybe(
+            [[[0.0, 0.0]], np.zeros((3, 2))],
+            [
+                None,
+                [],
+                [0, 0],
+                [[NAN, 0]],
+                [[1e308, 1e308]],
+                [[1e154, 1e154]],
+                np.zeros((0, 2)),
+                "xy",
+                [[6e6, 6e6]],
+                np.zeros((2, 3)),
+                [[1 + 1j, 0]],
+            ],
+            "xy",
+        )
         return model.velocity_field(k, xy)
     if op == "conditional_log_probs":
         return model.conditional_log_probs(draw.maybe([0, 3], [-1, 12, None, 1.5, "0", 2**64], "i")), True
@@ -914,16 +1220,38 @@ def case_model_use(draw: Draw, ctx: Context, d: Path) -> Any:
     dt = draw.maybe([None, 0.1, 1.0], [0, -1, NAN, INF, 1e300, 1e-300, "x", 2**1000], "dt")
     method = draw.maybe(["euler", "rk4"], ["RK4", None, 4], "method")
     seed = draw.maybe([None, 0, 5], [-1, 2**64, "s", 1.5], "seed")
-    roi = draw.maybe([None, (-60, 60, -60, 60)], [(1, 0, 0, 1), (NAN, 0, 0, 1), (0, 1), "roi", (-INF, INF, -INF, INF), (0, 1e-300, 0, 1e-300)], "roi")
+    roi = draw.maybe(
+        [None, (-60, 60, -60, 60)],
+        [(1, 0, 0, 1), (NAN, 0, 0, 1), (0, 1), "roi", (-INF, INF, -INF, INF), (0, 1e-300, 0, 1e-300)],
+        "roi",
+    )
     thr = draw.maybe([0.5, None], [-1, NAN, INF, "x"], "low_data_threshold")
     if op == "simulate":
         pattern = draw.maybe([None, 0], [-1, model.n_patterns_, 1.5, "0"], "pattern")
-        return model.simulate(hostile_frame_arg(draw, model), pattern=pattern, steps=steps, dt=dt, method=method,
-                              stochastic=draw.boolean("stochastic"), seed=seed, roi=roi, low_data_threshold=thr)
+        return model.simulate(
+            hostile_frame_arg(draw, model),
+            pattern=pattern,
+            steps=steps,
+            dt=dt,
+            method=method,
+            stochastic=draw.boolean("stochastic"),
+            seed=seed,
+            roi=roi,
+            low_data_threshold=thr,
+        )
     n = draw.maybe([0, 1, 3], [-1, 1.5, None, "2", 2**63, Unsafe(10**8)], "n")
     pattern = draw.maybe([None, 0], [-1, model.n_patterns_, 1.5, "0"], "pattern")
-    return model.sample_scenarios(n, steps=steps, pattern=pattern, seed=seed, dt=dt, method=method,
-                                  stochastic=draw.boolean("stochastic"), roi=roi, low_data_threshold=thr)
+    return model.sample_scenarios(
+        n,
+        steps=steps,
+        pattern=pattern,
+        seed=seed,
+        dt=dt,
+        method=method,
+        stochastic=draw.boolean("stochastic"),
+        roi=roi,
+        low_data_threshold=thr,
+    )
 
 
 # --- the CLI ---------------------------------------------------------------------------------------
@@ -935,7 +1263,9 @@ HOSTILE_NUM_TEXT = ["-1", "0", "nan", "inf", "-inf", "1e309", "x", "", "1.5", "9
 
 
 def cli_argv(draw: Draw, ctx: Context, d: Path) -> list[str]:
-    cmd = draw.choice(["fit", "fit", "info", "simulate", "generate", "plot", "demo", "bogus", "none", "resume"], "command")
+    cmd = draw.choice(
+        ["fit", "fit", "info", "simulate", "generate", "plot", "demo", "bogus", "none", "resume"], "command"
+    )
     model_path = str(d / "model.npz")
     _, base = ctx.model
     if cmd in ("info", "simulate", "generate", "plot", "resume"):
@@ -952,8 +1282,17 @@ def cli_argv(draw: Draw, ctx: Context, d: Path) -> list[str]:
         return [draw.choice(["bogus", "--version", "-h", "FIT", ""], "word")]
     out = str(d / draw.choice(["out.csv", "out.npz", "out.xml", "out.xml.gz", "missing/out.csv", "", "."], "output"))
     if cmd == "fit":
-        frame, x, y, vx, vy = tiny_frames_arrays(draw) if draw.boolean("hostile_data", 0.5) else (
-            np.repeat(np.arange(3), 3), np.arange(9.0), np.arange(9.0) % 4, np.ones(9) + np.arange(9) % 2, np.arange(9.0) % 3)
+        frame, x, y, vx, vy = (
+            tiny_frames_arrays(draw)
+            if draw.boolean("hostile_data", 0.5)
+            else (
+                np.repeat(np.arange(3), 3),
+                np.arange(9.0),
+                np.arange(9.0) % 4,
+                np.ones(9) + np.arange(9) % 2,
+                np.arange(9.0) % 3,
+            )
+        )
         import pandas as pd
 
         data = d / "frames.csv"
@@ -986,15 +1325,30 @@ def cli_argv(draw: Draw, ctx: Context, d: Path) -> list[str]:
             argv += ["--iterations", "1"]
         return argv + (["--no-progress"] if draw.boolean("quiet", 0.9) else [])
     if cmd == "info":
-        return ["info", model_path] + (["--top", _cli_number(draw, ["3"], HOSTILE_NUM_TEXT + ["1000000000"], "top")] if draw.boolean("top") else [])
+        return ["info", model_path] + (
+            ["--top", _cli_number(draw, ["3"], HOSTILE_NUM_TEXT + ["1000000000"], "top")] if draw.boolean("top") else []
+        )
     if cmd == "resume":
         if draw.boolean("checkpoint") and Path(model_path).is_file():
             Path(model_path).write_bytes(ctx.checkpoint)
         # Always --iterations: without it the chain runs to the file's own, which an edit may make 2**63.
-        argv = ["resume", model_path, "--no-progress", "--iterations", _cli_number(draw, ["3", "5"], ["-1", "0", "x", "1.5", ""], "iterations")]
+        argv = [
+            "resume",
+            model_path,
+            "--no-progress",
+            "--iterations",
+            _cli_number(draw, ["3", "5"], ["-1", "0", "x", "1.5", ""], "iterations"),
+        ]
         return argv + (["-o", out] if draw.boolean("-o", 0.5) else [])
     if cmd == "simulate":
-        argv = ["simulate", model_path, "--frame", _cli_number(draw, ["0", "1", "-1"], HOSTILE_NUM_TEXT + ["1000000"], "frame"), "-o", out]
+        argv = [
+            "simulate",
+            model_path,
+            "--frame",
+            _cli_number(draw, ["0", "1", "-1"], HOSTILE_NUM_TEXT + ["1000000"], "frame"),
+            "-o",
+            out,
+        ]
         for flag, valid, hostile in [
             ("--pattern", ["0"], ["-1", "99", "x"]),
             ("--steps", ["0", "3"], ["-1", "x", "1.5"] + ([] if draw.safe else ["200000000"])),
@@ -1023,8 +1377,14 @@ def cli_argv(draw: Draw, ctx: Context, d: Path) -> list[str]:
             argv += ["--steps", "3"]
         return argv + (["--mean"] if draw.boolean("mean") else [])
     if cmd == "plot":
-        argv = ["plot", model_path, "--out", str(d / draw.choice(["figs", "model.npz", ""], "out")),
-                "--kind", draw.choice(["weights", "trace", "field", "bogus"], "kind")]
+        argv = [
+            "plot",
+            model_path,
+            "--out",
+            str(d / draw.choice(["figs", "model.npz", ""], "out")),
+            "--kind",
+            draw.choice(["weights", "trace", "field", "bogus"], "kind"),
+        ]
         for flag, valid, hostile in [
             ("--patterns", ["1"], ["-1", "0", "x"]),
             ("--frame", ["0"], ["-1", "1000000", "x"]),
@@ -1035,8 +1395,16 @@ def cli_argv(draw: Draw, ctx: Context, d: Path) -> list[str]:
                 argv += [flag, draw.maybe(valid, hostile, flag)]
         return argv
     # demo: only hostile arguments that must fail before any work (a full demo takes seconds)
-    return ["demo", "--out", str(d / "demo"), "--frames", draw.choice(["0", "-1", "x", "nan"], "frames"),
-            "--iterations", draw.choice(["0", "-1", "x"], "iterations"), "--no-progress"]
+    return [
+        "demo",
+        "--out",
+        str(d / "demo"),
+        "--frames",
+        draw.choice(["0", "-1", "x", "nan"], "frames"),
+        "--iterations",
+        draw.choice(["0", "-1", "x"], "iterations"),
+        "--no-progress",
+    ]
 
 
 _PROGRESS = __import__("re").compile(r"^dpgp (sweeps|chains): +\d+%\|")
@@ -1053,7 +1421,9 @@ def case_cli(draw: Draw, ctx: Context, d: Path) -> Outcome:
     except SystemExit as e:  # argparse exits; main should return instead
         code = e.code if isinstance(e.code, int) else 1
         if code != 0:
-            return Outcome("cli", f"main raised SystemExit({e.code!r}) instead of returning | stderr {err.getvalue()[-200:]!r}")
+            return Outcome(
+                "cli", f"main raised SystemExit({e.code!r}) instead of returning | stderr {err.getvalue()[-200:]!r}"
+            )
         return Outcome("valid", "exit 0")
     except BaseException as e:
         return Outcome("cli", f"main raised {type(e).__name__} at {where(e)}: {' '.join(str(e).split())[:160]}")
@@ -1100,7 +1470,11 @@ def run_case(surface: str, draw: Draw, ctx: Context) -> Outcome:
                 if isinstance(result, Outcome):
                     outcome = result
                 else:
-                    value, allow = result if isinstance(result, tuple) and len(result) == 2 and isinstance(result[1], bool) else (result, False)
+                    value, allow = (
+                        result
+                        if isinstance(result, tuple) and len(result) == 2 and isinstance(result[1], bool)
+                        else (result, False)
+                    )
                     try:
                         bad = nonfinite(value, allow)
                     except Exception as e:  # noqa: BLE001 - a result too malformed to inspect

@@ -220,7 +220,9 @@ def log_noise_prior(log_noise: np.ndarray, signal_var: float, prior: tuple[float
     return -0.5 * z**2 - np.log(sd) - 0.5 * np.log(2 * np.pi)
 
 
-def partition_posterior_noise_summed(frames, p: Params, alpha: float, prior: tuple[float, float], grid: int = 81, span: float = 5.0):
+def partition_posterior_noise_summed(
+    frames, p: Params, alpha: float, prior: tuple[float, float], grid: int = 81, span: float = 5.0
+):
     """``(partitions, log_probs)``: the posterior over partitions with the noise pair summed out,
 
         p(z | V) ∝ α^K Π_k Γ(n_k) ∫∫ Π_k p(D_k | w, σ_x², σ_y²) p(σ_x²) p(σ_y²),
@@ -242,8 +244,18 @@ def partition_posterior_noise_summed(frames, p: Params, alpha: float, prior: tup
     lines: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
     for mask in range(1, 1 << n):
         xy, v = _rows(frames, [j for j in range(n) if mask >> j & 1])
-        lx = np.array([gp_oracle.log_marginal_likelihood(xy, v, dataclasses.replace(p, noise_var=(float(np.exp(a)), ref[1]))) for a in axes[0]])
-        ly = np.array([gp_oracle.log_marginal_likelihood(xy, v, dataclasses.replace(p, noise_var=(ref[0], float(np.exp(b))))) for b in axes[1]])
+        lx = np.array(
+            [
+                gp_oracle.log_marginal_likelihood(xy, v, dataclasses.replace(p, noise_var=(float(np.exp(a)), ref[1])))
+                for a in axes[0]
+            ]
+        )
+        ly = np.array(
+            [
+                gp_oracle.log_marginal_likelihood(xy, v, dataclasses.replace(p, noise_var=(ref[0], float(np.exp(b)))))
+                for b in axes[1]
+            ]
+        )
         lines[mask] = (lx, ly, gp_oracle.log_marginal_likelihood(xy, v, dataclasses.replace(p, noise_var=ref)))
     h = [ax[1] - ax[0] for ax in axes]
     trap = [np.log(np.r_[0.5, np.ones(grid - 2), 0.5] * hd) for hd in h]

@@ -102,7 +102,24 @@ def test_simulate(model_file, tmp_path, capsys):
     assert len(df) == 7 * len(model.frames_[4])
     np.testing.assert_array_equal(df["x"].to_numpy().reshape(7, -1), sim.positions[..., 0])
     out2 = tmp_path / "sim2.csv"
-    assert main(["simulate", str(model_file), "--frame", "4", "-o", str(out2), "--steps", "3", "--stochastic", "--seed", "1"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                str(model_file),
+                "--frame",
+                "4",
+                "-o",
+                str(out2),
+                "--steps",
+                "3",
+                "--stochastic",
+                "--seed",
+                "1",
+            ]
+        )
+        == 0
+    )
     assert pd.read_csv(out2)["low_data"].dtype == bool
 
 
@@ -118,14 +135,39 @@ def test_generate_csv_and_sumo(model_file, tmp_path):
     tracks = dpgp.read_tracks(xml, preset="sumo")
     assert tracks["id"].str.match(r"s\d+_v\d+").all()
     # a generated SUMO file is valid input for a new fit
-    assert main(["fit", str(xml), "-o", str(tmp_path / "again.npz"), "--format", "sumo", "--iterations", "1", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "fit",
+                str(xml),
+                "-o",
+                str(tmp_path / "again.npz"),
+                "--format",
+                "sumo",
+                "--iterations",
+                "1",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
 
 
 def test_demo(tmp_path, capsys):
     out = tmp_path / "demo"
-    assert main(["demo", "--out", str(out), "--frames", "24", "--iterations", "2", "--steps", "6", "--no-progress"]) == 0
+    assert (
+        main(["demo", "--out", str(out), "--frames", "24", "--iterations", "2", "--steps", "6", "--no-progress"]) == 0
+    )
     names = {p.name for p in out.iterdir()}
-    assert {"model.npz", "weights.png", "trace.png", "simulation.png", "simulation.gif", "field_0.png", "frames_0.png"} <= names
+    assert {
+        "model.npz",
+        "weights.png",
+        "trace.png",
+        "simulation.png",
+        "simulation.gif",
+        "field_0.png",
+        "frames_0.png",
+    } <= names
     printed = capsys.readouterr().out
     assert all(f"wrote {out / n}" in printed for n in names)
     assert "true: 4" in printed
@@ -157,14 +199,18 @@ def test_errors_are_one_line(model_file, tmp_path, capsys):
     _error(capsys, ["fit", str(bad), "-o", str(tmp_path / "m.npz"), "--format", "frames", "--no-progress"])
     (tmp_path / "broken.npz").write_bytes(model_file.read_bytes()[:500])
     assert "truncated or corrupted" in _error(capsys, ["info", str(tmp_path / "broken.npz")])
-    assert "out of range" in _error(capsys, ["simulate", str(model_file), "--frame", "999", "-o", str(tmp_path / "s.csv")])
+    assert "out of range" in _error(
+        capsys, ["simulate", str(model_file), "--frame", "999", "-o", str(tmp_path / "s.csv")]
+    )
     _error(capsys, ["generate", str(model_file), "-n", "-2", "-o", str(tmp_path / "g.csv")])
     _error(capsys, ["simulate", str(model_file), "--frame", "0", "-o", str(tmp_path / "no" / "dir" / "s.csv")])
     assert not (tmp_path / "m.npz").exists()
 
 
 def test_console_entry_point_reports_errors_without_traceback(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "dpgp.cli", "info", str(tmp_path / "nope.npz")], capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "dpgp.cli", "info", str(tmp_path / "nope.npz")], capture_output=True, text=True
+    )
     assert r.returncode == 1 and r.stderr.startswith("dpgp: error:") and "Traceback" not in r.stderr
     r = subprocess.run([sys.executable, "-m", "dpgp.cli", "frobnicate"], capture_output=True, text=True)
     assert r.returncode == 2 and "invalid choice" in r.stderr

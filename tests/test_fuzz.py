@@ -20,6 +20,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import dpgp
+
 import fuzz_cases as fc
 
 # Examples per surface: about 1,000 in all, well under a minute and a half.
@@ -120,7 +121,9 @@ def test_frames_selection_and_ids_are_checked():
 def _tracks(t0=-5.0, step=0.1, n=2):
     import pandas as pd
 
-    return pd.DataFrame({"track": np.zeros(n, int), "t": t0 + step * np.arange(n), "x": np.arange(n, dtype=float), "y": np.zeros(n)})
+    return pd.DataFrame(
+        {"track": np.zeros(n, int), "t": t0 + step * np.arange(n), "x": np.arange(n, dtype=float), "y": np.zeros(n)}
+    )
 
 
 def test_make_frames_never_puts_a_frame_outside_the_tracks_time_span():
@@ -219,7 +222,9 @@ def _fit(frames=None, **settings):
         pytest.param(dict(seed="s")),
         pytest.param(dict(seed=None)),
         pytest.param(dict(length_scale_fraction="x")),
-        pytest.param(dict(new_pattern_samples=2**64), id="new_pattern_samples-2**64"),  # was OverflowError: fixed in 6e25ea6
+        pytest.param(
+            dict(new_pattern_samples=2**64), id="new_pattern_samples-2**64"
+        ),  # was OverflowError: fixed in 6e25ea6
     ],
 )
 def test_open_fit_settings_raise_typed(settings):
@@ -236,7 +241,9 @@ def test_open_auto_prior_on_huge_coordinates():
 @pytest.mark.parametrize(
     "frames, settings",
     [
-        pytest.param(_three_frames(vx=(3e300, -4e300, 1e300, 1.0, 2.0, 1.0)), dict(signal_var=1.0), id="velocities-1e300"),
+        pytest.param(
+            _three_frames(vx=(3e300, -4e300, 1e300, 1.0, 2.0, 1.0)), dict(signal_var=1.0), id="velocities-1e300"
+        ),
         pytest.param(None, dict(mean=1e300), id="mean-1e300"),
     ],
 )
@@ -282,8 +289,8 @@ def test_simulation_arguments_raise_typed(tiny, call):
 
 
 def test_simulation_size_caps_refuse_before_any_work(tiny):
-    from dpgp.scenarios import MAX_SCENARIOS
-    from dpgp.simulation import MAX_ROWS
+    from dpgp.generate.scenarios import MAX_SCENARIOS
+    from dpgp.generate.simulation import MAX_ROWS
 
     model = tiny[0]
     assert model.sample_scenarios(1, steps=1, dt=2**1000).dt > 0  # a huge int dt is still a number
@@ -293,7 +300,7 @@ def test_simulation_size_caps_refuse_before_any_work(tiny):
     with pytest.raises(dpgp.InvalidInputError, match="in batches"):
         model.sample_scenarios(MAX_SCENARIOS + 1, steps=0)
     # bounded by the largest count φ can draw (not the counts drawn), so it does not depend on the seed
-    most = dpgp.scenarios.distributions(model).max_count
+    most = dpgp.generate.scenarios.distributions(model).max_count
     with pytest.raises(dpgp.InvalidInputError, match="fewer scenarios or steps"):
         model.sample_scenarios(MAX_ROWS // (most * 200) + 1, steps=199, seed=0)
 
@@ -430,7 +437,9 @@ def _run_limited(code: str, seconds: float, memory_mb: int = 4096) -> subprocess
         "except dpgp.DpgpError as e:\n"
         "    print('typed', type(e).__name__)\n"
     )
-    return subprocess.run([sys.executable, "-c", prelude], capture_output=True, text=True, timeout=seconds, preexec_fn=limit)
+    return subprocess.run(
+        [sys.executable, "-c", prelude], capture_output=True, text=True, timeout=seconds, preexec_fn=limit
+    )
 
 
 def test_simulate_that_cannot_fit_in_memory_is_refused():  # was SIGABRT on allocation

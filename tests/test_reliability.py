@@ -19,9 +19,9 @@ import pytest
 
 import dpgp
 from dpgp.gp import GPParams, log_marginal_likelihood, log_predictive, posterior
+from test_fuzz import tiny  # noqa: F401 - the fuzz suite's tiny fitted model and its file
 
 import fuzz_cases as fc
-from test_fuzz import tiny  # noqa: F401 - the fuzz suite's tiny fitted model and its file
 
 
 def _members(path: Path) -> dict[str, np.ndarray]:
@@ -71,7 +71,9 @@ def test_gp_densities_at_huge_positions_stay_finite(scale):
     rng = np.random.default_rng(1)
     xy, v = rng.normal(size=(4, 2)) * scale, rng.normal(size=(4, 2))
     p = GPParams((5.0, 5.0), (1.0, 1.0), (0.5, 0.5), (0.0, 0.0))
-    assert np.isfinite(log_marginal_likelihood(xy, v, p)) and np.isfinite(log_predictive(xy[:2], v[:2], xy[2:], v[2:], p))
+    assert np.isfinite(log_marginal_likelihood(xy, v, p)) and np.isfinite(
+        log_predictive(xy[:2], v[:2], xy[2:], v[2:], p)
+    )
     assert np.isfinite(log_marginal_likelihood(xy + 1e300, v, p))
 
 
@@ -112,7 +114,9 @@ def test_a_time_axis_too_long_to_hold_is_refused_even_without_vehicles(tiny):  #
 
 
 def test_a_model_file_with_an_extreme_length_scale_prior_is_refused(tiny, tmp_path):  # a NaN log joint (fuzz)
-    path = _with_metadata(tiny[1], tmp_path / "prior.npz", lambda m: m["resolved"].__setitem__("length_scale_prior", [1e308, 1e308]))
+    path = _with_metadata(
+        tiny[1], tmp_path / "prior.npz", lambda m: m["resolved"].__setitem__("length_scale_prior", [1e308, 1e308])
+    )
     with pytest.raises(dpgp.ModelFileError, match="length_scale_prior"):
         dpgp.DPGP.load(path)
 
@@ -196,13 +200,17 @@ def test_bytes_paths_work_wherever_a_path_is_taken(tiny, tmp_path):
     assert dpgp.io.read_metadata(name)["format"] == "dpgp-model"
     ckpt = os.fsencode(str(tmp_path / "fit.ckpt"))
     frames = model.frames_
-    fitted = dpgp.DPGP(iterations=2, seed=0, progress=False, noise_var=1.0, checkpoint=ckpt, checkpoint_every=1).fit(frames)
+    fitted = dpgp.DPGP(iterations=2, seed=0, progress=False, noise_var=1.0, checkpoint=ckpt, checkpoint_every=1).fit(
+        frames
+    )
     assert dpgp.DPGP.resume(ckpt).n_iter_ == fitted.n_iter_
     table = tmp_path / "frames.csv"
     frames.to_pandas().to_csv(table, index=False)
     assert len(dpgp.read_frames(os.fsencode(str(table)))) == len(frames)
     tracks = tmp_path / "tracks.csv"
-    pd.DataFrame({"track": [0, 0, 1], "t": [0.0, 0.5, 0.0], "x": [0.0, 1, 2], "y": [0.0, 0, 1]}).to_csv(tracks, index=False)
+    pd.DataFrame({"track": [0, 0, 1], "t": [0.0, 0.5, 0.0], "x": [0.0, 1, 2], "y": [0.0, 0, 1]}).to_csv(
+        tracks, index=False
+    )
     assert len(dpgp.read_tracks(os.fsencode(str(tracks)))) == 3
     ngsim = tmp_path / "ngsim.csv"
     ngsim.write_text("Vehicle_ID,Frame_ID,Total_Frames,Local_X,Local_Y\n1,1,2,0.0,0.0\n1,2,2,1.0,0.0\n")
@@ -240,8 +248,11 @@ def test_saving_over_a_directory_names_the_target(tiny, tmp_path):
 
 @pytest.mark.parametrize(
     "preset, columns",
-    [(None, ["track", "t", "x", "x", "y"]), ("highd", ["id", "frame", "x", "y", "x"]),
-     ("ind", ["trackId", "frame", "xCenter", "yCenter", "xCenter"])],
+    [
+        (None, ["track", "t", "x", "x", "y"]),
+        ("highd", ["id", "frame", "x", "y", "x"]),
+        ("ind", ["trackId", "frame", "xCenter", "yCenter", "xCenter"]),
+    ],
 )
 def test_duplicated_column_names_are_a_data_format_error(preset, columns):
     df = pd.DataFrame([[0, 1, 1.0, 2.0, 3.0], [0, 2, 1.0, 2.0, 3.0]], columns=columns)

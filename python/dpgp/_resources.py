@@ -13,7 +13,18 @@ MAX_BUDGET = 2**63 - 1
 #: Share of the memory available at the start of a fit that its patterns may hold by default.
 DEFAULT_MEMORY_SHARE = 0.5
 
-_UNITS = {"": 1, "b": 1, "kb": 10**3, "mb": 10**6, "gb": 10**9, "tb": 10**12, "kib": 2**10, "mib": 2**20, "gib": 2**30, "tib": 2**40}
+_UNITS = {
+    "": 1,
+    "b": 1,
+    "kb": 10**3,
+    "mb": 10**6,
+    "gb": 10**9,
+    "tb": 10**12,
+    "kib": 2**10,
+    "mib": 2**20,
+    "gib": 2**30,
+    "tib": 2**40,
+}
 
 
 def available_memory(n_threads: int | None = 1) -> int | None:
@@ -221,7 +232,13 @@ def parse_bytes(name: str, value: object) -> int | None:
         if m is None or unit not in _UNITS:
             raise InvalidInputError(f"{name} must be a number of bytes or a size such as '4GB', got {value!r}")
         value = float(m.group(1)) * _UNITS[unit]
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 1 or value != value or value == float("inf"):
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not value >= 1
+        or value != value
+        or value == float("inf")
+    ):
         raise InvalidInputError(f"{name} must be a positive number of bytes or a size such as '4GB', got {value!r}")
     # Past 2^63 - 1 bytes (8 EiB, more than any machine) a budget limits nothing: the core takes a u64.
     return int(min(value, MAX_BUDGET))

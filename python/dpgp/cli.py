@@ -42,7 +42,7 @@ def _sniff(path: str) -> str:
         return "ngsim"
     if "timestep_time" in names:
         return "sumo"
-    track_ids = {"track", "track_id", "id", "trackid", "vehicle_id", "agent_id", "object_id", "ped_id", "trackid"}
+    track_ids = {"track", "track_id", "id", "trackid", "vehicle_id", "agent_id", "object_id", "ped_id"}
     frame_ids = {"frame", "frame_idx", "frame_id", "frameid", "frame_index"}
     if names & frame_ids and not names & track_ids:
         return "frames"
@@ -54,7 +54,7 @@ def load_frames(path: str, fmt: str = "auto", roi: Any = None, dt: float | None 
     import numpy as np
 
     from . import make_frames, read_frames, read_ngsim, read_tracks
-    from .framing import FramingSummary
+    from .data.framing import FramingSummary
 
     if not os.path.exists(path):
         raise FileNotFoundError(f"no such file: {path}")
@@ -105,7 +105,9 @@ def _fit(args: argparse.Namespace) -> int:
     )  # fmt: skip
     t = time.perf_counter()
     model.fit(frames)
-    print(f"fitted {model.n_patterns_} patterns in {time.perf_counter() - t:.1f} s ({model.n_iter_} sweeps, α = {model.alpha_:.3g})")
+    print(
+        f"fitted {model.n_patterns_} patterns in {time.perf_counter() - t:.1f} s ({model.n_iter_} sweeps, α = {model.alpha_:.3g})"
+    )
     model.save(args.output)
     print(f"wrote {args.output}")
     return 0
@@ -141,7 +143,9 @@ def _fit_chains(args: argparse.Namespace, frames: Any) -> int:
     print(chains.summary().to_string(float_format=lambda v: f"{v:.4g}"))
     model = chains.best_model(args.loss)
     s = model.chain_summary_["point_estimate"]
-    print(f"point estimate ({s['loss']}): {model.n_patterns_} patterns, posterior expected loss {s['expected_loss']:.4g}")
+    print(
+        f"point estimate ({s['loss']}): {model.n_patterns_} patterns, posterior expected loss {s['expected_loss']:.4g}"
+    )
     model.save(args.output)
     print(f"wrote {args.output}")
     return 0
@@ -187,8 +191,8 @@ def _info(args: argparse.Namespace) -> int:
     import numpy as np
 
     from . import DPGP
-    from .io import read_metadata
-    from .simulation import default_dt, default_roi
+    from .generate.simulation import default_dt, default_roi
+    from .io.modelfile import read_metadata
 
     meta = read_metadata(args.model)
     model = DPGP.load(args.model)
@@ -233,7 +237,9 @@ def _info(args: argparse.Namespace) -> int:
     return 0
 
 
-def write_figures(model, out: Path, kinds: list[str], n_patterns: int, frame: int | None, steps: int, dpi: int) -> list[Path]:
+def write_figures(
+    model, out: Path, kinds: list[str], n_patterns: int, frame: int | None, steps: int, dpi: int
+) -> list[Path]:
     """Write the chosen figures of ``model`` into ``out``; returns the paths written."""
     import numpy as np
 
@@ -301,7 +307,7 @@ def _generate(args: argparse.Namespace) -> int:
     one_file = args.output.lower().endswith(".xosc")
     xosc = args.format == "xosc" or (args.format is None and (one_file or os.path.isdir(args.output)))
     if xosc:  # checked before generating: a missing extra or a wrong path is said at once
-        from .openscenario import require_scenariogeneration
+        from .generate.openscenario import require_scenariogeneration
 
         require_scenariogeneration()
         if one_file and args.n != 1:
@@ -330,7 +336,7 @@ def _generate(args: argparse.Namespace) -> int:
 
 def _evaluate(args: argparse.Namespace) -> int:
     from . import DPGP
-    from .evaluate import split_in_time
+    from .evaluate.scores import split_in_time
 
     model = DPGP.load(args.model)
     summary = getattr(model.frames_, "summary", None)
@@ -343,11 +349,16 @@ def _evaluate(args: argparse.Namespace) -> int:
     else:  # trajectories: framed like the training data, and kept for the rollouts
         from . import make_frames, read_ngsim, read_tracks
 
-        tracks = read_ngsim(args.data) if fmt == "ngsim" else read_tracks(args.data, preset=None if fmt == "tracks" else fmt)
+        tracks = (
+            read_ngsim(args.data) if fmt == "ngsim" else read_tracks(args.data, preset=None if fmt == "tracks" else fmt)
+        )
         units = getattr(summary, "units", None)
         frames = make_frames(tracks, roi=roi, dt=0.5 if dt is None else dt, units=units)
     test = frames if args.split == 0 else split_in_time(frames, args.split)[1]
-    print(f"{args.data}: {len(test)} test frames ({test.n_points} vehicles)" + (f", the last {1 - args.split:.0%}" if args.split else ""))
+    print(
+        f"{args.data}: {len(test)} test frames ({test.n_points} vehicles)"
+        + (f", the last {1 - args.split:.0%}" if args.split else "")
+    )
     ev = model.evaluate(test, tracks=tracks, horizons=args.horizons, agent=args.agent)
     print(ev.table.to_string(float_format=lambda x: f"{x:.3f}"))
     if ev.realism is not None:
@@ -498,8 +509,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=100, help="number of time steps")
     p.add_argument("--dt", type=float, help="time step in seconds (default: the training frames', else 0.5)")
     p.add_argument("--method", choices=("euler", "rk4"), default="euler", help="integration scheme")
-    p.add_argument("--dynamics", choices=("interactive", "relaxed", "field"), default=None,
-                   help="interactive (default; field with --method rk4), relaxed, or field (the paper's rollout)")
+    p.add_argument(
+        "--dynamics",
+        choices=("interactive", "relaxed", "field"),
+        default=None,
+        help="interactive (default; field with --method rk4), relaxed, or field (the paper's rollout)",
+    )
     p.add_argument("--stochastic", action="store_true", help="draw velocities from the posterior at every step")
     p.add_argument("--seed", type=int, help="seed of the stochastic draws (default: random)")
     p.set_defaults(func=_simulate)
@@ -520,8 +535,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pattern", type=int, help="draw every scenario from this pattern (default: by weight)")
     p.add_argument("--dt", type=float, help="time step in seconds (default: the training frames', else 0.5)")
     p.add_argument("--method", choices=("euler", "rk4"), default="euler", help="integration scheme")
-    p.add_argument("--dynamics", choices=("interactive", "relaxed", "field"), default=None,
-                   help="interactive (default; field with --method rk4), relaxed, or field (the paper's rollout)")
+    p.add_argument(
+        "--dynamics",
+        choices=("interactive", "relaxed", "field"),
+        default=None,
+        help="interactive (default; field with --method rk4), relaxed, or field (the paper's rollout)",
+    )
     p.add_argument("--mean", action="store_true", help="follow the posterior mean instead of drawing velocities")
     p.add_argument("--seed", type=int, help="random seed (default: random)")
     p.set_defaults(func=_generate)
@@ -539,12 +558,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="score the frames after this share of DATA (the protocol: the model was fitted to the first "
                    "share, e.g. with --max-frames); 0 scores all of DATA")  # fmt: skip
     p.add_argument("--horizons", type=float, nargs="+", default=[1.0, 2.0, 4.0], help="rollout horizons in seconds")
-    p.add_argument("--roi", nargs=4, type=_roi, metavar=("X_MIN", "X_MAX", "Y_MIN", "Y_MAX"), help="default: the model's")
+    p.add_argument(
+        "--roi", nargs=4, type=_roi, metavar=("X_MIN", "X_MAX", "Y_MIN", "Y_MAX"), help="default: the model's"
+    )
     p.add_argument("--dt", type=float, help="time step in seconds (default: the model's)")
     p.add_argument("-o", "--output", help="write the table as CSV")
     p.add_argument("--plot", help="write the figure (PNG)")
-    p.add_argument("--agent", choices=("vehicle", "pedestrian"),
-                   help="realism's collision distance (2 m / 0.3 m); default: pedestrian for ETH/UCY, else vehicle")
+    p.add_argument(
+        "--agent",
+        choices=("vehicle", "pedestrian"),
+        help="realism's collision distance (2 m / 0.3 m); default: pedestrian for ETH/UCY, else vehicle",
+    )
     p.add_argument("--realism-plot", help="write the realism figure, per-feature histograms (PNG)")
     p.set_defaults(func=_evaluate)
 

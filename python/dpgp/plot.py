@@ -15,14 +15,14 @@ import numpy as np
 
 from ._arrays import as_path
 from .exceptions import InvalidInputError
-from .simulation import LOW_DATA_THRESHOLD, Simulation, default_roi
+from .generate.simulation import LOW_DATA_THRESHOLD, Simulation, default_roi
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-    from .model import DPGP
-    from .scenarios import Scenarios
+    from .generate.scenarios import Scenarios
+    from .model.estimator import DPGP
 
 _FIELD = "#1f4e99"  # arrows where the pattern has data
 _SPARSE = "#b0b0b0"  # arrows in low-data regions
@@ -118,7 +118,9 @@ def weights(model: DPGP, ax: Axes | None = None) -> Axes:
     return ax
 
 
-def field_grid(model: DPGP, grid: Any = 20, roi: tuple[float, float, float, float] | None = None) -> tuple[np.ndarray, int, int]:
+def field_grid(
+    model: DPGP, grid: Any = 20, roi: tuple[float, float, float, float] | None = None
+) -> tuple[np.ndarray, int, int]:
     """The ``nx x ny`` grid points (row-major in y, then x) over ``roi`` (default: the model's)."""
     nx, ny = _grid(grid)
     x0, x1, y0, y1 = default_roi(model) if roi is None else roi

@@ -77,7 +77,9 @@ def test_to_inference_data_round_trips_through_arviz(chains):
         warnings.simplefilter("ignore")
         az = pytest.importorskip("arviz")
         idata = chains.to_inference_data()
-        np.testing.assert_allclose(float(az.rhat(idata, method="rank")["log_joint"]), chains.rhat()["log_joint"], rtol=1e-6)
+        np.testing.assert_allclose(
+            float(az.rhat(idata, method="rank")["log_joint"]), chains.rhat()["log_joint"], rtol=1e-6
+        )
     assert idata.posterior["alpha"].shape == (4, 6)
     assert idata.warmup_posterior["alpha"].shape == (4, 6)
 

@@ -28,8 +28,12 @@ def _cluster(**config):
     with dask.config.set(config), warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "port 8787 in use" when a second cluster starts
         cluster = distributed.LocalCluster(
-            n_workers=2, processes=True, threads_per_worker=1, dashboard_address=None,
-            worker_dashboard_address=None, silence_logs=50,
+            n_workers=2,
+            processes=True,
+            threads_per_worker=1,
+            dashboard_address=None,
+            worker_dashboard_address=None,
+            silence_logs=50,
         )
     return cluster, distributed.Client(cluster)
 

@@ -12,6 +12,7 @@ from dpgp import InvalidInputError, ShapeError, partition
 
 def _partitions(n):
     """Every partition of n items as restricted growth strings (Bell(n) of them)."""
+
     def grow(prefix, top):
         if len(prefix) == n:
             yield np.array(prefix)
@@ -52,7 +53,9 @@ def test_expected_losses_match_their_definitions():
             assert partition.expected_loss(c, d, "binder") == pytest.approx(_binder_pairs(c, d), abs=1e-12)
             assert partition.expected_loss(c, d, "vi") == pytest.approx(_vi_entropies(c, d), abs=1e-12)
     # labels are names: renaming clusters changes nothing
-    assert partition.expected_loss([5, 5, 9], [[0, 1, 1]], "vi") == partition.expected_loss([0, 0, 1], [[7, 3, 3]], "vi")
+    assert partition.expected_loss([5, 5, 9], [[0, 1, 1]], "vi") == partition.expected_loss(
+        [0, 0, 1], [[7, 3, 3]], "vi"
+    )
 
 
 @pytest.mark.parametrize("loss", ["binder", "vi"])
@@ -141,5 +144,7 @@ def test_similarity_of_10000_items_and_200_draws_fits_in_1_gb():
 
     out = subprocess.run([sys.executable, "-c", _MEMORY], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
-    peak_mb = int(out.stdout.split()[-1]) / (2**20 if sys.platform == "darwin" else 2**10)  # bytes on macOS, KiB elsewhere
+    peak_mb = int(out.stdout.split()[-1]) / (
+        2**20 if sys.platform == "darwin" else 2**10
+    )  # bytes on macOS, KiB elsewhere
     assert peak_mb <= 1024, f"peak RSS {peak_mb:.0f} MB"

@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pandas as pd
 import pytest
@@ -12,9 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import dpgp
-from dpgp import framing
+from dpgp.data import framing
 
-from conftest import DATA
 from conftest import data_file as real
 
 
@@ -29,6 +26,7 @@ def _on_grid(times, dt):
 
 
 # --- real data ---------------------------------------------------------------------------------
+
 
 def test_peachtree_frames_at_half_second(peachtree):
     frames = dpgp.make_frames(peachtree, dt=0.5)
@@ -121,8 +119,16 @@ def test_us101_frames_round_trip():
     ref = dpgp.read_frames(real("ngsim_us101_frames.tsv"))
     dt = 0.5
     table = ref.to_pandas()
-    tracks = pd.DataFrame({"track": np.arange(len(table)), "t": table["frame"] * dt,
-                           "x": table["x"], "y": table["y"], "vx": table["vx"], "vy": table["vy"]})
+    tracks = pd.DataFrame(
+        {
+            "track": np.arange(len(table)),
+            "t": table["frame"] * dt,
+            "x": table["x"],
+            "y": table["y"],
+            "vx": table["vx"],
+            "vy": table["vy"],
+        }
+    )
     frames = dpgp.make_frames(tracks, dt=dt)
     assert frames.summary.velocity == "columns" and frames.summary.n_empty_frames == 0
     assert np.allclose(frames.ids / dt, ref.ids, atol=1e-9)
@@ -137,6 +143,7 @@ def test_us101_frames_round_trip():
 
 
 # --- known motion (hypothesis) -----------------------------------------------------------------
+
 
 @st.composite
 def line_tracks(draw):
@@ -224,8 +231,11 @@ def gappy_tracks(draw):
         steps = draw(st.lists(st.sampled_from([0.1, 0.1, 0.1, 0.3, 0.7, 2.5]), min_size=n - 1, max_size=n - 1))
         t = draw(st.floats(0, 3)) + np.r_[0.0, np.cumsum(steps)]
         xy = np.array(draw(st.lists(st.floats(-100, 100), min_size=2 * n, max_size=2 * n))).reshape(n, 2)
-        parts.append(pd.DataFrame({"track": 10 * i + 3, "t": t, "x": xy[:, 0], "y": xy[:, 1],
-                                   "vx": xy[:, 1] * 0.5, "vy": -xy[:, 0]}))
+        parts.append(
+            pd.DataFrame(
+                {"track": 10 * i + 3, "t": t, "x": xy[:, 0], "y": xy[:, 1], "vx": xy[:, 1] * 0.5, "vy": -xy[:, 0]}
+            )
+        )
     return pd.concat(parts, ignore_index=True)
 
 
@@ -259,7 +269,9 @@ def test_matches_per_track_reference_and_never_invents_points(tracks, dt, max_ga
     res = dpgp.resample_tracks(tracks, dt=dt, max_gap=max_gap)
     assert len(res) == len(ref)
     assert np.array_equal(res["track"].to_numpy(), ref["track"].to_numpy())
-    assert np.allclose(res[["t", "x", "y", "vx", "vy"]].to_numpy(), ref[["t", "x", "y", "vx", "vy"]].to_numpy(), atol=1e-9)
+    assert np.allclose(
+        res[["t", "x", "y", "vx", "vy"]].to_numpy(), ref[["t", "x", "y", "vx", "vy"]].to_numpy(), atol=1e-9
+    )
     # no point outside its track's time span
     span = tracks.groupby("track")["t"].agg(["min", "max"])
     lo = span.loc[res["track"], "min"].to_numpy()
@@ -276,6 +288,7 @@ def test_matches_per_track_reference_and_never_invents_points(tracks, dt, max_ga
 
 # --- smoothing, gaps, summary ------------------------------------------------------------------
 
+
 def test_savitzky_golay_matches_scipy():
     signal = pytest.importorskip("scipy.signal")
     rng = np.random.default_rng(4)
@@ -289,7 +302,9 @@ def test_savitzky_golay_matches_scipy():
         assert len(res) == len(t)
         for col, p in (("x", x), ("y", y)):
             assert np.allclose(res[col], signal.savgol_filter(p, window, order, mode="interp"), atol=1e-9)
-            assert np.allclose(res["v" + col], signal.savgol_filter(p, window, order, deriv=1, delta=h, mode="interp"), atol=1e-8)
+            assert np.allclose(
+                res["v" + col], signal.savgol_filter(p, window, order, deriv=1, delta=h, mode="interp"), atol=1e-8
+            )
 
 
 def test_smoothing_uneven_sampling_and_short_segments():
@@ -320,12 +335,14 @@ def test_gaps_are_not_interpolated_and_are_counted():
 
 
 def test_single_samples_and_short_fragments_are_reported():
-    tracks = pd.DataFrame({
-        "track": [0, 0, 0, 1, 2, 2],
-        "t": [0.0, 0.1, 0.2, 0.5, 0.6, 0.7],  # track 1: one sample on the grid; track 2: between grid times
-        "x": [0.0, 1.0, 2.0, 5.0, 1.0, 2.0],
-        "y": 0.0,
-    })
+    tracks = pd.DataFrame(
+        {
+            "track": [0, 0, 0, 1, 2, 2],
+            "t": [0.0, 0.1, 0.2, 0.5, 0.6, 0.7],  # track 1: one sample on the grid; track 2: between grid times
+            "x": [0.0, 1.0, 2.0, 5.0, 1.0, 2.0],
+            "y": 0.0,
+        }
+    )
     frames = dpgp.make_frames(tracks, dt=0.5)
     s = frames.summary
     assert frames.n_points == 1 and s.n_single_sample_segments == 1
@@ -336,8 +353,9 @@ def test_single_samples_and_short_fragments_are_reported():
 
 def test_scenes_are_framed_separately():
     t = np.arange(0, 1.01, 0.5)
-    tracks = pd.DataFrame({"track": np.repeat([0, 1], 3), "t": np.r_[t, t], "x": 1.0, "y": 2.0,
-                           "scene": np.repeat(["a", "b"], 3)})
+    tracks = pd.DataFrame(
+        {"track": np.repeat([0, 1], 3), "t": np.r_[t, t], "x": 1.0, "y": 2.0, "scene": np.repeat(["a", "b"], 3)}
+    )
     frames = dpgp.make_frames(tracks, dt=0.5)
     assert len(frames) == 6 and list(frames.ids[:2]) == [("a", 0.0), ("a", 0.5)]
     assert frames.summary.n_scenes == 2
@@ -352,6 +370,7 @@ def test_summary_survives_and_selections_keep_it(peachtree):
 
 
 # --- bad input ---------------------------------------------------------------------------------
+
 
 def test_make_frames_bad_input():
     good = pd.DataFrame({"track": [0, 0, 0], "t": [0.0, 0.5, 1.0], "x": [0.0, 1.0, 2.0], "y": [0.0, 0.0, 0.0]})

@@ -3,15 +3,12 @@ presets (ETH/UCY, INTERACTION, highD, inD, SUMO XML and CSV), file types, and ba
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pandas as pd
 import pytest
 
 import dpgp
 
-from conftest import DATA
 from conftest import data_file as real
 
 
@@ -27,6 +24,7 @@ def assert_tracks_table(df: pd.DataFrame) -> None:
 
 
 # --- NGSIM -----------------------------------------------------------------------------------
+
 
 @pytest.fixture(scope="module")
 def peachtree() -> pd.DataFrame:
@@ -85,8 +83,28 @@ def _ngsim_rows(n=30):
     rows = []
     for vid, x0 in ((7, 10.0), (9, 22.0)):
         for k in range(n):
-            rows.append([vid, 100 + k, n, 1113433135300 + 100 * k, x0, 50.0 + 3.0 * k, 6451203.0, 1873252.0,
-                         14.5, 4.9, 2, 30.0, 0.0, 2, 0, 0, 0.0, 0.0])
+            rows.append(
+                [
+                    vid,
+                    100 + k,
+                    n,
+                    1113433135300 + 100 * k,
+                    x0,
+                    50.0 + 3.0 * k,
+                    6451203.0,
+                    1873252.0,
+                    14.5,
+                    4.9,
+                    2,
+                    30.0,
+                    0.0,
+                    2,
+                    0,
+                    0,
+                    0.0,
+                    0.0,
+                ]
+            )
     return rows
 
 
@@ -102,9 +120,11 @@ def test_ngsim_us101_txt_without_header(tmp_path):
 
 
 def test_ngsim_column_name_variants(tmp_path):
-    names = ("Vehicle_ID Frame_ID Total_Frames Global_Time Local_X Local_Y Global_X Global_Y v_Length v_Width "
-             "v_Class v_Vel v_Acc Lane_ID Origin_Zone Destination_Zone Int_ID Section_ID Direction Movement "
-             "Preceding Following Space_Hdwy Time_Hdwy").split()
+    names = (
+        "Vehicle_ID Frame_ID Total_Frames Global_Time Local_X Local_Y Global_X Global_Y v_Length v_Width "
+        "v_Class v_Vel v_Acc Lane_ID Origin_Zone Destination_Zone Int_ID Section_ID Direction Movement "
+        "Preceding Following Space_Hdwy Time_Hdwy"
+    ).split()
     rows = [r[:14] + [101, 201, 1, 2, 2, 1] + r[14:] for r in _ngsim_rows()]
     path = tmp_path / "lankershim.csv"
     pd.DataFrame(rows, columns=[n.lower() if i % 3 == 0 else n for i, n in enumerate(names)]).to_csv(path, index=False)
@@ -155,7 +175,10 @@ def test_ngsim_rejects_other_files(tmp_path):
 
 # --- presets -----------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("name,rows,peds", [("eth_ucy_biwi_eth.txt", 5492, 360), ("eth_ucy_crowds_zara01.txt", 5153, 148)])
+
+@pytest.mark.parametrize(
+    "name,rows,peds", [("eth_ucy_biwi_eth.txt", 5492, 360), ("eth_ucy_crowds_zara01.txt", 5153, 148)]
+)
 def test_eth_ucy_preset(name, rows, peds):
     df = dpgp.read_tracks(real(name), preset="eth_ucy")
     assert_tracks_table(df)
@@ -188,9 +211,18 @@ def test_interaction_preset_keeps_cases_apart(tmp_path):
 
 def test_highd_and_ind_presets(tmp_path):
     n = 50
-    hd = pd.DataFrame({"frame": np.tile(np.arange(1, n + 1), 2), "id": np.repeat([1, 2], n),
-                       "x": np.r_[np.arange(n) * 1.2, 400 - np.arange(n) * 1.0], "y": np.repeat([10.0, 20.0], n),
-                       "width": 4.5, "height": 1.9, "xVelocity": np.repeat([30.0, -25.0], n), "yVelocity": 0.0})
+    hd = pd.DataFrame(
+        {
+            "frame": np.tile(np.arange(1, n + 1), 2),
+            "id": np.repeat([1, 2], n),
+            "x": np.r_[np.arange(n) * 1.2, 400 - np.arange(n) * 1.0],
+            "y": np.repeat([10.0, 20.0], n),
+            "width": 4.5,
+            "height": 1.9,
+            "xVelocity": np.repeat([30.0, -25.0], n),
+            "yVelocity": 0.0,
+        }
+    )
     hd.to_csv(tmp_path / "01_tracks.csv", index=False)
     df = dpgp.read_tracks(tmp_path / "01_tracks.csv", preset="highd")
     assert_tracks_table(df)
@@ -261,14 +293,18 @@ def test_sumo_rejects_other_xml(tmp_path):
 
 # --- generic tables ----------------------------------------------------------------------------
 
+
 def _generic(n=20):
     rng = np.random.default_rng(1)
-    return pd.DataFrame({
-        "vehicle": np.repeat(["a", "b", "c"], n),
-        "time_s": np.tile(np.arange(n) * 0.2, 3),
-        "px": rng.normal(size=3 * n), "py": rng.normal(size=3 * n),
-        "lane": np.repeat([1, 2, 3], n),
-    })
+    return pd.DataFrame(
+        {
+            "vehicle": np.repeat(["a", "b", "c"], n),
+            "time_s": np.tile(np.arange(n) * 0.2, 3),
+            "px": rng.normal(size=3 * n),
+            "py": rng.normal(size=3 * n),
+            "lane": np.repeat([1, 2, 3], n),
+        }
+    )
 
 
 def test_read_tracks_formats_agree(tmp_path):
@@ -284,13 +320,23 @@ def test_read_tracks_formats_agree(tmp_path):
     src.to_parquet(tmp_path / "a.parquet")
     import polars as pl
 
-    for source in (tmp_path / "a.csv", tmp_path / "a.tsv", tmp_path / "a.csv.gz", tmp_path / "a.parquet", pl.from_pandas(src)):
+    for source in (
+        tmp_path / "a.csv",
+        tmp_path / "a.tsv",
+        tmp_path / "a.csv.gz",
+        tmp_path / "a.parquet",
+        pl.from_pandas(src),
+    ):
         got = dpgp.read_tracks(source, **kw)
-        assert np.array_equal(got[["track", "t", "x", "y"]].to_numpy(), ref[["track", "t", "x", "y"]].to_numpy()), source
+        assert np.array_equal(got[["track", "t", "x", "y"]].to_numpy(), ref[["track", "t", "x", "y"]].to_numpy()), (
+            source
+        )
 
 
 def test_read_tracks_finds_common_names_and_positions(tmp_path):
-    df = pd.DataFrame({"ID": [5, 5, 6], "Time": [0.0, 1.0, 0.5], "X": [0, 1, 2], "Y": [0, 0, 1], "VX": [1, 1, 0], "vy": [0, 0, 0]})
+    df = pd.DataFrame(
+        {"ID": [5, 5, 6], "Time": [0.0, 1.0, 0.5], "X": [0, 1, 2], "Y": [0, 0, 1], "VX": [1, 1, 0], "vy": [0, 0, 0]}
+    )
     got = dpgp.read_tracks(df)
     assert list(got.columns[:6]) == ["track", "t", "x", "y", "vx", "vy"] and "ID" in got.columns
     path = tmp_path / "noheader.txt"
@@ -311,7 +357,9 @@ def test_read_tracks_sort_and_time_order(tmp_path):
         dpgp.read_tracks(dup, **kw)
     # rows interleaved by time are fine: each track is still in time order
     inter = _generic().sort_values("time_s", kind="stable")
-    assert np.array_equal(dpgp.read_tracks(inter, **kw)["x"].to_numpy(), dpgp.read_tracks(_generic(), **kw)["x"].to_numpy())
+    assert np.array_equal(
+        dpgp.read_tracks(inter, **kw)["x"].to_numpy(), dpgp.read_tracks(_generic(), **kw)["x"].to_numpy()
+    )
 
 
 def test_read_tracks_bad_input(tmp_path):

@@ -10,8 +10,9 @@ from scipy import stats
 from scipy.special import logsumexp
 
 import dpgp
-from dpgp import evaluate as ev
 from dpgp.cli import main
+from dpgp.evaluate import scores as ev
+
 from gp_oracle import log_marginal_likelihood as ref_lml
 from gp_oracle import log_predictive as ref_pred
 
@@ -64,7 +65,9 @@ def test_single_gp_scores_match_the_numpy_oracle(fitted):
     _, train, test = fitted
     p = dpgp.GPParams((7.0, 11.0), tuple(train.v.var(axis=0)), 0.3, tuple(train.v.mean(axis=0)))
     g = ev.SingleGP(p, train.xy, train.v)
-    np.testing.assert_allclose(g.score_frames(test), [ref_pred(train.xy, train.v, f.xy, f.v, p) for f in test], rtol=1e-8)
+    np.testing.assert_allclose(
+        g.score_frames(test), [ref_pred(train.xy, train.v, f.xy, f.v, p) for f in test], rtol=1e-8
+    )
 
 
 def test_single_gp_takes_the_best_held_out_grid_point():
@@ -73,15 +76,15 @@ def test_single_gp_takes_the_best_held_out_grid_point():
     sub = ev._spread_frames(train, ev.SINGLE_GP_POINTS)
     cut = int(round(0.7 * len(sub)))
     var, mu = tuple(train.v.var(axis=0)), tuple(train.v.mean(axis=0))
-    spacing = dpgp.defaults.vehicle_spacing(train)
-    grid = np.asarray(dpgp.defaults.NOISE_GRID)  # noise variance / signal variance, per component
+    spacing = dpgp.gp.defaults.vehicle_spacing(train)
+    grid = np.asarray(dpgp.gp.defaults.NOISE_GRID)  # noise variance / signal variance, per component
     scores = np.array([[
         sum(ref_pred(sub[:cut].xy, sub[:cut].v, f.xy, f.v, dpgp.GPParams((w * spacing,) * 2, var, rho * np.array(var), mu))
             for f in sub[cut:])
         for rho in grid] for w in ev.LENGTH_GRID])  # fmt: skip
     i = np.unravel_index(np.argmax(scores), scores.shape)[0]
     assert g.params.length_scales == pytest.approx((ev.LENGTH_GRID[i] * spacing,) * 2)
-    rho = dpgp.defaults.refine_grid(grid, scores[i])
+    rho = dpgp.gp.defaults.refine_grid(grid, scores[i])
     assert g.params.noise_var == pytest.approx(tuple(rho * np.array(var)), rel=1e-6)
 
 
@@ -103,7 +106,9 @@ def test_table_log_densities_match_the_oracles(fitted):
     want_single = sum(ref_pred(g.train_xy, g.train_v, f.xy, f.v, g.params) for f in test) / n
     assert out.table.loc["single_gp", "log_density"] == pytest.approx(want_single, rel=1e-8)
     mu, sd = train.v.mean(axis=0), train.v.std(axis=0)
-    assert out.table.loc["position_blind", "log_density"] == pytest.approx(stats.norm.logpdf(test.v, mu, sd).sum() / n, rel=1e-12)
+    assert out.table.loc["position_blind", "log_density"] == pytest.approx(
+        stats.norm.logpdf(test.v, mu, sd).sum() / n, rel=1e-12
+    )
     assert np.isnan(out.table.loc["constant_velocity", "log_density"]) and out.rollouts is None
     assert (out.table["n_test_vehicles"] == n).all() and list(out.frame_scores["n_vehicles"]) == list(test.sizes)
     np.testing.assert_allclose(out.frame_scores["dpgp"], mix, rtol=1e-8)

@@ -12,12 +12,12 @@ import sys
 import numpy as np
 import pandas as pd
 import pytest
+from test_evaluate import tracks_table as straight_tracks
 
 import dpgp
 from dpgp import evaluate as ev
-from dpgp import realism as rl
 from dpgp.cli import main
-from test_evaluate import tracks_table as straight_tracks
+from dpgp.evaluate import realism_checks as rl
 
 WEIGHTS = {"speed": 0.05, "acceleration": 0.05, "turn_rate": 0.05, "angular_acceleration": 0.05,
            "nearest_distance": 0.10, "collision": 0.25, "count": 0.10, "position": 0.10}  # fmt: skip
@@ -164,7 +164,9 @@ def test_the_bins_come_from_the_training_table_not_the_scored_ones():
     assert a.scores.loc["meta", "generated"] == pytest.approx(b.scores.loc["meta", "generated"], rel=1e-12)
     c = rl.realism(gen, rec)  # no training table: bins from the recorded one
     f = {n: oracle_features(t, 0.5, 2.0, 0.5) for n, t in (("gen", gen), ("rec", rec))}
-    assert c.scores.loc["meta", "generated"] == pytest.approx(oracle_scores(f["gen"], f["rec"], f["rec"])["meta"], rel=1e-9)
+    assert c.scores.loc["meta", "generated"] == pytest.approx(
+        oracle_scores(f["gen"], f["rec"], f["rec"])["meta"], rel=1e-9
+    )
 
 
 # --- features by hand --------------------------------------------------------------------------
@@ -240,7 +242,9 @@ def test_a_score_by_hand():
     bins = rl.Bins({"speed": np.array([0.0, 2.0, 4.0])})
     s = rl.feature_score("speed", rl.extract_features(gen), rl.extract_features(rec), bins)
     assert s == pytest.approx(math.sqrt(2.1 / 3.2 * 1.1 / 3.2))
-    assert rl.feature_score("speed", rl.extract_features(gen), rl.extract_features(moving([9])), bins) == pytest.approx(1.1 / 3.2)
+    assert rl.feature_score("speed", rl.extract_features(gen), rl.extract_features(moving([9])), bins) == pytest.approx(
+        1.1 / 3.2
+    )
     edges = rl.Bins.from_features(rl.extract_features(moving(np.linspace(0, 4, 201))), bins=4).edges["speed"]
     np.testing.assert_allclose(edges, np.linspace(*np.quantile(np.linspace(0, 4, 201), [0.005, 0.995]), 5))
     # collision: 1 of 4 generated steps, recorded 0 of 2: (1 - 1.1 / 4.2)
@@ -248,7 +252,9 @@ def test_a_score_by_hand():
     g = rl.Features({**g.values, "collision": np.array([True, False, False, False])}, g.dt, g.collision_distance)
     r = rl.extract_features(table([(0, 0, 0.0, 0, 0), (0, 1, 0.0, 9, 0)]))
     assert rl.feature_score("collision", g, r, bins) == pytest.approx(1 - 1.1 / 4.2)
-    assert rl.meta_score({"speed": 0.5, "collision": 0.9, "count": float("nan")}) == pytest.approx((0.05 * 0.5 + 0.25 * 0.9) / 0.30)
+    assert rl.meta_score({"speed": 0.5, "collision": 0.9, "count": float("nan")}) == pytest.approx(
+        (0.05 * 0.5 + 0.25 * 0.9) / 0.30
+    )
 
 
 def test_the_ratio():
@@ -342,8 +348,12 @@ def test_recorded_windows_follow_the_frames_objects():
 
 def test_ways_in():
     assert ev.realism is rl.realism
-    fresh = subprocess.run([sys.executable, "-c", "import dpgp; print(dpgp.evaluate.realism.__module__)"], capture_output=True, text=True)
-    assert fresh.stdout.strip() == "dpgp.realism", fresh.stderr  # without importing dpgp.evaluate first
+    fresh = subprocess.run(
+        [sys.executable, "-c", "import dpgp; print(dpgp.evaluate.realism.__module__)"], capture_output=True, text=True
+    )
+    assert fresh.stdout.strip() == "dpgp.evaluate.realism_checks", (
+        fresh.stderr
+    )  # a function, without importing a module first
     tracks = tracks_table()
     frames = dpgp.make_frames(tracks, roi=(-1.0, 9.0, -1.0, 9.0), dt=0.5)
     assert rl.data_units(tracks, frames) is None
@@ -375,7 +385,10 @@ def test_model_evaluate_and_the_command_line_report_realism(tmp_path):
     tracks.to_csv(data, index=False)
     model.save(path)
     png = tmp_path / "realism.png"
-    assert main(["evaluate", str(path), str(data), "--horizons", "1", "--agent", "pedestrian", "--realism-plot", str(png)]) == 0
+    assert (
+        main(["evaluate", str(path), str(data), "--horizons", "1", "--agent", "pedestrian", "--realism-plot", str(png)])
+        == 0
+    )
     assert png.stat().st_size > 0
 
 

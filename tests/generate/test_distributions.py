@@ -10,7 +10,7 @@ import pytest
 
 import dpgp
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 
 
 def toy_frames() -> dpgp.Frames:
@@ -94,8 +94,9 @@ def test_roi_defaults_to_make_frames_crop():
     import pandas as pd
 
     t = np.arange(0, 5.01, 0.5)
-    tracks = pd.DataFrame({"track": np.repeat([0, 1], len(t)), "t": np.r_[t, t],
-                           "x": np.r_[t * 2, 10 - t], "y": np.r_[t, t * 0 + 1]})
+    tracks = pd.DataFrame(
+        {"track": np.repeat([0, 1], len(t)), "t": np.r_[t, t], "x": np.r_[t * 2, 10 - t], "y": np.r_[t, t * 0 + 1]}
+    )
     frames = dpgp.make_frames(tracks, roi=(0, 8, 0, 4), dt=0.5, units="ft->m")
     d = dpgp.EmpiricalDistributions.from_frames(frames, bins=3)
     assert d.roi == pytest.approx((0, 8 * 0.3048, 0, 4 * 0.3048)) and d.bins == (3, 3)

@@ -12,13 +12,15 @@ import pandas as pd
 import pytest
 
 import dpgp
-from dpgp import motion
 from dpgp.exceptions import InvalidInputError
+from dpgp.generate import motion
 
-FIXTURES = Path(__file__).parent / "fixtures"
+FIXTURES = Path(__file__).parents[1] / "fixtures"
 
 
-def ou_tracks(tau: float, sigma: float, dt: float = 0.5, n_tracks: int = 30, steps: int = 40, seed: int = 0) -> pd.DataFrame:
+def ou_tracks(
+    tau: float, sigma: float, dt: float = 0.5, n_tracks: int = 30, steps: int = 40, seed: int = 0
+) -> pd.DataFrame:
     """Vehicles on a road along x: velocity (8, 0) plus an exact OU residual (τ, σ per
     component), positions integrated; tracks start at staggered times."""
     rng = np.random.default_rng(seed)
@@ -42,7 +44,9 @@ def test_fitted_model_recovers_a_simulated_time_constant_and_spread():
     assert frames.tracks is not None and len(frames.tracks) == frames.n_points
     # a smooth field (the paper's noise and length-scale prior): with a small noise variance
     # the fields would soak up the vehicles' persistent deviations, as they partly do on real data
-    settings = dict(iterations=2, seed=0, progress=False, noise_var=1.0, length_scale_prior=(10.0, 1.0), proposal="full")
+    settings = dict(
+        iterations=2, seed=0, progress=False, noise_var=1.0, length_scale_prior=(10.0, 1.0), proposal="full"
+    )
     model = dpgp.DPGP(**settings).fit(frames)
     m = motion.learn(model._fitted())
     # the time constant and spread are recovered within 15% (measured: 1.91 s and 0.487)
@@ -100,11 +104,18 @@ def test_rollouts_start_from_own_velocity_and_relax_toward_the_field():
 def test_pure_field_reproduces_the_earlier_rollouts_bitwise():
     model = dpgp.DPGP.load(FIXTURES / "field_model.npz")
     old = np.load(FIXTURES / "field_rollouts.npz")
-    for name, kw in {"mean": dict(), "stochastic": dict(stochastic=True, seed=11), "rk4": dict(method="rk4", stochastic=True, seed=12)}.items():
+    for name, kw in {
+        "mean": dict(),
+        "stochastic": dict(stochastic=True, seed=11),
+        "rk4": dict(method="rk4", stochastic=True, seed=12),
+    }.items():
         s = model.simulate(5, steps=20, dynamics="field", **kw)
         for part, arr in (("pos", s.positions), ("vel", s.velocities), ("low", s.low_data)):
             assert np.array_equal(arr, old[f"sim_{name}_{part}"]), (name, part)
-    for prefix, kw in (("scen", dict(n=30, steps=15, seed=2024)), ("scenmean", dict(n=10, steps=10, seed=5, stochastic=False))):
+    for prefix, kw in (
+        ("scen", dict(n=30, steps=15, seed=2024)),
+        ("scenmean", dict(n=10, steps=10, seed=5, stochastic=False)),
+    ):
         sc = model.sample_scenarios(**kw, dynamics="field")
         df = sc.to_pandas()
         for c in df.columns:
@@ -160,7 +171,9 @@ def test_generated_scenes_keep_the_recorded_spacing():
 
 def test_seeds_give_the_same_scenarios_for_1_and_2_threads():
     frames = dpgp.make_frames(ou_tracks(1.0, 0.4, n_tracks=20, steps=30), dt=0.5)
-    settings = dict(iterations=2, seed=0, progress=False, noise_var=1.0, length_scale_prior=(10.0, 1.0), proposal="full")
+    settings = dict(
+        iterations=2, seed=0, progress=False, noise_var=1.0, length_scale_prior=(10.0, 1.0), proposal="full"
+    )
     one, two = (dpgp.DPGP(n_threads=t, **settings).fit(frames) for t in (1, 2))
     np.testing.assert_array_equal(one.labels_, two.labels_)
     for kw in (dict(), dict(stochastic=False), dict(dynamics="relaxed")):

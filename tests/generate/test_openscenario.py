@@ -21,10 +21,10 @@ import pytest
 from lxml import etree
 
 import dpgp
-from dpgp import openscenario as osc
+from dpgp.data.framing import FT_TO_M, FramingSummary
 from dpgp.exceptions import InvalidInputError
-from dpgp.framing import FT_TO_M, FramingSummary
-from dpgp.scenarios import Scenarios
+from dpgp.generate import openscenario as osc
+from dpgp.generate.scenarios import Scenarios
 
 from conftest import data_file
 
@@ -196,7 +196,9 @@ def test_units_sizes_and_traceability_come_from_the_model(written, scenarios):
         assert params["dpgp_seed"] == "11"
         assert params["dpgp_units"] == "ft"
         assert float(params["dpgp_dt"]) == scenarios.dt
-        assert back.attrs["description"] == f"test model: scenario {s} of 6, pattern {int(scenarios.patterns[s])}, seed 11"
+        assert (
+            back.attrs["description"] == f"test model: scenario {s} of 6, pattern {int(scenarios.patterns[s])}, seed 11"
+        )
         assert set(back.attrs["kinds"].values()) == {"vehicle"}
         for size in back.attrs["sizes"].values():
             np.testing.assert_allclose(size, (15.0 * FT_TO_M, 6.0 * FT_TO_M, osc.DEFAULT_SIZES["vehicle"][2]))
@@ -207,7 +209,9 @@ def test_units_sizes_and_traceability_come_from_the_model(written, scenarios):
 
 def test_units_override_origin_and_road_network(model, scenarios, tmp_path):
     one = Scenarios(scenarios.simulations[:1], scenarios.patterns[:1], scenarios.counts[:1])
-    (p,) = one.to_openscenario(tmp_path / "one.xosc", model, units="m", origin=(2.0, 50.0), road_network="maps/road.xodr")
+    (p,) = one.to_openscenario(
+        tmp_path / "one.xosc", model, units="m", origin=(2.0, 50.0), road_network="maps/road.xodr"
+    )
     assert p == tmp_path / "one.xosc" and osc.validate(p) == []
     back = osc.read_openscenario(p)
     _same_trajectories(back, _expected(one, 0, scale=1.0, origin=(2.0, 50.0)))

@@ -10,8 +10,8 @@ import pytest
 from scipy import stats
 
 import dpgp
-import dpgp.motion
-from dpgp import scenarios as sc
+import dpgp.generate.motion
+from dpgp.generate import scenarios as sc
 
 
 @pytest.fixture(scope="module")
@@ -85,9 +85,11 @@ def test_fallback_to_psi_for_patterns_with_little_data(model, monkeypatch):
 @pytest.mark.parametrize("dynamics", ["field", "interactive"])
 def test_velocities_are_drawn_from_the_pattern_gp(model, dynamics):
     mean = model.sample_scenarios(30, steps=0, pattern=0, seed=1, stochastic=False, dynamics=dynamics)
-    drawn = model.sample_scenarios(30, steps=0, pattern=0, seed=1, dynamics=dynamics)  # same positions, velocities drawn
+    drawn = model.sample_scenarios(
+        30, steps=0, pattern=0, seed=1, dynamics=dynamics
+    )  # same positions, velocities drawn
     # interactive: the latent draw plus the residual's stationary spread (dpgp.motion)
-    sigma2 = 0.0 if dynamics == "field" else dpgp.motion.motion_model(model._fitted()).sigma[0] ** 2
+    sigma2 = 0.0 if dynamics == "field" else dpgp.generate.motion.motion_model(model._fitted()).sigma[0] ** 2
     z = []
     for a, b in zip(mean, drawn):
         np.testing.assert_array_equal(a.positions, b.positions)
@@ -135,7 +137,9 @@ def test_sumo_fcd_round_trip(model, tmp_path):
     got = got.sort_values(["scenario", "t", "vehicle"]).reset_index(drop=True)
     want = want.sort_values(["scenario", "t", "vehicle"]).reset_index(drop=True)
     np.testing.assert_array_equal(got[["scenario", "vehicle"]].to_numpy(), want[["scenario", "vehicle"]].to_numpy())
-    np.testing.assert_allclose(got[["t", "x", "y", "vx", "vy"]].to_numpy(), want[["t", "x", "y", "vx", "vy"]].to_numpy(), atol=2e-5)
+    np.testing.assert_allclose(
+        got[["t", "x", "y", "vx", "vy"]].to_numpy(), want[["t", "x", "y", "vx", "vy"]].to_numpy(), atol=2e-5
+    )
     # gzip too
     scen.to_sumo(tmp_path / "s.xml.gz")
     assert len(dpgp.read_tracks(tmp_path / "s.xml.gz")) == len(tracks)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import dpgp
-from dpgp.simulation import DEFAULT_DT, Simulation, default_dt, default_roi, integrate_affine
+from dpgp.generate.simulation import DEFAULT_DT, Simulation, default_dt, default_roi, integrate_affine
 
 ROT = [[0.0, -1.0], [1.0, 0.0]]  # v(p) = (-y, x): rigid rotation at 1 rad/s
 START = np.array([[1.0, 0.0], [0.0, 2.0], [-0.5, -0.5]])
@@ -58,7 +58,9 @@ def test_rotational_field_euler_is_first_order_and_rk4_fourth():
 
 
 def test_vehicles_stop_when_they_leave_the_roi():
-    sim = integrate_affine([[0.0, 0.0], [9.0, 5.0]], np.zeros((2, 2)), (2.0, 0.0), steps=10, dt=1.0, roi=(-10, 10, -10, 10))
+    sim = integrate_affine(
+        [[0.0, 0.0], [9.0, 5.0]], np.zeros((2, 2)), (2.0, 0.0), steps=10, dt=1.0, roi=(-10, 10, -10, 10)
+    )
     # vehicle 1 reaches x = 11 (outside) at step 1 and stands there, velocity 0
     assert sim.in_roi[0, 1] and not sim.in_roi[1:, 1].any()
     np.testing.assert_array_equal(sim.positions[1:, 1], np.broadcast_to([11.0, 5.0], (10, 2)))
@@ -111,7 +113,9 @@ def test_default_pattern_is_the_map_assignment(model):
     other = (model.labels_[7] + 1) % model.n_patterns_
     assert model.simulate(7, pattern=other, steps=2).pattern == other
     # x, y, vx, vy rows behave like the frame; positions alone need a pattern
-    np.testing.assert_array_equal(model.simulate(np.c_[frame.xy, frame.v], steps=3).positions, model.simulate(frame, steps=3).positions)
+    np.testing.assert_array_equal(
+        model.simulate(np.c_[frame.xy, frame.v], steps=3).positions, model.simulate(frame, steps=3).positions
+    )
     with pytest.raises(dpgp.InvalidInputError, match="pattern="):
         model.simulate(frame.xy, steps=2)
     assert model.simulate(frame.xy, pattern=0, steps=2).pattern == 0
@@ -141,8 +145,12 @@ def test_low_data_regions_are_flagged(model):
     near = model.simulate(model.frames_[int(np.flatnonzero(model.labels_ == 0)[0])], pattern=0, steps=0)
     assert not near.low_data.any()
     # threshold None: no flags computed; a huge threshold: nothing flagged
-    assert not model.simulate(far, pattern=0, steps=3, roi=(-500, 500, -500, 500), low_data_threshold=None).low_data.any()
-    assert not model.simulate(far, pattern=0, steps=3, roi=(-500, 500, -500, 500), low_data_threshold=2.0).low_data.any()
+    assert not model.simulate(
+        far, pattern=0, steps=3, roi=(-500, 500, -500, 500), low_data_threshold=None
+    ).low_data.any()
+    assert not model.simulate(
+        far, pattern=0, steps=3, roi=(-500, 500, -500, 500), low_data_threshold=2.0
+    ).low_data.any()
 
 
 def test_defaults_and_table(model):

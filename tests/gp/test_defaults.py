@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import dpgp
-from dpgp import defaults
+from dpgp.gp import defaults
 
 FT = 0.3048  # metres per foot
 
@@ -124,7 +124,9 @@ def test_bad_settings_raise_typed_errors(small, kw, match):
 
 def test_paper_preset_is_the_paper_settings(small):
     a = dpgp.DPGP.paper(iterations=3, seed=1, progress=False).fit(small)
-    b = dpgp.DPGP(iterations=3, seed=1, progress=False, assignment="map", noise_var=1.0, length_scale_prior=(10.0, 1.0)).fit(small)
+    b = dpgp.DPGP(
+        iterations=3, seed=1, progress=False, assignment="map", noise_var=1.0, length_scale_prior=(10.0, 1.0)
+    ).fit(small)
     assert (a.assignment_, a.noise_var_, a.length_scale_prior_) == ("map", (1.0, 1.0), (10.0, 1.0))
     assert a.preset == "paper" and "preset='paper'" in repr(a)
     np.testing.assert_array_equal(a.labels_, b.labels_)
@@ -152,4 +154,9 @@ def test_us101_feet_to_metres_gives_the_same_fit(us101_path, proposal):
     assert m.noise_var_ == pytest.approx(tuple(np.array(ft.noise_var_) * FT**2), rel=1e-6)
     assert dpgp.adjusted_rand_index(ft.labels_, m.labels_) >= 0.95
     jac = 2 * test.sizes * np.log(FT)
-    np.testing.assert_allclose(m.score_samples(scaled(test, FT), positions=False), ft.score_samples(test, positions=False) - jac, rtol=1e-6, atol=1e-4)
+    np.testing.assert_allclose(
+        m.score_samples(scaled(test, FT), positions=False),
+        ft.score_samples(test, positions=False) - jac,
+        rtol=1e-6,
+        atol=1e-4,
+    )

@@ -10,7 +10,8 @@ from scipy.special import logsumexp
 
 import dpgp
 from dpgp import GPParams
-from dpgp.posterior import Draws, thin_for, used
+from dpgp.gp.draws import Draws, thin_for, used
+
 from gp_oracle import log_marginal_likelihood as ref_lml
 from gp_oracle import log_predictive as ref_pred
 
@@ -19,7 +20,9 @@ WS = (6.0, 9.0)
 
 @pytest.fixture(scope="module")
 def data():
-    return dpgp.datasets.synthetic("intersection", n_frames=40, seed=2), dpgp.datasets.synthetic("intersection", n_frames=6, seed=9)
+    return dpgp.datasets.synthetic("intersection", n_frames=40, seed=2), dpgp.datasets.synthetic(
+        "intersection", n_frames=6, seed=9
+    )
 
 
 def _fit(train, **kw):
@@ -32,7 +35,9 @@ def _states(model):
     """(labels, length scales, α, noise pair) of every state the averaged scores use: kept draws
     after burn-in, then the final state."""
     d = model.draws_
-    out = [(d.labels[i].astype(np.int64), d.length_scales[i], d.alpha[i], d.noise_var[i]) for i in used(d, model.n_iter_)]
+    out = [
+        (d.labels[i].astype(np.int64), d.length_scales[i], d.alpha[i], d.noise_var[i]) for i in used(d, model.n_iter_)
+    ]
     return out + [(model.labels_, model.length_scales_, model.alpha_, tuple(model.noise_var_))]
 
 
@@ -127,7 +132,9 @@ def test_one_state_is_the_last_states_score(data):
     model = _fit(train, posterior_draws=0)
     assert len(model.draws_) == 0
     np.testing.assert_allclose(model.score_samples(test, average=True), model.score_samples(test), rtol=1e-12)
-    np.testing.assert_allclose(model.predict_proba(test, average=True), model.predict_proba(test), rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(
+        model.predict_proba(test, average=True), model.predict_proba(test), rtol=1e-9, atol=1e-15
+    )
 
 
 def test_thinning_keeps_a_function_of_the_sweep_count_within_the_bound():
@@ -215,4 +222,6 @@ def test_evaluate_averages_by_default(data):
     assert ev.table.loc["dpgp", "log_density"] == pytest.approx(want, rel=1e-12)
     last = model.evaluate(test, average=False)
     assert last.states_averaged == 1
-    assert last.table.loc["dpgp", "log_density"] == pytest.approx(model.score_samples(test, positions=False).sum() / test.sizes.sum())
+    assert last.table.loc["dpgp", "log_density"] == pytest.approx(
+        model.score_samples(test, positions=False).sum() / test.sizes.sum()
+    )

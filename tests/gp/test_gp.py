@@ -7,6 +7,7 @@ import pytest
 
 import dpgp
 from dpgp import GPParams
+
 from gp_oracle import log_marginal_likelihood as ref_lml
 from gp_oracle import log_predictive as ref_pred
 from gp_oracle import posterior as ref_post
@@ -83,9 +84,15 @@ def test_predictive_equals_ratio_of_marginals():
 def test_real_us101_frames_match_numpy(us101_path):
     frames = dpgp.read_frames(us101_path)
     train, test = frames[:80], frames[80]
-    p = GPParams((10.0, 40.0), signal_var=(train.v[:, 0].var(), train.v[:, 1].var()), noise_var=1.0,
-                 mean=tuple(train.v.mean(axis=0)))
-    assert dpgp.gp.log_marginal_likelihood(train.xy, train.v, p) == pytest.approx(ref_lml(train.xy, train.v, p), rel=RTOL)
+    p = GPParams(
+        (10.0, 40.0),
+        signal_var=(train.v[:, 0].var(), train.v[:, 1].var()),
+        noise_var=1.0,
+        mean=tuple(train.v.mean(axis=0)),
+    )
+    assert dpgp.gp.log_marginal_likelihood(train.xy, train.v, p) == pytest.approx(
+        ref_lml(train.xy, train.v, p), rel=RTOL
+    )
     got = dpgp.gp.log_predictive(train.xy, train.v, test.xy, test.v, p)
     assert got == pytest.approx(ref_pred(train.xy, train.v, test.xy, test.v, p), rel=RTOL)
     mean, var = dpgp.gp.posterior(train.xy, train.v, test.xy, p)

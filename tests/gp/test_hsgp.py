@@ -15,10 +15,11 @@ import pytest
 from scipy.stats import gamma
 
 import dpgp
+from dpgp.hsgp import Basis
+
 import gp_oracle
 import hsgp_oracle
 import sampler_oracle as so
-from dpgp.hsgp import Basis
 
 
 # --- (a) sizing rule ------------------------------------------------------------------------------
@@ -56,7 +57,9 @@ def test_bad_basis_settings_are_typed_errors():
     with pytest.raises(dpgp.InvalidInputError):
         dpgp.DPGP(proposal="smart").fit(dpgp.datasets.synthetic("highway", 5))
     with pytest.raises(dpgp.InvalidInputError):
-        dpgp.hsgp.log_marginal_likelihood([[np.nan, 0.0]], [[0.0, 0.0]], dpgp.GPParams((1.0, 1.0)), Basis((0, 0), (1, 1), (2, 2)))
+        dpgp.hsgp.log_marginal_likelihood(
+            [[np.nan, 0.0]], [[0.0, 0.0]], dpgp.GPParams((1.0, 1.0)), Basis((0, 0), (1, 1), (2, 2))
+        )
 
 
 # --- (b) densities against the dense oracle --------------------------------------------------------
@@ -128,7 +131,9 @@ def test_accuracy_on_a_synthetic_intersection():
 @pytest.fixture(scope="module")
 def fitted():
     frames = dpgp.datasets.synthetic("intersection", n_frames=120, seed=4)
-    m = dpgp.DPGP(iterations=6, likelihood="hsgp", noise_var=1.0, length_scale_prior=(10.0, 1.0), seed=2, progress=False)
+    m = dpgp.DPGP(
+        iterations=6, likelihood="hsgp", noise_var=1.0, length_scale_prior=(10.0, 1.0), seed=2, progress=False
+    )
     return frames, m.fit(frames)
 
 
@@ -162,10 +167,10 @@ def test_auto_picks_exact_for_small_data_and_hsgp_for_large(monkeypatch):
     kw = dict(iterations=1, noise_var=1.0, length_scale_prior=(10.0, 1.0), progress=False)
     assert dpgp.DPGP(**kw).fit(frames).likelihood_ == "exact"
     # exact made costly: the cost model (dpgp.engine_cost) picks hsgp
-    monkeypatch.setitem(dpgp.engine_cost.COEFFICIENTS, "exact", (1.0, 1.0, 1.0))
+    monkeypatch.setitem(dpgp.model.engine_cost.COEFFICIENTS, "exact", (1.0, 1.0, 1.0))
     assert dpgp.DPGP(**kw).fit(frames).likelihood_ == "hsgp"
     # a budget too small for exact's largest pattern also picks hsgp, even where exact is cheap
-    monkeypatch.setitem(dpgp.engine_cost.COEFFICIENTS, "exact", (0.0, 0.0, 0.0))
+    monkeypatch.setitem(dpgp.model.engine_cost.COEFFICIENTS, "exact", (0.0, 0.0, 0.0))
     frames = dpgp.datasets.synthetic("highway", n_frames=400, seed=1)  # ~4,800 points, 3 patterns
     m = dpgp.DPGP(memory_budget="50MB", **kw).fit(frames)
     assert m.likelihood_ == "hsgp" and m.engine_choice_["exact_fits"] is False

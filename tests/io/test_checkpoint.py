@@ -87,7 +87,9 @@ class NoRebuild(dpgp.DPGP):
         return np.asarray(self._sampler.labels())
 
 
-@pytest.mark.parametrize("variant", [dict(likelihood="exact", proposal="full"), dict(likelihood="hsgp", proposal="informed", n_threads=2)])
+@pytest.mark.parametrize(
+    "variant", [dict(likelihood="exact", proposal="full"), dict(likelihood="hsgp", proposal="informed", n_threads=2)]
+)
 def test_a_fit_gives_the_same_result_with_or_without_checkpoints(frames, tmp_path, variant):
     """Whether a fit writes checkpoints is an operational choice: same data, settings and seed
     give bitwise the same labels, length scales, alpha and history either way (issue 17)."""
@@ -108,7 +110,9 @@ def test_the_data_would_catch_a_chain_that_parts(frames):
 
 def test_extending_a_chain_equals_the_longer_fit(frames, tmp_path):
     s = {**SETTINGS, "likelihood": "exact", "proposal": "informed"}
-    short = dpgp.DPGP(**s, checkpoint=str(tmp_path / "short.ckpt")).fit(frames)  # 7 sweeps: ends past its last checkpoint
+    short = dpgp.DPGP(**s, checkpoint=str(tmp_path / "short.ckpt")).fit(
+        frames
+    )  # 7 sweeps: ends past its last checkpoint
     longer = dpgp.DPGP(**{**s, "iterations": 11}, checkpoint=str(tmp_path / "long.ckpt")).fit(frames)
     again = dpgp.DPGP.resume(tmp_path / "short.ckpt")
     assert again.resumed_from_ == 7 and differences(short, again) == []
@@ -231,8 +235,15 @@ def test_flipped_bits_are_a_model_file_error(checkpoint_bytes, tmp_path):
 @pytest.mark.parametrize(
     "edit",
     [
-        {"sweeps_done": 99}, {"sweeps_done": -1}, {"sweeps_done": 1.5}, {"stable": -2}, {"stable": 99},
-        {"alpha": 0.0}, {"alpha": "x"}, {"data_sha256": "0" * 64}, "not an object",
+        {"sweeps_done": 99},
+        {"sweeps_done": -1},
+        {"sweeps_done": 1.5},
+        {"stable": -2},
+        {"stable": 99},
+        {"alpha": 0.0},
+        {"alpha": "x"},
+        {"data_sha256": "0" * 64},
+        "not an object",
     ],
     ids=lambda e: str(e)[:30],
 )

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import dpgp
-from dpgp import io as mio
-from dpgp.framing import FramingSummary
+from dpgp.data.framing import FramingSummary
+from dpgp.io import modelfile as mio
 
 
 def _summary(frames: dpgp.Frames) -> FramingSummary:
@@ -27,7 +27,9 @@ def _summary(frames: dpgp.Frames) -> FramingSummary:
 def fitted(tmp_path_factory):
     frames = dpgp.datasets.synthetic("intersection", n_frames=40, seed=11)
     frames.summary = _summary(frames)
-    model = dpgp.DPGP(iterations=3, seed=4, progress=False, store_labels=True, length_scale_prior=(8.0, 1.5)).fit(frames)
+    model = dpgp.DPGP(iterations=3, seed=4, progress=False, store_labels=True, length_scale_prior=(8.0, 1.5)).fit(
+        frames
+    )
     path = tmp_path_factory.mktemp("io") / "model.npz"
     model.save(path)
     return model, path
@@ -74,7 +76,9 @@ def _pixels(fig) -> bytes:
 def test_loaded_model_plots_exactly(fitted):
     model, path = fitted
     back = dpgp.DPGP.load(path)
-    assert _pixels(dpgp.plot.velocity_field(model, 1, grid=12).figure) == _pixels(dpgp.plot.velocity_field(back, 1, grid=12).figure)
+    assert _pixels(dpgp.plot.velocity_field(model, 1, grid=12).figure) == _pixels(
+        dpgp.plot.velocity_field(back, 1, grid=12).figure
+    )
     assert _pixels(dpgp.plot.simulation(model, 3).figure) == _pixels(dpgp.plot.simulation(back, 3).figure)
     assert _pixels(dpgp.plot.trace(model)) == _pixels(dpgp.plot.trace(back))
 
@@ -188,14 +192,24 @@ def test_foreign_files_are_refused(fitted, tmp_path):
     csv.write_text("frame,x,y,vx,vy\n0,1,2,3,4\n")
     np.save(tmp_path / "array.npy", np.zeros(3))
     np.savez(tmp_path / "other.npz", a=np.zeros(3))
-    np.savez(tmp_path / "objects.npz", **{k: np.zeros(1) for k in mio._REQUIRED}, frame_ids_=np.array([{}], dtype=object))
-    for bad, match in [(csv, "not|corrupt"), (tmp_path / "array.npy", "single numpy array"), (tmp_path / "other.npz", "lacks")]:
+    np.savez(
+        tmp_path / "objects.npz", **{k: np.zeros(1) for k in mio._REQUIRED}, frame_ids_=np.array([{}], dtype=object)
+    )
+    for bad, match in [
+        (csv, "not|corrupt"),
+        (tmp_path / "array.npy", "single numpy array"),
+        (tmp_path / "other.npz", "lacks"),
+    ]:
         with pytest.raises(dpgp.ModelFileError, match=match):
             dpgp.DPGP.load(bad)
     with pytest.raises(dpgp.ModelFileError):
         dpgp.DPGP.load(tmp_path / "objects.npz")
     # a well-formed archive with the wrong format name, or labels that do not fit the frames
-    _rewrite(path, tmp_path / "fmt.npz", lambda k, v: np.array(json.dumps({**json.loads(str(v)), "format": "x"})) if k == "metadata" else v)
+    _rewrite(
+        path,
+        tmp_path / "fmt.npz",
+        lambda k, v: np.array(json.dumps({**json.loads(str(v)), "format": "x"})) if k == "metadata" else v,
+    )
     with pytest.raises(dpgp.ModelFileError, match="not a dpgp model"):
         dpgp.DPGP.load(tmp_path / "fmt.npz")
     _rewrite(path, tmp_path / "lab.npz", lambda k, v: v[:-1] if k == "labels" else v)

@@ -7,12 +7,14 @@ import numpy as np
 import pytest
 
 import dpgp
-from dpgp import engine_cost as ec
+from dpgp.model import engine_cost as ec
 
 
 def test_features_are_the_documented_sums():
     n, frames = [10, 200, 3000], [3, 4]  # points per pattern; vehicles per frame
-    np.testing.assert_array_equal(ec.features("exact", n, frames), [25, 100 + 40_000 + 9_000_000, 1000 + 8_000_000 + 27_000_000_000])
+    np.testing.assert_array_equal(
+        ec.features("exact", n, frames), [25, 100 + 40_000 + 9_000_000, 1000 + 8_000_000 + 27_000_000_000]
+    )
     s = np.minimum(n, 500)  # a pattern smaller than the basis uses its dense n x n factor
     np.testing.assert_array_equal(
         ec.features("hsgp", n, frames, 500), [500 * 25, (np.array(n) * s**2).sum(), (s**3).sum(), 500 * (100 + 40_000)]
@@ -44,7 +46,9 @@ def test_rule_on_constructed_cases(monkeypatch):
     # the switch happens where the predictions cross
     sizes = np.arange(100, 6000, 50)
     picks = [ec.choose([n], many, M, None).engine for n in sizes]
-    cross = [ec.sweep_seconds("exact", [n], many) <= ec.HSGP_MARGIN * ec.sweep_seconds("hsgp", [n], many, M) for n in sizes]
+    cross = [
+        ec.sweep_seconds("exact", [n], many) <= ec.HSGP_MARGIN * ec.sweep_seconds("hsgp", [n], many, M) for n in sizes
+    ]
     assert picks == ["exact" if x else "hsgp" for x in cross] and "exact" in picks and "hsgp" in picks
     # memory: exact needs its largest pattern's factors within the budget
     assert ec.choose([500] * 40, many, M, ec.exact_bytes(500) - 1).engine == "hsgp"

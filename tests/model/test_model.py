@@ -8,6 +8,7 @@ from scipy.special import logsumexp
 
 import dpgp
 from dpgp import GPParams
+
 from gp_oracle import log_marginal_likelihood as ref_lml
 from gp_oracle import log_predictive as ref_pred
 
@@ -46,7 +47,7 @@ def test_predict_proba_and_score_samples_match_the_formulas(fitted):
     velocity_part = logsumexp(terms, axis=1)
     np.testing.assert_allclose(model.score_samples(test, positions=False), velocity_part, rtol=1e-9)
     full = model.score_samples(test)
-    d = dpgp.scenarios.distributions(model)
+    d = dpgp.generate.scenarios.distributions(model)
     np.testing.assert_allclose(full - velocity_part, [d.log_frame_density(f.xy) for f in test], rtol=1e-9)
 
 

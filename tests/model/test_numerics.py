@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 
 import dpgp
-from dpgp.distributions import EmpiricalDistributions
-from dpgp.metrics import adjusted_rand_index
+from dpgp.evaluate.metrics import adjusted_rand_index
+from dpgp.generate.distributions import EmpiricalDistributions
 from dpgp.model import MIN_NOISE_RATIO
 
 #: NGSIM's Global_X / Global_Y are state-plane feet, about 6e6 and 2e6.
@@ -83,7 +83,9 @@ def synthetic() -> dpgp.Frames:
 # --- 1. large offsets ---------------------------------------------------------------------------
 
 
-def assert_same_fit(a: dpgp.DPGP, fa: dpgp.Frames, b: dpgp.DPGP, fb: dpgp.Frames, shift, rtol: float, atol: float) -> None:
+def assert_same_fit(
+    a: dpgp.DPGP, fa: dpgp.Frames, b: dpgp.DPGP, fb: dpgp.Frames, shift, rtol: float, atol: float
+) -> None:
     """``b`` (fitted to ``fa`` shifted by ``shift``, as ``fb``) is ``a`` up to the tolerances."""
     np.testing.assert_array_equal(b.labels_, a.labels_)
     np.testing.assert_allclose(b.length_scales_, a.length_scales_, rtol=rtol)
@@ -258,7 +260,9 @@ def test_millimetres_and_kilometres_give_the_metres_fit(unit_fits, units):
     np.testing.assert_allclose(model.length_scales_, ref.length_scales_ * c, rtol=1e-6)
     log_c, sizes = np.log(c), frames.sizes
     np.testing.assert_allclose(
-        model.score_samples(frames, positions=False), ref.score_samples(metres, positions=False) - 2 * sizes * log_c, atol=1e-6
+        model.score_samples(frames, positions=False),
+        ref.score_samples(metres, positions=False) - 2 * sizes * log_c,
+        atol=1e-6,
     )
     np.testing.assert_allclose(model.score_samples(frames), ref.score_samples(metres) - 4 * sizes * log_c, atol=1e-6)
     # the log joint also holds the densities of two length scales per pattern
@@ -352,5 +356,7 @@ def test_a_single_vehicle_in_a_single_frame(us101):
     model = fit(frame, noise_var=1.0, length_scale_prior=(10.0, 1.0), signal_var=1.0)
     assert_usable(model, frame)
     x0, x1, y0, y1 = model.simulate(0, steps=3).roi
-    assert x1 - x0 == pytest.approx(2 * model.length_scales_[0, 0]) and y1 - y0 == pytest.approx(2 * model.length_scales_[0, 1])
+    assert x1 - x0 == pytest.approx(2 * model.length_scales_[0, 0]) and y1 - y0 == pytest.approx(
+        2 * model.length_scales_[0, 1]
+    )
     assert len(model.sample_scenarios(2, steps=3, seed=0).to_pandas()) > 0

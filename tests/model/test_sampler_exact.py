@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import dpgp
+
 import sampler_oracle as so
 
 SWEEPS, BURN_IN = 30_000, 1_000
@@ -101,7 +102,9 @@ def test_conditionals_on_tiny_frames_match_the_formula(signal):
 def test_conditionals_on_a_synthetic_scene_match_the_formula(signal):
     frames = dpgp.datasets.synthetic("intersection", n_frames=40, seed=3)
     ws = (6.0, 8.0)
-    m = dpgp.DPGP(iterations=3, length_scales=ws, signal_var=SIGNALS[signal], noise_var=1.0, seed=1, progress=False).fit(frames)
+    m = dpgp.DPGP(
+        iterations=3, length_scales=ws, signal_var=SIGNALS[signal], noise_var=1.0, seed=1, progress=False
+    ).fit(frames)
     assert m.n_patterns_ >= 2
     p = so.default_params(frames, ws, 1.0, SIGNALS[signal])
     check_conditionals(m, frames, p, [0, 1, 7, 19, 39])
@@ -124,7 +127,9 @@ def test_recovers_the_true_patterns_of_synthetic_scenes(kind, assignment):
 def test_same_seed_same_chain_with_one_or_two_threads(assignment):
     frames = dpgp.datasets.synthetic("intersection", n_frames=80, seed=5)
     fits = [
-        dpgp.DPGP(iterations=8, assignment=assignment, seed=3, n_threads=t, progress=False, store_labels=True).fit(frames)
+        dpgp.DPGP(iterations=8, assignment=assignment, seed=3, n_threads=t, progress=False, store_labels=True).fit(
+            frames
+        )
         for t in (1, 2)
     ]
     a, b = fits
@@ -147,9 +152,7 @@ def test_different_seeds_give_different_chains():
 
 
 # --- (e) every likelihood and proposal targets its own posterior ---------------------------------
-@pytest.mark.parametrize(
-    "likelihood,proposal", [("exact", "full"), ("hsgp", "full"), ("hsgp", "informed")]
-)
+@pytest.mark.parametrize("likelihood,proposal", [("exact", "full"), ("hsgp", "full"), ("hsgp", "informed")])
 def test_every_engine_matches_its_enumerated_posterior(likelihood, proposal):
     """exact/informed is the default and tested above. hsgp with 6 basis functions: patterns of
     more than 6 points compute through the M x M statistics, smaller ones densely, and the

@@ -3,7 +3,6 @@ enumerated posterior. These need no sampler."""
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 from hypothesis import given, settings

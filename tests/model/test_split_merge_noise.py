@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 import dpgp
+from dpgp.gp import defaults
+
 import sampler_oracle as so
-from dpgp import defaults
 
 SWEEPS, BURN_IN = 30_000, 1_000
 VARIANTS = [("exact", "full"), ("exact", "informed"), ("hsgp", "full"), ("hsgp", "informed")]
@@ -40,7 +41,9 @@ def target(p, m):
 @pytest.mark.parametrize("likelihood,proposal", VARIANTS)
 def test_split_merge_chain_matches_the_enumerated_posterior(likelihood, proposal):
     frames, p, alpha = so.tiny_problem(5)
-    m = fit_tiny(p, alpha, seed=11, likelihood=likelihood, proposal=proposal, split_merge=3, split_merge_pairs="informed")
+    m = fit_tiny(
+        p, alpha, seed=11, likelihood=likelihood, proposal=proposal, split_merge=3, split_merge_pairs="informed"
+    )
     parts, logp = so.partition_posterior(frames, target(p, m), alpha)
     got = so.empirical_partition_probs(m.label_trace_[BURN_IN:], parts)
     tv = so.total_variation(got, np.exp(logp))
@@ -61,7 +64,9 @@ def test_sampled_noise_chain_matches_the_posterior_with_the_noise_summed_out(lik
     tv = so.total_variation(got, np.exp(logp))
     # the noise changes the answer here: the posterior with σ_n² fixed at 1 is another one
     _, fixed = so.partition_posterior(frames, target(p, m), alpha)
-    print(f"{likelihood}/{proposal}, noise sampled: TV {tv:.4f} (to the fixed-noise posterior {so.total_variation(got, np.exp(fixed)):.4f})")
+    print(
+        f"{likelihood}/{proposal}, noise sampled: TV {tv:.4f} (to the fixed-noise posterior {so.total_variation(got, np.exp(fixed)):.4f})"
+    )
     assert tv <= 0.03
     assert so.total_variation(np.exp(fixed), np.exp(logp)) > 0.03
     nx = np.asarray(m.history_["noise_var_x"])
@@ -93,8 +98,15 @@ def test_pilots_stay_available():
 def test_same_chain_with_one_or_two_threads():
     frames = dpgp.datasets.synthetic("intersection", n_frames=80, seed=5)
     a, b = (
-        dpgp.DPGP(iterations=6, seed=3, n_threads=t, progress=False, store_labels=True, split_merge=10,
-                  split_merge_pairs="informed").fit(frames)  # fmt: skip
+        dpgp.DPGP(
+            iterations=6,
+            seed=3,
+            n_threads=t,
+            progress=False,
+            store_labels=True,
+            split_merge=10,
+            split_merge_pairs="informed",
+        ).fit(frames)  # fmt: skip
         for t in (1, 2)
     )
     np.testing.assert_array_equal(a.label_trace_, b.label_trace_)
@@ -108,5 +120,9 @@ def test_same_chain_in_feet_and_metres():
     a = dpgp.DPGP(iterations=6, seed=2, progress=False, store_labels=True, split_merge=10).fit(frames)
     b = dpgp.DPGP(iterations=6, seed=2, progress=False, store_labels=True, split_merge=10).fit(metres)
     np.testing.assert_array_equal(a.label_trace_, b.label_trace_)
-    np.testing.assert_allclose(np.asarray(b.history_["noise_var_x"]), np.asarray(a.history_["noise_var_x"]) * c**2, rtol=1e-6)
-    np.testing.assert_allclose(np.asarray(b.history_["noise_var_y"]), np.asarray(a.history_["noise_var_y"]) * c**2, rtol=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(b.history_["noise_var_x"]), np.asarray(a.history_["noise_var_x"]) * c**2, rtol=1e-6
+    )
+    np.testing.assert_allclose(
+        np.asarray(b.history_["noise_var_y"]), np.asarray(a.history_["noise_var_y"]) * c**2, rtol=1e-6
+    )

@@ -16,7 +16,7 @@ from statistics import NormalDist
 
 import numpy as np
 
-from .exceptions import InvalidInputError, ShapeError
+from ..exceptions import InvalidInputError, ShapeError
 
 _MIN_DRAWS = 4
 _normal_quantile = np.vectorize(NormalDist().inv_cdf, otypes=[float])

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .exceptions import InvalidInputError, ShapeError
+from ..exceptions import InvalidInputError, ShapeError
 
 LOSSES = ("binder", "vi")
 
@@ -65,9 +65,7 @@ def _as_partition(labels: object, n: int) -> np.ndarray:
 
 
 # --- similarity ------------------------------------------------------------------------------
-def similarity(
-    draws: object, rows: object = None, block: int = 512, dtype: type = np.float32
-) -> np.ndarray:
+def similarity(draws: object, rows: object = None, block: int = 512, dtype: type = np.float32) -> np.ndarray:
     """Posterior similarity: the share of draws in which items i and j share a cluster.
 
     ``rows`` (indices) gives only those rows, shape (len(rows), N); by default the full (N, N)

@@ -36,10 +36,10 @@ from typing import Any
 
 import numpy as np
 
+from ..data.frames import Frames
+from ..evaluate.metrics import canonical_labels
+from ..exceptions import DpgpError, InvalidInputError
 from . import diagnostics, partition
-from .exceptions import DpgpError, InvalidInputError
-from .frames import Frames
-from .metrics import canonical_labels
 
 QUANTITIES = ("log_joint", "n_patterns", "alpha")
 _TRACES = (*QUANTITIES, "moves", "seconds")
@@ -92,17 +92,15 @@ def _state_of(model: Any) -> _State:
     # point-estimate model are rebuilt with these values, never by estimating them again.
     defaults = getattr(model, "defaults_", None)
     resolved = None if defaults is None else defaults.to_dict()
-    from .io import _engine_dict
-
-    engine = _engine_dict(model)
+    engine = model._engine_dict()
     return _State(model.labels_.copy(), model.length_scales_.copy(), float(model.alpha_), params, resolved, engine)
 
 
 def _model_at(frames: Frames, settings: dict[str, Any], state: _State, extra_meta: dict[str, Any] | None = None) -> Any:
     """A fitted DPGP at ``state``, rebuilt the way a model file is loaded (dpgp.io), so that it
     predicts, simulates and saves like any fitted model."""
-    from . import io
-    from .model import DPGP
+    from .. import io
+    from ..model.estimator import DPGP
 
     summary = getattr(frames, "summary", None)
     meta = {
@@ -124,12 +122,12 @@ def _model_at(frames: Frames, settings: dict[str, Any], state: _State, extra_met
     }
     if frames.labels is not None:
         arrays["frame_labels"] = frames.labels
-    return io._build(DPGP, meta, arrays)
+    return DPGP._from_file(io.parse(meta, arrays))
 
 
 def _run_block(frames: Frames | None, settings: dict[str, Any], seed: int, state: _State | None, sweeps: int) -> _Block:
     """Run ``sweeps`` sweeps of a chain from ``state`` (None: initialise) with ``seed``."""
-    from .model import DPGP
+    from ..model.estimator import DPGP
 
     frames = _WORKER_FRAMES if frames is None else frames
     assert frames is not None
@@ -158,7 +156,7 @@ def _resolve(frames: Frames | None, settings: dict[str, Any], seed: int) -> tupl
     or None where the model has nothing to resolve, and the likelihood (``"auto"`` decides it
     by predicted cost, dpgp.engine_cost). Run once per fit_chains, so that every chain samples
     the same model."""
-    from .model import DPGP
+    from ..model.estimator import DPGP
 
     frames = _WORKER_FRAMES if frames is None else frames
     model = DPGP(**{**settings, "seed": seed, "progress": False}, iterations=0).fit(frames)
@@ -171,7 +169,9 @@ def _explicit(settings: dict[str, Any], resolved: dict[str, Any] | None) -> dict
     if resolved is None:
         return settings
     # A noise sampled inside the chain stays "auto": each chain samples it (resolving it costs nothing).
-    keys = ("assignment", "length_scale_prior") + (() if resolved.get("noise_var_source") == "sampled" else ("noise_var",))
+    keys = ("assignment", "length_scale_prior") + (
+        () if resolved.get("noise_var_source") == "sampled" else ("noise_var",)
+    )
     out = {**settings, **{k: resolved[k] for k in keys}}
     out["length_scale_prior"] = tuple(out["length_scale_prior"])
     if "preset" in settings:
@@ -292,7 +292,7 @@ def fit_chains(
     settings : passed to :class:`dpgp.DPGP` (``assignment``, ``alpha``, ...); ``n_threads``
         defaults to 1 (one core per chain).
     """
-    from .model import DPGP, _as_frames
+    from ..model.estimator import DPGP, _as_frames
 
     frames = _as_frames(frames)
     if not (isinstance(n_chains, (int, np.integer)) and n_chains >= 1):
@@ -343,7 +343,16 @@ def fit_chains(
 class _Runner:
     """Submits blocks, collects them, checks the stopping rule between rounds."""
 
-    def __init__(self, engine: Any, frames: Frames, settings: dict[str, Any], n_chains: int, seed: int, block: int, progress: bool) -> None:
+    def __init__(
+        self,
+        engine: Any,
+        frames: Frames,
+        settings: dict[str, Any],
+        n_chains: int,
+        seed: int,
+        block: int,
+        progress: bool,
+    ) -> None:
         self.engine, self.frames, self.settings, self.seed, self.block = engine, frames, settings, seed, block
         self.names = [f"chain{c}" for c in range(n_chains)]
         self.blocks: list[list[_Block]] = [[] for _ in range(n_chains)]
@@ -422,7 +431,7 @@ class _Runner:
 
     def resolve(self) -> None:
         """Resolve the "auto" settings once, as a task, and run every chain with the values."""
-        from .model import DPGP
+        from ..model.estimator import DPGP
 
         merged = {**DPGP().get_params(), **self.settings}
         if not merged.get("preset") and "auto" not in [v for v in merged.values() if isinstance(v, str)]:
@@ -443,7 +452,15 @@ class _Runner:
             raise ChainsFailedError(f"resolving the settings failed: {type(e).__name__}: {e}") from e
         self.chain_settings = {**_explicit(self.settings, self.resolved), "likelihood": likelihood}
 
-    def run(self, until: str | None, iterations: int, rhat: float, min_ess: float, max_iterations: int, max_seconds: float | None) -> None:
+    def run(
+        self,
+        until: str | None,
+        iterations: int,
+        rhat: float,
+        min_ess: float,
+        max_iterations: int,
+        max_seconds: float | None,
+    ) -> None:
         start = time.perf_counter()
         target = iterations if until is None else self.block
         bar = _bar(len(self.names) * (iterations if until is None else max_iterations), self.progress)
@@ -451,7 +468,9 @@ class _Runner:
             while True:
                 self._round(target, bar)
                 if not self._live():
-                    raise ChainsFailedError("every chain failed: " + "; ".join(f"{k}: {v}" for k, v in self.failures.items()))
+                    raise ChainsFailedError(
+                        "every chain failed: " + "; ".join(f"{k}: {v}" for k, v in self.failures.items())
+                    )
                 if until is None:
                     self.reason = f"ran the {iterations} sweeps asked for"
                     return
@@ -484,7 +503,9 @@ class _Runner:
 
     def _check(self, n: int, rhat: float, min_ess: float) -> tuple[bool, str]:
         live = self._live()
-        traces = {q: np.stack([np.concatenate([b.traces[q] for b in self.blocks[c]]) for c in live]) for q in QUANTITIES}
+        traces = {
+            q: np.stack([np.concatenate([b.traces[q] for b in self.blocks[c]]) for c in live]) for q in QUANTITIES
+        }
         verdict = convergence(traces, n // 2, rhat, min_ess)
         self.checks.append({"sweeps": n, **verdict})
         return verdict["ok"], verdict["why"]
@@ -672,7 +693,11 @@ class Chains:
         warm = {q: self.traces[q][:, :b] for q in QUANTITIES} if b else None
         warm_stats = {q: self.traces[q][:, :b] for q in ("moves", "seconds")} if b else None
         return az.from_dict(
-            posterior=post, sample_stats=stats, warmup_posterior=warm, warmup_sample_stats=warm_stats, save_warmup=bool(b)
+            posterior=post,
+            sample_stats=stats,
+            warmup_posterior=warm,
+            warmup_sample_stats=warm_stats,
+            save_warmup=bool(b),
         )
 
     # --- the partition ------------------------------------------------------------------------
@@ -704,11 +729,17 @@ class Chains:
         return self._models
 
     def _model(self, state: _State, **extra: Any) -> Any:
-        from .model import DPGP
+        from ..model.estimator import DPGP
 
         # Every setting (defaults included): a model file's fallback reads them when nothing was
         # left to "auto".
-        settings = {**DPGP().get_params(), **self.settings, "seed": self.seed, "iterations": self.n_sweeps, "progress": False}
+        settings = {
+            **DPGP().get_params(),
+            **self.settings,
+            "seed": self.seed,
+            "iterations": self.n_sweeps,
+            "progress": False,
+        }
         return _model_at(self.frames, settings, replace(state, resolved=self.resolved or state.resolved), extra)
 
     def summary_dict(self, loss: str = "vi") -> dict[str, Any]:

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .exceptions import InvalidInputError
+from ..exceptions import InvalidInputError
 from .frames import Frames
 
 _ROIS = {"highway": (0.0, 16.0, 0.0, 200.0), "intersection": (-50.0, 50.0, -50.0, 50.0)}
@@ -80,7 +80,11 @@ def _highway() -> list[tuple[str, float, list[_Stream]]]:
             0.25,
             [_Stream(p, s, 0.25) for p, s in zip(straight[:3] + [merge], (22, 20, 18, 18))],
         ),
-        ("right_lane_queue", 0.25, [_Stream(p, s, w) for p, s, w in zip(straight, (24, 18, 12, 3), (0.2,) * 3 + (0.4,))]),
+        (
+            "right_lane_queue",
+            0.25,
+            [_Stream(p, s, w) for p, s, w in zip(straight, (24, 18, 12, 3), (0.2,) * 3 + (0.4,))],
+        ),
     ]
 
 

@@ -7,13 +7,14 @@ offsets), so that the Rust core can borrow all of it without copying.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Iterator, overload
+from typing import TYPE_CHECKING, overload
 
 import numpy as np
 
-from ._arrays import as_path, as_vector, check_finite, column_floats, is_path
-from .exceptions import DataFormatError, InvalidInputError, ShapeError
+from .._arrays import as_path, as_vector, check_finite, column_floats, is_path
+from ..exceptions import DataFormatError, InvalidInputError, ShapeError
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -102,7 +103,13 @@ class Frames:
 
     @classmethod
     def from_arrays(
-        cls, frame: object, x: object, y: object, vx: object, vy: object, labels: object | None = None,
+        cls,
+        frame: object,
+        x: object,
+        y: object,
+        vx: object,
+        vy: object,
+        labels: object | None = None,
         track: object | None = None,
     ) -> Frames:
         """Group rows by their ``frame`` value (one row per vehicle observation).

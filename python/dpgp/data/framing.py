@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .exceptions import DataFormatError, InvalidInputError
+from ..exceptions import DataFormatError, InvalidInputError
 from .frames import Frames
 from .provenance import describe_tracks
 
@@ -87,7 +87,9 @@ class FramingSummary:
             f"  {self.n_single_sample_segments} single-sample segments (no velocity to difference)",
         ]
         if self.n_unsmoothed_segments:
-            lines.append(f"note: {self.n_unsmoothed_segments} segments shorter than the smoothing window were not smoothed")
+            lines.append(
+                f"note: {self.n_unsmoothed_segments} segments shorter than the smoothing window were not smoothed"
+            )
         return "\n".join(lines)
 
 
@@ -220,7 +222,10 @@ def resample_tracks(
 # the engine
 # ---------------------------------------------------------------------------------------------
 
-def _resample(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, units: Any, max_gap: Any) -> dict[str, Any]:
+
+def _resample(
+    tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, units: Any, max_gap: Any
+) -> dict[str, Any]:
     dt = _positive("dt", dt, "seconds between frames")
     if max_gap is not None:
         max_gap = _positive("max_gap", max_gap, "seconds")
@@ -291,13 +296,23 @@ def _resample(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, uni
     G = int(cnt.sum())
     seg_scene = None if sc is None else sc[starts]
     counts = dict(
-        dt=dt, max_gap=max_gap, units=units_name, velocity=mode, smoothing=smoothing,
+        dt=dt,
+        max_gap=max_gap,
+        units=units_name,
+        velocity=mode,
+        smoothing=smoothing,
         roi=None if roi is None else tuple(float(r * scale) for r in roi),
-        n_rows=n, n_tracks=n_tracks, n_segments=len(starts), n_gaps=n_gaps, n_gap_times=n_gap_times,
-        n_segments_between_grid_times=int(between.sum()), n_rows_between_grid_times=int(seg_len[between].sum()),
+        n_rows=n,
+        n_tracks=n_tracks,
+        n_segments=len(starts),
+        n_gaps=n_gaps,
+        n_gap_times=n_gap_times,
+        n_segments_between_grid_times=int(between.sum()),
+        n_rows_between_grid_times=int(seg_len[between].sum()),
         n_single_sample_segments=int(single.sum()),
         n_unsmoothed_segments=0 if smoothing is None else int(((seg_len < smoothing[0]) & (cnt > 0)).sum()),
-        n_resampled=G, n_scenes=1 if sc is None else len(np.unique(seg_scene)),
+        n_resampled=G,
+        n_scenes=1 if sc is None else len(np.unique(seg_scene)),
         **describe_tracks(tracks, units_name, scale),
     )
     if G > _MAX_RESAMPLED:
@@ -323,8 +338,19 @@ def _resample(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, uni
         rows = slice(r0, r1) if perm is None else perm[r0:r1]
         with np.errstate(over="ignore"):  # overflow (absurd units or steps) is checked and reported below
             part = _resample_batch(
-                t[r0:r1], x[rows], y[rows], None if vx is None else vx[rows], None if vy is None else vy[rows],
-                starts[sa:sb] - r0, ends[sa:sb] - r0, k0[sa:sb], cnt[sa:sb], dt, mode, smoothing, roi,
+                t[r0:r1],
+                x[rows],
+                y[rows],
+                None if vx is None else vx[rows],
+                None if vy is None else vy[rows],
+                starts[sa:sb] - r0,
+                ends[sa:sb] - r0,
+                k0[sa:sb],
+                cnt[sa:sb],
+                dt,
+                mode,
+                smoothing,
+                roi,
             )
         part["seg"] += sa
         parts.append(part)
@@ -365,9 +391,14 @@ def _resample(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, uni
         b = np.flatnonzero(np.r_[True, sid[1:] != sid[:-1]])
         n_slots = int((np.maximum.reduceat(hi_k, b) - np.minimum.reduceat(lo_k, b) + 1).sum())
     return dict(
-        dt=dt, track=seg_track[seg_g], track_labels=track_labels,
-        scene=None if seg_scene is None else seg_scene[seg_g], scene_labels=scene_labels,
-        n_slots=n_slots, counts=counts, **out,
+        dt=dt,
+        track=seg_track[seg_g],
+        track_labels=track_labels,
+        scene=None if seg_scene is None else seg_scene[seg_g],
+        scene_labels=scene_labels,
+        n_slots=n_slots,
+        counts=counts,
+        **out,
     )
 
 
@@ -385,7 +416,9 @@ def _typical_step(tr: np.ndarray, t: np.ndarray) -> float:
     return float(np.median(t[i + 1] - t[i])) if len(i) else 0.0
 
 
-def _segment_starts(tr: np.ndarray, t: np.ndarray, sc: np.ndarray | None, max_gap: float, labels: np.ndarray) -> tuple[np.ndarray, int]:
+def _segment_starts(
+    tr: np.ndarray, t: np.ndarray, sc: np.ndarray | None, max_gap: float, labels: np.ndarray
+) -> tuple[np.ndarray, int]:
     """First row of every segment: a new one at each track change or gap > max_gap.
 
     Raises if time does not increase inside a track, or a track changes scene. Works through the
@@ -412,7 +445,9 @@ def _segment_starts(tr: np.ndarray, t: np.ndarray, sc: np.ndarray | None, max_ga
             cross = same & (sc[a:b] != sc[a - 1 : b - 1])
             if cross.any():
                 i = a - 1 + int(np.flatnonzero(cross)[0])
-                raise InvalidInputError(f"track {_label(labels[tr[i]])} spans two scenes; give each scene its own track ids")
+                raise InvalidInputError(
+                    f"track {_label(labels[tr[i]])} spans two scenes; give each scene its own track ids"
+                )
         gap = same & (step > limit)
         n_gaps += int(gap.sum())
         found.append(np.flatnonzero(~same | gap) + a)
@@ -420,9 +455,19 @@ def _segment_starts(tr: np.ndarray, t: np.ndarray, sc: np.ndarray | None, max_ga
 
 
 def _resample_batch(
-    t: np.ndarray, x: np.ndarray, y: np.ndarray, vx: np.ndarray | None, vy: np.ndarray | None,
-    starts: np.ndarray, ends: np.ndarray, k0: np.ndarray, cnt: np.ndarray, dt: float, mode: str,
-    smoothing: tuple[int, int] | None, roi: tuple[float, float, float, float] | None,
+    t: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    vx: np.ndarray | None,
+    vy: np.ndarray | None,
+    starts: np.ndarray,
+    ends: np.ndarray,
+    k0: np.ndarray,
+    cnt: np.ndarray,
+    dt: float,
+    mode: str,
+    smoothing: tuple[int, int] | None,
+    roi: tuple[float, float, float, float] | None,
 ) -> dict[str, np.ndarray]:
     """Resample consecutive segments at their grid times; the arrays hold just their rows,
     ``starts/ends`` index into them."""
@@ -451,7 +496,10 @@ def _resample_batch(
     if short is None or short.all():
         gx, gy = _lerp(x[j], x[j1], w), _lerp(y[j], y[j1], w)
         if mode == "diff":
-            gvx, gvy = (_lerp(a, b, w) for a, b in zip(_diff_velocity(t, (x, y), j, lo, hi), _diff_velocity(t, (x, y), j1, lo, hi)))
+            gvx, gvy = (
+                _lerp(a, b, w)
+                for a, b in zip(_diff_velocity(t, (x, y), j, lo, hi), _diff_velocity(t, (x, y), j1, lo, hi))
+            )
     else:
         px0, py0, dvx0, dvy0 = _smoothed(t, x, y, j, lo, hi, smoothing, short)
         px1, py1, dvx1, dvy1 = _smoothed(t, x, y, j1, lo, hi, smoothing, short)
@@ -478,7 +526,9 @@ def _lerp(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
     return out
 
 
-def _diff_velocity(t: np.ndarray, ps: tuple[np.ndarray, ...], i: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list[np.ndarray]:
+def _diff_velocity(
+    t: np.ndarray, ps: tuple[np.ndarray, ...], i: np.ndarray, lo: np.ndarray, hi: np.ndarray
+) -> list[np.ndarray]:
     """d/dt of each position array at rows ``i``, inside segments ``[lo, hi)``.
 
     The derivative at t_i of the quadratic through three neighbouring samples (a, a+1, a+2),
@@ -505,8 +555,14 @@ def _diff_velocity(t: np.ndarray, ps: tuple[np.ndarray, ...], i: np.ndarray, lo:
 
 
 def _smoothed(
-    t: np.ndarray, x: np.ndarray, y: np.ndarray, i: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-    smoothing: tuple[int, int], short: np.ndarray,
+    t: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    i: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    smoothing: tuple[int, int],
+    short: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Savitzky–Golay value and slope at rows ``i``: a least-squares polynomial fitted, in time,
     to ``window`` consecutive samples of the segment, centred on i where the segment allows.
@@ -549,6 +605,7 @@ def _smoothed(
 # ---------------------------------------------------------------------------------------------
 # argument checks
 # ---------------------------------------------------------------------------------------------
+
 
 def _columns(tracks: Any) -> dict[str, np.ndarray]:
     """The canonical columns of a pandas or polars tracks table, as numpy arrays (no copy)."""
@@ -618,7 +675,9 @@ def _check_roi(roi: Any) -> tuple[float, float, float, float] | None:
     except (TypeError, ValueError):
         raise InvalidInputError(f"roi must be (x_min, x_max, y_min, y_max), got {roi!r}") from None
     if len(r) != 4 or not all(np.isfinite(r)) or not (r[0] < r[1] and r[2] < r[3]):
-        raise InvalidInputError(f"roi must be four finite numbers (x_min, x_max, y_min, y_max) with min < max, got {roi!r}")
+        raise InvalidInputError(
+            f"roi must be four finite numbers (x_min, x_max, y_min, y_max) with min < max, got {roi!r}"
+        )
     return r  # type: ignore[return-value]
 
 

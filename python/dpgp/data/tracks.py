@@ -21,12 +21,13 @@ import gzip
 import math
 import os
 import re
-from typing import TYPE_CHECKING, Any, Sequence
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ._arrays import as_path, column_floats, is_path
-from .exceptions import DataFormatError, InvalidInputError
+from .._arrays import as_path, column_floats, is_path
+from ..exceptions import DataFormatError, InvalidInputError
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -186,17 +187,27 @@ def _ngsim_names(columns: Sequence[object]) -> dict[object, str]:
 _PRESETS: dict[str, dict[str, Any]] = {
     # ETH/UCY: "frame ped_id x y", no header; frame numbers count 25 Hz video frames and step by
     # 10 between annotations, i.e. 0.4 s.
-    "eth_ucy": dict(names=["frame", "ped_id", "x", "y"], id="ped_id", t="frame", x="x", y="y",
-                    time_scale=0.04, units="m"),
+    "eth_ucy": dict(
+        names=["frame", "ped_id", "x", "y"], id="ped_id", t="frame", x="x", y="y", time_scale=0.04, units="m"
+    ),
     # INTERACTION: track_id restarts in every case_id (an independent scene) and so does time.
-    "interaction": dict(id="track_id", t="timestamp_ms", x="x", y="y", vx="vx", vy="vy",
-                        time_scale=1e-3, scene="case_id", units="m"),
+    "interaction": dict(
+        id="track_id", t="timestamp_ms", x="x", y="y", vx="vx", vy="vy", time_scale=1e-3, scene="case_id", units="m"
+    ),
     # highD: 25 Hz; x, y are the bounding box's upper-left corner, y points down (image axes).
-    "highd": dict(id="id", t="frame", x="x", y="y", vx="xVelocity", vy="yVelocity",
-                  time_scale=1 / 25, units="m"),
+    "highd": dict(id="id", t="frame", x="x", y="y", vx="xVelocity", vy="yVelocity", time_scale=1 / 25, units="m"),
     # inD (also rounD, exiD): 25 Hz, centre positions.
-    "ind": dict(id="trackId", t="frame", x="xCenter", y="yCenter", vx="xVelocity", vy="yVelocity",
-                time_scale=1 / 25, scene="recordingId", units="m"),
+    "ind": dict(
+        id="trackId",
+        t="frame",
+        x="xCenter",
+        y="yCenter",
+        vx="xVelocity",
+        vy="yVelocity",
+        time_scale=1 / 25,
+        scene="recordingId",
+        units="m",
+    ),
     # SUMO floating-car data (XML or xml2csv's CSV), handled by _read_sumo.
     "sumo": dict(id=["kind", "id"], t="time", x="x", y="y", vx="vx", vy="vy", time_scale=1.0, units="m"),
 }
@@ -211,6 +222,7 @@ _AUTO = {
     "vx": ("vx", "xvelocity", "vel_x", "v_x"),
     "vy": ("vy", "yvelocity", "vel_y", "v_y"),
 }
+
 
 def read_tracks(
     source: str | os.PathLike | Any,
@@ -295,8 +307,12 @@ def read_tracks(
     scale = spec.get("time_scale", 1.0) if time_scale is None else time_scale
     _check_positive("time_scale", scale)
     out = _build_tracks(df, cols, float(scale), sort, where)
-    out.attrs["dpgp"] = {"source": where, "format": preset or "table", "units": spec.get("units"),
-                         "report": out.attrs.get("dpgp_report", {})}
+    out.attrs["dpgp"] = {
+        "source": where,
+        "format": preset or "table",
+        "units": spec.get("units"),
+        "report": out.attrs.get("dpgp_report", {}),
+    }
     out.attrs.pop("dpgp_report", None)
     return out
 
@@ -413,7 +429,8 @@ def _build_tracks(df: pd.DataFrame, cols: dict[str, Any], time_scale: float, sor
         tid = [v.item() if isinstance(v, np.generic) else v for v in df[id_cols].iloc[r1].tolist()]
         what = "repeats" if step[i] == 0 else "goes backwards"
         fix = (
-            "remove the duplicate rows" if step[i] == 0 or sort
+            "remove the duplicate rows"
+            if step[i] == 0 or sort
             else "pass sort=True if the rows are merely unsorted, or fix the track ids"
         )
         raise InvalidInputError(
@@ -450,6 +467,7 @@ def _build_tracks(df: pd.DataFrame, cols: dict[str, Any], time_scale: float, sor
 # SUMO floating-car data
 # ---------------------------------------------------------------------------------------------
 
+
 def _read_sumo(source: Any) -> pd.DataFrame:
     """SUMO FCD output as a flat table ``time, kind, id, x, y, vx, vy, speed, angle, ...``."""
     import pandas as pd
@@ -474,8 +492,9 @@ def _read_sumo(source: Any) -> pd.DataFrame:
 
 
 def _read_sumo_xml(path: str) -> pd.DataFrame:
-    import pandas as pd
     import xml.etree.ElementTree as ET
+
+    import pandas as pd
 
     rows: list[dict[str, Any]] = []
     time = math.nan
@@ -485,7 +504,9 @@ def _read_sumo_xml(path: str) -> pd.DataFrame:
             events = ET.iterparse(fh, events=("start", "end"))
             _, root = next(events)
             if root.tag != "fcd-export":
-                raise DataFormatError(f"{path} is XML but not SUMO FCD output: root <{root.tag}>, expected <fcd-export>")
+                raise DataFormatError(
+                    f"{path} is XML but not SUMO FCD output: root <{root.tag}>, expected <fcd-export>"
+                )
             for event, elem in events:
                 if event == "start":
                     if elem.tag == "timestep":
@@ -537,7 +558,7 @@ def _read_sumo_csv(df: pd.DataFrame, where: str) -> pd.DataFrame:
         if f"{prefix}id" not in own:
             continue
         sub = df.loc[df[f"{prefix}id"].notna(), ["timestep_time"] + own]
-        sub = sub.rename(columns={"timestep_time": "time", **{c: c[len(prefix):] for c in own}})
+        sub = sub.rename(columns={"timestep_time": "time", **{c: c[len(prefix) :] for c in own}})
         sub.insert(1, "kind", kind)
         parts.append(sub)
     if not parts or sum(map(len, parts)) == 0:
@@ -554,6 +575,7 @@ def _read_sumo_csv(df: pd.DataFrame, where: str) -> pd.DataFrame:
 # ---------------------------------------------------------------------------------------------
 # helpers
 # ---------------------------------------------------------------------------------------------
+
 
 def _existing(path: str | os.PathLike) -> str:
     path = as_path(path)
@@ -625,7 +647,9 @@ def _check_unique_columns(df: pd.DataFrame, cols: dict[str, Any], where: str) ->
     chosen = [c for v in cols.values() if v is not None for c in (v if isinstance(v, list) else [v])]
     twice = sorted({str(c) for c in chosen if int((df.columns == c).sum()) > 1})
     if twice:
-        raise DataFormatError(f"{where}: the table has more than one column named {twice}; rename or drop the duplicates")
+        raise DataFormatError(
+            f"{where}: the table has more than one column named {twice}; rename or drop the duplicates"
+        )
 
 
 def _numeric(col: pd.Series, name: object, where: str) -> pd.Series:

@@ -55,8 +55,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .exceptions import DataFormatError, InvalidInputError, ShapeError
-from .frames import Frames
+from ..data.frames import Frames
+from ..exceptions import DataFormatError, InvalidInputError, ShapeError
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -82,7 +82,16 @@ PSEUDOCOUNT = 0.1  # added to every bin of a generated histogram
 DEFAULT_BINS = 20  # bins of a 1-D feature; the position grid is DEFAULT_BINS x DEFAULT_BINS
 QUANTILES = (0.005, 0.995)  # the bin range of a 1-D feature, in quantiles of the training values
 SCENARIO_SECONDS = 4.0  # length of the scenarios model.evaluate generates and compares
-_UNITS = {"m": 1.0, "metre": 1.0, "meter": 1.0, "metres": 1.0, "meters": 1.0, "ft": FT_TO_M, "feet": FT_TO_M, "foot": FT_TO_M}
+_UNITS = {
+    "m": 1.0,
+    "metre": 1.0,
+    "meter": 1.0,
+    "metres": 1.0,
+    "meters": 1.0,
+    "ft": FT_TO_M,
+    "feet": FT_TO_M,
+    "foot": FT_TO_M,
+}
 _KINEMATIC = ("speed", "acceleration", "turn_rate", "angular_acceleration")
 
 
@@ -121,11 +130,15 @@ def collision_threshold(agent: str = "vehicle", units: Any = "m", collision_dist
             raise InvalidInputError(f"agent must be one of {sorted(COLLISION_DISTANCE)}, got {agent!r}")
         metres = COLLISION_DISTANCE[agent]
     else:
-        if isinstance(collision_distance, (bool, np.bool_)) or not isinstance(collision_distance, (int, float, np.integer, np.floating)):
+        if isinstance(collision_distance, (bool, np.bool_)) or not isinstance(
+            collision_distance, (int, float, np.integer, np.floating)
+        ):
             raise InvalidInputError(f"collision_distance must be a number of metres, got {collision_distance!r}")
         metres = float(collision_distance)
         if not (np.isfinite(metres) and metres >= 0):
-            raise InvalidInputError(f"collision_distance must be a finite number of metres >= 0, got {collision_distance!r}")
+            raise InvalidInputError(
+                f"collision_distance must be a finite number of metres >= 0, got {collision_distance!r}"
+            )
     return metres / length_scale(units)
 
 
@@ -152,7 +165,11 @@ def extract_features(
     gaps = np.diff(t)[same]
     if dt is None:
         dt = float(gaps.min()) if len(gaps) else float("nan")
-    elif isinstance(dt, (bool, np.bool_)) or not isinstance(dt, (int, float, np.integer, np.floating)) or not (np.isfinite(dt) and dt > 0):
+    elif (
+        isinstance(dt, (bool, np.bool_))
+        or not isinstance(dt, (int, float, np.integer, np.floating))
+        or not (np.isfinite(dt) and dt > 0)
+    ):
         raise InvalidInputError(f"dt must be a positive number of seconds, got {dt!r}")
     n = len(t)
     # next_ok[i]: row i + 1 is the same object one time step later
@@ -220,7 +237,9 @@ def _nearest(sc: np.ndarray, t: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray,
 def _columns(table: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(scenario, vehicle, t, xy) of a scenario table; ``scenario`` may be absent (one scenario)."""
     if not hasattr(table, "columns"):
-        raise DataFormatError(f"a scenario table must be a DataFrame with columns scenario, vehicle, t, x, y; got {type(table).__name__}")
+        raise DataFormatError(
+            f"a scenario table must be a DataFrame with columns scenario, vehicle, t, x, y; got {type(table).__name__}"
+        )
     cols = [str(c) for c in table.columns]
     missing = [c for c in ("vehicle", "t", "x", "y") if c not in cols]
     if missing:
@@ -240,7 +259,9 @@ def _columns(table: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
         except (TypeError, ValueError):
             raise DataFormatError(f"column {name!r} of the scenario table is not numeric") from None
         if not integer and not np.all(np.isfinite(a)):
-            raise InvalidInputError(f"column {name!r} of the scenario table has NaN or infinite values; drop those rows first")
+            raise InvalidInputError(
+                f"column {name!r} of the scenario table has NaN or infinite values; drop those rows first"
+            )
         return a
 
     sc = col("scenario", integer=True) if "scenario" in cols else np.zeros(len(table), dtype=np.int64)
@@ -262,7 +283,7 @@ class Bins:
         edges: dict[str, Any] = {}
         for name in ("speed", "acceleration", "turn_rate", "angular_acceleration", "nearest_distance"):
             v = train.values[name]
-            lo, hi = (np.quantile(v, QUANTILES) if len(v) else (0.0, 1.0))
+            lo, hi = np.quantile(v, QUANTILES) if len(v) else (0.0, 1.0)
             edges[name] = _edges(float(lo), float(hi), bins)
         c = train.values["count"]
         edges["count"] = np.arange(c.min() - 0.5, c.max() + 1.0, 1.0)  # one bin per integer
@@ -374,7 +395,10 @@ class Realism:
                 ax.set_ylabel(f"share of object steps closer than {gen.collision_distance:.3g} (data units)")
             else:
                 edges = self.bins.edges[name]
-                for f, label, style in ((rec, "recorded", dict(color="#808080", alpha=0.5)), (gen, source, dict(color="#1f4e99", histtype="step", lw=2))):
+                for f, label, style in (
+                    (rec, "recorded", dict(color="#808080", alpha=0.5)),
+                    (gen, source, dict(color="#1f4e99", histtype="step", lw=2)),
+                ):
                     v = np.clip(f.values[name], edges[0], edges[-1])
                     ax.hist(v, bins=edges, density=True, label=label, **style)
                 ax.legend(fontsize=8)
@@ -383,9 +407,14 @@ class Realism:
         for ax, f, label in ((axes[7], rec, "recorded"), (axes[8], gen, source)):
             p = f.values["position"]
             ax.hist2d(np.clip(p[:, 0], ex[0], ex[-1]), np.clip(p[:, 1], ey[0], ey[-1]), bins=[ex, ey], cmap="Blues")
-            ax.set_title(f"positions, {label}" + (f": {self.scores.loc['position', source]:.3f}" if label != "recorded" else ""))
+            ax.set_title(
+                f"positions, {label}" + (f": {self.scores.loc['position', source]:.3f}" if label != "recorded" else "")
+            )
             ax.set_aspect("equal", adjustable="box")
-        fig.suptitle(f"realism of {source}: meta-score {self.scores.loc['meta', source]:.3f}" + (f", ratio {self.ratio:.2f}" if np.isfinite(self.ratio) else ""))
+        fig.suptitle(
+            f"realism of {source}: meta-score {self.scores.loc['meta', source]:.3f}"
+            + (f", ratio {self.ratio:.2f}" if np.isfinite(self.ratio) else "")
+        )
         return fig
 
     def __repr__(self) -> str:
@@ -421,7 +450,9 @@ def realism(
     rule = dict(agent=agent, units=units, collision_distance=collision_distance, dt=dt)
     names = [str(n) for n in reference]
     if {"generated", "test"} & set(names):
-        raise InvalidInputError("'generated' and 'test' name the scored and the recorded tables; give the references other names")
+        raise InvalidInputError(
+            "'generated' and 'test' name the scored and the recorded tables; give the references other names"
+        )
     feats = {"test": extract_features(recorded, **rule), "generated": extract_features(generated, **rule)}
     for name, table in zip(names, reference.values()):
         feats[name] = extract_features(table, **rule)
@@ -460,7 +491,7 @@ def recorded_windows(
     default to how ``frames`` were made; ``roi`` to their ROI, else their bounding box."""
     import pandas as pd
 
-    from .framing import resample_tracks
+    from ..data.framing import resample_tracks
 
     if not isinstance(frames, Frames):
         raise ShapeError(f"frames must be dpgp.Frames, got {type(frames).__name__}")
@@ -477,14 +508,20 @@ def recorded_windows(
     res = resample_tracks(tracks, dt=float(dt), units=units, **extra)
     k = np.rint(res["t"].to_numpy() / dt).astype(np.int64)
     _, tr = np.unique(res["track"].to_numpy(), return_inverse=True)
-    scene = np.unique(res["scene"].to_numpy(), return_inverse=True)[1] if "scene" in res.columns else np.zeros(len(k), np.int64)
+    scene = (
+        np.unique(res["scene"].to_numpy(), return_inverse=True)[1]
+        if "scene" in res.columns
+        else np.zeros(len(k), np.int64)
+    )
     order = np.lexsort((k, tr, scene))  # each track's rows consecutive, in time
     k, tr, scene = k[order], tr[order], scene[order]
     x, y = res["x"].to_numpy()[order], res["y"].to_numpy()[order]
     vx, vy = res["vx"].to_numpy()[order], res["vy"].to_numpy()[order]
     inside = (x >= roi[0]) & (x <= roi[1]) & (y >= roi[2]) & (y <= roi[3])
     # the frames' keys (scene code, grid step) against the rows'
-    scene_codes = {lab: i for i, lab in enumerate(np.unique(res["scene"].to_numpy()))} if "scene" in res.columns else None
+    scene_codes = (
+        {lab: i for i, lab in enumerate(np.unique(res["scene"].to_numpy()))} if "scene" in res.columns else None
+    )
     fk = []
     for fid in frames.ids:
         if scene_codes is None:
@@ -497,7 +534,12 @@ def recorded_windows(
     s_of = np.array([frame_of[(int(scene[j]), int(k[j]))] for j in j0], dtype=np.int64)
     offs = np.arange(steps + 1)
     j = np.minimum(j0[:, None] + offs[None, :], len(k) - 1)
-    ok = (j0[:, None] + offs[None, :] < len(k)) & (tr[j] == tr[j0][:, None]) & (k[j] == k[j0][:, None] + offs) & inside[j]
+    ok = (
+        (j0[:, None] + offs[None, :] < len(k))
+        & (tr[j] == tr[j0][:, None])
+        & (k[j] == k[j0][:, None] + offs)
+        & inside[j]
+    )
     ok = np.cumprod(ok, axis=1).astype(bool)  # followed until the first step it is missing or outside
     rows, o = np.nonzero(ok)
     jj = j[rows, o]
@@ -537,7 +579,11 @@ def position_blind_scenarios(
     for name, value in (("n", n), ("steps", steps)):
         if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
             raise InvalidInputError(f"{name} must be a whole number >= 0, got {value!r}")
-    if isinstance(dt, (bool, np.bool_)) or not isinstance(dt, (int, float, np.integer, np.floating)) or not (np.isfinite(dt) and dt > 0):
+    if (
+        isinstance(dt, (bool, np.bool_))
+        or not isinstance(dt, (int, float, np.integer, np.floating))
+        or not (np.isfinite(dt) and dt > 0)
+    ):
         raise InvalidInputError(f"dt must be a positive number of seconds, got {dt!r}")
     if seed is not None and (isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0):
         raise InvalidInputError(f"seed must be a whole number >= 0 or None, got {seed!r}")
@@ -605,9 +651,13 @@ def model_realism(
     windows and the position-blind generator (same count, same seed) as references, on bins
     fixed from the training windows. ``agent`` and ``units`` default to what the tracks say
     (:func:`data_agent`, :func:`data_units`; metres when unknown)."""
-    from .simulation import default_dt, default_roi
+    from ..generate.simulation import default_dt, default_roi
 
-    if isinstance(seconds, (bool, np.bool_)) or not isinstance(seconds, (int, float, np.integer, np.floating)) or not (np.isfinite(seconds) and seconds > 0):
+    if (
+        isinstance(seconds, (bool, np.bool_))
+        or not isinstance(seconds, (int, float, np.integer, np.floating))
+        or not (np.isfinite(seconds) and seconds > 0)
+    ):
         raise InvalidInputError(f"seconds must be a positive number, got {seconds!r}")
     dt = default_dt(model)
     steps = max(1, int(round(seconds / dt)))

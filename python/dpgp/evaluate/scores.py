@@ -40,11 +40,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .defaults import NOISE_GRID, refine_grid, vehicle_spacing
-from .exceptions import InvalidInputError, ShapeError
-from .frames import Frames
-from .gp import GPParams
-from .realism import Realism, model_realism, realism
+from ..data.frames import Frames
+from ..exceptions import InvalidInputError, ShapeError
+from ..gp.defaults import NOISE_GRID, refine_grid, vehicle_spacing
+from ..gp.exact import GPParams
+from .realism_checks import Realism, model_realism, realism
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -64,7 +64,9 @@ def split_in_time(frames: Frames, train_fraction: float = TRAIN_FRACTION) -> tup
     n = len(frames)
     cut = int(round(n * train_fraction))
     if cut < 1 or cut >= n:
-        raise ShapeError(f"{n} frames cannot be split {train_fraction:g} / {1 - train_fraction:g}: each side needs a frame")
+        raise ShapeError(
+            f"{n} frames cannot be split {train_fraction:g} / {1 - train_fraction:g}: each side needs a frame"
+        )
     return frames[:cut], frames[cut:]
 
 
@@ -164,7 +166,7 @@ def evaluate(
                 table.loc[m, f"fde_{h}"] = row[f"{m}_fde"]
     table["n_test_frames"] = len(test_frames)
     table["n_test_vehicles"] = int(sizes.sum())
-    from .posterior import used
+    from ..gp.draws import used
 
     states = 1 + (len(used(getattr(model, "draws_", None), getattr(model, "n_iter_", 0) or 0)) if average else 0)
     return Evaluation(table, frame_scores, rollouts, _units(test_frames), realism=real, states_averaged=states)
@@ -176,7 +178,9 @@ def position_blind_scores(train: Frames, test: Frames) -> np.ndarray:
     velocities (maximum-likelihood variance)."""
     mu, var = train.v.mean(axis=0), train.v.var(axis=0)
     if np.any(var <= 0):
-        raise InvalidInputError("the training velocities have zero variance in a component; the position-blind baseline is undefined")
+        raise InvalidInputError(
+            "the training velocities have zero variance in a component; the position-blind baseline is undefined"
+        )
     per_row = -0.5 * (np.log(2 * np.pi * var) + (test.v - mu) ** 2 / var).sum(axis=1)
     return np.add.reduceat(per_row, test.offsets[:-1])
 
@@ -274,8 +278,8 @@ def rollout_errors(model: Any, test: Frames, tracks: Any, horizons: tuple[float,
     constant_velocity_ade, constant_velocity_fde``."""
     import pandas as pd
 
-    from .framing import resample_tracks
-    from .simulation import default_dt, default_roi
+    from ..data.framing import resample_tracks
+    from ..generate.simulation import default_dt, default_roi
 
     summary = getattr(test, "summary", None)
     if summary is None:
@@ -286,7 +290,9 @@ def rollout_errors(model: Any, test: Frames, tracks: Any, horizons: tuple[float,
     dt = float(summary.dt)
     roi = default_roi(model)
     if abs(default_dt(model) - dt) > 1e-9:
-        raise InvalidInputError(f"the model was fitted at dt = {default_dt(model):g} s, the test frames are at {dt:g} s")
+        raise InvalidInputError(
+            f"the model was fitted at dt = {default_dt(model):g} s, the test frames are at {dt:g} s"
+        )
     steps = [int(round(h / dt)) for h in horizons]
     if min(steps) < 1:
         raise InvalidInputError(f"every horizon must be at least one time step ({dt:g} s), got {horizons}")
@@ -376,4 +382,13 @@ def _units(frames: Frames) -> dict[str, Any]:
     return {"length": units or "data units", "dt": getattr(summary, "dt", None)}
 
 
-__all__ = ["Evaluation", "evaluate", "realism", "split_in_time", "SingleGP", "position_blind_scores", "rollout_errors", "TRAIN_FRACTION"]
+__all__ = [
+    "Evaluation",
+    "evaluate",
+    "realism",
+    "split_in_time",
+    "SingleGP",
+    "position_blind_scores",
+    "rollout_errors",
+    "TRAIN_FRACTION",
+]

@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from ._arrays import as_pairs, check_finite
-from .exceptions import DataFormatError, InvalidInputError, ShapeError
+from .._arrays import as_pairs, check_finite
+from ..exceptions import DataFormatError, InvalidInputError, ShapeError
 
 _FORMAT_VERSION = 1
 _MAX_BINS = 10**7  # position bins (80 MB of histogram)
@@ -48,7 +48,9 @@ class EmpiricalDistributions:
         if ch.ndim != 1 or len(ch) < 2:
             raise ShapeError("count_hist must be one-dimensional: frames with 0, 1, 2, ... vehicles")
         if ph.ndim != 2 or 0 in ph.shape or ph.size > _MAX_BINS:
-            raise ShapeError(f"position_hist must be a non-empty (nx, ny) array of at most {_MAX_BINS} bins, got shape {ph.shape}")
+            raise ShapeError(
+                f"position_hist must be a non-empty (nx, ny) array of at most {_MAX_BINS} bins, got shape {ph.shape}"
+            )
         if not (np.isfinite(pseudocount) and pseudocount >= 0):
             raise InvalidInputError(f"pseudocount must be >= 0, got {pseudocount!r}")
         if np.any(ch < 0) or np.any(ph < 0) or not np.all(np.isfinite(ch)) or not np.all(np.isfinite(ph)):
@@ -193,9 +195,13 @@ class EmpiricalDistributions:
         try:
             version = int(np.asarray(version))
         except (TypeError, ValueError, OverflowError):
-            raise DataFormatError(f"EmpiricalDistributions format version must be a whole number, got {version!r:.40}") from None
+            raise DataFormatError(
+                f"EmpiricalDistributions format version must be a whole number, got {version!r:.40}"
+            ) from None
         if version > _FORMAT_VERSION:
-            raise DataFormatError(f"EmpiricalDistributions format {version} is newer than this dpgp reads ({_FORMAT_VERSION})")
+            raise DataFormatError(
+                f"EmpiricalDistributions format {version} is newer than this dpgp reads ({_FORMAT_VERSION})"
+            )
         return cls(d["count_hist"], d["position_hist"], d["roi"], d.get("pseudocount", 0.0))
 
     def __repr__(self) -> str:
@@ -203,6 +209,7 @@ class EmpiricalDistributions:
             f"EmpiricalDistributions({int(self.count_hist.sum())} frames, counts 0-{self.max_count}, "
             f"{self.bins[0]}x{self.bins[1]} bins over roi {self.roi})"
         )
+
 
 def _roi(roi: Any) -> tuple[float, float, float, float]:
     try:
@@ -212,7 +219,9 @@ def _roi(roi: Any) -> tuple[float, float, float, float]:
     if len(r) != 4 or not np.all(np.isfinite(r)) or not (r[0] < r[1] and r[2] < r[3]):
         raise InvalidInputError(f"roi must be (x_min, x_max, y_min, y_max) with min < max, got {roi!r}")
     if not (np.isfinite(r[1] - r[0]) and np.isfinite(r[3] - r[2])):  # bins over an infinite width
-        raise InvalidInputError(f"roi {roi!r} is wider than the floating-point range (1.8e308); convert to sensible units")
+        raise InvalidInputError(
+            f"roi {roi!r} is wider than the floating-point range (1.8e308); convert to sensible units"
+        )
     return r  # type: ignore[return-value]
 
 
@@ -229,7 +238,9 @@ def _inside(roi: tuple[float, float, float, float], xy: np.ndarray) -> np.ndarra
 _EDGE_TOLERANCE = 1e-6
 
 
-def _bin_index(roi: tuple[float, float, float, float], bins: tuple[int, int], xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _bin_index(
+    roi: tuple[float, float, float, float], bins: tuple[int, int], xy: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     x0, x1, y0, y1 = roi
     nx, ny = bins
     # the upper edge belongs to the last bin, as in numpy.histogram

@@ -47,10 +47,10 @@ from typing import Any
 
 import numpy as np
 
-from . import _core
-from .exceptions import DataFormatError
-from .fitted import FittedPatterns
-from .frames import Frames
+from .. import _core
+from ..data.frames import Frames
+from ..exceptions import DataFormatError
+from ..gp.fitted import FittedPatterns
 
 MIN_PAIRS = 50  # recorded track-steps for a pattern's own τ
 MIN_DISTANCES = 20  # nearest-neighbour distances for a pattern's own spacing
@@ -119,7 +119,10 @@ class MotionModel:
                 sigma=np.asarray(d["sigma"], dtype=np.float64).reshape(len(tau), 2),
                 pairs=np.asarray(d["pairs"], dtype=np.int64),
                 spacing=np.asarray(d["spacing"], dtype=np.float64),
-                **{k: float("nan") if d.get(k) is None else float(d[k]) for k in ("personal", "jam", "headway", "accel", "decel", "lateral")},
+                **{
+                    k: float("nan") if d.get(k) is None else float(d[k])
+                    for k in ("personal", "jam", "headway", "accel", "decel", "lateral")
+                },
             )
         except (KeyError, TypeError, ValueError) as e:
             raise DataFormatError(f"not a stored motion model ({type(e).__name__}: {e})") from None
@@ -315,7 +318,9 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     return MotionModel(agents, tau, sigma, pairs, spacing, personal, jam, headway, accel, decel, max(lateral, 1e-9))
 
 
-def _accelerations(frames: Frames, a: np.ndarray, b: np.ndarray, dt: float, typical_speed: float) -> tuple[float, float]:
+def _accelerations(
+    frames: Frames, a: np.ndarray, b: np.ndarray, dt: float, typical_speed: float
+) -> tuple[float, float]:
     """90th percentiles of the tracks' speed increases and decreases per second; without
     tracks, a fifth of the typical speed per second for both."""
     default = max(0.2 * typical_speed, 1e-6)
@@ -342,4 +347,12 @@ def motion_model(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     return m
 
 
-__all__ = ["MotionModel", "learn", "motion_model", "time_constants", "consecutive_pairs", "nearest_distances", "DEFAULT_TAU"]
+__all__ = [
+    "MotionModel",
+    "learn",
+    "motion_model",
+    "time_constants",
+    "consecutive_pairs",
+    "nearest_distances",
+    "DEFAULT_TAU",
+]

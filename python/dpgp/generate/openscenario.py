@@ -42,13 +42,14 @@ import os
 import tempfile
 import warnings
 import xml.etree.ElementTree as ET
+from collections.abc import Sequence
 from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple, Sequence
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from .exceptions import DataFormatError, InvalidInputError
+from ..exceptions import DataFormatError, InvalidInputError
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -152,14 +153,18 @@ def write_openscenario(
 
     for c in ("t", "x", "y", "vx", "vy"):
         if not np.all(np.isfinite(df[c].to_numpy(dtype=np.float64))):
-            raise InvalidInputError(f"the scenarios' column {c!r} holds NaN or infinite values; OpenSCENARIO needs numbers")
+            raise InvalidInputError(
+                f"the scenarios' column {c!r} holds NaN or infinite values; OpenSCENARIO needs numbers"
+            )
 
-    from . import __version__
+    from .._version import __version__
 
     order = np.lexsort((df["t"].to_numpy(), df["vehicle"].to_numpy(), df["scenario"].to_numpy()))
     cols = {c: df[c].to_numpy()[order] for c in df.columns}
     bounds = np.searchsorted(cols["scenario"].astype(np.int64), np.arange(n + 1))
-    new_run = np.r_[True, (cols["scenario"][1:] != cols["scenario"][:-1]) | (cols["vehicle"][1:] != cols["vehicle"][:-1])]
+    new_run = np.r_[
+        True, (cols["scenario"][1:] != cols["scenario"][:-1]) | (cols["vehicle"][1:] != cols["vehicle"][:-1])
+    ]
     cols["_heading"] = headings(cols["vx"], cols["vy"], np.flatnonzero(new_run[: len(order)]))  # all at once
     end = float(cols["t"].max()) if len(order) else 0.0  # every scenario runs as long as the longest
     seed_text = "none" if seed is None else str(int(seed))
@@ -211,7 +216,12 @@ class _Object(NamedTuple):
 
 
 def _objects(
-    part: dict[str, np.ndarray], end: float, scale: float, origin: tuple[float, float], kind: str, box: tuple[float, float, float]
+    part: dict[str, np.ndarray],
+    end: float,
+    scale: float,
+    origin: tuple[float, float],
+    kind: str,
+    box: tuple[float, float, float],
 ) -> list[_Object]:
     """The objects of one scenario's rows (sorted by vehicle, then time)."""
     veh = part["vehicle"].astype(np.int64)
@@ -257,7 +267,9 @@ def _scenario(xosc: Any, objs: list[_Object], header: dict[str, Any], s: Any, pa
             positions = [xosc.WorldPosition(px, py, 0.0, ph) for px, py, ph in zip(o.x, o.y, o.h)]
             trajectory = xosc.Trajectory(f"{o.name}_trajectory", False)
             trajectory.add_shape(xosc.Polyline(o.t, positions))
-            follow = xosc.FollowTrajectoryAction(trajectory, xosc.FollowingMode.position, xosc.ReferenceContext.absolute, 1.0, 0.0)
+            follow = xosc.FollowTrajectoryAction(
+                trajectory, xosc.FollowingMode.position, xosc.ReferenceContext.absolute, 1.0, 0.0
+            )
             event = xosc.Event(f"{o.name}_follow", xosc.Priority.override)
             event.add_action(f"{o.name}_follow", follow)
             event.add_trigger(_time_trigger(xosc, f"{o.name}_start", 0.0, xosc.Rule.greaterOrEqual))
@@ -299,7 +311,16 @@ class _Template:
     def __init__(self, xosc: Any, header: dict[str, Any]) -> None:
         self.xosc, self.header = xosc, header
         self._entities: dict[tuple[str, tuple[float, float, float]], str] = {}
-        probe = _Object(self._NAME, "vehicle", (1.0, 1.0, 1.0), ["$vt", "$vt"], ["$vx", "$vx"], ["$vy", "$vy"], ["$vh", "$vh"], "$leave")  # type: ignore[list-item, arg-type]
+        probe = _Object(
+            self._NAME,
+            "vehicle",
+            (1.0, 1.0, 1.0),
+            ["$vt", "$vt"],
+            ["$vx", "$vx"],
+            ["$vy", "$vy"],
+            ["$vh", "$vh"],
+            "$leave",
+        )  # type: ignore[list-item, arg-type]
         probe = probe._replace(x=["$ix", "$vx"], y=["$iy", "$vy"], h=["$ih", "$vh"])
         text = _serialize(_scenario(xosc, [probe], header, "@S@", "@P@", "@D@").get_element()).decode("utf-8")
         entity = _block(text, f'<ScenarioObject name="{self._NAME}"', "</ScenarioObject>")
@@ -309,10 +330,8 @@ class _Template:
         leave = _block(group[group.index(follow) + len(follow) :], "<Event ", "</Event>")
         first = _block(follow, "<Vertex ", "</Vertex>")
         second = _block(follow[follow.index(first) + len(first) :], "<Vertex ", "</Vertex>")
-        self.entity_pad = entity[1 : len(entity) - len(entity.lstrip(" \n")) ]
-        self.skeleton = (
-            text.replace(entity, "@ENTITIES@").replace(private, "@INIT@").replace(group, "@GROUPS@")
-        )
+        self.entity_pad = entity[1 : len(entity) - len(entity.lstrip(" \n"))]
+        self.skeleton = text.replace(entity, "@ENTITIES@").replace(private, "@INIT@").replace(group, "@GROUPS@")
         # pieces split at the name, so that an object's name is put in by str.join
         self.private = _fmt(private, ("$ix", "$iy", "$ih")).split(self._NAME)
         group_head, rest = group.split(follow)
@@ -336,7 +355,9 @@ class _Template:
         if key not in self._entities:
             entities = self.xosc.Entities()
             entities.add_scenario_object(self._NAME, _object(self.xosc, self._NAME, o.kind, o.size))
-            self._entities[key] = _serialize(entities.get_element()[0], self.entity_pad, declaration=False).decode("utf-8")
+            self._entities[key] = _serialize(entities.get_element()[0], self.entity_pad, declaration=False).decode(
+                "utf-8"
+            )
         return self._entities[key].replace(self._NAME, o.name)
 
     def render(self, objs: list[_Object], s: int, pattern: int, text: str) -> bytes:
@@ -427,7 +448,9 @@ def headings(vx: np.ndarray, vy: np.ndarray, starts: np.ndarray | None = None) -
     return h + 2 * np.pi * (total - total[first])
 
 
-def _row_size(part: dict[str, np.ndarray], row: int, box: tuple[float, float, float], scale: float) -> tuple[float, float, float]:
+def _row_size(
+    part: dict[str, np.ndarray], row: int, box: tuple[float, float, float], scale: float
+) -> tuple[float, float, float]:
     """The object's size from the table's optional length/width/height columns (model units),
     falling back on ``box`` (metres) for each missing or unusable one."""
     out = list(box)
@@ -442,7 +465,7 @@ def _row_size(part: dict[str, np.ndarray], row: int, box: tuple[float, float, fl
 def _summary(model: Any) -> Any:
     if model is None:
         return None
-    from .fitted import as_fitted
+    from ..gp.fitted import as_fitted
 
     try:
         frames = as_fitted(model).frames
@@ -492,9 +515,13 @@ def _size(size: Any, summary: Any, scale: float, kind: str) -> tuple[float, floa
     try:
         vals = [float(v) for v in size]
     except (TypeError, ValueError):
-        raise InvalidInputError(f"size must be (length, width) or (length, width, height) in metres, got {size!r}") from None
+        raise InvalidInputError(
+            f"size must be (length, width) or (length, width, height) in metres, got {size!r}"
+        ) from None
     if len(vals) not in (2, 3) or not all(math.isfinite(v) and v > 0 for v in vals):
-        raise InvalidInputError(f"size must be 2 or 3 positive lengths in metres (length, width[, height]), got {size!r}")
+        raise InvalidInputError(
+            f"size must be 2 or 3 positive lengths in metres (length, width[, height]), got {size!r}"
+        )
     return vals[0], vals[1], vals[2] if len(vals) == 3 else default[2]
 
 
@@ -520,7 +547,9 @@ def _write_atomic(data: bytes, target: Path) -> None:
         raise
 
 
-_ESCAPES = str.maketrans({"&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "\n": "&#10;", "\r": "&#13;", "\t": "&#9;"})
+_ESCAPES = str.maketrans(
+    {"&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "\n": "&#10;", "\r": "&#13;", "\t": "&#9;"}
+)
 
 
 def _serialize(element: ET.Element, pad: str = "", declaration: bool = True) -> bytes:
@@ -663,4 +692,14 @@ def read_openscenario(path: str | os.PathLike) -> pd.DataFrame:
     return df
 
 
-__all__ = ["write_openscenario", "require_scenariogeneration", "read_openscenario", "validate", "schema_path", "headings", "DEFAULT_SIZES", "OSC_MINOR", "UNITS"]
+__all__ = [
+    "write_openscenario",
+    "require_scenariogeneration",
+    "read_openscenario",
+    "validate",
+    "schema_path",
+    "headings",
+    "DEFAULT_SIZES",
+    "OSC_MINOR",
+    "UNITS",
+]

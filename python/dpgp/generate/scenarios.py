@@ -33,13 +33,22 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ._arrays import as_path
+from .. import _core
+from .._arrays import as_path
+from ..exceptions import InvalidInputError
+from ..gp.fitted import FittedPatterns, as_fitted
 from .distributions import EmpiricalDistributions
-from .exceptions import InvalidInputError
-from .fitted import FittedPatterns, as_fitted
-from . import _core
 from .simulation import (
-    LOW_DATA_THRESHOLD, Simulation, _check, _check_pattern, _check_roi, _check_rows, check_dynamics, motion_records, rollouts, split,
+    LOW_DATA_THRESHOLD,
+    Simulation,
+    _check,
+    _check_pattern,
+    _check_roi,
+    _check_rows,
+    check_dynamics,
+    motion_records,
+    rollouts,
+    split,
 )  # fmt: skip
 
 if TYPE_CHECKING:
@@ -238,13 +247,17 @@ def sample_scenarios(
         )
     dt = fit.dt if dt is None else dt
     steps, method, thr = _check(steps, method, dt, low_data_threshold)
-    _check_rows(int(steps) + 1, f"a time axis of {steps} steps", "ask for fewer steps")  # allocated even for no scenario
+    _check_rows(
+        int(steps) + 1, f"a time axis of {steps} steps", "ask for fewer steps"
+    )  # allocated even for no scenario
     box = fit.roi if roi is None else _check_roi(roi)
     psi = distributions(fit)
     # Bound the work by the largest count φ can draw, so that whether a call is refused does not
     # depend on the seed, and it is refused before anything is drawn or allocated.
     rows = int(n) * psi.max_count * (steps + 1)
-    _check_rows(rows, f"{n} scenarios of up to {psi.max_count} vehicles and {steps} steps", "ask for fewer scenarios or steps")
+    _check_rows(
+        rows, f"{n} scenarios of up to {psi.max_count} vehicles and {steps} steps", "ask for fewer scenarios or steps"
+    )
     if seed is not None and (isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0):
         raise InvalidInputError(f"seed must be a whole number >= 0 or None, got {seed!r}")
     rng = np.random.default_rng(seed)
@@ -305,7 +318,19 @@ def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistri
         np.ascontiguousarray(grids.reshape(len(ks), -1), dtype=np.float64), psi.bins, tuple(psi.roi), spacing.tolist(),
         motion_records(fit, patterns, dynamics), seeds, bool(stochastic), float(dt), int(steps), tuple(roi), low_data_threshold,
     )  # fmt: skip
-    sims = split(pos, vel, inside, low, sizes, patterns.tolist(), steps=steps, dt=dt, stochastic=stochastic, roi=roi, dynamics=dynamics)
+    sims = split(
+        pos,
+        vel,
+        inside,
+        low,
+        sizes,
+        patterns.tolist(),
+        steps=steps,
+        dt=dt,
+        stochastic=stochastic,
+        roi=roi,
+        dynamics=dynamics,
+    )
     return Scenarios(sims, patterns, np.asarray(sizes, dtype=np.int64))
 
 

@@ -37,11 +37,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from . import _core
-from ._arrays import as_float_array, check_finite
-from .exceptions import InvalidInputError, ShapeError
-from .fitted import DEFAULT_DT, FittedPatterns, as_fitted, frames_dt, frames_roi
-from .frames import Frame, Frames
+from .. import _core
+from .._arrays import as_float_array, check_finite
+from ..data.frames import Frame, Frames
+from ..exceptions import InvalidInputError, ShapeError
+from ..gp.fitted import DEFAULT_DT, FittedPatterns, as_fitted, frames_dt, frames_roi
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -147,7 +147,9 @@ def _number(name: str, value: Any) -> float:
     try:
         return float(value)
     except OverflowError:  # an int beyond the float range, such as 2**1024
-        raise InvalidInputError(f"{name} is beyond the float range (an integer of {len(str(abs(value)))} digits)") from None
+        raise InvalidInputError(
+            f"{name} is beyond the float range (an integer of {len(str(abs(value)))} digits)"
+        ) from None
 
 
 def _check(steps: Any, method: Any, dt: Any, low_data_threshold: Any) -> tuple[int, str, float | None]:
@@ -162,7 +164,9 @@ def _check(steps: Any, method: Any, dt: Any, low_data_threshold: Any) -> tuple[i
         raise InvalidInputError(f"steps * dt must be a finite time, got {steps} steps of {dt!r} s; use a smaller dt")
     thr = None if low_data_threshold is None else _number("low_data_threshold", low_data_threshold)
     if thr is not None and not (np.isfinite(thr) and thr >= 0):
-        raise InvalidInputError(f"low_data_threshold must be >= 0 (a fraction of the prior variance), got {low_data_threshold!r}")
+        raise InvalidInputError(
+            f"low_data_threshold must be >= 0 (a fraction of the prior variance), got {low_data_threshold!r}"
+        )
     return int(steps), method, thr
 
 
@@ -221,7 +225,18 @@ def rollouts(
         fit.sampler, slots, start, offsets, float(dt), int(steps), method, tuple(roi), seeds, low_data_threshold
     )
     return split(
-        pos, vel, inside, low, sizes, patterns, steps=steps, dt=dt, stochastic=seeds is not None, roi=roi, dynamics="field", method=method
+        pos,
+        vel,
+        inside,
+        low,
+        sizes,
+        patterns,
+        steps=steps,
+        dt=dt,
+        stochastic=seeds is not None,
+        roi=roi,
+        dynamics="field",
+        method=method,
     )
 
 
@@ -289,7 +304,19 @@ def motion_rollouts(
         fit.sampler, [int(fit.slots[k]) for k in patterns], cat(starts), cat(velocities), offsets,
         motion_records(fit, patterns, dynamics, motion), float(dt), int(steps), tuple(roi), seeds, low_data_threshold,
     )  # fmt: skip
-    return split(pos, vel, inside, low, sizes, patterns, steps=steps, dt=dt, stochastic=seeds is not None, roi=roi, dynamics=dynamics)
+    return split(
+        pos,
+        vel,
+        inside,
+        low,
+        sizes,
+        patterns,
+        steps=steps,
+        dt=dt,
+        stochastic=seeds is not None,
+        roi=roi,
+        dynamics=dynamics,
+    )
 
 
 def _start(fit: FittedPatterns, frame: Any) -> tuple[np.ndarray, np.ndarray | None, int | None]:
@@ -339,7 +366,9 @@ def simulate(
             one = Frames(np.array([0]), np.array([0, len(xy)]), xy, v)
             pattern = int(fit.predict(one)[0])
         else:
-            raise InvalidInputError("frame has positions only: pass pattern=k (there are no velocities to assign it by)")
+            raise InvalidInputError(
+                "frame has positions only: pass pattern=k (there are no velocities to assign it by)"
+            )
     k = _check_pattern(fit, pattern)
     steps, method, thr = _check(steps, method, fit.dt if dt is None else dt, low_data_threshold)
     _check_rows((steps + 1) * len(xy), f"{steps} steps of {len(xy)} vehicle(s)")
@@ -348,7 +377,11 @@ def simulate(
     dynamics = check_dynamics(dynamics, method)
     if dynamics != "field":
         if v is None:  # positions only: start on the field
-            v = np.asarray(_core.field_means(fit.sampler, [int(fit.slots[k])], np.ascontiguousarray(xy), np.array([0, len(xy)], np.int64)))
+            v = np.asarray(
+                _core.field_means(
+                    fit.sampler, [int(fit.slots[k])], np.ascontiguousarray(xy), np.array([0, len(xy)], np.int64)
+                )
+            )
         return motion_rollouts(
             fit, [k], [xy], [v], steps=steps, dt=dt, seeds=_seeds(seed, 1) if stochastic else None, roi=box,
             low_data_threshold=thr, dynamics=dynamics,
@@ -378,7 +411,7 @@ def integrate_affine(
     """Roll vehicles through the known field ``v(p) = a @ p + b`` with the same integrator as
     :func:`simulate` — constant for ``a = 0``, a rigid rotation for ``a = [[0, -ω], [ω, 0]]`` —
     to check it against exact solutions. ``roi`` ``None``: unbounded."""
-    from ._arrays import as_pairs
+    from .._arrays import as_pairs
 
     steps, method, _ = _check(steps, method, dt, None)
     start = as_pairs("xy", xy)
@@ -405,4 +438,14 @@ def integrate_affine(
     )
 
 
-__all__ = ["Simulation", "simulate", "integrate_affine", "default_dt", "default_roi", "DEFAULT_DT", "LOW_DATA_THRESHOLD", "MAX_ROWS", "DYNAMICS"]
+__all__ = [
+    "Simulation",
+    "simulate",
+    "integrate_affine",
+    "default_dt",
+    "default_roi",
+    "DEFAULT_DT",
+    "LOW_DATA_THRESHOLD",
+    "MAX_ROWS",
+    "DYNAMICS",
+]

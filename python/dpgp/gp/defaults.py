@@ -57,15 +57,16 @@ data's units with unit-free settings, and the grid is relative to the velocity v
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from ._arrays import MAX_MAGNITUDE, MIN_LENGTH_SCALE
-from .exceptions import InvalidInputError
-from .frames import Frames
-from .gp import _pair
+from .._arrays import MAX_MAGNITUDE, MIN_LENGTH_SCALE
+from ..data.frames import Frames
+from ..exceptions import InvalidInputError
+from .exact import _pair
 
 PRESETS = ("paper",)
 PAPER = {"length_scale_prior": (10.0, 1.0), "noise_var": (1.0, 1.0), "assignment": "map"}
@@ -149,7 +150,9 @@ def resolve(
             noise_source = "pilot"
     else:
         sn2, noise_source = _positive_pair("noise_var", noise_var), "user"
-    return Resolved(assignment, sn2, prior, noise_source, prior_source, spacing, tuple(trace) if noise_source == "pilot" else None)
+    return Resolved(
+        assignment, sn2, prior, noise_source, prior_source, spacing, tuple(trace) if noise_source == "pilot" else None
+    )
 
 
 # --- length-scale prior ------------------------------------------------------------------------
@@ -173,7 +176,9 @@ def vehicle_spacing(frames: Frames, min_pairs: int = 20) -> float:
     if area <= 0:
         area = max(x1 - x0, y1 - y0, 0.0) ** 2
     if area <= 0:
-        raise InvalidInputError("every vehicle is at the same position: no length scale can be set from the data; pass length_scale_prior=")
+        raise InvalidInputError(
+            "every vehicle is at the same position: no length scale can be set from the data; pass length_scale_prior="
+        )
     return float(np.sqrt(area / frames.sizes.mean()))
 
 
@@ -238,7 +243,9 @@ def _moments(frames: Frames, signal_var: Any, mean: Any) -> tuple[tuple[float, f
     sv = tuple(frames.v.var(axis=0)) if signal_var is None else _pair("signal_var", signal_var)
     mu = tuple(frames.v.mean(axis=0)) if mean is None else _pair("mean", mean)
     if min(sv) <= 0:
-        raise InvalidInputError(f"the training velocities have zero variance in an output ({sv}); pass signal_var= and noise_var=")
+        raise InvalidInputError(
+            f"the training velocities have zero variance in an output ({sv}); pass signal_var= and noise_var="
+        )
     return (float(sv[0]), float(sv[1])), (float(mu[0]), float(mu[1]))
 
 
@@ -260,7 +267,9 @@ def _gamma(name: str, value: Any) -> tuple[float, float]:
         raise InvalidInputError(f"{name} must be 'auto' or a Gamma (shape, scale) with both positive, got {value!r}")
     # The chain starts at the prior mean a·b and evaluates log Γ(a) and x/b: past these limits
     # its log joint is not finite in double precision (issue 17).
-    if not (1e-100 <= a <= MAX_MAGNITUDE and 1e-100 <= b <= MAX_MAGNITUDE and MIN_LENGTH_SCALE <= a * b <= MAX_MAGNITUDE):
+    if not (
+        1e-100 <= a <= MAX_MAGNITUDE and 1e-100 <= b <= MAX_MAGNITUDE and MIN_LENGTH_SCALE <= a * b <= MAX_MAGNITUDE
+    ):
         raise InvalidInputError(
             f"{name} {value!r}: shape and scale must lie in [1e-100, {MAX_MAGNITUDE:g}] and their product (the prior mean "
             f"length scale) in [{MIN_LENGTH_SCALE:g}, {MAX_MAGNITUDE:g}]; convert the positions to sensible units"

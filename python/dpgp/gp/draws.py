@@ -29,8 +29,8 @@ state's conditional exactly.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -109,7 +109,9 @@ class Draws:
             "draw_length_scales": np.concatenate(self.length_scales) if d else np.zeros((0, 2)),
             "draw_alpha": np.asarray(self.alpha, dtype=np.float64),
             # NaN: a draw without its own noise (read from a file before the noise was sampled)
-            "draw_noise_var": np.array([(np.nan, np.nan) if v is None else v for v in self.noise_var], dtype=np.float64).reshape(d, 2),
+            "draw_noise_var": np.array(
+                [(np.nan, np.nan) if v is None else v for v in self.noise_var], dtype=np.float64
+            ).reshape(d, 2),
         }
 
     @classmethod

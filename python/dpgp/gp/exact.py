@@ -12,9 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _core
-from ._arrays import MAX_MAGNITUDE, as_float_array, as_pairs
-from .exceptions import InvalidInputError, ShapeError
+from .. import _core
+from .._arrays import MAX_MAGNITUDE, as_float_array, as_pairs
+from ..exceptions import InvalidInputError, ShapeError
 
 
 def _pair(name: str, value: object) -> tuple[float, float]:

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from .frames import Frames
+from ..data.frames import Frames
 
 DEFAULT_DT = 0.5  # the paper's time step, when the training frames do not say theirs
 

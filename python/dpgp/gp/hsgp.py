@@ -25,10 +25,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _core
-from ._arrays import as_pairs
-from .exceptions import InvalidInputError
-from .gp import GPParams, _pair
+from .. import _core
+from .._arrays import as_pairs
+from ..exceptions import InvalidInputError
+from .exact import GPParams, _pair
 
 #: Most basis functions (M x M matrices of 8-byte floats: 128 MiB each at the cap).
 MAX_BASIS = 4096
@@ -94,7 +94,9 @@ def log_marginal_likelihood(xy: object, v: object, params: GPParams, basis: Basi
     return _core.hsgp_log_marginal_likelihood(as_pairs("xy", xy), as_pairs("v", v), params.as_tuple(), basis.as_tuple())
 
 
-def log_predictive(train_xy: object, train_v: object, test_xy: object, test_v: object, params: GPParams, basis: Basis) -> float:
+def log_predictive(
+    train_xy: object, train_v: object, test_xy: object, test_v: object, params: GPParams, basis: Basis
+) -> float:
     """Joint log density of the test velocities given the training data, reduced-rank GP."""
     return _core.hsgp_log_predictive(
         as_pairs("train_xy", train_xy), as_pairs("train_v", train_v), as_pairs("test_xy", test_xy),
@@ -102,7 +104,9 @@ def log_predictive(train_xy: object, train_v: object, test_xy: object, test_v: o
     )  # fmt: skip
 
 
-def posterior(train_xy: object, train_v: object, query_xy: object, params: GPParams, basis: Basis) -> tuple[np.ndarray, np.ndarray]:
+def posterior(
+    train_xy: object, train_v: object, query_xy: object, params: GPParams, basis: Basis
+) -> tuple[np.ndarray, np.ndarray]:
     """Posterior mean and latent variance ``(m, 2)`` each at ``query_xy`` (outside the box: the
     mean and the prior variance ``signal_var``)."""
     return _core.hsgp_posterior(

@@ -38,8 +38,8 @@ from typing import Any
 
 import numpy as np
 
-from ._arrays import ALPHA_RANGE, MAX_MAGNITUDE, MIN_LENGTH_SCALE, alpha_in_range, as_path, is_path
-from .exceptions import InvalidInputError, ModelFileError
+from .._arrays import ALPHA_RANGE, MAX_MAGNITUDE, MIN_LENGTH_SCALE, alpha_in_range, as_path, is_path
+from ..exceptions import InvalidInputError, ModelFileError
 
 #: The metadata key and array names a checkpoint adds to a model file.
 META_KEY = "resume"
@@ -75,10 +75,18 @@ class ResumePoint:
     data_sha256: str
 
     def meta(self) -> dict[str, Any]:
-        return {"sweeps_done": self.sweeps_done, "alpha": self.alpha, "stable": self.stable, "data_sha256": self.data_sha256}
+        return {
+            "sweeps_done": self.sweeps_done,
+            "alpha": self.alpha,
+            "stable": self.stable,
+            "data_sha256": self.data_sha256,
+        }
 
     def arrays(self) -> dict[str, np.ndarray]:
-        return {LABELS: np.asarray(self.labels, dtype=np.int64), LENGTH_SCALES: np.asarray(self.length_scales, dtype=np.float64)}
+        return {
+            LABELS: np.asarray(self.labels, dtype=np.int64),
+            LENGTH_SCALES: np.asarray(self.length_scales, dtype=np.float64),
+        }
 
 
 def check_settings(checkpoint: Any, every: Any) -> None:
@@ -107,7 +115,7 @@ def remove_stale_temps(path: str) -> list[str]:
     checkpointing fit starts or resumes: nothing else writes this checkpoint)."""
     import glob
 
-    from .io import temp_prefix
+    from ._atomic import temp_prefix
 
     directory = os.path.dirname(os.path.abspath(path))
     stale = glob.glob(os.path.join(glob.escape(directory), glob.escape(temp_prefix(path)) + "*.tmp"))
@@ -130,11 +138,15 @@ def parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], frames: Any) -> R
     n_iter, history = meta.get("n_iter"), meta.get("history") or {}
     done, stable, alpha = r.get("sweeps_done"), r.get("stable"), r.get("alpha")
     if not (_count(n_iter) and _count(done) and done <= n_iter):
-        raise ModelFileError(f"the checkpoint's sweeps_done {done!r} and n_iter {n_iter!r} are not counts with sweeps_done <= n_iter")
+        raise ModelFileError(
+            f"the checkpoint's sweeps_done {done!r} and n_iter {n_iter!r} are not counts with sweeps_done <= n_iter"
+        )
     if not (_count(stable) and stable <= done):
         raise ModelFileError(f"the checkpoint's stopping-rule counter {stable!r} is not a count <= sweeps_done")
     if not alpha_in_range(alpha):
-        raise ModelFileError(f"the checkpoint's alpha {alpha!r} is not a number in [{ALPHA_RANGE[0]:g}, {ALPHA_RANGE[1]:g}]")
+        raise ModelFileError(
+            f"the checkpoint's alpha {alpha!r} is not a number in [{ALPHA_RANGE[0]:g}, {ALPHA_RANGE[1]:g}]"
+        )
     lengths = {k: len(v) for k, v in history.items()} if isinstance(history, dict) else {}
     if sorted(lengths) != sorted(HISTORY_KEYS) or any(n != n_iter for n in lengths.values()):
         raise ModelFileError(f"the checkpoint's history needs {HISTORY_KEYS} with {n_iter} entries each, has {lengths}")
@@ -146,7 +158,11 @@ def parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], frames: Any) -> R
     if trace is not None and (trace.ndim != 2 or len(trace) != n_iter):
         raise ModelFileError(f"the checkpoint's label_trace has shape {trace.shape} for {n_iter} sweeps")
     labels, ls = _resume_arrays(arrays, len(frames))
-    same = alpha == meta.get("alpha") and np.array_equal(labels, arrays["labels"]) and np.array_equal(ls, arrays["length_scales"])
+    same = (
+        alpha == meta.get("alpha")
+        and np.array_equal(labels, arrays["labels"])
+        and np.array_equal(ls, arrays["length_scales"])
+    )
     if done == n_iter and not same:
         raise ModelFileError("the checkpoint's resume point is at the model's sweep but holds another state")
     if r.get("data_sha256") != fingerprint(frames):
@@ -165,13 +181,23 @@ def _resume_arrays(arrays: dict[str, np.ndarray], n_frames: int) -> tuple[np.nda
     if LABELS not in arrays or LENGTH_SCALES not in arrays:
         raise ModelFileError(f"the checkpoint lacks {LABELS!r} or {LENGTH_SCALES!r}")
     labels, ls = arrays[LABELS], arrays[LENGTH_SCALES]
-    if labels.dtype.kind not in "iu" or ls.dtype.kind != "f" or labels.shape != (n_frames,) or ls.ndim != 2 or ls.shape[1:] != (2,):
-        raise ModelFileError(f"the checkpoint's resume labels {labels.shape} and length scales {ls.shape} do not fit {n_frames} frames")
+    if (
+        labels.dtype.kind not in "iu"
+        or ls.dtype.kind != "f"
+        or labels.shape != (n_frames,)
+        or ls.ndim != 2
+        or ls.shape[1:] != (2,)
+    ):
+        raise ModelFileError(
+            f"the checkpoint's resume labels {labels.shape} and length scales {ls.shape} do not fit {n_frames} frames"
+        )
     labels, ls = labels.astype(np.int64), ls.astype(np.float64)
     if len(labels) and (labels.min() < 0 or labels.max() >= len(ls) or len(np.unique(labels)) != len(ls)):
         raise ModelFileError("the checkpoint's resume labels do not name exactly its resume patterns")
     if not ((ls >= MIN_LENGTH_SCALE).all() and (ls <= MAX_MAGNITUDE).all()):
-        raise ModelFileError(f"the checkpoint's resume length scales must lie in [{MIN_LENGTH_SCALE:g}, {MAX_MAGNITUDE:g}]")
+        raise ModelFileError(
+            f"the checkpoint's resume length scales must lie in [{MIN_LENGTH_SCALE:g}, {MAX_MAGNITUDE:g}]"
+        )
     return labels, ls
 
 

@@ -55,23 +55,21 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 import tokenize
 import zipfile
 import zlib
-from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass, field, fields
+from typing import Any
 
 import numpy as np
 
-from ._arrays import MAX_MAGNITUDE as _MAX_MAGNITUDE
-from ._arrays import ALPHA_RANGE, MIN_LENGTH_SCALE, alpha_in_range, as_path
+from .._arrays import ALPHA_RANGE, MIN_LENGTH_SCALE, alpha_in_range, as_path
+from .._arrays import MAX_MAGNITUDE as _MAX_MAGNITUDE
+from .._version import __version__
+from ..exceptions import DpgpError, ModelFileError
+from ._atomic import write_atomic
 from .checkpoint import META_KEY as RESUME_KEY
 from .checkpoint import parse as parse_resume
-from .exceptions import DpgpError, ModelFileError
-
-if TYPE_CHECKING:
-    from .model import DPGP
 
 FORMAT = "dpgp-model"
 FORMAT_VERSION = 2  # 2: "resolved" (what the "auto" settings and the preset resolved to)
@@ -99,45 +97,69 @@ def _ids_array(ids: np.ndarray) -> np.ndarray:
     return ids.astype(str) if ids.dtype.kind == "O" else ids
 
 
-def save(model: DPGP, path: str | os.PathLike, resume: Any = None, compress: bool = True) -> None:
-    """Write ``model`` to ``path`` atomically: a temporary file beside it, then ``os.replace``,
-    so an interrupted or failed save leaves any previous file intact. ``resume`` (a
-    :class:`dpgp.checkpoint.ResumePoint`) makes the file a checkpoint; ``compress=False`` stores
-    the members uncompressed (still CRC-checked), which writes about ten times faster."""
-    model._check_fitted()
-    from . import __version__
-    from .motion import motion_model
-    from .scenarios import distributions
+@dataclass(frozen=True, eq=False)
+class ModelState:
+    """What a model file stores of a fitted estimator, as plain values: the estimator builds it
+    (``DPGP._file_state``) so that this package never imports the estimator."""
 
-    frames = model.frames_
+    settings: dict[str, Any]
+    params: Any  # dpgp.gp.GPParams
+    alpha: float
+    n_patterns: int
+    frames: Any  # dpgp.data.frames.Frames
+    labels: np.ndarray
+    length_scales: np.ndarray
+    pattern_ids: np.ndarray
+    distributions: dict[str, Any]
+    motion: dict[str, Any]
+    resolved: dict[str, Any]
+    engine: dict[str, Any]
+    history: dict[str, Any]
+    n_iter: int | None = None
+    converged: bool | None = None
+    init_seconds: float | None = None
+    timings: dict[str, Any] = field(default_factory=dict)
+    log_joint: float | None = None
+    chain_summary: dict[str, Any] | None = None
+    label_trace: np.ndarray | None = None
+    draws: Any = None  # dpgp.gp.draws.Draws
+
+
+def save(state: ModelState, path: str | os.PathLike, resume: Any = None, compress: bool = True) -> None:
+    """Write a fitted model's ``state`` to ``path`` atomically: a temporary file beside it, then
+    ``os.replace``, so an interrupted or failed save leaves any previous file intact. ``resume``
+    (a :class:`dpgp.io.checkpoint.ResumePoint`) makes the file a checkpoint; ``compress=False``
+    stores the members uncompressed (still CRC-checked), which writes about ten times faster."""
+    frames = state.frames
     summary = getattr(frames, "summary", None)
+    params = state.params
     meta = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
         "dpgp_version": __version__,
-        "settings": model.get_params(),
+        "settings": state.settings,
         "params": {
-            "length_scales": model.params_.length_scales,
-            "signal_var": model.params_.signal_var,
-            "noise_var": model.params_.noise_var,
-            "mean": model.params_.mean,
+            "length_scales": params.length_scales,
+            "signal_var": params.signal_var,
+            "noise_var": params.noise_var,
+            "mean": params.mean,
         },
-        "alpha": model.alpha_,
-        "n_patterns": model.n_patterns_,
-        "history": getattr(model, "history_", {}),
-        "n_iter": getattr(model, "n_iter_", None),
-        "converged": getattr(model, "converged_", None),
-        "init_seconds": getattr(model, "init_seconds_", None),
-        "timings": getattr(model, "timings_", {}),
-        "log_joint": getattr(model, "log_joint_", None),
+        "alpha": state.alpha,
+        "n_patterns": state.n_patterns,
+        "history": state.history,
+        "n_iter": state.n_iter,
+        "converged": state.converged,
+        "init_seconds": state.init_seconds,
+        "timings": state.timings,
+        "log_joint": state.log_joint,
         "frames_summary": None if summary is None else summary.to_dict(),
-        "distributions": distributions(model).to_dict(),
-        "motion": motion_model(model._fitted()).to_dict(),  # what generation learns from the tracks
-        "resolved": _resolved_dict(model),
-        "engine": _engine_dict(model),
+        "distributions": state.distributions,
+        "motion": state.motion,  # what generation learns from the tracks
+        "resolved": state.resolved,
+        "engine": state.engine,
     }
-    if getattr(model, "chain_summary_", None) is not None:
-        meta["chain_summary"] = model.chain_summary_  # a model summarising chains (dpgp.fit_chains)
+    if state.chain_summary is not None:
+        meta["chain_summary"] = state.chain_summary  # a model summarising chains (dpgp.fit_chains)
     if resume is not None:
         meta[RESUME_KEY] = resume.meta()  # a checkpoint
     arrays: dict[str, np.ndarray] = {
@@ -146,84 +168,21 @@ def save(model: DPGP, path: str | os.PathLike, resume: Any = None, compress: boo
         "frame_offsets": np.asarray(frames.offsets, dtype=np.int64),
         "frame_xy": frames.xy,
         "frame_v": frames.v,
-        "labels": np.asarray(model.labels_, dtype=np.int64),
-        "length_scales": np.asarray(model.length_scales_, dtype=np.float64),
-        "pattern_ids": np.asarray(model.pattern_ids_, dtype=np.uint64),
+        "labels": np.asarray(state.labels, dtype=np.int64),
+        "length_scales": np.asarray(state.length_scales, dtype=np.float64),
+        "pattern_ids": np.asarray(state.pattern_ids, dtype=np.uint64),
     }
     if frames.labels is not None:
         arrays["frame_labels"] = _ids_array(frames.labels)
     if frames.tracks is not None:  # what generation learns motion from (issue 15)
         arrays["frame_tracks"] = np.asarray(frames.tracks, dtype=np.int64)
-    if getattr(model, "label_trace_", None) is not None:
-        arrays["label_trace"] = np.asarray(model.label_trace_, dtype=np.int64)
-    if getattr(model, "draws_", None) is not None:
-        arrays.update(model.draws_.arrays())
+    if state.label_trace is not None:
+        arrays["label_trace"] = np.asarray(state.label_trace, dtype=np.int64)
+    if state.draws is not None:
+        arrays.update(state.draws.arrays())
     if resume is not None:
         arrays.update(resume.arrays())
-    path = as_path(path)
-    if os.path.isdir(path):
-        raise IsADirectoryError(21, "a model file cannot replace a directory; give a file path", path)
-    directory = os.path.dirname(os.path.abspath(path))
-    _check_renames_allowed(directory, path)
-    fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path), suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            (np.savez_compressed if compress else np.savez)(fh, **arrays)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, _file_mode(path))
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-
-
-#: Linux inode flags (``chattr``): in an append-only or immutable directory a file can be
-#: created (append-only) but neither renamed nor removed, so a temporary file could never go.
-_FS_IOC_GETFLAGS, _FS_IMMUTABLE_FL, _FS_APPEND_FL = 0x80086601, 0x10, 0x20
-
-
-def _check_renames_allowed(directory: str, path: str) -> None:
-    """Refuse, before a temporary file exists, a directory where it could be neither renamed
-    into place nor removed (``chattr +a`` / ``+i``): ``PermissionError`` naming it."""
-    try:
-        import fcntl
-        import struct
-
-        fd = os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
-    except (ImportError, OSError):
-        return  # not Linux, or a directory we cannot open: mkstemp says what is wrong
-    try:
-        flags = struct.unpack("l", fcntl.ioctl(fd, _FS_IOC_GETFLAGS, b"\0" * 8))[0]
-    except OSError:
-        return  # a file system without inode flags
-    finally:
-        os.close(fd)
-    if flags & (_FS_IMMUTABLE_FL | _FS_APPEND_FL):
-        kind = "immutable" if flags & _FS_IMMUTABLE_FL else "append-only"
-        raise PermissionError(
-            13, f"cannot write {path} atomically: its directory {directory} is {kind} (chattr), so a temporary file "
-            "could be neither renamed into place nor removed; write elsewhere or clear the flag", path
-        )
-
-
-def temp_prefix(path: str) -> str:
-    """The prefix of ``save``'s temporary files for ``path``: named after it, so that the
-    leftover of a writer killed mid-save (SIGKILL runs no cleanup) can be found and removed."""
-    return f".dpgp-{os.path.basename(path)[:64]}-"
-
-
-def _file_mode(path: str) -> int:
-    """The mode a plain ``open(path, "w")`` would give (mkstemp's is 0600), or the old file's."""
-    try:
-        return os.stat(path).st_mode & 0o777
-    except OSError:
-        umask = os.umask(0)
-        os.umask(umask)
-        return 0o666 & ~umask
+    write_atomic(as_path(path), lambda fh: (np.savez_compressed if compress else np.savez)(fh, **arrays))
 
 
 def _read(path: str) -> dict[str, np.ndarray]:
@@ -268,7 +227,9 @@ def _check_declared_sizes(path: str, archive: zipfile.ZipFile) -> None:
                 read_header = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
                 shape, _, dtype = read_header(fh, max_header_size=10_000)
             except (ValueError, SyntaxError, TypeError, tokenize.TokenError) as e:  # numpy parses it as Python
-                raise ModelFileError(f"{path}: member {info.filename} has an unreadable header ({e}); the file is corrupted") from None
+                raise ModelFileError(
+                    f"{path}: member {info.filename} has an unreadable header ({e}); the file is corrupted"
+                ) from None
         # Python ints: no overflow. An item of zero bytes ('V0', 'U0') still counts one: else a
         # member of 1e11 empty items reads as nothing and its conversion allocates 745 GiB.
         need = int(np.prod(shape, dtype=object)) * max(dtype.itemsize, 1)
@@ -288,7 +249,9 @@ def _meta(path: str, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
     except (json.JSONDecodeError, RecursionError) as e:
         raise ModelFileError(f"{path}: the metadata is not valid JSON ({e})") from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise ModelFileError(f"{path} is not a dpgp model file (format {meta.get('format') if isinstance(meta, dict) else None!r})")
+        raise ModelFileError(
+            f"{path} is not a dpgp model file (format {meta.get('format') if isinstance(meta, dict) else None!r})"
+        )
     version = meta.get("format_version")
     if not isinstance(version, int) or version < 1:
         raise ModelFileError(f"{path}: invalid format_version {version!r}")
@@ -351,29 +314,24 @@ def parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str = "mode
         raise ModelFileError(f"{path}: inconsistent model file ({type(e).__name__}: {e})") from None
 
 
-def load(cls: type[DPGP], path: str | os.PathLike) -> DPGP:
-    """``cls.load(path)``: kept for callers of the earlier function."""
-    return cls.load(path)
-
-
-def _build(cls: type[DPGP], meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> DPGP:
-    """An estimator from a model file's metadata and arrays (used by :mod:`dpgp.chains`)."""
-    return cls._from_file(parse(meta, arrays))
-
-
 def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> ModelFile:
-    from .distributions import EmpiricalDistributions
-    from .motion import MotionModel
-    from .frames import Frames
-    from .framing import FramingSummary
-    from .gp import GPParams, check_scales
-    from .posterior import Draws
+    from ..data.frames import Frames
+    from ..data.framing import FramingSummary
+    from ..generate.distributions import EmpiricalDistributions
+    from ..generate.motion import MotionModel
+    from ..gp.draws import Draws
+    from ..gp.exact import GPParams, check_scales
 
     settings = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["settings"].items()}
     _check_counts(arrays)
     labels_file = arrays.get("frame_labels")
     frames = Frames(
-        arrays["frame_ids"], arrays["frame_offsets"], arrays["frame_xy"], arrays["frame_v"], labels_file, arrays.get("frame_tracks")
+        arrays["frame_ids"],
+        arrays["frame_offsets"],
+        arrays["frame_xy"],
+        arrays["frame_v"],
+        labels_file,
+        arrays.get("frame_tracks"),
     )
     if meta.get("frames_summary") is not None:
         known = {f.name for f in fields(FramingSummary)}  # a newer writer's extra keys are ignored
@@ -394,7 +352,9 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
     try:
         check_scales(frames.v, params, "frame_v")
     except DpgpError as e:
-        raise ModelFileError(f"the model's numbers are beyond what a fit accepts ({e}); the file is corrupted") from None
+        raise ModelFileError(
+            f"the model's numbers are beyond what a fit accepts ({e}); the file is corrupted"
+        ) from None
     likelihood, basis = _engine(meta)
     history = {k: list(v) for k, v in meta.get("history", {}).items()}
     for key, values in history.items():
@@ -431,7 +391,9 @@ def _check_counts(arrays: dict[str, np.ndarray]) -> None:
     take no bytes (a declared shape of 1e11 empty items converts to 745 GiB of int64)."""
     for name, a in arrays.items():
         if not isinstance(a, np.ndarray) or a.dtype.kind not in "biufU" or (a.size and a.dtype.itemsize == 0):
-            raise ModelFileError(f"member {name!r} holds {getattr(a, 'dtype', type(a).__name__)} items, not numbers or text")
+            raise ModelFileError(
+                f"member {name!r} holds {getattr(a, 'dtype', type(a).__name__)} items, not numbers or text"
+            )
     n_rows = arrays["frame_xy"].size // 2 if "frame_xy" in arrays else 0
     for name in ("frame_ids", "frame_offsets", "labels", "frame_labels", "resume_labels"):
         if name in arrays and arrays[name].size > n_rows + 1:
@@ -454,37 +416,19 @@ def _check_numbers(frames: Any, length_scales: np.ndarray, alpha: Any) -> None:
             )
     # Squared length scales must stay normal floats; a fit never comes near these bounds.
     if not ((length_scales >= MIN_LENGTH_SCALE).all() and (length_scales <= _MAX_MAGNITUDE).all()):
-        raise ModelFileError(f"length_scales must lie in [{MIN_LENGTH_SCALE:g}, {_MAX_MAGNITUDE:g}]; the file is corrupted")
+        raise ModelFileError(
+            f"length_scales must lie in [{MIN_LENGTH_SCALE:g}, {_MAX_MAGNITUDE:g}]; the file is corrupted"
+        )
     if not alpha_in_range(alpha):
-        raise ModelFileError(f"alpha must be a number in [{ALPHA_RANGE[0]:g}, {ALPHA_RANGE[1]:g}], got {alpha!r}; the file is corrupted")
-
-
-def _resolved_dict(model: DPGP) -> dict[str, Any]:
-    r = getattr(model, "defaults_", None)
-    if r is not None:
-        return r.to_dict()
-    return {  # a model assembled without fit (for example from chains) still has the values
-        "assignment": model.assignment_, "noise_var": [float(x) for x in model.noise_var_],
-        "length_scale_prior": list(model.length_scale_prior_), "noise_var_source": "user",
-        "length_scale_prior_source": "user",
-    }  # fmt: skip
-
-
-def _engine_dict(model: DPGP) -> dict[str, Any]:
-    """The likelihood that ran, its basis and the memory budget."""
-    basis = getattr(model, "basis_", None)
-    return {
-        "likelihood": getattr(model, "likelihood_", "exact"),
-        "basis": None if basis is None else basis.to_dict(),
-        "memory_budget": getattr(model, "memory_budget_", None),
-        "choice": getattr(model, "engine_choice_", None),  # likelihood="auto"'s decision (dpgp.engine_cost)
-    }
+        raise ModelFileError(
+            f"alpha must be a number in [{ALPHA_RANGE[0]:g}, {ALPHA_RANGE[1]:g}], got {alpha!r}; the file is corrupted"
+        )
 
 
 def _engine(meta: dict[str, Any]) -> tuple[str, Any]:
     """The likelihood that ran and its basis (files written before reduced-rank fits existed ran
     the exact likelihood). The memory budget is the loading machine's: the estimator sets it."""
-    from .hsgp import Basis
+    from ..gp.hsgp import Basis
 
     e = meta.get("engine") or {"likelihood": "exact", "basis": None, "memory_budget": None}
     if e.get("likelihood") not in ("exact", "hsgp") or (e["likelihood"] == "hsgp") != (e.get("basis") is not None):
@@ -495,7 +439,7 @@ def _engine(meta: dict[str, Any]) -> tuple[str, Any]:
 def _resolved(meta: dict[str, Any]) -> Any:
     """The assignment, σ_n² and length-scale prior the fit resolved (never re-estimated: the
     saved model is what was fitted)."""
-    from .defaults import Resolved, _gamma, _positive_pair
+    from ..gp.defaults import Resolved, _gamma, _positive_pair
 
     r = meta.get("resolved")
     if r is None:  # version 1: the settings were the values
@@ -512,4 +456,4 @@ def _resolved(meta: dict[str, Any]) -> Any:
     })  # fmt: skip
 
 
-__all__ = ["save", "load", "read_model_file", "parse", "ModelFile", "read_metadata", "FORMAT", "FORMAT_VERSION"]
+__all__ = ["save", "ModelState", "read_model_file", "parse", "ModelFile", "read_metadata", "FORMAT", "FORMAT_VERSION"]

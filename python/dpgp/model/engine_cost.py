@@ -80,7 +80,9 @@ def features(engine: str, pattern_points: object, frame_sizes: object, basis_siz
             raise ValueError("the hsgp cost needs the basis size M")
         m = float(basis_size)
         s = np.minimum(n, m)
-        return np.array([m * frames_sq, float((n * s**2).sum()), float((s**3).sum()), m * float((n[n <= m] ** 2).sum())])
+        return np.array(
+            [m * frames_sq, float((n * s**2).sum()), float((s**3).sum()), m * float((n[n <= m] ** 2).sum())]
+        )
     raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
 
 
@@ -144,4 +146,13 @@ def pattern_points(labels: np.ndarray, frame_sizes: np.ndarray) -> np.ndarray:
     return np.bincount(labels, weights=np.asarray(frame_sizes, dtype=np.float64)) if len(labels) else np.zeros(0)
 
 
-__all__ = ["COEFFICIENTS", "Choice", "choose", "choose_upfront", "exact_bytes", "features", "pattern_points", "sweep_seconds"]
+__all__ = [
+    "COEFFICIENTS",
+    "Choice",
+    "choose",
+    "choose_upfront",
+    "exact_bytes",
+    "features",
+    "pattern_points",
+    "sweep_seconds",
+]

@@ -8,23 +8,26 @@ import dataclasses
 import os
 import time
 import warnings
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from . import _core
-from . import checkpoint as ckpt
-from ._arrays import ALPHA_RANGE, alpha_in_range
-from ._arrays import MAX_MAGNITUDE as _MAX_MAGNITUDE
-from ._resources import check_thread_reservations, default_memory_budget, parse_bytes
-from .exceptions import DpgpError, InvalidInputError, MemoryBudgetError, ModelFileError, NotFittedError, ShapeError
-from .fitted import FittedPatterns
-from .frames import Frames, read_frames
-from .gp import GPParams, _pair, check_scales
-from .defaults import NOISE_PRIOR
-from .hsgp import _basis_counts, basis_for
-from .metrics import adjusted_rand_index, canonical_labels
-from .posterior import MAX_DRAWS, Draws
+from .. import _core
+from .._arrays import ALPHA_RANGE, alpha_in_range
+from .._arrays import MAX_MAGNITUDE as _MAX_MAGNITUDE
+from .._resources import check_thread_reservations, default_memory_budget, parse_bytes
+from ..data.frames import Frames, read_frames
+from ..evaluate.metrics import adjusted_rand_index, canonical_labels
+from ..exceptions import DpgpError, InvalidInputError, MemoryBudgetError, ModelFileError, NotFittedError, ShapeError
+from ..gp.defaults import NOISE_PRIOR
+from ..gp.draws import MAX_DRAWS, Draws
+from ..gp.exact import GPParams, _pair, check_scales
+from ..gp.fitted import FittedPatterns
+from ..gp.hsgp import _basis_counts, basis_for
+from ..io import checkpoint as ckpt
+
+if TYPE_CHECKING:
+    from ..io.modelfile import ModelState
 
 _ASSIGNMENTS = ("gibbs", "map")
 _LIKELIHOODS = ("auto", "exact", "hsgp")
@@ -177,7 +180,9 @@ class DPGP:
     def get_params(self, deep: bool = True) -> dict[str, Any]:
         import inspect
 
-        return {name: getattr(self, name) for name in inspect.signature(type(self).__init__).parameters if name != "self"}
+        return {
+            name: getattr(self, name) for name in inspect.signature(type(self).__init__).parameters if name != "self"
+        }
 
     def set_params(self, **params: Any) -> DPGP:
         valid = self.get_params()
@@ -201,7 +206,7 @@ class DPGP:
     def _resolve_defaults(self, frames: Frames) -> None:
         """Resolve the ``"auto"`` settings and the preset against the training frames
         (:mod:`dpgp.defaults`) into ``assignment_``, ``noise_var_``, ``length_scale_prior_``."""
-        from .defaults import resolve
+        from ..gp.defaults import resolve
 
         r = resolve(
             frames, preset=self.preset, assignment=self.assignment, noise_var=self.noise_var,
@@ -213,10 +218,12 @@ class DPGP:
         self.length_scale_prior_ = r.length_scale_prior
         self.defaults_ = r
 
-    def _pilot_fit(self, train: Frames, test: Frames, noise_var: tuple[float, float], length_scale_prior: tuple[float, float]) -> float:
+    def _pilot_fit(
+        self, train: Frames, test: Frames, noise_var: tuple[float, float], length_scale_prior: tuple[float, float]
+    ) -> float:
         """Held-out log density of ``test`` under a short map fit to ``train`` with these
         settings: the pilot of ``noise_var="auto"``."""
-        from .defaults import PILOT_SWEEPS
+        from ..gp.defaults import PILOT_SWEEPS
 
         # proposal "full": the exact argmax, unit-free whatever the main fit's proposal
         # Pilots are small: with likelihood="auto" they keep the previous rule (exact up to 3,000
@@ -244,11 +251,17 @@ class DPGP:
         if not (isinstance(self.iterations, (int, np.integer)) and self.iterations >= 0):
             raise InvalidInputError(f"iterations must be a non-negative integer, got {self.iterations!r}")
         if not (isinstance(self.new_pattern_samples, (int, np.integer)) and 1 <= self.new_pattern_samples <= 100_000):
-            raise InvalidInputError(f"new_pattern_samples must be an integer in [1, 100000], got {self.new_pattern_samples!r}")
-        if self.n_threads is not None and not (isinstance(self.n_threads, (int, np.integer)) and 1 <= self.n_threads <= 1024):
+            raise InvalidInputError(
+                f"new_pattern_samples must be an integer in [1, 100000], got {self.new_pattern_samples!r}"
+            )
+        if self.n_threads is not None and not (
+            isinstance(self.n_threads, (int, np.integer)) and 1 <= self.n_threads <= 1024
+        ):
             raise InvalidInputError(f"n_threads must be None or an integer in [1, 1024], got {self.n_threads!r}")
         if self.n_iter_no_change is not None and not (_is_int(self.n_iter_no_change) and self.n_iter_no_change >= 1):
-            raise InvalidInputError(f"n_iter_no_change must be a positive integer or None, got {self.n_iter_no_change!r}")
+            raise InvalidInputError(
+                f"n_iter_no_change must be a positive integer or None, got {self.n_iter_no_change!r}"
+            )
         if not _is_int(self.seed):
             raise InvalidInputError(f"seed must be an integer, got {self.seed!r}")
         f = self.length_scale_fraction
@@ -267,7 +280,9 @@ class DPGP:
             raise InvalidInputError(f"posterior_draws must be an integer in [0, 100000], got {self.posterior_draws!r}")
         _split_merge_moves(self.split_merge)
         if self.split_merge_pairs not in ("uniform", "informed"):
-            raise InvalidInputError(f"split_merge_pairs must be 'uniform' or 'informed', got {self.split_merge_pairs!r}")
+            raise InvalidInputError(
+                f"split_merge_pairs must be 'uniform' or 'informed', got {self.split_merge_pairs!r}"
+            )
 
     def fit(self, frames: Frames | Any, y: None = None) -> DPGP:
         """Fit the mixture to training frames (a :class:`~dpgp.Frames` or a framed DataFrame)."""
@@ -356,7 +371,9 @@ class DPGP:
                 raise
             # Mid-sweep: the checkpoint keeps the last complete state, this model the state reached.
             interrupted = True
-            warnings.warn(f"fit interrupted after {self.n_iter_} sweeps; the model keeps the state reached", stacklevel=3)
+            warnings.warn(
+                f"fit interrupted after {self.n_iter_} sweeps; the model keeps the state reached", stacklevel=3
+            )
         except MemoryBudgetError:
             # Nothing was allocated: keep the state reached, as Ctrl-C does, then say why.
             if bar is not None:
@@ -378,7 +395,7 @@ class DPGP:
 
     def _keep_draw(self) -> None:
         """Keep the state after this sweep if the thinning asks for it (:mod:`dpgp.posterior`)."""
-        from .posterior import state_of
+        from ..gp.draws import state_of
 
         draws = self.__dict__.setdefault("draws_", Draws(len(self.frames_)))
         draws.record(self.n_iter_, lambda: state_of(self._sampler), int(self.posterior_draws))
@@ -404,12 +421,12 @@ class DPGP:
         return np.asarray(self._sampler.labels())
 
     def _write_checkpoint(self, traces: list[np.ndarray]) -> None:
-        from .io import save
+        from ..io.modelfile import save
 
         if self.store_labels:
             self.label_trace_ = _trace_array(traces, len(self.frames_))
         # Uncompressed: zlib would be most of a checkpoint's cost (the file is read once, if at all).
-        save(self, self.checkpoint, resume=self._resume_point, compress=False)
+        save(self._file_state(), self.checkpoint, resume=self._resume_point, compress=False)
 
     def _resolve_engine(self, frames: Frames) -> None:
         """Choose the likelihood (``likelihood_``), its basis (``basis_``) and the memory budget
@@ -534,13 +551,16 @@ class DPGP:
     def _averaged(self, frames: Frames | Any) -> tuple[np.ndarray, np.ndarray]:
         """Posterior-averaged log density (positions left out) and pattern probabilities of
         ``frames`` over the kept draws after burn-in and the final state (:mod:`dpgp.posterior`)."""
-        from .posterior import averaged, used
+        from ..gp.draws import averaged, used
 
         frames = _as_frames(frames)
         terms = self._log_joint_terms(frames)
         draws = getattr(self, "draws_", None)
         own = (float(self.noise_var_[0]), float(self.noise_var_[1]))  # for draws from files without their noise
-        states = [(draws.labels[i], draws.length_scales[i], draws.alpha[i], draws.noise_var[i] or own) for i in used(draws, self.n_iter_)]
+        states = [
+            (draws.labels[i], draws.length_scales[i], draws.alpha[i], draws.noise_var[i] or own)
+            for i in used(draws, self.n_iter_)
+        ]
         return averaged(terms, self.labels_, states, lambda: self._new_sampler(self.frames_), frames)
 
     def predict_proba(self, frames: Frames | Any, average: bool = False) -> np.ndarray:
@@ -574,7 +594,7 @@ class DPGP:
             m = t.max(axis=1, keepdims=True)
             out = (m + np.log(np.exp(t - m).sum(axis=1, keepdims=True)))[:, 0]
         if positions:
-            from .scenarios import distributions
+            from ..generate.scenarios import distributions
 
             d = distributions(self._fitted())
             out = out + np.array([d.log_frame_density(f.xy) for f in frames])
@@ -583,10 +603,12 @@ class DPGP:
     def velocity_field(self, k: int, xy: object) -> tuple[np.ndarray, np.ndarray]:
         """Posterior mean and variance (each (n, 2)) of pattern ``k``'s velocity field at ``xy``."""
         self._check_fitted()
-        from ._arrays import as_pairs
+        from .._arrays import as_pairs
 
         if not (_is_int(k) and 0 <= k < self.n_patterns_):
-            raise InvalidInputError(f"pattern {k!r} does not exist; the model has {self.n_patterns_} (0..{self.n_patterns_ - 1})")
+            raise InvalidInputError(
+                f"pattern {k!r} does not exist; the model has {self.n_patterns_} (0..{self.n_patterns_ - 1})"
+            )
         return self._sampler.posterior(int(self._slots[k]), as_pairs("xy", xy))
 
     def conditional_log_probs(self, i: int) -> np.ndarray:
@@ -626,9 +648,11 @@ class DPGP:
         paper's rollout (the mean field itself; ``method="rk4"`` needs it, and ``None``, the
         default, means ``"interactive"``, or ``"field"`` with ``method="rk4"``).
         Returns a :class:`dpgp.simulation.Simulation`."""
-        from .simulation import simulate
+        from ..generate.simulation import simulate
 
-        return simulate(self._fitted(), frame, pattern, steps, dt, method, stochastic, seed, roi, low_data_threshold, dynamics)
+        return simulate(
+            self._fitted(), frame, pattern, steps, dt, method, stochastic, seed, roi, low_data_threshold, dynamics
+        )
 
     def sample_scenarios(
         self, n: int, steps: int = 100, pattern: int | None = None, seed: int | None = None, **options: Any
@@ -640,21 +664,62 @@ class DPGP:
         ``stochastic``, ``roi``, ``low_data_threshold``, ``dynamics`` (``"field"``: the earlier
         generator — counts from φ, independent positions, the paper's rollout). Returns :class:`dpgp.scenarios.Scenarios`
         (``to_pandas``, ``to_csv``, ``to_sumo``)."""
-        from .scenarios import sample_scenarios
+        from ..generate.scenarios import sample_scenarios
 
         return sample_scenarios(self._fitted(), n, steps, pattern, seed, **options)
 
     def save(self, path: Any) -> None:
         """Write the fitted model to ``path`` (a versioned ``.npz``, no pickle; see :mod:`dpgp.io`)."""
-        from .io import save
+        from ..io.modelfile import save
 
-        save(self, path)
+        self._check_fitted()
+        save(self._file_state(), path)
+
+    def _file_state(self) -> ModelState:
+        """What a model file stores of this fitted model, as plain values (:mod:`dpgp.io` takes
+        nothing else from the estimator)."""
+        from ..generate.motion import motion_model
+        from ..generate.scenarios import distributions
+        from ..io.modelfile import ModelState
+
+        return ModelState(
+            settings=self.get_params(), params=self.params_, alpha=self.alpha_, n_patterns=self.n_patterns_,
+            frames=self.frames_, labels=self.labels_, length_scales=self.length_scales_,
+            pattern_ids=self.pattern_ids_, distributions=distributions(self).to_dict(),
+            motion=motion_model(self._fitted()).to_dict(), resolved=self._resolved_dict(),
+            engine=self._engine_dict(), history=getattr(self, "history_", {}), n_iter=getattr(self, "n_iter_", None),
+            converged=getattr(self, "converged_", None), init_seconds=getattr(self, "init_seconds_", None),
+            timings=getattr(self, "timings_", {}), log_joint=getattr(self, "log_joint_", None),
+            chain_summary=getattr(self, "chain_summary_", None), label_trace=getattr(self, "label_trace_", None),
+            draws=getattr(self, "draws_", None),
+        )  # fmt: skip
+
+    def _resolved_dict(self) -> dict[str, Any]:
+        """What the "auto" settings and the preset resolved to, as a model file stores it."""
+        r = getattr(self, "defaults_", None)
+        if r is not None:
+            return r.to_dict()
+        return {  # a model assembled without fit (for example from chains) still has the values
+            "assignment": self.assignment_, "noise_var": [float(x) for x in self.noise_var_],
+            "length_scale_prior": list(self.length_scale_prior_), "noise_var_source": "user",
+            "length_scale_prior_source": "user",
+        }  # fmt: skip
+
+    def _engine_dict(self) -> dict[str, Any]:
+        """The likelihood that ran, its basis and the memory budget."""
+        basis = getattr(self, "basis_", None)
+        return {
+            "likelihood": getattr(self, "likelihood_", "exact"),
+            "basis": None if basis is None else basis.to_dict(),
+            "memory_budget": getattr(self, "memory_budget_", None),
+            "choice": getattr(self, "engine_choice_", None),  # likelihood="auto"'s decision (dpgp.model.engine_cost)
+        }
 
     @classmethod
     def load(cls, path: Any) -> DPGP:
         """Read a model written by :meth:`save`; :class:`~dpgp.ModelFileError` if the file is
         truncated, corrupted, not a model file or from a newer dpgp."""
-        from .io import read_model_file
+        from ..io.modelfile import read_model_file
 
         return cls._checked_from_file(read_model_file(path))
 
@@ -671,7 +736,7 @@ class DPGP:
         the fit did). ``resumed_from_`` is the sweep the chain continued from.
         :class:`~dpgp.ModelFileError` if ``path`` is not a checkpoint, is damaged, or its data do not
         match the fingerprint it was written with."""
-        from .io import read_model_file
+        from ..io.modelfile import read_model_file
 
         file = read_model_file(path)
         if file.resume is None:
@@ -725,7 +790,9 @@ class DPGP:
         model._sampler.set_state(file.labels, file.length_scales, file.alpha)
         model._sync()
         if not np.array_equal(model.labels_, file.labels):
-            raise ModelFileError("the patterns are not stored in decreasing order of size; the file was not written by dpgp")
+            raise ModelFileError(
+                "the patterns are not stored in decreasing order of size; the file was not written by dpgp"
+            )
         for name, value in file.state.items():
             if name != "timings_" or value:
                 setattr(model, name, value)
@@ -753,7 +820,7 @@ class DPGP:
         model's density is the posterior predictive over the kept draws
         (``score_samples(average=True)``). Returns :class:`dpgp.evaluate.Evaluation`
         (``.table``, ``.plot()``)."""
-        from .evaluate import evaluate
+        from ..evaluate.scores import evaluate
 
         return evaluate(self, _as_frames(test_frames), tracks, horizons, average, agent=agent, seed=seed)
 
@@ -762,7 +829,9 @@ def _resume_target(file: Any, iterations: Any) -> int:
     """The total sweeps a resumed chain runs to: ``iterations``, else the original fit's."""
     done, original = file.state["n_iter_"], file.settings.get("iterations")
     if not (_is_int(original) and original >= done):
-        raise ModelFileError(f"{file.path}: the fit's iterations {original!r} are not a count of at least its {done} sweeps")
+        raise ModelFileError(
+            f"{file.path}: the fit's iterations {original!r} are not a count of at least its {done} sweeps"
+        )
     if iterations is None:
         return int(original)
     if not (_is_int(iterations) and iterations >= done):
@@ -796,12 +865,14 @@ MIN_NOISE_RATIO = 1e-10
 
 def _split_merge_moves(value: Any) -> int:
     """Split–merge moves per sweep: ``"auto"`` or a non-negative integer."""
-    from .defaults import SPLIT_MERGE_MOVES
+    from ..gp.defaults import SPLIT_MERGE_MOVES
 
     if isinstance(value, str) and value == "auto":
         return SPLIT_MERGE_MOVES
     if not (_is_int(value) and 0 <= value <= 1_000_000):
-        raise InvalidInputError(f"split_merge must be 'auto' or a number of moves per sweep in [0, 1000000], got {value!r}")
+        raise InvalidInputError(
+            f"split_merge must be 'auto' or a number of moves per sweep in [0, 1000000], got {value!r}"
+        )
     return int(value)
 
 

@@ -1,0 +1,7 @@
+"""Stage 1, data: recorded tracks in, frames out (:mod:`.tracks` reads tables, :mod:`.framing`
+cuts tracks into frames, :mod:`.frames` holds them, :mod:`.datasets` draws synthetic scenes,
+:mod:`.provenance` describes where tracks came from)."""
+
+from . import datasets, frames, framing, provenance, tracks
+
+__all__ = ["datasets", "frames", "framing", "provenance", "tracks"]
