@@ -19,9 +19,9 @@ import pytest
 
 import dpgp
 from dpgp.gp import GPParams, log_marginal_likelihood, log_predictive, posterior
-from test_fuzz import tiny  # noqa: F401 - the fuzz suite's tiny fitted model and its file
 
 import fuzz_cases as fc
+from test_fuzz import tiny  # noqa: F401 - the fuzz suite's tiny fitted model and its file
 
 
 def _members(path: Path) -> dict[str, np.ndarray]:

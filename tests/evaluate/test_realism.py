@@ -12,12 +12,13 @@ import sys
 import numpy as np
 import pandas as pd
 import pytest
-from test_evaluate import tracks_table as straight_tracks
 
 import dpgp
 from dpgp import evaluate as ev
 from dpgp.cli import main
 from dpgp.evaluate import realism_checks as rl
+
+from test_evaluate import tracks_table as straight_tracks
 
 WEIGHTS = {"speed": 0.05, "acceleration": 0.05, "turn_rate": 0.05, "angular_acceleration": 0.05,
            "nearest_distance": 0.10, "collision": 0.25, "count": 0.10, "position": 0.10}  # fmt: skip

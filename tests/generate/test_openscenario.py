@@ -357,7 +357,7 @@ def test_model_file_keeps_units_type_and_size(model, tmp_path):
 
 
 def test_old_model_files_and_newer_summary_keys_load(model, tmp_path):
-    from test_model_io import _rewrite_metadata
+    from model_files import _rewrite_metadata
 
     path = tmp_path / "m.npz"
     model.save(path)

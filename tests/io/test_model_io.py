@@ -16,6 +16,8 @@ import dpgp
 from dpgp.data.framing import FramingSummary
 from dpgp.io import modelfile as mio
 
+from model_files import _rewrite, _rewrite_metadata
+
 
 def _summary(frames: dpgp.Frames) -> FramingSummary:
     zero = {f: 0 for f in FramingSummary.__dataclass_fields__ if f.startswith("n_")}
@@ -94,31 +96,6 @@ def test_file_is_plain_npz_with_versioned_json(fitted):
     phi_psi = dpgp.EmpiricalDistributions.from_dict(meta["distributions"])
     assert phi_psi.count_hist.sum() == 40
     assert mio.read_metadata(path) == meta
-
-
-def _rewrite(src, dst, change) -> None:
-    """Copy the archive, passing each member's arrays through ``change(name, array)``."""
-    with np.load(src, allow_pickle=False) as npz:
-        arrays = {k: npz[k] for k in npz.files}
-    out = {}
-    for k, v in arrays.items():
-        new = change(k, v)
-        if new is not None:
-            out[k] = new
-    np.savez(dst, **out)
-
-
-def _rewrite_metadata(src, dst, edit) -> None:
-    """Copy the archive with ``edit(meta)`` applied to its JSON metadata (in place)."""
-
-    def change(name, arr):
-        if name != "metadata":
-            return arr
-        meta = json.loads(str(arr))
-        edit(meta)
-        return np.array(json.dumps(meta))
-
-    _rewrite(src, dst, change)
 
 
 def test_newer_version_is_refused(fitted, tmp_path):

@@ -51,6 +51,7 @@ from .. import _core
 from ..data.frames import Frames
 from ..exceptions import DataFormatError
 from ..gp.fitted import FittedPatterns
+from .rollout import motion_rollouts
 
 MIN_PAIRS = 50  # recorded track-steps for a pattern's own τ
 MIN_DISTANCES = 20  # nearest-neighbour distances for a pattern's own spacing
@@ -185,8 +186,6 @@ def time_constants(fit: FittedPatterns) -> tuple[np.ndarray, np.ndarray]:
     recorded, is the error. The pooled ``τ`` minimises the error over all patterns (refined by
     a parabola in ``log τ`` through the best grid point and its neighbours); a pattern with at
     least :data:`MIN_PAIRS` track-steps takes its own minimiser."""
-    from .simulation import motion_rollouts
-
     frames, labels, dt, K = fit.frames, fit.labels, fit.dt, fit.n_patterns
     steps = max(1, int(round(TAU_HORIZON / dt)))
     a, b = consecutive_pairs(frames, dt)

@@ -38,6 +38,8 @@ from .._arrays import as_path
 from ..exceptions import InvalidInputError
 from ..gp.fitted import FittedPatterns, as_fitted
 from .distributions import EmpiricalDistributions
+from .motion import motion_model
+from .rollout import motion_records, split
 from .simulation import (
     LOW_DATA_THRESHOLD,
     Simulation,
@@ -46,9 +48,7 @@ from .simulation import (
     _check_roi,
     _check_rows,
     check_dynamics,
-    motion_records,
     rollouts,
-    split,
 )  # fmt: skip
 
 if TYPE_CHECKING:
@@ -304,8 +304,6 @@ def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistri
     """Scenes drawn from each pattern's own frames (count), joint positions with its recorded
     spacing, velocities jointly from its GP, rolled out by the residual model and interaction;
     placement, draws and rollouts run in parallel in the core, one seed per scenario."""
-    from .motion import motion_model
-
     if len(patterns) == 0:
         return Scenarios([], patterns, np.zeros(0, dtype=np.int64))
     requested = pattern_counts(fit, patterns, rng)
@@ -316,7 +314,7 @@ def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistri
     pos, vel, inside, low, sizes = _core.scene_rollouts(
         fit.sampler, [int(fit.slots[k]) for k in patterns], requested.tolist(), np.searchsorted(ks, patterns).tolist(),
         np.ascontiguousarray(grids.reshape(len(ks), -1), dtype=np.float64), psi.bins, tuple(psi.roi), spacing.tolist(),
-        motion_records(fit, patterns, dynamics), seeds, bool(stochastic), float(dt), int(steps), tuple(roi), low_data_threshold,
+        motion_records(patterns, dynamics, motion_model(fit)), seeds, bool(stochastic), float(dt), int(steps), tuple(roi), low_data_threshold,
     )  # fmt: skip
     sims = split(
         pos,

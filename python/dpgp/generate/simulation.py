@@ -32,7 +32,6 @@ ended.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -42,9 +41,12 @@ from .._arrays import as_float_array, check_finite
 from ..data.frames import Frame, Frames
 from ..exceptions import InvalidInputError, ShapeError
 from ..gp.fitted import DEFAULT_DT, FittedPatterns, as_fitted, frames_dt, frames_roi
+from .motion import motion_model
+from .rollout import Simulation, motion_rollouts, split
+from .rollout import motion_records as motion_records  # re-exported: its home before rollout.py
 
 if TYPE_CHECKING:
-    import pandas as pd
+    pass
 
 LOW_DATA_THRESHOLD = 0.5  # posterior / prior variance above which a point counts as low-data
 
@@ -62,68 +64,6 @@ _METHODS = ("euler", "rk4")
 #: and a personal distance. ``"relaxed"``: the same without interaction. ``"field"``: the
 #: paper's rollout — every vehicle moves with the field itself (bitwise today's rollouts).
 DYNAMICS = ("interactive", "relaxed", "field")
-
-
-@dataclass(frozen=True, eq=False)
-class Simulation:
-    """A rollout: ``steps + 1`` recorded times of ``l`` vehicles.
-
-    ``positions`` and ``velocities`` have shape ``(steps + 1, l, 2)``; ``t`` (``steps + 1``,) is
-    in seconds from the start; ``in_roi`` and ``low_data`` are ``(steps + 1, l)`` booleans. A
-    vehicle's velocity at a time is the one it moves with from there (RK4: the field at its
-    position); once it has left the ROI it stands at its first position outside with velocity 0.
-    """
-
-    positions: np.ndarray
-    velocities: np.ndarray
-    t: np.ndarray
-    in_roi: np.ndarray
-    low_data: np.ndarray
-    pattern: int
-    method: str
-    stochastic: bool
-    roi: tuple[float, float, float, float]
-    #: "field" (the paper's rollout), "relaxed" or "interactive" (:data:`DYNAMICS`)
-    dynamics: str = "field"
-
-    @property
-    def steps(self) -> int:
-        return len(self.t) - 1
-
-    @property
-    def n_vehicles(self) -> int:
-        return int(self.positions.shape[1])
-
-    @property
-    def dt(self) -> float:
-        return float(self.t[1] - self.t[0]) if len(self.t) > 1 else float("nan")
-
-    def to_pandas(self) -> pd.DataFrame:
-        """One row per time and vehicle: ``step, t, vehicle, x, y, vx, vy, in_roi, low_data``."""
-        import pandas as pd
-
-        T, l = self.in_roi.shape
-        return pd.DataFrame(
-            {
-                "step": np.repeat(np.arange(T), l),
-                "t": np.repeat(self.t, l),
-                "vehicle": np.tile(np.arange(l), T),
-                "x": self.positions[..., 0].ravel(),
-                "y": self.positions[..., 1].ravel(),
-                "vx": self.velocities[..., 0].ravel(),
-                "vy": self.velocities[..., 1].ravel(),
-                "in_roi": self.in_roi.ravel(),
-                "low_data": self.low_data.ravel(),
-            }
-        )
-
-    def __repr__(self) -> str:
-        mode = "stochastic" if self.stochastic else "mean"
-        return (
-            f"Simulation(pattern {self.pattern}, {self.n_vehicles} vehicles, {self.steps} {self.method} steps "
-            f"of {self.dt:g} s, {mode}; {int(self.in_roi[-1].sum())} still in the ROI, "
-            f"{int(self.low_data.any(axis=0).sum())} entered low-data regions)"
-        )
 
 
 def default_dt(model: Any) -> float:
@@ -254,71 +194,6 @@ def check_dynamics(dynamics: Any, method: str) -> str:
     return dynamics
 
 
-def motion_records(fit: FittedPatterns, patterns: Any, dynamics: str, motion: Any = None) -> np.ndarray:
-    """(len(patterns), MOTION_FIELDS): each rollout's residual model and interaction rule, from
-    ``motion`` (a :class:`dpgp.motion.MotionModel`; default: the fitted model's)."""
-    from .motion import motion_model
-
-    m = motion_model(fit) if motion is None else motion
-    rec = {int(k): m.record(int(k), interaction=dynamics == "interactive") for k in np.unique(patterns)}
-    return np.array([rec[int(k)] for k in patterns], dtype=np.float64).reshape(len(patterns), -1)
-
-
-def split(pos: np.ndarray, vel: np.ndarray, inside: np.ndarray, low: np.ndarray, sizes: Any, patterns: list[int], *,
-          steps: int, dt: float, stochastic: bool, roi: Any, dynamics: str, method: str = "euler") -> list[Simulation]:  # fmt: skip
-    """The core's concatenated time-major arrays cut into one :class:`Simulation` per rollout."""
-    t = np.arange(steps + 1) * float(dt)
-    out, row = [], 0
-    for i, l in enumerate(sizes):
-        l = int(l)
-        sl = slice(row, row + (steps + 1) * l)
-        row += (steps + 1) * l
-        out.append(
-            Simulation(
-                positions=pos[sl].reshape(steps + 1, l, 2),
-                velocities=vel[sl].reshape(steps + 1, l, 2),
-                t=t,
-                in_roi=inside[sl].reshape(steps + 1, l),
-                low_data=low[sl].reshape(steps + 1, l),
-                pattern=int(patterns[i]),
-                method=method,
-                stochastic=stochastic,
-                roi=tuple(float(v) for v in roi),  # type: ignore[arg-type]
-                dynamics=dynamics,
-            )
-        )
-    return out
-
-
-def motion_rollouts(
-    fit: FittedPatterns, patterns: list[int], starts: list[np.ndarray], velocities: list[np.ndarray], *,
-    steps: int, dt: float, seeds: list[int] | None, roi: Any, low_data_threshold: float | None, dynamics: str,
-    motion: Any = None,
-) -> list[Simulation]:  # fmt: skip
-    """Rollouts by the residual model (and interaction): ``starts[i]`` (l_i, 2) from their own
-    ``velocities[i]`` through pattern ``patterns[i]``, run in parallel in the core."""
-    sizes = np.array([len(s) for s in starts], dtype=np.int64)
-    offsets = np.r_[0, np.cumsum(sizes)].astype(np.int64)
-    cat = lambda a: np.ascontiguousarray(np.concatenate(a) if a else np.zeros((0, 2)), dtype=np.float64)  # noqa: E731
-    pos, vel, inside, low = _core.motion_rollouts(
-        fit.sampler, [int(fit.slots[k]) for k in patterns], cat(starts), cat(velocities), offsets,
-        motion_records(fit, patterns, dynamics, motion), float(dt), int(steps), tuple(roi), seeds, low_data_threshold,
-    )  # fmt: skip
-    return split(
-        pos,
-        vel,
-        inside,
-        low,
-        sizes,
-        patterns,
-        steps=steps,
-        dt=dt,
-        stochastic=seeds is not None,
-        roi=roi,
-        dynamics=dynamics,
-    )
-
-
 def _start(fit: FittedPatterns, frame: Any) -> tuple[np.ndarray, np.ndarray | None, int | None]:
     """(positions, velocities or None, training index or None) of what the user passed."""
     if isinstance(frame, (bool, np.bool_)):
@@ -384,7 +259,7 @@ def simulate(
             )
         return motion_rollouts(
             fit, [k], [xy], [v], steps=steps, dt=dt, seeds=_seeds(seed, 1) if stochastic else None, roi=box,
-            low_data_threshold=thr, dynamics=dynamics,
+            low_data_threshold=thr, dynamics=dynamics, motion=motion_model(fit),
         )[0]  # fmt: skip
     return rollouts(
         fit,
