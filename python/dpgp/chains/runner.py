@@ -36,8 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from ..data.frames import Frames
-from ..evaluate.metrics import canonical_labels
+from ..data.frames import Frames, as_frames
 from ..exceptions import DpgpError, InvalidInputError
 from . import diagnostics, partition
 
@@ -92,7 +91,7 @@ def _state_of(model: Any) -> _State:
     # point-estimate model are rebuilt with these values, never by estimating them again.
     defaults = getattr(model, "defaults_", None)
     resolved = None if defaults is None else defaults.to_dict()
-    engine = model._engine_dict()
+    engine = model.engine_info()
     return _State(model.labels_.copy(), model.length_scales_.copy(), float(model.alpha_), params, resolved, engine)
 
 
@@ -122,33 +121,24 @@ def _model_at(frames: Frames, settings: dict[str, Any], state: _State, extra_met
     }
     if frames.labels is not None:
         arrays["frame_labels"] = frames.labels
-    return DPGP._from_file(io.parse(meta, arrays))
+    return DPGP.from_model_file(io.parse(meta, arrays))
 
 
 def _run_block(frames: Frames | None, settings: dict[str, Any], seed: int, state: _State | None, sweeps: int) -> _Block:
-    """Run ``sweeps`` sweeps of a chain from ``state`` (None: initialise) with ``seed``."""
+    """Run ``sweeps`` sweeps of a chain from ``state`` (None: initialise) with ``seed``: a fit,
+    or the model at ``state`` continued by ``fit(warm_start=True)`` (the one sweep loop)."""
     from ..model.estimator import DPGP
 
     frames = _WORKER_FRAMES if frames is None else frames
     assert frames is not None
-    run = {**settings, "seed": seed, "progress": False}
+    run = {**settings, "seed": seed, "progress": False, "iterations": sweeps, "store_labels": True}
     if state is None:
-        model = DPGP(**run, iterations=sweeps, store_labels=True).fit(frames)
-        h = model.history_
-        traces = {k: np.asarray(h[k], dtype=float) for k in ("log_joint", "alpha", "moves", "seconds")}
-        traces["n_patterns"] = np.asarray(h["n_patterns"], dtype=float)
-        return _Block(traces, model.label_trace_.astype(np.int32), _state_of(model))
-    model = _model_at(frames, run, state)
-    rows: list[tuple[float, ...]] = []
-    labels = np.empty((sweeps, len(frames)), dtype=np.int32)
-    for t in range(sweeps):
-        start = time.perf_counter()
-        moves, k, alpha, log_joint = model._sampler.sweep()
-        rows.append((log_joint, k, alpha, moves, time.perf_counter() - start))
-        labels[t] = canonical_labels(model._sampler.labels())
-    model._sync()
-    cols = np.asarray(rows, dtype=float).reshape(sweeps, len(_TRACES))
-    return _Block({name: cols[:, j] for j, name in enumerate(_TRACES)}, labels, _state_of(model))
+        model = DPGP(**run).fit(frames)
+    else:
+        model = _model_at(frames, run, state).fit(frames, warm_start=True)
+    h = model.history_
+    traces = {name: np.asarray(h[name][-sweeps:], dtype=float) for name in _TRACES}
+    return _Block(traces, model.label_trace_[-sweeps:].astype(np.int32), _state_of(model))
 
 
 def _resolve(frames: Frames | None, settings: dict[str, Any], seed: int) -> tuple[dict[str, Any] | None, str]:
@@ -292,9 +282,9 @@ def fit_chains(
     settings : passed to :class:`dpgp.DPGP` (``assignment``, ``alpha``, ...); ``n_threads``
         defaults to 1 (one core per chain).
     """
-    from ..model.estimator import DPGP, _as_frames
+    from ..model.estimator import DPGP
 
-    frames = _as_frames(frames)
+    frames = as_frames(frames)
     if not (isinstance(n_chains, (int, np.integer)) and n_chains >= 1):
         raise InvalidInputError(f"n_chains must be a positive integer, got {n_chains!r}")
     if until not in (None, "converged"):

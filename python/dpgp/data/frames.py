@@ -9,7 +9,7 @@ from __future__ import annotations
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, overload
+from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 
@@ -339,4 +339,14 @@ def read_frames(
     return Frames.from_arrays(df[cols["frame"]].to_numpy(), values["x"], values["y"], values["vx"], values["vy"])
 
 
-__all__ = ["Frame", "Frames", "read_frames"]
+def as_frames(frames: Any) -> Frames:
+    """``frames`` as :class:`Frames`: a ``Frames`` as it is, a framed DataFrame read by
+    :func:`read_frames`; :class:`~dpgp.ShapeError` for anything else."""
+    if isinstance(frames, Frames):
+        return frames
+    if hasattr(frames, "columns"):
+        return read_frames(frames)
+    raise ShapeError(f"expected dpgp.Frames or a framed DataFrame, got {type(frames).__name__}")
+
+
+__all__ = ["Frame", "Frames", "read_frames", "as_frames"]

@@ -16,9 +16,9 @@ from .. import _core
 from .._arrays import ALPHA_RANGE, alpha_in_range
 from .._arrays import MAX_MAGNITUDE as _MAX_MAGNITUDE
 from .._resources import check_thread_reservations, default_memory_budget, parse_bytes
-from ..data.frames import Frames, read_frames
+from ..data.frames import Frames, as_frames
 from ..evaluate.metrics import adjusted_rand_index, canonical_labels
-from ..exceptions import DpgpError, InvalidInputError, MemoryBudgetError, ModelFileError, NotFittedError, ShapeError
+from ..exceptions import DpgpError, InvalidInputError, MemoryBudgetError, ModelFileError, NotFittedError
 from ..gp.defaults import NOISE_PRIOR
 from ..gp.draws import MAX_DRAWS, Draws
 from ..gp.exact import GPParams, _pair, check_scales
@@ -284,12 +284,22 @@ class DPGP:
                 f"split_merge_pairs must be 'uniform' or 'informed', got {self.split_merge_pairs!r}"
             )
 
-    def fit(self, frames: Frames | Any, y: None = None) -> DPGP:
-        """Fit the mixture to training frames (a :class:`~dpgp.Frames` or a framed DataFrame)."""
+    def fit(self, frames: Frames | Any, y: None = None, *, warm_start: bool = False) -> DPGP:
+        """Fit the mixture to training frames (a :class:`~dpgp.Frames` or a framed DataFrame).
+
+        ``warm_start=True`` continues this fitted model's chain on the same frames for
+        ``iterations`` more sweeps instead of starting afresh: the sampler, its random stream,
+        ``history_``, ``label_trace_`` and the kept draws carry on, and the canonical rebuilds keep
+        their cadence (``checkpoint_every`` sweeps counted from the chain's start), so ``fit`` of
+        10 sweeps continued by 10 is bitwise a fit of 20. The stopping rule
+        (``n_iter_no_change``) counts afresh from the continuation. A model never fitted starts
+        afresh, as scikit-learn's ``warm_start`` does."""
+        if warm_start and hasattr(self, "_sampler"):
+            return self._continue(frames)
         self._check_settings()
         if self.checkpoint is not None:
             ckpt.check_path(self.checkpoint)  # before the work, not after the initialisation
-        frames = _as_frames(frames)
+        frames = as_frames(frames)
         _check_magnitudes(frames, "the training data")
         self._resolve_defaults(frames)
         signal_var = frames.v.var(axis=0) if self.signal_var is None else _pair("signal_var", self.signal_var)
@@ -335,14 +345,40 @@ class DPGP:
         self._sweeps(stable=0, traces=[], checkpoint_now=True)
         return self
 
-    def _sweeps(self, stable: int, traces: list[np.ndarray], checkpoint_now: bool = False) -> None:
-        """Sweep until ``iterations`` sweeps are done (a resumed chain's included) or the stopping
-        rule holds (``stable`` sweeps so far), checkpointing on the way; end in the canonical state."""
+    def _continue(self, frames: Frames | Any) -> DPGP:
+        """``fit(frames, warm_start=True)`` of a fitted model: ``iterations`` more sweeps of its chain."""
+        self._check_settings()
+        frames = as_frames(frames)
+        if not (frames is self.frames_ or _same_frames(frames, self.frames_)):
+            raise InvalidInputError(
+                "warm_start continues the chain on the frames the model was fitted to; these frames differ "
+                "(fit without warm_start to start a chain on new data)"
+            )
+        if self.checkpoint is not None:
+            ckpt.check_path(self.checkpoint)
+            self._data_sha256 = getattr(self, "_data_sha256", None) or ckpt.fingerprint(self.frames_)
+        history = self.__dict__.setdefault("history_", {})
+        for key in ckpt.HISTORY_KEYS:
+            history.setdefault(key, [])
+        self.n_iter_ = int(self.n_iter_ or 0)
+        self.converged_ = False
+        self.__dict__.setdefault("checkpoint_seconds_", {"reset": [], "write": []})
+        traces = list(self.__dict__.get("label_trace_", [])) if self.store_labels else []
+        self._sweeps(stable=0, traces=traces, until=self.n_iter_ + int(self.iterations))
+        return self
+
+    def _sweeps(
+        self, stable: int, traces: list[np.ndarray], checkpoint_now: bool = False, until: int | None = None
+    ) -> None:
+        """Sweep until ``until`` sweeps are done (default ``iterations``; a resumed chain's
+        included) or the stopping rule holds (``stable`` sweeps so far), checkpointing on the way;
+        end in the canonical state."""
         interrupted, bar = False, None
+        total = self.iterations if until is None else until
         try:
             previous = self._save_checkpoint(stable, traces) if checkpoint_now else np.asarray(self._sampler.labels())
-            bar = _progress(self.iterations, self.progress, initial=self.n_iter_)
-            while self.n_iter_ < self.iterations and not self.converged_:
+            bar = _progress(total, self.progress, initial=self.n_iter_)
+            while self.n_iter_ < total and not self.converged_:
                 t = time.perf_counter()
                 counts = self._sampler.split_merge_counts()
                 moves, k, alpha, log_joint = self._sampler.sweep()
@@ -542,7 +578,7 @@ class DPGP:
 
     def _log_joint_terms(self, frames: Frames) -> np.ndarray:
         """(N, K+1): log [prior weight × likelihood] of each pattern, then of a new pattern."""
-        frames = _as_frames(frames)
+        frames = as_frames(frames)
         _check_magnitudes(frames, "the frames to score")
         fitted = self._fitted()  # NotFittedError before anything reads the fitted parameters
         check_scales(frames.v, self.params_, "the frames to score")
@@ -553,7 +589,7 @@ class DPGP:
         ``frames`` over the kept draws after burn-in and the final state (:mod:`dpgp.posterior`)."""
         from ..gp.draws import averaged, used
 
-        frames = _as_frames(frames)
+        frames = as_frames(frames)
         terms = self._log_joint_terms(frames)
         draws = getattr(self, "draws_", None)
         own = (float(self.noise_var_[0]), float(self.noise_var_[1]))  # for draws from files without their noise
@@ -586,7 +622,7 @@ class DPGP:
         density of the velocities given the positions). ``average=True``: the posterior
         predictive, the mixture density averaged over the kept posterior draws after burn-in and
         the final state (:mod:`dpgp.posterior`); ``False``: the final state only."""
-        frames = _as_frames(frames)
+        frames = as_frames(frames)
         if average:
             out = self._averaged(frames)[0]
         else:
@@ -687,7 +723,7 @@ class DPGP:
             frames=self.frames_, labels=self.labels_, length_scales=self.length_scales_,
             pattern_ids=self.pattern_ids_, distributions=distributions(self).to_dict(),
             motion=motion_model(self._fitted()).to_dict(), resolved=self._resolved_dict(),
-            engine=self._engine_dict(), history=getattr(self, "history_", {}), n_iter=getattr(self, "n_iter_", None),
+            engine=self.engine_info(), history=getattr(self, "history_", {}), n_iter=getattr(self, "n_iter_", None),
             converged=getattr(self, "converged_", None), init_seconds=getattr(self, "init_seconds_", None),
             timings=getattr(self, "timings_", {}), log_joint=getattr(self, "log_joint_", None),
             chain_summary=getattr(self, "chain_summary_", None), label_trace=getattr(self, "label_trace_", None),
@@ -705,8 +741,9 @@ class DPGP:
             "length_scale_prior_source": "user",
         }  # fmt: skip
 
-    def _engine_dict(self) -> dict[str, Any]:
-        """The likelihood that ran, its basis and the memory budget."""
+    def engine_info(self) -> dict[str, Any]:
+        """The likelihood that ran (``"exact"`` or ``"hsgp"``), its basis, the memory budget and
+        ``likelihood="auto"``'s decision, as plain values (what a model file stores)."""
         basis = getattr(self, "basis_", None)
         return {
             "likelihood": getattr(self, "likelihood_", "exact"),
@@ -759,6 +796,13 @@ class DPGP:
         model.checkpoint_seconds_ = {"reset": [], "write": []}
         model._sweeps(file.resume.stable, list(model.__dict__.get("label_trace_", [])))
         return model
+
+    @classmethod
+    def from_model_file(cls, file: Any) -> DPGP:
+        """The fitted estimator a :class:`dpgp.io.ModelFile` describes (what :meth:`load` returns
+        for a file; :mod:`dpgp.chains` builds a chain's state this way). Every inconsistency is a
+        :class:`~dpgp.ModelFileError`."""
+        return cls._checked_from_file(file)
 
     @classmethod
     def _checked_from_file(cls, file: Any) -> DPGP:
@@ -822,7 +866,7 @@ class DPGP:
         (``.table``, ``.plot()``)."""
         from ..evaluate.scores import evaluate
 
-        return evaluate(self, _as_frames(test_frames), tracks, horizons, average, agent=agent, seed=seed)
+        return evaluate(self, as_frames(test_frames), tracks, horizons, average, agent=agent, seed=seed)
 
 
 def _resume_target(file: Any, iterations: Any) -> int:
@@ -899,20 +943,21 @@ def _same(a: object, b: object) -> bool:
         return False
 
 
-def _as_frames(frames: Any) -> Frames:
-    if isinstance(frames, Frames):
-        return frames
-    if hasattr(frames, "columns"):
-        return read_frames(frames)
-    raise ShapeError(f"expected dpgp.Frames or a framed DataFrame, got {type(frames).__name__}")
-
-
 def _progress(total: int, enabled: bool, initial: int = 0):
     if not enabled:
         return None
     from tqdm.auto import tqdm
 
     return tqdm(total=total, initial=initial, desc="dpgp sweeps", unit="sweep")
+
+
+def _same_frames(a: Frames, b: Frames) -> bool:
+    """The same training frames (equal arrays), whether or not the same object."""
+    return (
+        len(a) == len(b)
+        and a.n_points == b.n_points
+        and all(np.array_equal(x, y) for x, y in ((a.offsets, b.offsets), (a.xy, b.xy), (a.v, b.v)))
+    )
 
 
 def _trace_array(traces: list[np.ndarray], n_frames: int) -> np.ndarray:
