@@ -18,6 +18,7 @@ from .chains import Chains, ChainsFailedError, diagnostics, fit_chains, partitio
 from .data import datasets
 from .data.frames import Frame, Frames, read_frames
 from .data.framing import FramingSummary, make_frames, resample_tracks
+from .data.read import read
 from .data.tracks import read_ngsim, read_tracks
 from .evaluate.metrics import adjusted_rand_index
 from .exceptions import (
@@ -77,6 +78,7 @@ __all__ = [
     "plot",
     "Scenarios",
     "Simulation",
+    "read",
     "read_frames",
     "EmpiricalDistributions",
     "FramingSummary",

@@ -13,77 +13,21 @@ import time
 from pathlib import Path
 from typing import Any, NoReturn
 
-from .exceptions import DataFormatError, DpgpError, InvalidInputError
-
-_PRESETS = ("sumo", "highd", "ind", "interaction", "eth_ucy")
-_FORMATS = ("auto", "frames", "tracks", "ngsim", *_PRESETS)
-_PLOTS = ("weights", "trace", "field", "frames", "simulation", "animation")
+from ._constants import DEFAULT_DT, TRAIN_FRACTION
+from .data.read import FORMATS
+from .exceptions import DpgpError, InvalidInputError
+from .plot import FIGURES as _PLOTS
+from .plot import write_figures as write_figures  # its home before dpgp.plot
 
 
 # --- input -------------------------------------------------------------------------------------
-def _sniff(path: str) -> str:
-    """Guess the input format from the file name and its header."""
-    lower = path.lower()
-    if lower.endswith((".xml", ".xml.gz")):
-        return "sumo"
-    import pandas as pd
-
-    try:
-        if lower.endswith(".parquet"):
-            cols = list(pd.read_parquet(path).columns)
-        else:
-            cols = list(pd.read_csv(path, sep=None, engine="python", nrows=5, encoding="utf-8-sig").columns)
-    except Exception as e:  # noqa: BLE001 - pandas, csv, gzip, zlib and pyarrow each have their own
-        raise DataFormatError(
-            f"{path}: cannot read a header to detect the format ({type(e).__name__}: {e}); pass --format"
-        ) from None
-    names = {str(c).strip().lower() for c in cols}
-    if {"vehicle_id", "frame_id", "local_x", "local_y"} <= names:
-        return "ngsim"
-    if "timestep_time" in names:
-        return "sumo"
-    track_ids = {"track", "track_id", "id", "trackid", "vehicle_id", "agent_id", "object_id", "ped_id"}
-    frame_ids = {"frame", "frame_idx", "frame_id", "frameid", "frame_index"}
-    if names & frame_ids and not names & track_ids:
-        return "frames"
-    return "tracks"
-
-
 def load_frames(path: str, fmt: str = "auto", roi: Any = None, dt: float | None = None, units: str | None = None):
-    """Frames from a file: already framed (``frame, x, y, vx, vy``) or trajectories to frame."""
-    import numpy as np
+    """Frames from a file of any supported format (:func:`dpgp.read`)."""
+    from . import read
 
-    from . import make_frames, read_frames, read_ngsim, read_tracks
-    from .data.framing import FramingSummary
-
-    if not os.path.exists(path):
-        raise FileNotFoundError(f"no such file: {path}")
-    fmt = _sniff(path) if fmt == "auto" else fmt
-    if fmt != "frames":
-        tracks = read_ngsim(path) if fmt == "ngsim" else read_tracks(path, preset=None if fmt == "tracks" else fmt)
-        return make_frames(tracks, roi=roi, dt=0.5 if dt is None else dt, units=units)
-    frames = read_frames(path)
-    if units is not None:
+    if units is not None and fmt == "frames":
         raise InvalidInputError("--units applies to trajectories that are framed here, not to framed input")
-    if roi is not None:
-        x0, x1, y0, y1 = roi
-        keep = (frames.xy[:, 0] >= x0) & (frames.xy[:, 0] <= x1) & (frames.xy[:, 1] >= y0) & (frames.xy[:, 1] <= y1)
-        if not keep.any():
-            raise InvalidInputError(f"no vehicle of {path} lies inside the ROI {tuple(roi)}")
-        fid = np.repeat(frames.ids, frames.sizes)[keep]
-        n_before = len(frames)
-        frames = type(frames).from_arrays(fid, *frames.xy[keep].T, *frames.v[keep].T)
-        dropped = n_before - len(frames)
-    if roi is not None or dt is not None:
-        # Record the time step and ROI so that simulations and plots of the model default to them.
-        frames.summary = FramingSummary(
-            dt=0.5 if dt is None else float(dt), max_gap=0.0, roi=None if roi is None else tuple(map(float, roi)),
-            units=None, velocity="columns", smoothing=None, n_rows=frames.n_points, n_tracks=0, n_segments=0,
-            n_gaps=0, n_gap_times=0, n_segments_between_grid_times=0, n_rows_between_grid_times=0,
-            n_single_sample_segments=0, n_unsmoothed_segments=0, n_resampled=frames.n_points, n_outside_roi=0,
-            n_points=frames.n_points, n_frames=len(frames), n_empty_frames=dropped if roi is not None else 0, n_scenes=1,
-        )  # fmt: skip
-    return frames
+    return read(path, fmt, roi=roi, dt=dt, units=units)
 
 
 # --- commands ----------------------------------------------------------------------------------
@@ -169,111 +113,17 @@ def _resume(args: argparse.Namespace) -> int:
     return 0
 
 
-def _chain_lines(summary: dict[str, Any]) -> list[str]:
-    """What ``dpgp info`` shows of a model made from chains."""
-    names = {"log_joint": "log joint", "n_patterns": "K", "alpha": "α"}
-
-    def row(key: str, fmt: str) -> str:
-        return ", ".join(f"{names.get(q, q)} {format(v, fmt)}" for q, v in summary[key].items())
-
-    pe = summary["point_estimate"]
-    lines = [
-        f"chains: {summary['n_chains']} × {summary['n_sweeps']} sweeps, burn-in {summary['burn_in']}; {summary['stop_reason']}",
-        f"  R̂: {row('rhat', '.4f')}",
-        f"  ESS bulk: {row('ess_bulk', '.0f')}; tail: {row('ess_tail', '.0f')}",
-        f"  point estimate ({pe['loss']}): {pe['n_patterns']} patterns, posterior expected loss {pe['expected_loss']:.4g}",
-    ]
-    lines += [f"  {name} failed: {error}" for name, error in summary.get("failures", {}).items()]
-    return lines
-
-
 def _info(args: argparse.Namespace) -> int:
-    import numpy as np
-
     from . import DPGP
-    from .generate.simulation import default_dt, default_roi
     from .io.modelfile import read_metadata
 
     meta = read_metadata(args.model)
     model = DPGP.load(args.model)
-    f = model.frames_
-    w = model.weights_
-    top = min(len(w), args.top)
-    lines = [
-        f"{args.model}: {meta['format']} format {meta['format_version']}, written by dpgp {meta.get('dpgp_version', '?')}",
-        f"training data: {len(f)} frames, {f.n_points} vehicle observations ({f.sizes.min()}-{f.sizes.max()} per frame)",
-        "ROI: x [{:g}, {:g}], y [{:g}, {:g}]; dt {:g} s".format(*default_roi(model), default_dt(model)),
-        f"patterns: {model.n_patterns_}; α = {model.alpha_:.4g}; log joint = {model.log_joint_:.6g}",
-        f"sweeps: {model.n_iter_}" + (" (stopped early: converged)" if model.converged_ else ""),
-        f"largest {top} patterns (frames, weight, length scales w_x, w_y):",
-    ]
-    if getattr(model, "chain_summary_", None):
-        lines[-1:-1] = _chain_lines(model.chain_summary_)
-    counts = np.bincount(model.labels_, minlength=model.n_patterns_)
-    for k in range(top):
-        wx, wy = model.length_scales_[k]
-        lines.append(f"  {k:>4}: {counts[k]:>6} frames  {w[k]:.3f}  ({wx:.3g}, {wy:.3g})")
-    if model.n_patterns_ > top:
-        lines.append(f"  ... and {model.n_patterns_ - top} more")
-    p = model.params_
-    lines.append(
-        f"GP: signal variance ({p.signal_var[0]:.4g}, {p.signal_var[1]:.4g}), noise variance ({p.noise_var[0]:.4g}, {p.noise_var[1]:.4g}), "
-        f"mean ({p.mean[0]:.4g}, {p.mean[1]:.4g})"
+    print(
+        f"{args.model}: {meta['format']} format {meta['format_version']}, written by dpgp {meta.get('dpgp_version', '?')}"
     )
-    r = model.defaults_
-    a, b = r.length_scale_prior
-    if r.noise_var_source == "sampled":  # r.noise_var is where the chain started; show its last draw
-        n = model.noise_var_
-        noise = f"noise variance ({n[0]:.4g}, {n[1]:.4g}) (sampled in the chain, from ({r.noise_var[0]:.4g}, {r.noise_var[1]:.4g}))"
-    else:
-        noise = f"noise variance ({r.noise_var[0]:.4g}, {r.noise_var[1]:.4g}) ({r.noise_var_source})"
-    lines.append(
-        f"resolved: {noise}, length-scale prior Gamma({a:g}, {b:.4g}) "
-        f"({r.length_scale_prior_source}), assignment {r.assignment}"
-    )
-    settings = {k: v for k, v in model.get_params().items() if k not in ("progress",)}
-    lines.append("settings: " + ", ".join(f"{k}={v!r}" for k, v in settings.items()))
-    print("\n".join(lines))
+    print(model.summary(top=args.top))
     return 0
-
-
-def write_figures(
-    model, out: Path, kinds: list[str], n_patterns: int, frame: int | None, steps: int, dpi: int
-) -> list[Path]:
-    """Write the chosen figures of ``model`` into ``out``; returns the paths written."""
-    import numpy as np
-
-    from . import plot
-
-    out.mkdir(parents=True, exist_ok=True)
-    written: list[Path] = []
-
-    def save(fig, name: str) -> None:
-        path = out / name
-        fig.savefig(path, dpi=dpi)
-        written.append(path)
-
-    if frame is None:
-        frame = int(np.flatnonzero(model.labels_ == 0)[0])  # a frame of the largest pattern
-    ks = range(min(n_patterns, model.n_patterns_))
-    if "weights" in kinds:
-        save(plot.weights(model).figure, "weights.png")
-    if "trace" in kinds:
-        save(plot.trace(model), "trace.png")
-    for k in ks:
-        if "field" in kinds:
-            save(plot.velocity_field(model, k).figure, f"field_{k}.png")
-        if "frames" in kinds:
-            save(plot.frames(model, k).figure, f"frames_{k}.png")
-    if "simulation" in kinds or "animation" in kinds:
-        sim = model.simulate(frame, steps=steps)
-        if "simulation" in kinds:
-            save(plot.simulation(model, frame, result=sim).figure, "simulation.png")
-        if "animation" in kinds:
-            path = out / "simulation.gif"
-            plot.animate(sim, path, model=model)
-            written.append(path)
-    return written
 
 
 def _plot(args: argparse.Namespace) -> int:
@@ -335,25 +185,21 @@ def _generate(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from . import DPGP
+    from . import DPGP, make_frames
+    from .data.read import detect_format, read_trajectories
     from .evaluate.scores import split_in_time
 
     model = DPGP.load(args.model)
     summary = getattr(model.frames_, "summary", None)
     dt = args.dt if args.dt is not None else getattr(summary, "dt", None)
     roi = args.roi if args.roi is not None else getattr(summary, "roi", None)
-    fmt = _sniff(args.data) if args.format == "auto" else args.format
-    tracks = None
-    if fmt == "frames":
+    fmt = detect_format(args.data) if args.format == "auto" else args.format
+    tracks = None if fmt == "frames" else read_trajectories(args.data, fmt)  # kept for the rollouts
+    if tracks is None:
         frames = load_frames(args.data, fmt, roi, dt)
-    else:  # trajectories: framed like the training data, and kept for the rollouts
-        from . import make_frames, read_ngsim, read_tracks
-
-        tracks = (
-            read_ngsim(args.data) if fmt == "ngsim" else read_tracks(args.data, preset=None if fmt == "tracks" else fmt)
-        )
+    else:  # framed like the training data
         units = getattr(summary, "units", None)
-        frames = make_frames(tracks, roi=roi, dt=0.5 if dt is None else dt, units=units)
+        frames = make_frames(tracks, roi=roi, dt=DEFAULT_DT if dt is None else dt, units=units)
     test = frames if args.split == 0 else split_in_time(frames, args.split)[1]
     print(
         f"{args.data}: {len(test)} test frames ({test.n_points} vehicles)"
@@ -433,12 +279,14 @@ def build_parser() -> argparse.ArgumentParser:
                        "which are framed first (resampled to --dt, cropped to --roi).")  # fmt: skip
     p.add_argument("data", help="CSV/TSV/Parquet table or SUMO FCD XML")
     p.add_argument("-o", "--output", required=True, help="model file to write (.npz)")
-    p.add_argument("--format", choices=_FORMATS, default="auto",
+    p.add_argument("--format", choices=("auto", *FORMATS), default="auto",
                    help="input kind: 'frames' (already framed), 'tracks' (any trajectory table), 'ngsim', or a "
                    "read_tracks preset; 'auto' decides from the file name and header")  # fmt: skip
     p.add_argument("--roi", nargs=4, type=_roi, metavar=("X_MIN", "X_MAX", "Y_MIN", "Y_MAX"),
                    help="region of interest; vehicles outside it are dropped (default: keep all)")  # fmt: skip
-    p.add_argument("--dt", type=float, help="time step in seconds between frames (default 0.5 for trajectories)")
+    p.add_argument(
+        "--dt", type=float, help=f"time step in seconds between frames (default {DEFAULT_DT:g} for trajectories)"
+    )
     p.add_argument("--units", help="convert trajectory units, e.g. 'ft->m' for NGSIM (default: keep)")
     p.add_argument("--iterations", type=int, default=100, help="Gibbs sweeps after the initialisation")
     p.add_argument("--assignment", choices=("gibbs", "map"), default="gibbs",
@@ -507,7 +355,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="CSV file to write")
     p.add_argument("--pattern", type=int, help="pattern to follow (default: the frame's own)")
     p.add_argument("--steps", type=int, default=100, help="number of time steps")
-    p.add_argument("--dt", type=float, help="time step in seconds (default: the training frames', else 0.5)")
+    p.add_argument(
+        "--dt", type=float, help=f"time step in seconds (default: the training frames', else {DEFAULT_DT:g})"
+    )
     p.add_argument("--method", choices=("euler", "rk4"), default="euler", help="integration scheme")
     p.add_argument(
         "--dynamics",
@@ -533,7 +383,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--road-network", help="xosc: OpenDRIVE file to reference (path written as given)")
     p.add_argument("--steps", type=int, default=100, help="number of time steps per scenario")
     p.add_argument("--pattern", type=int, help="draw every scenario from this pattern (default: by weight)")
-    p.add_argument("--dt", type=float, help="time step in seconds (default: the training frames', else 0.5)")
+    p.add_argument(
+        "--dt", type=float, help=f"time step in seconds (default: the training frames', else {DEFAULT_DT:g})"
+    )
     p.add_argument("--method", choices=("euler", "rk4"), default="euler", help="integration scheme")
     p.add_argument(
         "--dynamics",
@@ -553,8 +405,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "data (its dt, ROI and units).")  # fmt: skip
     p.add_argument("model", help="model file written by 'dpgp fit'")
     p.add_argument("data", help="the data: framed table, trajectories or SUMO FCD XML")
-    p.add_argument("--format", choices=_FORMATS, default="auto", help="input kind, as for 'dpgp fit'")
-    p.add_argument("--split", type=float, default=0.7,
+    p.add_argument("--format", choices=("auto", *FORMATS), default="auto", help="input kind, as for 'dpgp fit'")
+    p.add_argument("--split", type=float, default=TRAIN_FRACTION,
                    help="score the frames after this share of DATA (the protocol: the model was fitted to the first "
                    "share, e.g. with --max-frames); 0 scores all of DATA")  # fmt: skip
     p.add_argument("--horizons", type=float, nargs="+", default=[1.0, 2.0, 4.0], help="rollout horizons in seconds")

@@ -18,6 +18,8 @@ from .exceptions import InvalidInputError
 from .generate.simulation import LOW_DATA_THRESHOLD, Simulation, default_roi
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
@@ -280,6 +282,60 @@ def animate(
 
 
 # --- many chains (dpgp.fit_chains) --------------------------------------------------------------
+#: The figures :func:`write_figures` writes (``dpgp plot --kind``).
+FIGURES = ("weights", "trace", "field", "frames", "simulation", "animation")
+
+
+def write_figures(
+    model: DPGP,
+    directory: str | os.PathLike,
+    kinds: Any = FIGURES,
+    n_patterns: int = 3,
+    frame: int | None = None,
+    steps: int = 40,
+    dpi: int = 100,
+) -> list[Path]:
+    """Write figures of a fitted ``model`` into ``directory`` (created if needed) as PNG, the
+    animation as GIF; returns the paths written. ``kinds``: some of :data:`FIGURES`
+    (``weights.png``, ``trace.png``, ``field_<k>.png`` and ``frames_<k>.png`` for the
+    ``n_patterns`` largest patterns, ``simulation.png`` and ``simulation.gif`` of training frame
+    ``frame`` — default one of the largest pattern — rolled ``steps`` steps)."""
+    from pathlib import Path
+
+    unknown = sorted(set(kinds) - set(FIGURES))
+    if unknown:
+        raise InvalidInputError(f"unknown figure kinds {unknown}; choose among {FIGURES}")
+    out = Path(as_path(directory))
+    out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+
+    def save(fig: Any, name: str) -> None:
+        path = out / name
+        fig.savefig(path, dpi=dpi)
+        written.append(path)
+
+    if frame is None:
+        frame = int(np.flatnonzero(model.labels_ == 0)[0])  # a frame of the largest pattern
+    if "weights" in kinds:
+        save(weights(model).figure, "weights.png")
+    if "trace" in kinds:
+        save(trace(model), "trace.png")
+    for k in range(min(n_patterns, model.n_patterns_)):
+        if "field" in kinds:
+            save(velocity_field(model, k).figure, f"field_{k}.png")
+        if "frames" in kinds:
+            save(frames(model, k).figure, f"frames_{k}.png")
+    if "simulation" in kinds or "animation" in kinds:
+        sim = model.simulate(frame, steps=steps)
+        if "simulation" in kinds:
+            save(simulation(model, frame, result=sim).figure, "simulation.png")
+        if "animation" in kinds:
+            path = out / "simulation.gif"
+            animate(sim, path, model=model)
+            written.append(path)
+    return written
+
+
 def _stop_note(chains: Any) -> str:
     if chains.stop_reason_.startswith(("converged", "not converged")):
         return chains.stop_reason_
@@ -363,5 +419,5 @@ def rhat(chains: Any, ax: Axes | None = None, points: int = 30) -> Axes:
 
 __all__ = [
     "weights", "velocity_field", "frames", "simulation", "trace", "animate", "field_grid",
-    "chain_trace", "similarity", "rhat",
+    "chain_trace", "similarity", "rhat", "write_figures", "FIGURES",
 ]  # fmt: skip

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any, overload
 import numpy as np
 
 from .._arrays import as_path, as_vector, check_finite, column_floats, is_path
+from .._validate import check_roi, inside_roi
 from ..exceptions import DataFormatError, InvalidInputError, ShapeError
 
 if TYPE_CHECKING:
@@ -226,6 +227,26 @@ class Frames:
         """``(x_min, x_max, y_min, y_max)`` of all positions."""
         lo, hi = self.xy.min(axis=0), self.xy.max(axis=0)
         return (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]))
+
+    def crop(self, roi: Any) -> Frames:
+        """The vehicles inside ``roi`` ``(x_min, x_max, y_min, y_max)`` (edges included), in
+        their frames; frames left empty are dropped, labels and track ids kept. The framing
+        summary is not carried over (it described the uncropped frames).
+        :class:`~dpgp.InvalidInputError` if no vehicle lies inside."""
+        box = check_roi(roi)
+        keep = inside_roi(self.xy, box)
+        if not keep.any():
+            raise InvalidInputError(f"no vehicle lies inside the ROI {box} (the frames span {self.bounds()})")
+        counts = np.bincount(self.frame_of_row[keep], minlength=len(self))
+        kept = counts > 0
+        return Frames(
+            self.ids[kept],
+            np.r_[0, np.cumsum(counts[kept])].astype(np.int64),
+            self.xy[keep],
+            self.v[keep],
+            None if self.labels is None else self.labels[kept],
+            None if self.tracks is None else self.tracks[keep],
+        )
 
     def to_pandas(self) -> pd.DataFrame:
         """One row per vehicle observation: ``frame, x, y, vx, vy`` (and ``track`` when known)."""

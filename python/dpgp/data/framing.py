@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .._constants import DEFAULT_DT
+from .._validate import check_roi
 from ..exceptions import DataFormatError, InvalidInputError
 from .frames import Frames
 from .provenance import describe_tracks
@@ -96,7 +98,7 @@ class FramingSummary:
 def make_frames(
     tracks: Any,
     roi: tuple[float, float, float, float] | None = None,
-    dt: float = 0.5,
+    dt: float = DEFAULT_DT,
     velocity: str = "auto",
     smoothing: tuple[int, int] | None = None,
     units: str | float | None = None,
@@ -182,7 +184,7 @@ def make_frames(
 
 def resample_tracks(
     tracks: Any,
-    dt: float = 0.5,
+    dt: float = DEFAULT_DT,
     velocity: str = "auto",
     smoothing: tuple[int, int] | None = None,
     units: str | float | None = None,
@@ -229,7 +231,7 @@ def _resample(
     dt = _positive("dt", dt, "seconds between frames")
     if max_gap is not None:
         max_gap = _positive("max_gap", max_gap, "seconds")
-    roi = _check_roi(roi)
+    roi = None if roi is None else check_roi(roi)
     scale, units_name = _check_units(units)
     if velocity not in ("auto", "columns", "diff"):
         raise InvalidInputError(f"velocity must be 'auto', 'columns' or 'diff', got {velocity!r}")
@@ -665,20 +667,6 @@ def _positive(name: str, value: Any, what: str) -> float:
     if not (v > 0 and np.isfinite(v)):
         raise InvalidInputError(f"{name} must be a positive number ({what}), got {value!r}")
     return v
-
-
-def _check_roi(roi: Any) -> tuple[float, float, float, float] | None:
-    if roi is None:
-        return None
-    try:
-        r = tuple(float(v) for v in roi)
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"roi must be (x_min, x_max, y_min, y_max), got {roi!r}") from None
-    if len(r) != 4 or not all(np.isfinite(r)) or not (r[0] < r[1] and r[2] < r[3]):
-        raise InvalidInputError(
-            f"roi must be four finite numbers (x_min, x_max, y_min, y_max) with min < max, got {roi!r}"
-        )
-    return r  # type: ignore[return-value]
 
 
 def _check_units(units: Any) -> tuple[float, str | None]:

@@ -40,6 +40,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .._constants import TRAIN_FRACTION
+from .._validate import inside_roi
 from ..data.frames import Frames
 from ..exceptions import InvalidInputError, ShapeError
 from ..gp.defaults import NOISE_GRID, refine_grid, vehicle_spacing
@@ -50,7 +52,6 @@ if TYPE_CHECKING:
     import pandas as pd
     from matplotlib.figure import Figure
 
-TRAIN_FRACTION = 0.7
 SINGLE_GP_POINTS = 600  # training observations the single GP is fitted to and conditions on
 LENGTH_GRID = (1.0, 2.0, 4.0)  # single GP: length scales tried, times the vehicle spacing
 METHODS = ("dpgp", "single_gp", "position_blind", "constant_velocity")
@@ -214,7 +215,7 @@ class SingleGP:
         spacing = vehicle_spacing(train)
         grid = np.asarray(NOISE_GRID)
         if len(sub) >= 4:
-            cut = int(round(0.7 * len(sub)))
+            cut = int(round(TRAIN_FRACTION * len(sub)))
             fit_part, check = sub[:cut], sub[cut:]
             scores = np.array([[
                 cls(GPParams((w * spacing, w * spacing), var, _times(rho, var), mu), fit_part.xy, fit_part.v).score_frames(check).sum()
@@ -308,7 +309,7 @@ def rollout_errors(model: Any, test: Frames, tracks: Any, horizons: tuple[float,
         cv = f.xy[None, :, :] + np.arange(n_max + 1)[:, None, None] * dt * f.v[None, :, :]
         for m, pred in (("dpgp", sim.positions), ("constant_velocity", cv)):
             errors[m].append(np.linalg.norm(pred[1:] - true[1:], axis=-1).T)
-        inside = np.isfinite(true[1:, :, 0]) & _in_roi(true[1:], roi)
+        inside = np.isfinite(true[1:, :, 0]) & inside_roi(true[1:], roi)
         alive_at.append(inside.T)
     alive = np.concatenate(alive_at) if alive_at else np.zeros((0, n_max), bool)
     rows = []
@@ -358,12 +359,6 @@ def _true_positions(truth: dict, xy0: np.ndarray, t0: float, n_steps: int, dt: f
             if r is not None:
                 out[s, v] = p[r]
     return out
-
-
-def _in_roi(p: np.ndarray, roi: tuple[float, float, float, float]) -> np.ndarray:
-    x, y = p[..., 0], p[..., 1]
-    with np.errstate(invalid="ignore"):
-        return (x >= roi[0]) & (x <= roi[1]) & (y >= roi[2]) & (y <= roi[3])
 
 
 def _horizons(horizons: Any) -> tuple[float, ...]:

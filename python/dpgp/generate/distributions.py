@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from .._arrays import as_pairs, check_finite
+from .._validate import check_roi, inside_roi
 from ..exceptions import DataFormatError, InvalidInputError, ShapeError
 
 _FORMAT_VERSION = 1
@@ -44,7 +45,7 @@ class EmpiricalDistributions:
         pseudocount = _floats("pseudocount", pseudocount)
         if pseudocount.ndim != 0:
             raise InvalidInputError(f"pseudocount must be one number >= 0, got {pseudocount!r}")
-        r = np.asarray(_roi(roi))
+        r = np.asarray(check_roi(roi))
         if ch.ndim != 1 or len(ch) < 2:
             raise ShapeError("count_hist must be one-dimensional: frames with 0, 1, 2, ... vehicles")
         if ph.ndim != 2 or 0 in ph.shape or ph.size > _MAX_BINS:
@@ -102,8 +103,8 @@ class EmpiricalDistributions:
             lo, hi = xy.min(axis=0), xy.max(axis=0)
             pad = np.where(hi > lo, 0.0, 0.5)  # all positions on one line: give the box a width
             roi = (lo[0] - pad[0], hi[0] + pad[0], lo[1] - pad[1], hi[1] + pad[1])
-        roi = _roi(roi)
-        outside = ~_inside(roi, xy)
+        roi = check_roi(roi)
+        outside = ~inside_roi(xy, roi)
         if outside.any():
             i = int(np.flatnonzero(outside)[0])
             raise InvalidInputError(
@@ -146,7 +147,7 @@ class EmpiricalDistributions:
         pts = as_pairs("xy", xy)
         check_finite("xy", pts)
         out = np.full(len(pts), -np.inf)
-        inside = _inside(self.roi, pts)
+        inside = inside_roi(pts, self.roi)
         ix, iy = _bin_index(self.roi, self.bins, pts[inside])
         out[inside] = self._log_density[ix, iy]
         return out
@@ -209,25 +210,6 @@ class EmpiricalDistributions:
             f"EmpiricalDistributions({int(self.count_hist.sum())} frames, counts 0-{self.max_count}, "
             f"{self.bins[0]}x{self.bins[1]} bins over roi {self.roi})"
         )
-
-
-def _roi(roi: Any) -> tuple[float, float, float, float]:
-    try:
-        r = tuple(float(v) for v in np.asarray(roi, dtype=np.float64).ravel())
-    except (TypeError, ValueError):
-        r = ()
-    if len(r) != 4 or not np.all(np.isfinite(r)) or not (r[0] < r[1] and r[2] < r[3]):
-        raise InvalidInputError(f"roi must be (x_min, x_max, y_min, y_max) with min < max, got {roi!r}")
-    if not (np.isfinite(r[1] - r[0]) and np.isfinite(r[3] - r[2])):  # bins over an infinite width
-        raise InvalidInputError(
-            f"roi {roi!r} is wider than the floating-point range (1.8e308); convert to sensible units"
-        )
-    return r  # type: ignore[return-value]
-
-
-def _inside(roi: tuple[float, float, float, float], xy: np.ndarray) -> np.ndarray:
-    x0, x1, y0, y1 = roi
-    return (xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)
 
 
 #: A position less than this share of a bin below an edge counts as on it (in the upper bin).

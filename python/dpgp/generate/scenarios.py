@@ -35,6 +35,7 @@ import numpy as np
 
 from .. import _core
 from .._arrays import as_path
+from .._validate import check_roi
 from ..exceptions import InvalidInputError
 from ..gp.fitted import FittedPatterns, as_fitted
 from .distributions import EmpiricalDistributions
@@ -45,7 +46,6 @@ from .simulation import (
     Simulation,
     _check,
     _check_pattern,
-    _check_roi,
     _check_rows,
     check_dynamics,
     rollouts,
@@ -250,7 +250,7 @@ def sample_scenarios(
     _check_rows(
         int(steps) + 1, f"a time axis of {steps} steps", "ask for fewer steps"
     )  # allocated even for no scenario
-    box = fit.roi if roi is None else _check_roi(roi)
+    box = fit.roi if roi is None else check_roi(roi)
     psi = distributions(fit)
     # Bound the work by the largest count φ can draw, so that whether a call is refused does not
     # depend on the seed, and it is refused before anything is drawn or allocated.

@@ -38,6 +38,8 @@ import numpy as np
 
 from .. import _core
 from .._arrays import as_float_array, check_finite
+from .._constants import LOW_DATA_THRESHOLD
+from .._validate import check_roi, real_number
 from ..data.frames import Frame, Frames
 from ..exceptions import InvalidInputError, ShapeError
 from ..gp.fitted import DEFAULT_DT, FittedPatterns, as_fitted, frames_dt, frames_roi
@@ -48,7 +50,6 @@ from .rollout import motion_records as motion_records  # re-exported: its home b
 if TYPE_CHECKING:
     pass
 
-LOW_DATA_THRESHOLD = 0.5  # posterior / prior variance above which a point counts as low-data
 
 #: Most rows ((steps + 1) x vehicles, summed over rollouts) one call may record. A row costs
 #: about 50 bytes for one rollout and up to 100 while many are joined, so this is 1-2 GB; a
@@ -80,29 +81,17 @@ def default_roi(model: Any) -> tuple[float, float, float, float]:
     return frames_roi(model.frames_)
 
 
-def _number(name: str, value: Any) -> float:
-    """``value`` as a float: a real number (not a bool or a string) that a float can hold."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise InvalidInputError(f"{name} must be a number, got {value!r}")
-    try:
-        return float(value)
-    except OverflowError:  # an int beyond the float range, such as 2**1024
-        raise InvalidInputError(
-            f"{name} is beyond the float range (an integer of {len(str(abs(value)))} digits)"
-        ) from None
-
-
 def _check(steps: Any, method: Any, dt: Any, low_data_threshold: Any) -> tuple[int, str, float | None]:
     if isinstance(steps, (bool, np.bool_)) or not isinstance(steps, (int, np.integer)) or steps < 0:
         raise InvalidInputError(f"steps must be a whole number >= 0, got {steps!r}")
     if method not in _METHODS:
         raise InvalidInputError(f"method must be one of {_METHODS}, got {method!r}")
-    step = _number("dt", dt)
+    step = real_number("dt", dt)
     if not (np.isfinite(step) and step > 0):
         raise InvalidInputError(f"dt must be a positive number of seconds, got {dt!r}")
     if not np.isfinite(step * float(steps)):  # the recorded times t = 0, dt, ..., steps * dt
         raise InvalidInputError(f"steps * dt must be a finite time, got {steps} steps of {dt!r} s; use a smaller dt")
-    thr = None if low_data_threshold is None else _number("low_data_threshold", low_data_threshold)
+    thr = None if low_data_threshold is None else real_number("low_data_threshold", low_data_threshold)
     if thr is not None and not (np.isfinite(thr) and thr >= 0):
         raise InvalidInputError(
             f"low_data_threshold must be >= 0 (a fraction of the prior variance), got {low_data_threshold!r}"
@@ -116,17 +105,6 @@ def _check_rows(rows: int, what: str, fix: str = "ask for fewer steps or vehicle
         raise InvalidInputError(
             f"{what} would record {rows:.3g} rows ((steps + 1) x vehicles), more than the {MAX_ROWS:.0e} one call may hold; {fix}"
         )
-
-
-def _check_roi(roi: Any) -> tuple[float, float, float, float]:
-    """``(x_min, x_max, y_min, y_max)``: four finite numbers with min < max."""
-    fix = "roi must be (x_min, x_max, y_min, y_max), four finite numbers with x_min < x_max and y_min < y_max"
-    if isinstance(roi, (str, bytes)) or not hasattr(roi, "__len__") or len(roi) != 4:
-        raise InvalidInputError(f"{fix}; got {roi!r}")
-    box = tuple(_number("roi", v) for v in roi)
-    if not (all(np.isfinite(box)) and box[0] < box[1] and box[2] < box[3]):
-        raise InvalidInputError(f"{fix}; got {roi!r}")
-    return box  # type: ignore[return-value]
 
 
 def _check_pattern(fit: FittedPatterns, k: Any) -> int:
@@ -247,7 +225,7 @@ def simulate(
     k = _check_pattern(fit, pattern)
     steps, method, thr = _check(steps, method, fit.dt if dt is None else dt, low_data_threshold)
     _check_rows((steps + 1) * len(xy), f"{steps} steps of {len(xy)} vehicle(s)")
-    box = fit.roi if roi is None else _check_roi(roi)
+    box = fit.roi if roi is None else check_roi(roi)
     dt = fit.dt if dt is None else float(dt)
     dynamics = check_dynamics(dynamics, method)
     if dynamics != "field":
@@ -291,7 +269,7 @@ def integrate_affine(
     steps, method, _ = _check(steps, method, dt, None)
     start = as_pairs("xy", xy)
     _check_rows((steps + 1) * len(start), f"{steps} steps of {len(start)} vehicle(s)")
-    roi = None if roi is None else _check_roi(roi)
+    roi = None if roi is None else check_roi(roi)
     a = as_float_array("a", a)
     b = as_float_array("b", b)
     if a.shape != (2, 2) or b.shape != (2,):

@@ -64,6 +64,7 @@ from typing import Any
 import numpy as np
 
 from .._arrays import MAX_MAGNITUDE, MIN_LENGTH_SCALE
+from .._constants import TRAIN_FRACTION
 from ..data.frames import Frames
 from ..exceptions import InvalidInputError
 from .exact import _pair
@@ -204,7 +205,7 @@ def estimate_noise_var(
     sub = spread(frames, PILOT_FRAMES)
     if len(sub) < 4:
         raise InvalidInputError(f"noise_var='auto' needs at least 4 training frames, got {len(sub)}; pass a number")
-    cut = int(round(0.7 * len(sub)))
+    cut = int(round(TRAIN_FRACTION * len(sub)))
     train, test = sub[:cut], sub[cut:]
     sv, grid = np.asarray(signal_var, dtype=float), np.asarray(NOISE_GRID)
     trace: list[tuple[float, float, float]] = []

@@ -13,9 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from .._constants import DEFAULT_DT
 from ..data.frames import Frames
-
-DEFAULT_DT = 0.5  # the paper's time step, when the training frames do not say theirs
 
 
 @dataclass(frozen=True, eq=False)

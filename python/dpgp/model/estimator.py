@@ -15,6 +15,7 @@ import numpy as np
 from .. import _core
 from .._arrays import ALPHA_RANGE, alpha_in_range
 from .._arrays import MAX_MAGNITUDE as _MAX_MAGNITUDE
+from .._constants import LOW_DATA_THRESHOLD
 from .._resources import check_thread_reservations, default_memory_budget, parse_bytes
 from ..data.frames import Frames, as_frames
 from ..evaluate.metrics import adjusted_rand_index, canonical_labels
@@ -572,10 +573,6 @@ class DPGP:
             self._sampler, self._slots, self._slot_order, self.frames_, self.labels_, self.weights_, self.alpha_, cache
         )
 
-    def _log_scores(self, frames: Frames) -> tuple[np.ndarray, np.ndarray]:
-        """log p(V_f | D_k) for each frame and pattern (labels_ order), and the new-pattern term."""
-        return self._fitted().log_scores(frames)
-
     def _log_joint_terms(self, frames: Frames) -> np.ndarray:
         """(N, K+1): log [prior weight × likelihood] of each pattern, then of a new pattern."""
         frames = as_frames(frames)
@@ -668,7 +665,7 @@ class DPGP:
         seed: int | None = None,
         *,
         roi: tuple[float, float, float, float] | None = None,
-        low_data_threshold: float | None = 0.5,
+        low_data_threshold: float | None = LOW_DATA_THRESHOLD,
         dynamics: str | None = None,
     ) -> Any:
         """Roll the vehicles of ``frame`` (a training frame's index, a :class:`Frame`, or an
@@ -703,6 +700,15 @@ class DPGP:
         from ..generate.scenarios import sample_scenarios
 
         return sample_scenarios(self._fitted(), n, steps, pattern, seed, **options)
+
+    def summary(self, top: int = 10) -> str:
+        """What the fitted model holds, as text: data, ROI and time step, patterns (the ``top``
+        largest with their frames, weights and length scales), GP parameters, what the "auto"
+        settings resolved to, the settings, and a chains model's convergence (``dpgp info``)."""
+        from .summary import summary
+
+        self._check_fitted()
+        return summary(self, top)
 
     def save(self, path: Any) -> None:
         """Write the fitted model to ``path`` (a versioned ``.npz``, no pickle; see :mod:`dpgp.io`)."""
