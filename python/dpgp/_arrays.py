@@ -76,7 +76,7 @@ def as_path(value: object) -> str:
 
     if not is_path(value):
         raise TypeError(f"expected a file path (str, bytes or os.PathLike), got {type(value).__name__}")
-    return os.fsdecode(os.fspath(value))
+    return os.fsdecode(os.fspath(value))  # type: ignore[call-overload]  # is_path checked it
 
 
 def column_floats(values: object, name: object, where: str = "") -> np.ndarray:

@@ -260,14 +260,14 @@ def animate(
     ax = _spatial_axes(None, roi)  # type: ignore[arg-type]
     fig: Figure = ax.figure  # type: ignore[assignment]
     if model is not None:
-        q, nx, ny = field_grid(model, 15, roi)
+        q, nx, ny = field_grid(model, 15, roi)  # type: ignore[arg-type]
         mean, _ = model.velocity_field(sim.pattern, q)
-        _arrows(ax, q, mean, _cell(roi, nx, ny), False, color="0.8", pivot="mid")
+        _arrows(ax, q, mean, _cell(roi, nx, ny), False, color="0.8", pivot="mid")  # type: ignore[arg-type]
     _frame_roi(ax, roi)  # type: ignore[arg-type]
     tails = [ax.plot([], [], "-", color="tab:blue", lw=1, alpha=0.6)[0] for _ in range(sim.n_vehicles)]
     (dots,) = ax.plot([], [], "o", color="tab:red", ms=5)
     label = ax.set_title("")
-    writer = PillowWriter(fps=fps)
+    writer = PillowWriter(fps=fps)  # type: ignore[arg-type]
     with writer.saving(fig, as_path(path), dpi):
         for t in range(sim.steps + 1):
             inside = sim.in_roi[t]

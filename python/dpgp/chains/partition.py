@@ -20,6 +20,7 @@ apart in the other; equal costs; 1 - Rand index) = (Σn_k² + Σm_j² - 2Σn_kj�
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -34,7 +35,7 @@ def _check_loss(loss: str) -> str:
     return loss
 
 
-def compact(labels: object) -> np.ndarray:
+def compact(labels: Any) -> np.ndarray:
     """Labels renumbered 0..K-1 along the last axis, per row (any hashable-free integer labels)."""
     a = np.asarray(labels)
     if a.ndim == 1:
@@ -82,7 +83,7 @@ def similarity(draws: object, rows: object = None, block: int = 512, dtype: type
     idx = np.arange(n) if full else np.asarray(rows, dtype=np.int64).ravel()
     if idx.size and (idx.min() < -n or idx.max() >= n):
         raise InvalidInputError(f"rows must index the {n} items")
-    out = np.empty((len(idx), n), dtype=dtype)
+    out: np.ndarray = np.empty((len(idx), n), dtype=dtype)
     for start in range(0, len(idx), block):
         r = idx[start : start + block]
         # With the full matrix only the columns from this block on are new; the rest is the
@@ -336,7 +337,7 @@ class PointEstimate:
     def n_clusters(self) -> int:
         return int(self.labels.max()) + 1 if len(self.labels) else 0
 
-    def __array__(self, dtype: object = None, copy: object = None) -> np.ndarray:
+    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
         return self.labels if dtype is None else self.labels.astype(dtype)
 
     def __len__(self) -> int:

@@ -195,8 +195,8 @@ def synthetic(
     if n_frames < 1:
         raise InvalidInputError(f"n_frames must be at least 1, got {n_frames}")
     try:
-        lo, hi = (_as_int("vehicles[0]", vehicles[0]), _as_int("vehicles[1]", vehicles[1]))  # type: ignore[index]
-        if len(vehicles) != 2:  # type: ignore[arg-type]
+        lo, hi = (_as_int("vehicles[0]", vehicles[0]), _as_int("vehicles[1]", vehicles[1]))
+        if len(vehicles) != 2:
             raise TypeError
     except (TypeError, IndexError, KeyError):
         raise InvalidInputError(f"vehicles must be a pair of integers (min, max), got {vehicles!r}") from None

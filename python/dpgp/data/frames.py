@@ -100,7 +100,7 @@ class Frames:
         self.v = np.ascontiguousarray(v, dtype=np.float64)
         self.labels = None if labels is None else np.asarray(labels)
         self.tracks = None if tracks is None else _track_ids(tracks, len(self.xy))
-        self.summary = None
+        self.summary: Any = None  # a dpgp.FramingSummary
 
     @classmethod
     def from_arrays(
@@ -152,7 +152,7 @@ class Frames:
     def __getitem__(self, i: int) -> Frame: ...
     @overload
     def __getitem__(self, i: slice | np.ndarray | list) -> Frames: ...
-    def __getitem__(self, i):  # type: ignore[no-untyped-def]
+    def __getitem__(self, i):
         if isinstance(i, (int, np.integer)):
             n = len(self)
             if not -n <= i < n:

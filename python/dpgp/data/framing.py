@@ -314,7 +314,7 @@ def _resample(
         n_single_sample_segments=int(single.sum()),
         n_unsmoothed_segments=0 if smoothing is None else int(((seg_len < smoothing[0]) & (cnt > 0)).sum()),
         n_resampled=G,
-        n_scenes=1 if sc is None else len(np.unique(seg_scene)),
+        n_scenes=1 if sc is None else len(np.unique(seg_scene)),  # type: ignore[arg-type]
         **describe_tracks(tracks, units_name, scale),
     )
     if G > _MAX_RESAMPLED:
@@ -503,12 +503,12 @@ def _resample_batch(
                 for a, b in zip(_diff_velocity(t, (x, y), j, lo, hi), _diff_velocity(t, (x, y), j1, lo, hi))
             )
     else:
-        px0, py0, dvx0, dvy0 = _smoothed(t, x, y, j, lo, hi, smoothing, short)
-        px1, py1, dvx1, dvy1 = _smoothed(t, x, y, j1, lo, hi, smoothing, short)
+        px0, py0, dvx0, dvy0 = _smoothed(t, x, y, j, lo, hi, smoothing, short)  # type: ignore[arg-type]
+        px1, py1, dvx1, dvy1 = _smoothed(t, x, y, j1, lo, hi, smoothing, short)  # type: ignore[arg-type]
         gx, gy = _lerp(px0, px1, w), _lerp(py0, py1, w)
         gvx, gvy = _lerp(dvx0, dvx1, w), _lerp(dvy0, dvy1, w)
     if mode == "columns":
-        gvx, gvy = _lerp(vx[j], vx[j1], w), _lerp(vy[j], vy[j1], w)
+        gvx, gvy = _lerp(vx[j], vx[j1], w), _lerp(vy[j], vy[j1], w)  # type: ignore[index]
     out = {"seg": seg, "k": k, "x": gx, "y": gy, "vx": gvx, "vy": gvy}
     if roi is not None:
         inside = (gx >= roi[0]) & (gx <= roi[1]) & (gy >= roi[2]) & (gy <= roi[3])

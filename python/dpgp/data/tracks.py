@@ -293,7 +293,7 @@ def read_tracks(
     elif isinstance(source, pd.DataFrame):
         df = source
     elif hasattr(source, "columns") and hasattr(source, "to_numpy"):  # polars, without pyarrow
-        df = pd.DataFrame({c: source[c].to_numpy() for c in source.columns})
+        df = pd.DataFrame({c: source[c].to_numpy() for c in source.columns})  # type: ignore[index, union-attr]
     else:
         raise DataFormatError(f"read_tracks takes a path or a DataFrame, got {type(source).__name__}")
     if spec.get("names") and list(df.columns) == list(range(len(spec["names"]))):
@@ -605,7 +605,7 @@ def _first_line(path: str) -> str:
             for line in fh:
                 if line.strip():
                     return line
-    except (OSError, EOFError, *_damaged_file_errors()) as e:
+    except (OSError, EOFError, *_damaged_file_errors()) as e:  # type: ignore[misc]
         raise DataFormatError(f"{path} could not be read ({type(e).__name__}: {e}); is it complete?") from None
     raise DataFormatError(f"{path} is empty")
 

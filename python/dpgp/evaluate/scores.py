@@ -104,8 +104,8 @@ class Evaluation:
         if panels == 2:
             ax, r = axes[1], self.rollouts
             for method, colour in (("dpgp", "#1f4e99"), ("constant_velocity", "#b0b0b0")):
-                ax.plot(r["horizon"], r[f"{method}_ade"], "o-", color=colour, label=f"{method} ADE")
-                ax.plot(r["horizon"], r[f"{method}_fde"], "s--", color=colour, label=f"{method} FDE")
+                ax.plot(r["horizon"], r[f"{method}_ade"], "o-", color=colour, label=f"{method} ADE")  # type: ignore[index]
+                ax.plot(r["horizon"], r[f"{method}_fde"], "s--", color=colour, label=f"{method} FDE")  # type: ignore[index]
             ax.set_xlabel("horizon (s)")
             ax.set_ylabel(f"displacement error ({self.units.get('length', 'data units')})")
             ax.set_title("rollouts against the tracks")
@@ -300,7 +300,9 @@ def rollout_errors(model: Any, test: Frames, tracks: Any, horizons: tuple[float,
     truth = _truth_lookup(resample_tracks(tracks, dt=dt, units=summary.units), dt)
     patterns = model.predict(test)
     n_max = max(steps)
-    errors = {m: [] for m in ("dpgp", "constant_velocity")}  # (l, n_max) distance per frame
+    errors: dict[str, list[np.ndarray]] = {
+        m: [] for m in ("dpgp", "constant_velocity")
+    }  # (l, n_max) distance per frame
     alive_at = []  # (l, n_max) true position known and inside the ROI
     for i, f in enumerate(test):
         times = float(test.ids[i]) if np.ndim(test.ids[i]) == 0 else float(test.ids[i][-1])
@@ -334,7 +336,7 @@ def _truth_lookup(resampled: Any, dt: float) -> dict[int, tuple[np.ndarray, np.n
     xy = np.column_stack([resampled["x"].to_numpy()[order], resampled["y"].to_numpy()[order]])
     starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
     ends = np.r_[starts[1:], len(k)]
-    return {int(k[a]): (tr[a:b], xy[a:b]) for a, b in zip(starts, ends)}
+    return {int(k[a]): (tr[a:b], xy[a:b]) for a, b in zip(starts, ends)}  # type: ignore[misc]
 
 
 def _true_positions(truth: dict, xy0: np.ndarray, t0: float, n_steps: int, dt: float) -> np.ndarray:

@@ -42,8 +42,8 @@ class EmpiricalDistributions:
     ) -> None:
         ch = _floats("count_hist", count_hist)
         ph = _floats("position_hist", position_hist)
-        pseudocount = _floats("pseudocount", pseudocount)
-        if pseudocount.ndim != 0:
+        pc = _floats("pseudocount", pseudocount)
+        if pc.ndim != 0:
             raise InvalidInputError(f"pseudocount must be one number >= 0, got {pseudocount!r}")
         r = np.asarray(check_roi(roi))
         if ch.ndim != 1 or len(ch) < 2:
@@ -52,14 +52,14 @@ class EmpiricalDistributions:
             raise ShapeError(
                 f"position_hist must be a non-empty (nx, ny) array of at most {_MAX_BINS} bins, got shape {ph.shape}"
             )
-        if not (np.isfinite(pseudocount) and pseudocount >= 0):
+        if not (np.isfinite(pc) and pc >= 0):
             raise InvalidInputError(f"pseudocount must be >= 0, got {pseudocount!r}")
         if np.any(ch < 0) or np.any(ph < 0) or not np.all(np.isfinite(ch)) or not np.all(np.isfinite(ph)):
             raise InvalidInputError("histograms must hold finite counts >= 0")
         self.count_hist = ch
         self.position_hist = ph
         self.roi = (float(r[0]), float(r[1]), float(r[2]), float(r[3]))
-        self.pseudocount = float(pseudocount)
+        self.pseudocount = float(pc)
         counts = ch.copy()
         counts[1:] += self.pseudocount  # never frames with 0 vehicles: make_frames drops them
         pos = ph + self.pseudocount

@@ -311,17 +311,10 @@ class _Template:
     def __init__(self, xosc: Any, header: dict[str, Any]) -> None:
         self.xosc, self.header = xosc, header
         self._entities: dict[tuple[str, tuple[float, float, float]], str] = {}
-        probe = _Object(
-            self._NAME,
-            "vehicle",
-            (1.0, 1.0, 1.0),
-            ["$vt", "$vt"],
-            ["$vx", "$vx"],
-            ["$vy", "$vy"],
-            ["$vh", "$vh"],
-            "$leave",
-        )  # type: ignore[list-item, arg-type]
-        probe = probe._replace(x=["$ix", "$vx"], y=["$iy", "$vy"], h=["$ih", "$vh"])
+        # The template of one object: placeholders ("$vt", ...) where its numbers go.
+        placeholders: Any = (["$vt", "$vt"], ["$vx", "$vx"], ["$vy", "$vy"], ["$vh", "$vh"], "$leave")
+        probe = _Object(self._NAME, "vehicle", (1.0, 1.0, 1.0), *placeholders)
+        probe = probe._replace(x=["$ix", "$vx"], y=["$iy", "$vy"], h=["$ih", "$vh"])  # type: ignore[list-item]  # placeholders
         text = _serialize(_scenario(xosc, [probe], header, "@S@", "@P@", "@D@").get_element()).decode("utf-8")
         entity = _block(text, f'<ScenarioObject name="{self._NAME}"', "</ScenarioObject>")
         private = _block(text, f'<Private entityRef="{self._NAME}"', "</Private>")

@@ -78,7 +78,7 @@ class Scenarios:
     def __getitem__(self, i: int) -> Simulation:
         return self.simulations[i]
 
-    def __iter__(self):  # type: ignore[no-untyped-def]
+    def __iter__(self):
         return iter(self.simulations)
 
     @property
@@ -313,7 +313,7 @@ def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistri
     spacing = motion_model(fit).spacing[patterns]
     pos, vel, inside, low, sizes = _core.scene_rollouts(
         fit.sampler, [int(fit.slots[k]) for k in patterns], requested.tolist(), np.searchsorted(ks, patterns).tolist(),
-        np.ascontiguousarray(grids.reshape(len(ks), -1), dtype=np.float64), psi.bins, tuple(psi.roi), spacing.tolist(),
+        np.ascontiguousarray(grids.reshape(len(ks), -1), dtype=np.float64), psi.bins, tuple(psi.roi), spacing.tolist(),  # type: ignore[arg-type]
         motion_records(patterns, dynamics, motion_model(fit)), seeds, bool(stochastic), float(dt), int(steps), tuple(roi), low_data_threshold,
     )  # fmt: skip
     sims = split(

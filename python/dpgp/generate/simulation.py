@@ -140,7 +140,16 @@ def rollouts(
     start = np.ascontiguousarray(np.concatenate(starts) if starts else np.zeros((0, 2)), dtype=np.float64)
     slots = [int(fit.slots[k]) for k in patterns]
     pos, vel, inside, low = _core.rollouts(
-        fit.sampler, slots, start, offsets, float(dt), int(steps), method, tuple(roi), seeds, low_data_threshold
+        fit.sampler,
+        slots,
+        start,
+        offsets,
+        float(dt),
+        int(steps),
+        method,
+        tuple(roi),  # type: ignore[arg-type]
+        seeds,
+        low_data_threshold,
     )
     return split(
         pos,
@@ -275,7 +284,13 @@ def integrate_affine(
     if a.shape != (2, 2) or b.shape != (2,):
         raise ShapeError(f"a must be 2x2 and b a pair, got shapes {a.shape} and {b.shape}")
     pos, vel, inside, low = _core.integrate_affine(
-        start, a.tolist(), b.tolist(), float(dt), steps, method, None if roi is None else tuple(roi)
+        start,
+        a.tolist(),
+        b.tolist(),
+        float(dt),
+        steps,
+        method,
+        None if roi is None else tuple(roi),  # type: ignore[arg-type]
     )
     l = len(start)
     return Simulation(

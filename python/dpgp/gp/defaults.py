@@ -70,7 +70,7 @@ from ..exceptions import InvalidInputError
 from .exact import _pair
 
 PRESETS = ("paper",)
-PAPER = {"length_scale_prior": (10.0, 1.0), "noise_var": (1.0, 1.0), "assignment": "map"}
+PAPER: dict[str, Any] = {"length_scale_prior": (10.0, 1.0), "noise_var": (1.0, 1.0), "assignment": "map"}
 
 LENGTH_SCALE_SHAPE = 10.0  # the paper's shape: the prior's CV is 1/sqrt(10) = 0.32
 SPACING_MULTIPLE = 2.0  # the prior's mean, in vehicle spacings

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -157,7 +158,7 @@ class Draws:
 State = tuple[np.ndarray, np.ndarray, float, "tuple[float, float] | None"]
 
 
-def state_of(sampler: object) -> State:
+def state_of(sampler: Any) -> State:
     """A sampler's state as a draw: labels with patterns by decreasing size (ties by slot), their
     length scales (K, 2), α and the noise pair."""
     patterns = sampler.patterns()  # (slot, id, n_frames, wx, wy)
@@ -179,7 +180,7 @@ def used(draws: Draws | None, n_iter: int) -> list[int]:
     return [i for i, s in enumerate(draws.sweeps) if n_iter // 2 < s < n_iter]
 
 
-def _draw_terms(sampler: object, state: State, frames: object) -> tuple[np.ndarray, np.ndarray]:
+def _draw_terms(sampler: Any, state: State, frames: Any) -> tuple[np.ndarray, np.ndarray]:
     """For one state: (n_test, K+1) log [DP weight × likelihood] per pattern (state label order)
     and a new one, and the (K,) training-frame counts per pattern."""
     labels, ls, alpha, noise = state

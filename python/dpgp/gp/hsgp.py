@@ -22,6 +22,7 @@ frequency is ``π / w_lo``, where the spectral density of ``w_lo`` has fallen to
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -59,12 +60,12 @@ class Basis:
         half = tuple(float(x) for x in d["half_widths"])
         if len(center) != 2 or len(half) != 2 or not (np.all(np.isfinite(center)) and all(h > 0 for h in half)):
             raise InvalidInputError(f"a basis needs a finite centre and two positive half-widths, got {d!r}")
-        return cls(center, half, _basis_counts(tuple(d["counts"])))  # type: ignore[arg-type]
+        return cls(center, half, _basis_counts(tuple(d["counts"])))
 
 
-def _basis_counts(n_basis: object) -> tuple[int, int]:
+def _basis_counts(n_basis: Any) -> tuple[int, int]:
     try:
-        mx, my = n_basis  # type: ignore[misc]
+        mx, my = n_basis
         ok = all(isinstance(m, (int, np.integer)) and not isinstance(m, bool) and m >= 1 for m in (mx, my))
     except (TypeError, ValueError):
         ok = False

@@ -34,7 +34,7 @@ from __future__ import annotations
 import hashlib
 import os
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 
@@ -170,10 +170,10 @@ def parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], frames: Any) -> R
             "the training data in the checkpoint do not match its fingerprint (data_sha256): the file was edited "
             "or damaged, and the chain cannot be resumed"
         )
-    return ResumePoint(int(done), labels, ls, float(alpha), int(stable), r["data_sha256"])
+    return ResumePoint(int(done), labels, ls, float(alpha), int(stable), r["data_sha256"])  # type: ignore[arg-type]
 
 
-def _count(x: Any) -> bool:
+def _count(x: Any) -> TypeGuard[int]:
     return isinstance(x, int) and not isinstance(x, bool) and x >= 0
 
 

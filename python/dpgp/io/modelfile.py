@@ -182,7 +182,7 @@ def save(state: ModelState, path: str | os.PathLike, resume: Any = None, compres
         arrays.update(state.draws.arrays())
     if resume is not None:
         arrays.update(resume.arrays())
-    write_atomic(as_path(path), lambda fh: (np.savez_compressed if compress else np.savez)(fh, **arrays))
+    write_atomic(as_path(path), lambda fh: (np.savez_compressed if compress else np.savez)(fh, **arrays))  # type: ignore[arg-type]
 
 
 def _read(path: str) -> dict[str, np.ndarray]:
@@ -197,7 +197,7 @@ def _read(path: str) -> dict[str, np.ndarray]:
             missing = [k for k in _REQUIRED if k not in npz.files]
             if missing:
                 raise ModelFileError(f"{path} is not a dpgp model file: it lacks {missing}")
-            _check_declared_sizes(path, npz.zip)
+            _check_declared_sizes(path, npz.zip)  # type: ignore[arg-type]
             return {k: npz[k] for k in npz.files}
     except ModelFileError:
         raise

@@ -119,7 +119,7 @@ def choose_upfront(frame_sizes: object, basis_size: int, memory_budget: int | No
     """Step 1 of the rule: exact if its worst case (all points in one pattern) is predicted no
     slower than hsgp's least cost over all partitions (its per-frame term alone) and fits the
     budget; None when the pattern sizes must be predicted first."""
-    n_points = int(np.sum(frame_sizes))
+    n_points = int(np.sum(np.asarray(frame_sizes)))
     exact = sweep_seconds("exact", [n_points], frame_sizes)
     hsgp = sweep_seconds("hsgp", [], frame_sizes, basis_size)
     fits = memory_budget is None or exact_bytes(n_points) <= memory_budget

@@ -177,6 +177,12 @@ class DPGP:
         self.split_merge = split_merge
         self.split_merge_pairs = split_merge_pairs
 
+    # Set outside __init__ (not settings): a resumed chain's start, the generation cache, and
+    # whether Ctrl-C keeps the state reached (a pilot fit's does not).
+    resumed_from_: int
+    _cache: dict[str, Any]
+    _keep_state_on_interrupt: bool
+
     # --- scikit-learn conventions ---------------------------------------------------------------
     def get_params(self, deep: bool = True) -> dict[str, Any]:
         import inspect
@@ -386,7 +392,7 @@ class DPGP:
                 seconds = time.perf_counter() - t
                 labels = np.asarray(self._sampler.labels())
                 ari = adjusted_rand_index(previous, labels)
-                extra = tuple(b - a for a, b in zip(counts, self._sampler.split_merge_counts()))
+                extra: tuple[float, ...] = tuple(b - a for a, b in zip(counts, self._sampler.split_merge_counts()))
                 extra += self._sampler.noise_var()
                 for key, val in zip(ckpt.HISTORY_KEYS, (k, alpha, log_joint, moves, ari, seconds, *extra)):
                     self.history_[key].append(val)
@@ -463,6 +469,7 @@ class DPGP:
         if self.store_labels:
             self.label_trace_ = _trace_array(traces, len(self.frames_))
         # Uncompressed: zlib would be most of a checkpoint's cost (the file is read once, if at all).
+        assert self.checkpoint is not None
         save(self._file_state(), self.checkpoint, resume=self._resume_point, compress=False)
 
     def _resolve_engine(self, frames: Frames) -> None:
@@ -504,10 +511,12 @@ class DPGP:
 
         self._auto_pending = False
         points = pattern_points(np.asarray(self._sampler.labels(), dtype=np.int64), frames.sizes)
+        assert self.basis_ is not None  # hsgp ran the initialisation
         choice = choose(points[points > 0], frames.sizes, self.basis_.size, self.memory_budget_)
         self.engine_choice_ = choice.to_dict()
         if choice.engine == "exact":
-            self.likelihood_, self.basis_, self._sampler = "exact", None, None
+            self.likelihood_, self.basis_ = "exact", None
+            del self._sampler  # free hsgp's before the exact one allocates
             self._sampler = self._new_sampler(frames)
             self._sampler.initialize()
 
@@ -552,7 +561,8 @@ class DPGP:
         self.length_scales_ = np.array([[patterns[j][3], patterns[j][4]] for j in order]).reshape(-1, 2)
         self.pattern_ids_ = np.array([patterns[j][1] for j in order], dtype=np.uint64)
         self.alpha_ = float(self._sampler.alpha())
-        noise = tuple(float(x) for x in self._sampler.noise_var())
+        nx, ny = self._sampler.noise_var()
+        noise = (float(nx), float(ny))
         if noise != tuple(self.params_.noise_var):  # sampled inside the chain
             self.params_ = dataclasses.replace(self.params_, noise_var=noise)
         self.noise_var_ = noise
@@ -588,7 +598,7 @@ class DPGP:
 
         frames = as_frames(frames)
         terms = self._log_joint_terms(frames)
-        draws = getattr(self, "draws_", None)
+        draws: Any = getattr(self, "draws_", None)  # used() gives no index without draws
         own = (float(self.noise_var_[0]), float(self.noise_var_[1]))  # for draws from files without their noise
         states = [
             (draws.labels[i], draws.length_scales[i], draws.alpha[i], draws.noise_var[i] or own)
