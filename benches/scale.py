@@ -5,6 +5,9 @@ its own process, so that its peak resident memory is its own.
     python benches/scale.py us101 [--sweeps 60]          # likelihood x proposal on NGSIM US-101
     python benches/scale.py one KIND N LIKELIHOOD PROPOSAL SWEEPS   # one configuration, JSON out
 
+``--markdown FILE`` (synthetic, us101) also writes the table as a docs page stamped with the commit,
+the machine and the date (benches/tables.py), e.g. ``docs/performance/scale.md``.
+
 ``synthetic``: dpgp.datasets.synthetic highway and intersection scenes at each size, exact (up to
 1,000 frames, beyond which it does not fit in time or memory) and hsgp, default proposal; prints
 the median seconds per sweep, initialisation seconds, peak RSS, K and the ARI against the truth.
@@ -89,8 +92,10 @@ def main() -> None:
     s = sub.add_parser("synthetic")
     s.add_argument("--sizes", type=int, nargs="+", default=[1000, 10000, 100000])
     s.add_argument("--sweeps", type=int, default=20)
+    s.add_argument("--markdown", metavar="FILE", help="also write the table as a stamped docs page")
     u = sub.add_parser("us101")
     u.add_argument("--sweeps", type=int, default=60)
+    u.add_argument("--markdown", metavar="FILE", help="also write the table as a stamped docs page")
     o = sub.add_parser("one")
     for name in ("kind", "n", "likelihood", "proposal", "sweeps", "paper"):
         o.add_argument(name)
@@ -122,6 +127,14 @@ def main() -> None:
                     show(rows[-1:], cols)
         print()
         show(rows, cols)
+        if a.markdown:
+            intro = (
+                "Whole fits of `dpgp.datasets.synthetic` scenes under the paper's model constants (σ_n² = 1,\n"
+                "Gamma(10, 1) length scales), informed proposals, each configuration in its own process:\n"
+                "median seconds per sweep, initialisation, peak resident memory, K and the adjusted Rand index\n"
+                "against the true patterns. Exact runs at most 2 sweeps and only up to 1,000 frames."
+            )
+            _markdown(a.markdown, "Scaling on synthetic scenes", intro, rows, cols)
     else:
         rows = []
         cols = [
@@ -143,6 +156,22 @@ def main() -> None:
         rows.append({**run("us101", 0, "auto", "informed", a.sweeps, False), "proposal": "informed (all defaults)"})
         print()
         show(rows, cols)
+        if a.markdown:
+            intro = (
+                "The 1000 NGSIM US-101 frames (the shared data) under the paper's constants in every combination\n"
+                "of likelihood and proposal, then every default: median seconds per sweep, K, and the bulk\n"
+                "effective sample size of the log joint density and of K per second of the sweeps after burn-in."
+            )
+            _markdown(a.markdown, "NGSIM US-101: likelihood × proposal", intro, rows, cols)
+
+
+def _markdown(path: str, title: str, intro: str, rows: list[dict], cols: list[str]) -> None:
+    import tables  # benches/tables.py, beside this script
+
+    ok = [r for r in rows if "error" not in r]
+    failed = [r for r in rows if "error" in r]
+    note = "".join(f"\n\nFailed: `{r['args']}`: {r['error']}" for r in failed)
+    tables.write_page(path, title, intro, tables.markdown_table(ok, cols) + note, tables._command())
 
 
 if __name__ == "__main__":
