@@ -43,8 +43,18 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine() or "unknown CPU"
 
 
-def stamp(command: str, commit: str | None = None, date: str | None = None) -> str:
-    """The provenance line of a table: commit, machine, date and the command that regenerates it."""
+def stamp(command: str, commit: str | None = None, date: str | None = None, recorded: str | None = None) -> str:
+    """The provenance line of a table: commit, machine, date and the command that regenerates it.
+
+    ``recorded``: for results measured earlier and only rendered now, the commit that recorded
+    them; the machine and date are then the renderer's, and the stamp says so.
+    """
+    if recorded is not None:
+        date = date or datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+        return (
+            f"Recorded in the commit `{recorded}` (the results file does not name the machine); rendered on\n"
+            f"{cpu_model()} ({os.cpu_count()} cores), {date}, by `{command}`."
+        )
     if commit is None:
         commit = _git("rev-parse", "--short", "HEAD") or "unknown"
         if _git("status", "--porcelain", "--untracked-files=no"):
@@ -115,10 +125,10 @@ def engine_cost(markdown: str | None) -> None:
     recorded = _git("log", "-1", "--format=%h %cs", "--", str(path.relative_to(ROOT))).split() or ["unknown", ""]
     intro = (
         'The sweeps that calibrate `likelihood="auto"`\'s cost model (`dpgp.model.engine_cost`), as recorded in\n'
-        "`benches/results/engine_cost_calibration.jsonl` by `python benches/engine_cost.py`. The machine\n"
-        "stamp below is the one that rendered the file; the runs themselves were recorded at the commit named."
+        "`benches/results/engine_cost_calibration.jsonl` by `python benches/engine_cost.py`: the median\n"
+        "seconds of the recorded sweeps of each scene, size and engine."
     )
-    write_page(markdown, "Engine cost calibration", intro, table, _command(), commit=f"{recorded[0]} (recorded)")
+    write_page(markdown, "Engine cost calibration", intro, table, _command(), recorded=f"{recorded[0]}, {recorded[1]}")
 
 
 def cargo_bench(markdown: str | None) -> None:

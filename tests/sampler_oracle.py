@@ -1,5 +1,5 @@
 """A plain numpy/scipy implementation of the DP-GP sampler's target, written from the formulas
-(design.md §2) independently of the Rust core: the oracle the sampler is tested against.
+(docs/model.md) independently of the Rust core: the oracle the sampler is tested against.
 
 With the length scales w fixed for every pattern and the concentration α fixed, the posterior
 over partitions z of the N frames is

@@ -1,4 +1,4 @@
-"""What generation learns from the training tracks (issue 15; design.md §3): how a vehicle's
+"""What generation learns from the training tracks (issue 15; docs/generation.md): how a vehicle's
 velocity deviates from its pattern's field over time, how vehicles keep their gaps, and how far
 apart a scene's vehicles stand. The Rust core (``rust/core/src/motion.rs``, ``placement.rs``)
 applies it; ``docs/generation.md`` explains the rules.

@@ -1,4 +1,5 @@
-"""Generating new multi-vehicle scenarios from a fitted model (design.md §3, "Generate").
+"""Generating new multi-vehicle scenarios from a fitted model (docs/guide/generating.md; the
+rules: docs/generation.md).
 
 By default (``dynamics="interactive"``, issue 15) a scenario is: a pattern drawn by its weight;
 a vehicle count from that pattern's own frames (a frame's size, drawn uniformly); positions drawn

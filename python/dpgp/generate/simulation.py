@@ -1,4 +1,5 @@
-"""Simulating the vehicles of a frame forward through a fitted motion pattern (design.md §3).
+"""Simulating the vehicles of a frame forward through a fitted motion pattern
+(docs/guide/generating.md; the rules: docs/generation.md).
 
 Each vehicle moves with the pattern's posterior mean velocity at its position (or, with
 ``stochastic=True``, with velocities drawn jointly for all moving vehicles from the pattern's
