@@ -156,7 +156,11 @@ impl Motion {
 /// centre) behind a leader moving at `leader` along the follower's heading; `gap = None` for a
 /// free road.
 pub fn idm_accel(u: f64, u0: f64, gap: Option<(f64, f64)>, p: &Idm) -> f64 {
-    let free = if u0 > TINY { 1.0 - (u / u0).powi(4) } else { -1.0 };
+    let free = if u0 > TINY {
+        1.0 - (u / u0).powi(4)
+    } else {
+        -1.0
+    };
     let inter = match gap {
         None => 0.0,
         Some((g, leader)) => {
@@ -297,8 +301,13 @@ pub fn drive(
         if !active.is_empty() {
             let info = field.step_start(t, &x)?;
             let mean = field.velocity(&x)?;
-            if mean.len() != x.len() || info.low_data.len() != x.len() || info.offset.len() != x.len() {
-                return Err(Error::Shape("the field answered for a different number of vehicles".into()));
+            if mean.len() != x.len()
+                || info.low_data.len() != x.len()
+                || info.offset.len() != x.len()
+            {
+                return Err(Error::Shape(
+                    "the field answered for a different number of vehicles".into(),
+                ));
             }
             if t == 0 {
                 let mut rng = seed.map(|s| stream(s, 0, Phase::Simulate, NOISE_ENTITY));
@@ -307,7 +316,10 @@ pub fn drive(
                     want[j] = match v0 {
                         Some(v) => v[j],
                         None => {
-                            let mut w = [mean[a][0] + info.offset[a][0], mean[a][1] + info.offset[a][1]];
+                            let mut w = [
+                                mean[a][0] + info.offset[a][0],
+                                mean[a][1] + info.offset[a][1],
+                            ];
                             if let Some(rng) = rng.as_mut() {
                                 for (d, wd) in w.iter_mut().enumerate() {
                                     let z: f64 = StandardNormal.sample(rng);
@@ -329,7 +341,9 @@ pub fn drive(
                             Some(rng) => StandardNormal.sample(rng),
                             None => 0.0,
                         };
-                        want[j][d] = mean[a][d] + rho * (want[j][d] - mean[a][d]) + motion.sigma[d] * kick * z;
+                        want[j][d] = mean[a][d]
+                            + rho * (want[j][d] - mean[a][d])
+                            + motion.sigma[d] * kick * z;
                     }
                     desired.push(want[j]);
                     current.push(vel[j]);

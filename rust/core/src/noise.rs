@@ -131,10 +131,7 @@ impl Sampler {
         for d in 0..2 {
             let noise0 = self.settings.base.noise_var;
             let x0 = noise0[d].ln();
-            let data_term: f64 = self
-                .live()
-                .map(|(_, s)| s.pattern.log_marginal())
-                .sum();
+            let data_term: f64 = self.live().map(|(_, s)| s.pattern.log_marginal()).sum();
             let f0 = prior.log_density(x0, scale[d]) + data_term;
             let mut last: Option<(f64, Vec<Box<dyn PatternModel>>)> = None;
             let (x, _) = slice_step(x0, f0, width(self.data.xy.len()), &mut rng, |x| {

@@ -87,7 +87,8 @@ impl Pattern {
         };
         // A group whose kernel and mean are unchanged keeps its factor (the noise step changes
         // one output's noise at a time): the same numbers a refactor would give, for a copy.
-        let same = params.length_scales == self.params.length_scales && params.mean == self.params.mean;
+        let same =
+            params.length_scales == self.params.length_scales && params.mean == self.params.mean;
         p.refactor_reusing(if same { &self.groups } else { &[] })?;
         Ok(p)
     }

@@ -37,7 +37,9 @@ impl Grid {
             )));
         }
         if weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) {
-            return Err(Error::InvalidInput("bin weights must be finite and >= 0".into()));
+            return Err(Error::InvalidInput(
+                "bin weights must be finite and >= 0".into(),
+            ));
         }
         let mut acc = 0.0;
         let cumulative: Vec<f64> = weights
@@ -48,7 +50,9 @@ impl Grid {
             })
             .collect();
         if acc <= 0.0 {
-            return Err(Error::InvalidInput("the position histogram is empty".into()));
+            return Err(Error::InvalidInput(
+                "the position histogram is empty".into(),
+            ));
         }
         Ok(Self {
             roi,

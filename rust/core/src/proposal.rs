@@ -175,8 +175,8 @@ impl CellStats {
                     0.0
                 };
                 let prior_var = p.signal_var[d] + p.noise_var[d];
-                let var = ((spread + PRIOR_WEIGHT * prior_var) / (n + PRIOR_WEIGHT))
-                    .max(p.noise_var[d]);
+                let var =
+                    ((spread + PRIOR_WEIGHT * prior_var) / (n + PRIOR_WEIGHT)).max(p.noise_var[d]);
                 let r = v[d] - mean;
                 out -= 0.5 * (LN_2PI + var.ln() + r * r / var);
             }

@@ -320,7 +320,11 @@ impl Field for PatternField<'_> {
             offset: vec![[0.0; 2]; m],
             low_data: vec![false; m],
         };
-        let seed = if self.draw_once && step > 0 { None } else { self.seed };
+        let seed = if self.draw_once && step > 0 {
+            None
+        } else {
+            self.seed
+        };
         if seed.is_none() && self.low_data.is_none() {
             return Ok(info);
         }

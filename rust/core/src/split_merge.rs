@@ -155,10 +155,9 @@ impl Sampler {
             .map(|i| {
                 let f = self.data.frame(i);
                 let n = f.v.len() as f64;
-                let s = f
-                    .v
-                    .iter()
-                    .fold([0.0, 0.0], |acc, r| [acc[0] + r[0], acc[1] + r[1]]);
+                let s =
+                    f.v.iter()
+                        .fold([0.0, 0.0], |acc, r| [acc[0] + r[0], acc[1] + r[1]]);
                 [s[0] / n, s[1] / n]
             })
             .collect();
@@ -174,7 +173,11 @@ impl Sampler {
         if ki == NONE || kj == NONE {
             return Ok(());
         }
-        if ki == kj { self.try_split(i, j, ki, rng) } else { self.try_merge(i, j, ki, kj, rng) }
+        if ki == kj {
+            self.try_split(i, j, ki, rng)
+        } else {
+            self.try_merge(i, j, ki, kj, rng)
+        }
     }
 
     /// Length scales for the new split pattern: a prior draw (the fixed ones when fixed).
@@ -294,7 +297,10 @@ impl Sampler {
         rng: &mut impl rand::Rng,
     ) -> Result<()> {
         self.split_merge.merge_proposed += 1;
-        let (a, b) = (self.live_slot(ki).pattern.clone(), self.live_slot(kj).pattern.clone());
+        let (a, b) = (
+            self.live_slot(ki).pattern.clone(),
+            self.live_slot(kj).pattern.clone(),
+        );
         let groups = self.settings.base.groups().len();
         self.check_memory(
             2 * self
@@ -306,8 +312,7 @@ impl Sampler {
         members.extend(b.members());
         let merged = self.settings.likelihood.pattern(*a.params(), &members)?;
         drop(members);
-        let log_target = -self.crp_split_ratio(a.n_frames(), b.n_frames())
-            + merged.log_marginal()
+        let log_target = -self.crp_split_ratio(a.n_frames(), b.n_frames()) + merged.log_marginal()
             - a.log_marginal()
             - b.log_marginal();
         // The reverse split's log q is at most 0, so a uniform that rejects the target ratio

@@ -12,7 +12,12 @@ use dpgp_core::linalg::par_for;
 pub type ParamTuple = (f64, f64, f64, f64, f64, f64, f64, f64);
 
 pub fn params(t: ParamTuple) -> CoreResult<GpParams> {
-    Ok(GpParams::new((t.0, t.1), (t.2, t.3), (t.4, t.5), (t.6, t.7))?)
+    Ok(GpParams::new(
+        (t.0, t.1),
+        (t.2, t.3),
+        (t.4, t.5),
+        (t.6, t.7),
+    )?)
 }
 
 /// Validate a parameter tuple; raises InvalidInputError naming the bad value.

@@ -122,7 +122,11 @@ fn in_parallel<T: Send>(
     })
 }
 
-fn offsets_of(offsets: &PyReadonlyArray1<'_, i64>, groups: usize, rows: usize) -> CoreResult<Vec<usize>> {
+fn offsets_of(
+    offsets: &PyReadonlyArray1<'_, i64>,
+    groups: usize,
+    rows: usize,
+) -> CoreResult<Vec<usize>> {
     let offsets: Vec<usize> = offsets
         .as_array()
         .iter()
@@ -204,7 +208,14 @@ pub fn motion_rollouts<'py>(
         let (a, b) = (offsets[i], offsets[i + 1]);
         let seed = seeds.as_ref().map(|v| v[i]);
         let mut field = PatternField::new(p, None, low_data)?;
-        drive(&start[a..b], Some(&vel[a..b]), &opts, &motion[i], seed, &mut field)
+        drive(
+            &start[a..b],
+            Some(&vel[a..b]),
+            &opts,
+            &motion[i],
+            seed,
+            &mut field,
+        )
     })?;
     Ok(arrays(py, rollouts))
 }
@@ -235,7 +246,13 @@ pub fn scene_rollouts<'py>(
     steps: usize,
     roi: Option<(f64, f64, f64, f64)>,
     low_data: Option<f64>,
-) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<bool>>, Bound<'py, PyArray1<bool>>, Vec<usize>)> {
+) -> PyResult<(
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray1<bool>>,
+    Bound<'py, PyArray1<bool>>,
+    Vec<usize>,
+)> {
     let n = slots.len();
     let opts = options(dt, steps, "euler", roi)?;
     if [counts.len(), grid.len(), spacing.len(), seeds.len()] != [n; 4] {
@@ -257,7 +274,10 @@ pub fn scene_rollouts<'py>(
         return Err(CoreError(Error::Shape(format!("grid {g} of {} grids", grids.len()))).into());
     }
     if let Some(s) = spacing.iter().find(|s| !(s.is_finite() && **s >= 0.0)) {
-        return Err(CoreError(Error::InvalidInput(format!("spacing must be finite and >= 0, got {s}"))).into());
+        return Err(CoreError(Error::InvalidInput(format!(
+            "spacing must be finite and >= 0, got {s}"
+        )))
+        .into());
     }
     let rollouts = in_parallel(py, &sampler, &slots, |p, i| {
         let mut rng = stream(seeds[i], 0, Phase::Simulate, PLACEMENT_ENTITY);

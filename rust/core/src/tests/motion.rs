@@ -49,10 +49,17 @@ fn follower_brakes_behind_a_slow_leader_and_the_leader_is_free() {
     let s_star = 7.0 + 10.0 * 1.5 + 10.0 * 8.0 / (2.0 * 2f64.sqrt());
     let acc = 1.0 - (10.0f64 / 15.0).powi(4) - (s_star / 20.0).powi(2);
     let want = (10.0 + 0.5 * acc).max(0.0);
-    assert!((v[0][0] - want).abs() < 1e-12 && v[0][1] == 0.0, "{:?} vs {want}", v[0]);
+    assert!(
+        (v[0][0] - want).abs() < 1e-12 && v[0][1] == 0.0,
+        "{:?} vs {want}",
+        v[0]
+    );
     // a vehicle in the next lane (lateral offset 3.5 > 1.5) is no leader
     let x2 = [[0.0, 0.0], [20.0, 3.5]];
-    assert_eq!(interact(&x2, &current, &desired, &rule, 0.5)[0], [15.0, 0.0]);
+    assert_eq!(
+        interact(&x2, &current, &desired, &rule, 0.5)[0],
+        [15.0, 0.0]
+    );
 }
 
 #[test]
@@ -60,12 +67,27 @@ fn pedestrians_keep_their_distance() {
     // two walkers heading at each other, 1 m apart, personal distance 0.8
     let x = [[0.0, 0.0], [1.0, 0.0]];
     let desired = [[1.0, 0.0], [-1.0, 0.0]];
-    let v = interact(&x, &desired, &desired, &Rule::Pedestrians { personal: 0.8 }, 0.4);
+    let v = interact(
+        &x,
+        &desired,
+        &desired,
+        &Rule::Pedestrians { personal: 0.8 },
+        0.4,
+    );
     let after = (x[1][0] + 0.4 * v[1][0]) - (x[0][0] + 0.4 * v[0][0]);
     assert!((after - 0.8).abs() < 1e-12, "{after}");
     // far apart: untouched
     let far = [[0.0, 0.0], [10.0, 0.0]];
-    assert_eq!(interact(&far, &desired, &desired, &Rule::Pedestrians { personal: 0.8 }, 0.4), desired);
+    assert_eq!(
+        interact(
+            &far,
+            &desired,
+            &desired,
+            &Rule::Pedestrians { personal: 0.8 },
+            0.4
+        ),
+        desired
+    );
 }
 
 #[test]
@@ -77,11 +99,22 @@ fn the_residual_relaxes_at_the_time_constant() {
         rule: Rule::Free,
     };
     let mut zero = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0; 2]; q.len()]) };
-    let r = drive(&[[0.0, 0.0]], Some(&[[2.0, -1.0]]), &opts(0.1, 30), &motion, None, &mut zero).unwrap();
+    let r = drive(
+        &[[0.0, 0.0]],
+        Some(&[[2.0, -1.0]]),
+        &opts(0.1, 30),
+        &motion,
+        None,
+        &mut zero,
+    )
+    .unwrap();
     for t in 0..=30 {
         let f = (-(t as f64) * 0.1 / 2.0).exp();
         let v = r.velocities[t];
-        assert!((v[0] - 2.0 * f).abs() < 1e-12 && (v[1] + f).abs() < 1e-12, "{t}: {v:?}");
+        assert!(
+            (v[0] - 2.0 * f).abs() < 1e-12 && (v[1] + f).abs() < 1e-12,
+            "{t}: {v:?}"
+        );
     }
     // positions: forward Euler on those velocities
     let x_end: f64 = (0..30).map(|t| 0.1 * r.velocities[t][0]).sum();
@@ -98,8 +131,24 @@ fn stochastic_residual_has_the_stationary_spread_and_is_seeded() {
     let mut zero = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0; 2]; q.len()]) };
     let start = vec![[0.0, 0.0]; 400];
     let v0 = vec![[0.0, 0.0]; 400];
-    let a = drive(&start, Some(&v0), &opts(0.5, 20), &motion, Some(9), &mut zero).unwrap();
-    let b = drive(&start, Some(&v0), &opts(0.5, 20), &motion, Some(9), &mut zero).unwrap();
+    let a = drive(
+        &start,
+        Some(&v0),
+        &opts(0.5, 20),
+        &motion,
+        Some(9),
+        &mut zero,
+    )
+    .unwrap();
+    let b = drive(
+        &start,
+        Some(&v0),
+        &opts(0.5, 20),
+        &motion,
+        Some(9),
+        &mut zero,
+    )
+    .unwrap();
     assert_eq!(a, b);
     // after 20 steps (10 tau) the residual is stationary: var 0.49 and 0.09
     let last = &a.velocities[20 * 400..];
@@ -115,6 +164,7 @@ fn bad_motion_records_are_errors() {
     assert!(Motion::from_slice(&[0.0, 1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]).is_err());
     assert!(Motion::from_slice(&[1.0, 1.0, 1.0, 7.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]).is_err());
     assert!(Motion::from_slice(&[1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0, 1.0, 1.0, 1.0]).is_err());
-    let m = Motion::from_slice(&[f64::INFINITY, 1.0, 1.0, 2.0, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0]).unwrap();
+    let m =
+        Motion::from_slice(&[f64::INFINITY, 1.0, 1.0, 2.0, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0]).unwrap();
     assert_eq!(m.rule, Rule::Pedestrians { personal: 0.5 });
 }

@@ -23,7 +23,9 @@ fn noise_settings(likelihood: Likelihood, seed: u64) -> Settings {
 /// Mean and sd of `log σ_n,d²` under `prior × p(D | σ²)` for one pattern holding `labels`' groups,
 /// by quadrature on a fine grid (the other component held at its starting value).
 fn quadrature(data: &Data, st: &Settings, groups: &[Vec<usize>], d: usize) -> (f64, f64) {
-    let xs: Vec<f64> = (0..4000).map(|t| -14.0 + 20.0 * t as f64 / 4000.0).collect();
+    let xs: Vec<f64> = (0..4000)
+        .map(|t| -14.0 + 20.0 * t as f64 / 4000.0)
+        .collect();
     let lp: Vec<f64> = xs
         .iter()
         .map(|&x| {
@@ -73,8 +75,16 @@ fn noise_draws_follow_the_posterior_given_the_partition() {
             let got_sd =
                 (draws[d].iter().map(|x| (x - got_m).powi(2)).sum::<f64>() / n as f64).sqrt();
             // Slice draws are nearly independent here; 0.05 sd is ~7 standard errors.
-            assert!((got_m - m).abs() < 0.05 * sd + 1e-3, "{} d={d}: mean {got_m} vs {m} (sd {sd})", likelihood.name());
-            assert!((got_sd / sd - 1.0).abs() < 0.05, "{} d={d}: sd {got_sd} vs {sd}", likelihood.name());
+            assert!(
+                (got_m - m).abs() < 0.05 * sd + 1e-3,
+                "{} d={d}: mean {got_m} vs {m} (sd {sd})",
+                likelihood.name()
+            );
+            assert!(
+                (got_sd / sd - 1.0).abs() < 0.05,
+                "{} d={d}: sd {got_sd} vs {sd}",
+                likelihood.name()
+            );
         }
     }
 }
@@ -102,8 +112,14 @@ fn sampled_noise_is_unit_free() {
         let b = st.base;
         st.base = GpParams::new(
             (b.length_scales.wx * scale, b.length_scales.wy * scale),
-            (b.signal_var[0] * scale * scale, b.signal_var[1] * scale * scale),
-            (b.noise_var[0] * scale * scale, b.noise_var[1] * scale * scale),
+            (
+                b.signal_var[0] * scale * scale,
+                b.signal_var[1] * scale * scale,
+            ),
+            (
+                b.noise_var[0] * scale * scale,
+                b.noise_var[1] * scale * scale,
+            ),
             (b.mean[0] * scale, b.mean[1] * scale),
         )
         .unwrap();
@@ -124,7 +140,12 @@ fn sampled_noise_is_unit_free() {
     for (t, (a, b)) in m.iter().zip(&f).enumerate() {
         assert_eq!(a.0, b.0, "sweep {t}");
         for d in 0..2 {
-            assert!((a.1[d] / b.1[d] - 1.0).abs() < 1e-6, "sweep {t}: {:?} vs {:?}", a.1, b.1);
+            assert!(
+                (a.1[d] / b.1[d] - 1.0).abs() < 1e-6,
+                "sweep {t}: {:?} vs {:?}",
+                a.1,
+                b.1
+            );
         }
     }
 }
@@ -132,6 +153,12 @@ fn sampled_noise_is_unit_free() {
 #[test]
 fn bad_noise_prior_is_an_error() {
     let mut st = noise_settings(Likelihood::Exact, 1);
-    st.noise_prior = Some(NoisePrior { log_mean: 0.0, sd: 0.0 });
-    assert!(matches!(Sampler::new(tiny(), st), Err(Error::InvalidInput(_))));
+    st.noise_prior = Some(NoisePrior {
+        log_mean: 0.0,
+        sd: 0.0,
+    });
+    assert!(matches!(
+        Sampler::new(tiny(), st),
+        Err(Error::InvalidInput(_))
+    ));
 }

@@ -13,7 +13,10 @@ fn draws_stay_in_weighted_bins() {
     let mut rng = stream(3, 0, Phase::Simulate, 0);
     for _ in 0..2000 {
         let p = g.draw(&mut rng);
-        assert!((0.0..5.0).contains(&p[0]) && (0.0..=4.0).contains(&p[1]), "{p:?}");
+        assert!(
+            (0.0..5.0).contains(&p[0]) && (0.0..=4.0).contains(&p[1]),
+            "{p:?}"
+        );
     }
 }
 
@@ -30,7 +33,11 @@ fn placed_positions_keep_the_spacing_and_crowds_come_out_smaller() {
     }
     // a 5 x 4 area holds at most a handful of discs 3 apart: never 50
     let crowded = place(&g, 50, 3.0, &mut rng);
-    assert!(crowded.len() < 10 && !crowded.is_empty(), "{}", crowded.len());
+    assert!(
+        crowded.len() < 10 && !crowded.is_empty(),
+        "{}",
+        crowded.len()
+    );
 }
 
 #[test]

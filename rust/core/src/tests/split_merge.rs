@@ -54,7 +54,9 @@ pub(crate) fn tiny_settings(likelihood: Likelihood, seed: u64) -> Settings {
 }
 
 pub(crate) fn tiny_hsgp() -> Likelihood {
-    Likelihood::Hsgp(Arc::new(Basis::new([3.0, 3.0], [6.0, 6.0], [3, 3]).unwrap()))
+    Likelihood::Hsgp(Arc::new(
+        Basis::new([3.0, 3.0], [6.0, 6.0], [3, 3]).unwrap(),
+    ))
 }
 
 /// Canonical labels (first appearance order).
@@ -151,7 +153,10 @@ fn split_merge_alone_samples_the_enumerated_posterior() {
             let d = tv(&freq, &exact);
             let name = format!("{} {pairs:?}", likelihood.name());
             assert!(d <= 0.03, "{name}: TV {d:.4} > 0.03 ({stats:?})");
-            assert!(stats.split_accepted > 1000 && stats.merge_accepted > 1000, "{name}: {stats:?}");
+            assert!(
+                stats.split_accepted > 1000 && stats.merge_accepted > 1000,
+                "{name}: {stats:?}"
+            );
         }
     }
 }
@@ -188,7 +193,9 @@ fn split_merge_chain_is_the_same_whatever_the_thread_count() {
                 sd: 2.0,
             });
             let mut s = Sampler::new(tiny(), st).unwrap();
-            let trace: Vec<f64> = (0..30).map(|_| s.sweep(&|| false).unwrap().log_joint).collect();
+            let trace: Vec<f64> = (0..30)
+                .map(|_| s.sweep(&|| false).unwrap().log_joint)
+                .collect();
             (s.labels().to_vec(), trace, s.split_merge)
         })
     };
@@ -217,7 +224,11 @@ fn accepted_moves_leave_a_consistent_state() {
             for &f in pat.frames() {
                 assert_eq!(s.labels()[f], p.slot);
             }
-            let fresh = s.settings.likelihood.pattern(*pat.params(), &pat.members()).unwrap();
+            let fresh = s
+                .settings
+                .likelihood
+                .pattern(*pat.params(), &pat.members())
+                .unwrap();
             assert!((fresh.log_marginal() - pat.log_marginal()).abs() < 1e-9);
         }
     }
