@@ -3,7 +3,7 @@
 //!
 //! `score/n` reports "elements"/s where an element is one flop of the dense algorithm
 //! (per frame and output group: n² l for the triangular solve + n l² for VᵀV), i.e. GFLOP/s,
-//! to be read next to this machine's dgemm rate (~54 GFLOP/s on one core, algorithms.md §5).
+//! to be read next to the machine's dgemm rate (docs/engine.md, "What bounds the speed").
 
 use std::hint::black_box;
 

@@ -1,4 +1,5 @@
-//! The collapsed Gibbs sampler of the DP mixture of GP velocity fields (design.md §2, §4).
+//! The collapsed Gibbs sampler of the DP mixture of GP velocity fields (docs/model.md;
+//! docs/engine.md, "One sweep").
 //!
 //! State: an assignment of every frame to a pattern (patterns live in a generational arena, so
 //! their ids are stable), per-pattern length scales, and α. One sweep visits every frame in
@@ -61,7 +62,8 @@ pub enum Proposal {
     /// Score the frame against every pattern and draw from the full conditional.
     Full,
     /// Propose a pattern by a cheap score over all of them and accept by the exact ratio of
-    /// the proposed and current patterns (Metropolis-within-Gibbs; algorithms.md §3.7).
+    /// the proposed and current patterns (Metropolis-within-Gibbs; docs/engine.md, "Informed
+    /// proposals").
     Informed,
 }
 

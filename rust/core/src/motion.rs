@@ -1,4 +1,4 @@
-//! Interactive rollouts (design.md §3, "Simulate" and "Generate"): the field gives each vehicle
+//! Interactive rollouts (docs/generation.md): the field gives each vehicle
 //! its *desired* velocity; its actual velocity deviates from it by a temporally correlated
 //! residual, and vehicles keep their distance from one another.
 //!

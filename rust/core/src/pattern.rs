@@ -1,7 +1,7 @@
 //! One motion pattern: its frames' points in factor order, its length scales, and per output
 //! group a growable Cholesky factor of `σ² R + σ_n² I` with the whitened residuals `z = L⁻¹(v − μ)`.
 //!
-//! Scoring a frame against a pattern is the append trial (algorithms.md §2.2): with
+//! Scoring a frame against a pattern is the append trial (docs/engine.md): with
 //! `V = L⁻¹ K(X_k, X_i)` and `S = K_ii + σ_n² I − VᵀV`, the GP predictive density of the frame is
 //! `N(r ; 0, S)` with `r = v_i − μ − Vᵀ z`. The same `V` and `chol S` are the new factor rows.
 

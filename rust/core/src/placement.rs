@@ -1,4 +1,4 @@
-//! Joint placement of a generated scene's vehicles (design.md §3, "Generate"): positions from a
+//! Joint placement of a generated scene's vehicles (docs/generation.md): positions from a
 //! pattern's position histogram, drawn one after another and each redrawn while it lands closer
 //! than the pattern's recorded spacing to one already placed (hard-core rejection, in the
 //! manner of a random sequential adsorption process). A vehicle that finds no room in

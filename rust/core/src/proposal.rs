@@ -1,6 +1,7 @@
-//! The cheap score behind `proposal="informed"` (algorithms.md §3.7): per pattern, counts, sums
-//! and sums of squares of its velocities over a grid of cells. A frame's cheap log density under
-//! a pattern treats its vehicles as independent normals around their cells' mean velocities:
+//! The cheap score behind `proposal="informed"` (docs/engine.md, "Informed proposals"): per
+//! pattern, counts, sums and sums of squares of its velocities over a grid of cells. A frame's
+//! cheap log density under a pattern treats its vehicles as independent normals around their
+//! cells' mean velocities:
 //! `O(l)` per pattern, against `O(l n_k²)` (exact) or `O(l M²)` (hsgp) for the model's score.
 //!
 //! The statistics are sums over frames, so the score of a frame against its own pattern can

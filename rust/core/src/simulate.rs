@@ -1,5 +1,5 @@
 //! Rollouts: many vehicles moved together through a velocity field by forward Euler or
-//! classical RK4 (design.md §3, "Simulate").
+//! classical RK4 (docs/guide/generating.md).
 //!
 //! A vehicle moves while it is inside the region of interest; the step that carries it out
 //! records the first position outside, and from then on it stands still (velocity 0,
