@@ -19,7 +19,15 @@ from .._constants import LOW_DATA_THRESHOLD
 from .._resources import check_thread_reservations, default_memory_budget, parse_bytes
 from ..data.frames import Frames, as_frames
 from ..evaluate.metrics import adjusted_rand_index, canonical_labels
-from ..exceptions import DpgpError, InvalidInputError, MemoryBudgetError, ModelFileError, NotFittedError
+from ..evaluate.transitions import Transitions, count_transitions
+from ..exceptions import (
+    DpgpError,
+    InvalidInputError,
+    MemoryBudgetError,
+    ModelFileError,
+    NotFittedError,
+    UnorderedFramesError,
+)
 from ..gp.defaults import NOISE_PRIOR
 from ..gp.draws import MAX_DRAWS, Draws
 from ..gp.exact import GPParams, _pair, check_scales
@@ -573,6 +581,19 @@ class DPGP:
             self._sampler, self._slots, self._slot_order, self.frames_, self.labels_, self.weights_, self.alpha_, cache
         )
 
+    @property
+    def transitions_(self) -> Transitions:
+        """Pattern transitions between consecutive training frames, scene entries and exits, and
+        dwell times (:class:`dpgp.evaluate.transitions.Transitions`); needs frames with times
+        (:class:`~dpgp.exceptions.UnorderedFramesError` otherwise)."""
+        self._check_fitted()
+        cache = self.__dict__.setdefault("_cache", {})
+        held = cache.get("transitions")
+        if held is None or held[0] is not self.labels_:
+            held = (self.labels_, count_transitions(self.labels_, self.frames_, self.n_patterns_))
+            cache["transitions"] = held
+        return held[1]
+
     def _log_joint_terms(self, frames: Frames) -> np.ndarray:
         """(N, K+1): log [prior weight × likelihood] of each pattern, then of a new pattern."""
         frames = as_frames(frames)
@@ -733,8 +754,15 @@ class DPGP:
             converged=getattr(self, "converged_", None), init_seconds=getattr(self, "init_seconds_", None),
             timings=getattr(self, "timings_", {}), log_joint=getattr(self, "log_joint_", None),
             chain_summary=getattr(self, "chain_summary_", None), label_trace=getattr(self, "label_trace_", None),
-            draws=getattr(self, "draws_", None),
+            draws=getattr(self, "draws_", None), transitions=self._transitions_dict(),
         )  # fmt: skip
+
+    def _transitions_dict(self) -> dict[str, Any] | None:
+        """The transitions a model file stores (None for frames without time order)."""
+        try:
+            return self.transitions_.to_dict()
+        except UnorderedFramesError:
+            return None
 
     def _resolved_dict(self) -> dict[str, Any]:
         """What the "auto" settings and the preset resolved to, as a model file stores it."""
@@ -850,6 +878,8 @@ class DPGP:
             model._cache = {"distributions": (file.frames, file.distributions)}
         if file.motion is not None:
             model.__dict__.setdefault("_cache", {})["motion"] = (file.frames, file.motion)
+        if file.transitions is not None:
+            model.__dict__.setdefault("_cache", {})["transitions"] = (model.labels_, file.transitions)
         return model
 
     def evaluate(
