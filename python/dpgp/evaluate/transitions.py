@@ -130,7 +130,9 @@ class Transitions:
         return cls(counts, entry, exit_, runs, dt)
 
 
-def count_transitions(labels: Any, order: TimeOrder | Any, n_patterns: int | None = None, dt: float | None = None) -> Transitions:
+def count_transitions(
+    labels: Any, order: TimeOrder | Any, n_patterns: int | None = None, dt: float | None = None
+) -> Transitions:
     """The :class:`Transitions` of frame ``labels`` (integers ``0..K-1``) in the time ``order`` of
     their frames (a :class:`TimeOrder`, or the frames / their ids, whose order is then taken with
     ``dt``). :class:`~dpgp.exceptions.UnorderedFramesError` if the frames have no times."""
