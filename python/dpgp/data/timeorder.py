@@ -103,6 +103,8 @@ def time_order(frames_or_ids: Any, dt: float | None = None) -> TimeOrder:
     a scene (the step :func:`dpgp.make_frames` used). Two frames of one scene at the same time are
     an :class:`UnorderedFramesError`."""
     ids = getattr(frames_or_ids, "ids", frames_or_ids)
+    if dt is None:  # the step make_frames used, when the frames say it
+        dt = getattr(getattr(frames_or_ids, "summary", None), "dt", None)
     scenes, times = frame_times(ids)
     n = len(times)
     order = np.lexsort((times, scenes))
