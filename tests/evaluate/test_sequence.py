@@ -18,7 +18,7 @@ def _brute_force(log_e, a, start, seq):
     total = 0.0
     for path in itertools.product(range(s), repeat=len(seq)):
         p = start[path[0]] * np.exp(log_e[seq[0], path[0]])
-        for (t0, z0), (t1, z1) in zip(zip(seq, path), zip(seq[1:], path[1:])):
+        for (_t0, z0), (t1, z1) in zip(zip(seq, path), zip(seq[1:], path[1:])):
             p *= a[z0, z1] * np.exp(log_e[t1, z1])
         total += p
     return np.log(total)

@@ -717,7 +717,20 @@ class DPGP:
         by the learned residual model with interaction. ``options``: ``dt``, ``method``,
         ``stochastic``, ``roi``, ``low_data_threshold``, ``dynamics`` (``"field"``: the earlier
         generator — counts from φ, independent positions, the paper's rollout). Returns :class:`dpgp.scenarios.Scenarios`
-        (``to_pandas``, ``to_csv``, ``to_sumo``)."""
+        (``to_pandas``, ``to_csv``, ``to_sumo``).
+
+        ``duration`` (seconds; issue 20): long scenarios that switch pattern by the learned
+        :attr:`transitions_` and dwell times, vehicles entering where each pattern's enter
+        (:mod:`dpgp.generate.long`); ``dynamics=True`` there means the default interactive motion.
+        Returns a list of :class:`dpgp.generate.long.LongScenario`."""
+        if options.get("duration") is not None:
+            from ..generate.long import sample_long_scenarios
+
+            duration = options.pop("duration")
+            if options.get("dynamics") in (True, None):
+                options["dynamics"] = "interactive"
+            return sample_long_scenarios(self._fitted(), self.transitions_, n, duration, seed, **options)
+        options.pop("duration", None)
         from ..generate.scenarios import sample_scenarios
 
         return sample_scenarios(self._fitted(), n, steps, pattern, seed, **options)
