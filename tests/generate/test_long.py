@@ -75,3 +75,15 @@ def test_long_scenarios_are_seeded_and_come_from_the_estimator(model):
         assert np.array_equal(x.patterns, y.patterns)
     with pytest.raises(InvalidInputError, match="duration"):
         model.sample_scenarios(1, duration=-1.0)
+
+
+def test_same_seed_same_result_with_one_or_two_threads():
+    frames = dpgp.make_frames(_tracks(seed=1), dt=0.5)
+    runs = []
+    for threads in (1, 2):
+        m = dpgp.DPGP(iterations=2, seed=0, progress=False, n_threads=threads).fit(frames)
+        runs.append((m.transitions_, m.sample_scenarios(2, duration=15.0, seed=7, dynamics=True)))
+    (t1, s1), (t2, s2) = runs
+    assert np.array_equal(t1.counts, t2.counts) and np.array_equal(t1.runs, t2.runs)
+    for a, b in zip(s1, s2):
+        pd.testing.assert_frame_equal(a.table, b.table)
