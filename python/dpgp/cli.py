@@ -15,7 +15,7 @@ from typing import Any, NoReturn
 
 from ._constants import DEFAULT_DT, TRAIN_FRACTION
 from .data.read import FORMATS
-from .exceptions import DpgpError, InvalidInputError
+from .exceptions import DpgpError, InvalidInputError, UnorderedFramesError
 from .plot import FIGURES as _PLOTS
 from .plot import write_figures as write_figures  # its home before dpgp.plot
 
@@ -123,6 +123,10 @@ def _info(args: argparse.Namespace) -> int:
         f"{args.model}: {meta['format']} format {meta['format_version']}, written by dpgp {meta.get('dpgp_version', '?')}"
     )
     print(model.summary(top=args.top))
+    try:  # pattern dynamics (issue 20), for frames with times
+        print(model.transitions_.summary())
+    except UnorderedFramesError as e:
+        print(f"transitions: none ({e})")
     return 0
 
 

@@ -22,6 +22,11 @@ class DataFormatError(InvalidInputError):
     """A table or file that is not what was expected: missing or misspelt columns, unreadable values."""
 
 
+class UnorderedFramesError(InvalidInputError):
+    """Frames without a recording time (ids that are not grid times or ``(scene, time)`` pairs)
+    where time order is needed: transitions, dwell times, pattern dynamics."""
+
+
 class NotPositiveDefiniteError(DpgpError, np.linalg.LinAlgError):
     """A covariance matrix stayed indefinite even after diagonal jitter."""
 
@@ -44,6 +49,7 @@ __all__ = [
     "InvalidInputError",
     "ShapeError",
     "DataFormatError",
+    "UnorderedFramesError",
     "NotPositiveDefiniteError",
     "MemoryBudgetError",
     "NotFittedError",

@@ -342,6 +342,38 @@ def _stop_note(chains: Any) -> str:
     return f"no stopping rule: {chains.stop_reason_}"
 
 
+def transitions(model: DPGP, top: int = 12, bins: int = 30) -> Figure:
+    """Pattern dynamics of a fit (issue 20): a heatmap of the transition probabilities between
+    consecutive frames' patterns (the ``top`` largest patterns, with the chance of a recording's
+    exit as a last column) beside histograms of their dwell times (censored runs included)."""
+    tr = model.transitions_
+    from matplotlib.figure import Figure
+
+    k = min(top, tr.n_patterns)
+    order = np.argsort(-np.bincount(model.labels_, minlength=tr.n_patterns), kind="stable")[:k]
+    fig = Figure(figsize=(11.0, 4.8), layout="constrained")
+    heat, hist = fig.subplots(1, 2, width_ratios=(1.1, 1.0))
+    probs = np.c_[tr.probs[np.ix_(order, order)], tr.exit_probs[order]]
+    im = heat.imshow(probs, vmin=0, vmax=1, cmap="viridis")
+    fig.colorbar(im, ax=heat, label="P(next frame's pattern)")
+    heat.set_xticks(range(k + 1), [str(j) for j in order] + ["exit"])
+    heat.set_yticks(range(k), [str(j) for j in order])
+    heat.set_xlabel("next pattern")
+    heat.set_ylabel("pattern")
+    heat.set_title(f"transitions (consecutive frames keep their pattern {100 * tr.share_same:.0f}%)", fontsize="small")
+    all_dwell = tr.dwell()
+    edges = np.linspace(0, all_dwell.max() if len(all_dwell) else 1.0, bins + 1)
+    for j in order[: min(k, 6)]:
+        d = tr.dwell(int(j))
+        hist.hist(d, bins=edges, histtype="step", label=f"{j} (mean {d.mean():.1f} s)" if len(d) else str(j))
+    hist.set_yscale("log")
+    hist.set_xlabel("dwell time (s)")
+    hist.set_ylabel("runs")
+    hist.set_title("dwell times of the largest patterns", fontsize="small")
+    hist.legend(fontsize="small")
+    return fig
+
+
 def chain_trace(chains: Any) -> Figure:
     """Log joint, K and α per sweep, one line per chain, the burn-in shaded; the title says
     why the run stopped."""
@@ -419,5 +451,5 @@ def rhat(chains: Any, ax: Axes | None = None, points: int = 30) -> Axes:
 
 __all__ = [
     "weights", "velocity_field", "frames", "simulation", "trace", "animate", "field_grid",
-    "chain_trace", "similarity", "rhat", "write_figures", "FIGURES",
+    "chain_trace", "similarity", "rhat", "write_figures", "FIGURES", "transitions",
 ]  # fmt: skip

@@ -123,6 +123,7 @@ class ModelState:
     chain_summary: dict[str, Any] | None = None
     label_trace: np.ndarray | None = None
     draws: Any = None  # dpgp.gp.draws.Draws
+    transitions: dict[str, Any] | None = None  # dpgp.evaluate.transitions.Transitions.to_dict (issue 20)
 
 
 def save(state: ModelState, path: str | os.PathLike, resume: Any = None, compress: bool = True) -> None:
@@ -160,6 +161,8 @@ def save(state: ModelState, path: str | os.PathLike, resume: Any = None, compres
     }
     if state.chain_summary is not None:
         meta["chain_summary"] = state.chain_summary  # a model summarising chains (dpgp.fit_chains)
+    if state.transitions is not None:
+        meta["transitions"] = state.transitions  # optional: files before issue 20 and unordered frames lack it
     if resume is not None:
         meta[RESUME_KEY] = resume.meta()  # a checkpoint
     arrays: dict[str, np.ndarray] = {
@@ -294,6 +297,7 @@ class ModelFile:
     distributions: Any
     resume: Any = None
     motion: Any = None  # a dpgp.motion.MotionModel; None in files written before issue 15
+    transitions: Any = None  # a dpgp.evaluate.transitions.Transitions; None before issue 20 or without times
 
 
 def read_model_file(path: str | os.PathLike) -> ModelFile:
@@ -317,6 +321,7 @@ def parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str = "mode
 def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> ModelFile:
     from ..data.frames import Frames
     from ..data.framing import FramingSummary
+    from ..evaluate.transitions import Transitions
     from ..generate.distributions import EmpiricalDistributions
     from ..generate.motion import MotionModel
     from ..gp.draws import Draws
@@ -379,10 +384,12 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
     if isinstance((meta.get("engine") or {}).get("choice"), dict):
         state["engine_choice_"] = meta["engine"]["choice"]
     d = meta.get("distributions")
+    tr = meta.get("transitions")
+    transitions = None if tr is None else Transitions.from_dict(tr, len(ls))
     return ModelFile(
         path, settings, frames, labels, ls, float(meta["alpha"]), params, _resolved(meta), likelihood, basis, state,
         None if d is None else EmpiricalDistributions.from_dict(d), parse_resume(meta, arrays, frames),
-        None if meta.get("motion") is None else MotionModel.from_dict(meta["motion"]),
+        None if meta.get("motion") is None else MotionModel.from_dict(meta["motion"]), transitions,
     )  # fmt: skip
 
 

@@ -19,7 +19,15 @@ from .._constants import LOW_DATA_THRESHOLD
 from .._resources import check_thread_reservations, default_memory_budget, parse_bytes
 from ..data.frames import Frames, as_frames
 from ..evaluate.metrics import adjusted_rand_index, canonical_labels
-from ..exceptions import DpgpError, InvalidInputError, MemoryBudgetError, ModelFileError, NotFittedError
+from ..evaluate.transitions import Transitions, count_transitions
+from ..exceptions import (
+    DpgpError,
+    InvalidInputError,
+    MemoryBudgetError,
+    ModelFileError,
+    NotFittedError,
+    UnorderedFramesError,
+)
 from ..gp.defaults import NOISE_PRIOR
 from ..gp.draws import MAX_DRAWS, Draws
 from ..gp.exact import GPParams, _pair, check_scales
@@ -583,6 +591,19 @@ class DPGP:
             self._sampler, self._slots, self._slot_order, self.frames_, self.labels_, self.weights_, self.alpha_, cache
         )
 
+    @property
+    def transitions_(self) -> Transitions:
+        """Pattern transitions between consecutive training frames, scene entries and exits, and
+        dwell times (:class:`dpgp.evaluate.transitions.Transitions`); needs frames with times
+        (:class:`~dpgp.exceptions.UnorderedFramesError` otherwise)."""
+        self._check_fitted()
+        cache = self.__dict__.setdefault("_cache", {})
+        held = cache.get("transitions")
+        if held is None or held[0] is not self.labels_:
+            held = (self.labels_, count_transitions(self.labels_, self.frames_, self.n_patterns_))
+            cache["transitions"] = held
+        return held[1]
+
     def _log_joint_terms(self, frames: Frames) -> np.ndarray:
         """(N, K+1): log [prior weight × likelihood] of each pattern, then of a new pattern."""
         frames = as_frames(frames)
@@ -706,7 +727,20 @@ class DPGP:
         by the learned residual model with interaction. ``options``: ``dt``, ``method``,
         ``stochastic``, ``roi``, ``low_data_threshold``, ``dynamics`` (``"field"``: the earlier
         generator — counts from φ, independent positions, the paper's rollout). Returns :class:`dpgp.scenarios.Scenarios`
-        (``to_pandas``, ``to_csv``, ``to_sumo``)."""
+        (``to_pandas``, ``to_csv``, ``to_sumo``).
+
+        ``duration`` (seconds; issue 20): long scenarios that switch pattern by the learned
+        :attr:`transitions_` and dwell times, vehicles entering where each pattern's enter
+        (:mod:`dpgp.generate.long`); ``dynamics=True`` there means the default interactive motion.
+        Returns a list of :class:`dpgp.generate.long.LongScenario`."""
+        if options.get("duration") is not None:
+            from ..generate.long import sample_long_scenarios
+
+            duration = options.pop("duration")
+            if options.get("dynamics") in (True, None):
+                options["dynamics"] = "interactive"
+            return sample_long_scenarios(self._fitted(), self.transitions_, n, duration, seed, **options)
+        options.pop("duration", None)
         from ..generate.scenarios import sample_scenarios
 
         return sample_scenarios(self._fitted(), n, steps, pattern, seed, **options)
@@ -743,8 +777,15 @@ class DPGP:
             converged=getattr(self, "converged_", None), init_seconds=getattr(self, "init_seconds_", None),
             timings=getattr(self, "timings_", {}), log_joint=getattr(self, "log_joint_", None),
             chain_summary=getattr(self, "chain_summary_", None), label_trace=getattr(self, "label_trace_", None),
-            draws=getattr(self, "draws_", None),
+            draws=getattr(self, "draws_", None), transitions=self._transitions_dict(),
         )  # fmt: skip
+
+    def _transitions_dict(self) -> dict[str, Any] | None:
+        """The transitions a model file stores (None for frames without time order)."""
+        try:
+            return self.transitions_.to_dict()
+        except UnorderedFramesError:
+            return None
 
     def _resolved_dict(self) -> dict[str, Any]:
         """What the "auto" settings and the preset resolved to, as a model file stores it."""
@@ -860,6 +901,8 @@ class DPGP:
             model._cache = {"distributions": (file.frames, file.distributions)}
         if file.motion is not None:
             model.__dict__.setdefault("_cache", {})["motion"] = (file.frames, file.motion)
+        if file.transitions is not None:
+            model.__dict__.setdefault("_cache", {})["transitions"] = (model.labels_, file.transitions)
         return model
 
     def evaluate(

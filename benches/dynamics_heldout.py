@@ -1,0 +1,50 @@
+"""Held-out pattern dynamics (issue 20, docs/dynamics.md): label-sequence log-likelihood and
+per-vehicle density of frame t given the frames before it, under the transitions learned by a fit
+(HMM forward pass) against the independent DP. First 70% of frames to fit (defaults, 20 sweeps),
+the rest held out in time order.
+
+    PYTHONPATH=$PWD/python nice python benches/dynamics_heldout.py [--only sumo,us101,eth,zara01]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import dpgp
+from dpgp.evaluate import split_in_time
+from dpgp.evaluate.sequence import sequence_scores
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def load(name: str) -> dpgp.Frames:
+    if name == "us101":
+        return dpgp.read_frames(DATA / "ngsim_us101_frames.tsv")  # frame numbers as times (dt 1 frame)
+    if name in ("eth", "zara01"):
+        file = {"eth": "eth_ucy_biwi_eth.txt", "zara01": "eth_ucy_crowds_zara01.txt"}[name]
+        return dpgp.make_frames(dpgp.read_tracks(DATA / file, preset="eth_ucy"), dt=0.4)
+    return dpgp.make_frames(dpgp.read_tracks(DATA / "sumo_grid_intersection_fcd.xml.gz", preset="sumo"))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--only", default="sumo,us101,eth,zara01")
+    ap.add_argument("--iterations", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args()
+    for name in a.only.split(","):
+        train, test = split_in_time(load(name))
+        t = time.perf_counter()
+        model = dpgp.DPGP(iterations=a.iterations, seed=a.seed, progress=False).fit(train)
+        s = sequence_scores(model, test)
+        row = {"data": name, "train": len(train), "K": model.n_patterns_,
+               "train_share_same": round(model.transitions_.share_same, 4), **s.to_dict(),
+               "seconds": round(time.perf_counter() - t, 1)}  # fmt: skip
+        print(json.dumps(row), flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,87 @@
+"""Long scenarios that switch pattern (issue 20, docs/dynamics.md): 10-minute scenarios generated
+from the SUMO junction fit of benches/dynamics.py; the autocorrelation of the scene's flow axis
+(does the junction's 90 s signal cycle show?), on the generated scenarios and, as the reference,
+on the recording; throughput; the realism score against the recording.
+
+    PYTHONPATH=$PWD/python nice python benches/dynamics_long.py --model sumo_none.npz [--n 3]
+
+The flow axis of a step is the mean of cos 2θ over the moving vehicles (θ their heading): +1 when
+all move east–west, −1 when all move north–south, whichever way along the axis.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+import pandas as pd
+
+import dpgp
+from dpgp.evaluate.realism_checks import realism
+
+DATA = "../shared/data/sumo_grid_intersection_fcd.xml.gz"
+
+
+def flow_axis(table: pd.DataFrame, dt: float, t_end: float) -> np.ndarray:
+    """Mean cos 2θ of the vehicles moving faster than 1 m/s at each step (0 where none)."""
+    moving = table[np.hypot(table.vx, table.vy) > 1.0]
+    c = np.cos(2 * np.arctan2(moving.vy, moving.vx))
+    step = np.rint(moving.t.to_numpy() / dt).astype(int)
+    n = int(round(t_end / dt)) + 1
+    s = np.bincount(step, weights=c, minlength=n)[:n]
+    k = np.bincount(step, minlength=n)[:n]
+    return np.where(k > 0, s / np.maximum(k, 1), 0.0)
+
+
+def acf_peak(signal: np.ndarray, dt: float, lo: float = 20.0, hi: float = 240.0) -> tuple[float, float]:
+    """Lag (s) and height of the autocorrelation's highest peak between ``lo`` and ``hi`` seconds."""
+    x = signal - signal.mean()
+    r = np.correlate(x, x, "full")[len(x) - 1 :] / (x @ x)
+    lags = np.arange(len(r)) * dt
+    ok = np.flatnonzero((lags >= lo) & (lags <= hi))
+    peaks = [i for i in ok if r[i] >= r[i - 1] and r[i] >= r[min(i + 1, len(r) - 1)]]
+    best = max(peaks, key=lambda i: r[i]) if peaks else ok[np.argmax(r[ok])]
+    return float(lags[best]), float(r[best])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--model", default="sumo_none.npz")
+    ap.add_argument("--n", type=int, default=3)
+    ap.add_argument("--duration", type=float, default=600.0)
+    ap.add_argument("--seed", type=int, default=0)
+    a = ap.parse_args()
+    model = dpgp.DPGP.load(a.model)
+    dt = model.transitions_.dt
+    tracks = dpgp.read_tracks(DATA, preset="sumo")
+    frames = dpgp.make_frames(tracks, dt=dt)
+    rec = pd.DataFrame({"t": frames.ids[frames.frame_of_row], "vx": frames.v[:, 0], "vy": frames.v[:, 1]})
+    rec_axis = flow_axis(rec.assign(t=rec.t - rec.t.min()), dt, float(rec.t.max() - rec.t.min()))
+    lag, height = acf_peak(rec_axis, dt)
+    print(json.dumps({"what": "recording", "acf_peak_s": lag, "acf_peak": round(height, 3)}))
+    t = time.perf_counter()
+    scen = model.sample_scenarios(a.n, duration=a.duration, seed=a.seed, dynamics=True)
+    seconds = time.perf_counter() - t
+    rows = sum(len(s.table) for s in scen)
+    print(json.dumps({"what": "throughput", "scenarios": a.n, "duration_s": a.duration, "wall_s": round(seconds, 2),
+                      "simulated_s_per_wall_s": round(a.n * a.duration / seconds, 1),
+                      "vehicle_steps_per_wall_s": round(rows / seconds)}))  # fmt: skip
+    for i, s in enumerate(scen):
+        lag, height = acf_peak(flow_axis(s.table, dt, a.duration), dt)
+        runs = np.diff(np.flatnonzero(np.r_[True, np.diff(s.patterns) != 0, True])) * dt
+        print(json.dumps({"what": f"generated {i}", "acf_peak_s": lag, "acf_peak": round(height, 3),
+                          "switches": s.switches(), "mean_run_s": round(float(runs.mean()), 2),
+                          "vehicles_per_step": round(len(s.table) / len(s.t), 1)}))  # fmt: skip
+    gen = pd.concat([s.table.assign(scenario=i) for i, s in enumerate(scen)])
+    recorded = tracks.rename(columns={"track": "vehicle"}).assign(scenario=0)[["scenario", "vehicle", "t", "x", "y"]]
+    try:
+        r = realism(gen[["scenario", "vehicle", "t", "x", "y"]], recorded, units="m", dt=dt)
+        print(json.dumps({"what": "realism", "meta": float(r.scores.loc["meta", "generated"])}))
+    except Exception as e:  # reported, not hidden
+        print(json.dumps({"what": "realism", "error": f"{type(e).__name__}: {e}"}))
+
+
+if __name__ == "__main__":
+    main()

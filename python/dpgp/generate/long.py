@@ -1,0 +1,170 @@
+"""Long scenarios that switch pattern over time (issue 20).
+
+A scenario starts from a pattern (drawn by how recordings start, else by weight) with the vehicles
+of one of its training frames, stays for a dwell time drawn from that pattern's recorded runs, then
+moves to the next pattern by the learned transitions (the changes, self-transitions excluded),
+and so on until ``duration``. Vehicles keep moving across a switch: the rollout goes on from where
+they are with the residual dynamics and interactions of :mod:`.motion`, under the new pattern's
+field. New vehicles enter where the current pattern's vehicles entered in the recording (track
+starts inside a recording, not at its first frame), at the pattern's recorded entry rate (Poisson);
+vehicles that leave the ROI are dropped. Rollouts run in blocks of ``block`` seconds in the core
+(:func:`.rollout.motion_rollouts`), entries come at the block ends.
+
+The transitions come from :attr:`dpgp.DPGP.transitions_`, handed down as an object with ``counts``,
+``entry_probs`` and ``dwell(k)`` (this layer does not import the evaluation layer)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ..data.timeorder import time_order
+from ..exceptions import InvalidInputError
+from ..gp.fitted import FittedPatterns
+from .motion import motion_model
+from .rollout import motion_rollouts
+
+MAX_VEHICLES = 400  # a scene never holds more at once (entries beyond are skipped)
+
+
+@dataclass(frozen=True, eq=False)
+class LongScenario:
+    """One long scenario: ``table`` rows ``t, vehicle, x, y, vx, vy`` of every vehicle inside the
+    ROI at each step; ``patterns[i]`` the pattern in force at ``t[i]``; ``dt`` the step (s)."""
+
+    table: pd.DataFrame
+    t: np.ndarray
+    patterns: np.ndarray
+    dt: float
+
+    def switches(self) -> int:
+        return int(np.count_nonzero(np.diff(self.patterns)))
+
+    def to_pandas(self) -> pd.DataFrame:
+        return self.table.assign(pattern=self.patterns[np.rint(self.table["t"].to_numpy() / self.dt).astype(int)])
+
+
+@dataclass(frozen=True, eq=False)
+class Entries:
+    """Per pattern: track-start positions and velocities, and the entry rate (vehicles per second)."""
+
+    xy: list[np.ndarray]
+    v: list[np.ndarray]
+    rate: np.ndarray
+
+
+def learn_entries(fit: FittedPatterns) -> Entries:
+    """Where and how often vehicles enter in each pattern, from the training frames' track starts."""
+    frames = fit.frames
+    if frames.tracks is None:
+        raise InvalidInputError(
+            "long scenarios need the frames' track ids to learn where vehicles enter; make frames "
+            "from tracks with dpgp.make_frames"
+        )
+    order = time_order(frames)
+    rows = frames.frame_of_row
+    key = np.lexsort((order.time[rows], order.scene[rows], frames.tracks))
+    first = key[np.r_[True, frames.tracks[key][1:] != frames.tracks[key][:-1]]]
+    first = first[order.prev[rows[first]] >= 0]  # present at a recording's start: not an entry
+    k = fit.n_patterns
+    lab = fit.labels[rows[first]]
+    n_frames = np.bincount(fit.labels, minlength=k)
+    rate = np.bincount(lab, minlength=k) / np.maximum(n_frames * order.dt, 1e-12)
+    return Entries([frames.xy[first[lab == j]] for j in range(k)], [frames.v[first[lab == j]] for j in range(k)], rate)
+
+
+def _next_pattern(tr: Any, k: int, weights: np.ndarray, rng: np.random.Generator) -> int:
+    row = np.asarray(tr.counts[k], dtype=np.float64).copy()
+    row[k] = 0.0
+    if row.sum() <= 0:  # never seen to change: by weight, another pattern where there is one
+        row = weights.copy()
+        if len(row) > 1:
+            row[k] = 0.0
+    return int(rng.choice(len(row), p=row / row.sum()))
+
+
+def _dwell(tr: Any, k: int, dt: float, rng: np.random.Generator) -> int:
+    d = tr.dwell(k)
+    return max(1, int(round((d[rng.integers(len(d))] if len(d) else dt) / dt)))
+
+
+def sample_long_scenarios(
+    fit: FittedPatterns,
+    transitions: Any,
+    n: int,
+    duration: float,
+    seed: int | None = None,
+    *,
+    block: float = 2.0,
+    stochastic: bool = True,
+    roi: tuple[float, float, float, float] | None = None,
+    dynamics: str = "interactive",
+) -> list[LongScenario]:
+    """``n`` :class:`LongScenario` of ``duration`` seconds; see the module's description."""
+    if not (isinstance(duration, (int, float, np.integer, np.floating)) and np.isfinite(duration) and duration > 0):
+        raise InvalidInputError(f"duration must be a positive number of seconds, got {duration!r}")
+    if not (isinstance(block, (int, float)) and np.isfinite(block) and block > 0):
+        raise InvalidInputError(f"block must be a positive number of seconds, got {block!r}")
+    dt = float(transitions.dt)
+    steps = int(round(duration / dt))
+    bsteps = max(1, int(round(block / dt)))
+    box = fit.roi if roi is None else roi
+    entries = learn_entries(fit)
+    motion = motion_model(fit)
+    rng = np.random.default_rng(seed)
+    weights = np.asarray(fit.weights, dtype=np.float64)
+    start_p = np.asarray(transitions.entry_probs, dtype=np.float64)
+    start_p = weights if start_p.sum() <= 0 else start_p
+    out = []
+    for _ in range(int(n)):
+        k = int(rng.choice(len(start_p), p=start_p / start_p.sum()))
+        f = fit.frames[int(rng.choice(np.flatnonzero(fit.labels == k)))]
+        pos, vel = np.c_[f.x, f.y], np.c_[f.vx, f.vy]
+        ids = np.arange(len(pos))
+        next_id = len(pos)
+        chunks = [(np.zeros(len(pos)), ids, pos, vel)]
+        patterns = np.empty(steps + 1, dtype=np.int64)
+        patterns[0] = k
+        left = _dwell(transitions, k, dt, rng)
+        s = 0
+        while s < steps:
+            m = min(bsteps, left, steps - s)
+            if len(pos):
+                sim = motion_rollouts(
+                    fit, [k], [pos], [vel], steps=m, dt=dt, seeds=[int(rng.integers(2**63))] if stochastic else None,
+                    roi=box, low_data_threshold=None, dynamics=dynamics, motion=motion,
+                )[0]  # fmt: skip
+                for j in range(1, m + 1):
+                    keep = sim.in_roi[j]
+                    chunks.append(
+                        (np.full(keep.sum(), (s + j) * dt), ids[keep], sim.positions[j][keep], sim.velocities[j][keep])
+                    )
+                keep = sim.in_roi[m]
+                pos, vel, ids = sim.positions[m][keep], sim.velocities[m][keep], ids[keep]
+            patterns[s + 1 : s + m + 1] = k
+            s += m
+            left -= m
+            if left == 0:
+                k = _next_pattern(transitions, k, weights, rng)
+                left = _dwell(transitions, k, dt, rng)
+            # new vehicles of the pattern now in force, where its vehicles entered
+            arrivals = rng.poisson(entries.rate[k] * m * dt) if len(entries.xy[k]) else 0
+            for _a in range(min(arrivals, MAX_VEHICLES - len(pos))):
+                i = int(rng.integers(len(entries.xy[k])))
+                p = entries.xy[k][i]
+                gap = motion.spacing[k] if len(motion.spacing) > k else 0.0
+                if len(pos) and np.min(np.hypot(*(pos - p).T)) < max(gap, 1e-9):
+                    continue  # the entry is occupied
+                pos, vel = np.r_[pos, p[None]], np.r_[vel, entries.v[k][i][None]]
+                ids = np.r_[ids, next_id]
+                next_id += 1
+        t, vid, xy, v = (np.concatenate([c[i] for c in chunks]) for i in range(4))
+        table = pd.DataFrame({"t": t, "vehicle": vid, "x": xy[:, 0], "y": xy[:, 1], "vx": v[:, 0], "vy": v[:, 1]})
+        out.append(LongScenario(table, np.arange(steps + 1) * dt, patterns, dt))
+    return out
+
+
+__all__ = ["LongScenario", "Entries", "learn_entries", "sample_long_scenarios"]
