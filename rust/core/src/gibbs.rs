@@ -19,9 +19,9 @@ use rand_distr::{Distribution, Gamma};
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
+use crate::frame::FrameRef;
+use crate::frame::{LengthScales, Point};
 use crate::gp::GpParams;
-use crate::kernel::{LengthScales, Point};
-use crate::pattern::FrameRef;
 use crate::pattern_model::{Likelihood, PatternModel};
 use crate::proposal::{self, CellGrid, CellStats};
 use crate::rng::{Phase, stream};

@@ -9,7 +9,8 @@ use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 
 use crate::error::{Error, Result, check_finite};
-use crate::kernel::{self, LengthScales, Point};
+use crate::frame::{LengthScales, Point};
+use crate::kernel;
 use crate::linalg::Chol;
 
 /// `ln(2π)`.

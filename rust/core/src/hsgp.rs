@@ -27,10 +27,10 @@ use faer::linalg::triangular_solve::{
 use faer::{Accum, MatMut, MatRef, Par};
 
 use crate::error::{Error, Result};
+use crate::frame::FrameRef;
+use crate::frame::{LengthScales, Point};
 use crate::gp::{GpParams, LN_2PI};
-use crate::kernel::{LengthScales, Point};
 use crate::linalg::Chol;
-use crate::pattern::FrameRef;
 use crate::small;
 
 /// Most basis functions a fit may use (M x M matrices of 8 bytes: 128 MiB each at the cap).

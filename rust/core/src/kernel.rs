@@ -5,45 +5,13 @@
 //! sampler can grow them in place. Columns are filled as arguments first, then exponentiated in
 //! one vectorised pass (`vexp`).
 
-use std::sync::Arc;
-
 use rayon::prelude::*;
 
-use crate::error::{Error, Result};
-use crate::hsgp::Basis;
+pub use crate::frame::{LengthScales, Point};
 use crate::vexp::exp_nonpos;
-
-/// A position in the plane.
-pub type Point = [f64; 2];
 
 /// Below this many kernel entries, threads cost more than they save.
 const PAR_MIN_ENTRIES: usize = 1 << 17;
-
-/// The per-pattern length scales `(w_x, w_y)`.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct LengthScales {
-    pub wx: f64,
-    pub wy: f64,
-}
-
-impl LengthScales {
-    pub fn new(wx: f64, wy: f64) -> Result<Self> {
-        for (name, w) in [("w_x", wx), ("w_y", wy)] {
-            if !(w.is_finite() && w > 0.0) {
-                return Err(Error::InvalidInput(format!(
-                    "length scale {name} must be a positive finite number, got {w}"
-                )));
-            }
-        }
-        Ok(Self { wx, wy })
-    }
-
-    /// `(1 / (2 wx^2), 1 / (2 wy^2))`: the factors the squared distances are scaled by.
-    #[inline]
-    fn inv2(self) -> (f64, f64) {
-        (0.5 / (self.wx * self.wx), 0.5 / (self.wy * self.wy))
-    }
-}
 
 /// Fill one column: `col[i] = scale * r(a[i], q)`.
 #[inline(always)]
@@ -112,57 +80,6 @@ pub fn gram(a: &[Point], ls: LengthScales, scale: f64, noise: f64, parallel: boo
         k[i * n + i] += noise;
     }
     k
-}
-
-/// The correlation function of a pattern's GP: the squared exponential, or its reduced-rank
-/// (HSGP) approximation `k̃` on a fixed basis, assembled densely for small patterns.
-#[derive(Clone, Debug, Default)]
-pub enum Correlation {
-    #[default]
-    SquaredExp,
-    Reduced(Arc<Basis>),
-}
-
-impl Correlation {
-    /// `scale * r(a, b)`, column-major `a.len() x b.len()` (single-threaded: callers run inside
-    /// parallel loops).
-    pub fn cross(&self, a: &[Point], b: &[Point], ls: LengthScales, scale: f64) -> Vec<f64> {
-        match self {
-            Self::SquaredExp => cross(a, b, ls, scale, false),
-            Self::Reduced(basis) => basis.correlation(a, b, ls, scale),
-        }
-    }
-
-    /// `scale * r(a, a) + noise * I`.
-    pub fn gram(&self, a: &[Point], ls: LengthScales, scale: f64, noise: f64) -> Vec<f64> {
-        let n = a.len();
-        let mut k = self.cross(a, a, ls, scale);
-        for i in 0..n {
-            k[i * n + i] += noise;
-        }
-        k
-    }
-
-    /// Whether the correlation has no support at `p` (outside a reduced-rank basis's box).
-    pub fn unsupported(&self, p: Point) -> bool {
-        match self {
-            Self::SquaredExp => false,
-            Self::Reduced(basis) => !basis.contains(p),
-        }
-    }
-
-    /// `r(p, p)` for each point.
-    pub fn diag(&self, q: &[Point], ls: LengthScales) -> Vec<f64> {
-        match self {
-            Self::SquaredExp => vec![1.0; q.len()],
-            Self::Reduced(basis) => q
-                .iter()
-                .map(|p| {
-                    basis.correlation(std::slice::from_ref(p), std::slice::from_ref(p), ls, 1.0)[0]
-                })
-                .collect(),
-        }
-    }
 }
 
 #[cfg(test)]

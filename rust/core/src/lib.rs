@@ -1,7 +1,20 @@
 //! dpgp-core: the numerical core of dpgp — a Dirichlet-process mixture of Gaussian-process
 //! velocity fields (Guo, Kalidindi et al.). Pure Rust; the Python bindings live in `rust/py`.
 
+// Module layers, bottom to top; a module uses only modules of a lower layer (checked by
+// tests/test_layout_rust.py, which fails on any circle):
+//   1. error, special, vexp, rng, slice        (no crate imports but error)
+//   2. frame                                   (Point, LengthScales, FrameRef)
+//   3. linalg, small, factor, kernel           (dense algebra, the squared-exponential kernel)
+//   4. gp                                      (one exact GP: parameters, posterior, likelihood)
+//   5. hsgp                                    (the reduced-rank basis and its patterns)
+//   6. correlation                             (exact or reduced: the choice of the two)
+//   7. pattern, pattern_model, proposal        (a pattern's sufficient state; the model types)
+//   8. gibbs (+ noise, split_merge), simulate  (the sampler; rollouts)
+//   9. placement, motion                       (scene generation over simulate)
+pub mod correlation;
 pub mod error;
+pub mod frame;
 pub mod gp;
 pub mod kernel;
 pub mod linalg;
@@ -10,8 +23,8 @@ pub mod placement;
 pub mod vexp;
 
 pub use error::{Error, Result};
+pub use frame::{FrameRef, LengthScales, Point};
 pub use gp::GpParams;
-pub use kernel::{LengthScales, Point};
 pub mod factor;
 pub mod gibbs;
 pub mod hsgp;

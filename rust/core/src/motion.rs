@@ -27,7 +27,7 @@
 use rand_distr::{Distribution, StandardNormal};
 
 use crate::error::{Error, Result};
-use crate::kernel::Point;
+use crate::frame::Point;
 use crate::rng::{Phase, stream};
 use crate::simulate::{Field, Method, Options, Rollout};
 

@@ -8,19 +8,14 @@
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 
+use crate::correlation::Correlation;
 use crate::error::Result;
 use crate::factor::GrowFactor;
+pub use crate::frame::FrameRef;
+use crate::frame::{LengthScales, Point};
 use crate::gp::{GpParams, LN_2PI, centered};
-use crate::kernel::{Correlation, LengthScales, Point};
 use crate::linalg::Chol;
 use crate::small;
-
-/// A frame's vehicles: positions and velocities, row for row.
-#[derive(Clone, Copy, Debug)]
-pub struct FrameRef<'a> {
-    pub xy: &'a [Point],
-    pub v: &'a [[f64; 2]],
-}
 
 #[derive(Clone, Debug)]
 struct Group {

@@ -9,11 +9,13 @@
 
 use std::sync::Arc;
 
+use crate::correlation::Correlation;
 use crate::error::Result;
+use crate::frame::FrameRef;
+use crate::frame::{LengthScales, Point};
 use crate::gp::GpParams;
 use crate::hsgp::{Basis, HsgpPattern};
-use crate::kernel::{Correlation, LengthScales, Point};
-use crate::pattern::{FrameRef, Pattern, prior_score_with, prior_scores_with};
+use crate::pattern::{Pattern, prior_score_with, prior_scores_with};
 
 /// A pattern's GP: its data, marginal likelihood, scores of frames, moves and posterior.
 pub trait PatternModel: Send + Sync + std::fmt::Debug {

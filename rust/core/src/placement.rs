@@ -9,7 +9,7 @@ use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 
 use crate::error::{Error, Result};
-use crate::kernel::Point;
+use crate::frame::Point;
 use crate::simulate::Roi;
 
 /// Draws per vehicle before it is left out.

@@ -10,9 +10,9 @@
 
 use std::sync::Arc;
 
+use crate::frame::FrameRef;
+use crate::frame::Point;
 use crate::gp::{GpParams, LN_2PI};
-use crate::kernel::Point;
-use crate::pattern::FrameRef;
 
 /// Most cells along one axis.
 const MAX_CELLS: usize = 64;

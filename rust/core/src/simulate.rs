@@ -12,7 +12,7 @@
 use rand_distr::{Distribution, StandardNormal};
 
 use crate::error::{Error, Result};
-use crate::kernel::Point;
+use crate::frame::Point;
 use crate::pattern_model::PatternModel;
 use crate::rng::{Phase, stream};
 use crate::small;

@@ -43,8 +43,8 @@ use rand_distr::{Distribution, Gamma};
 
 use super::{Assignment, NONE, Sampler};
 use crate::error::{Error, Result};
-use crate::kernel::LengthScales;
-use crate::pattern::FrameRef;
+use crate::frame::FrameRef;
+use crate::frame::LengthScales;
 use crate::pattern_model::PatternModel;
 use crate::rng::{Phase, stream};
 use crate::special::ln_gamma;

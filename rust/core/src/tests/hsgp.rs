@@ -1,5 +1,6 @@
 use super::*;
-use crate::kernel::{self, Correlation};
+use crate::correlation::Correlation;
+use crate::kernel;
 use crate::pattern::Pattern;
 use crate::pattern_model::{PatternModel, ReducedPattern};
 use crate::test_util::{frames, refs};
