@@ -419,7 +419,7 @@ impl HsgpPattern {
     /// Adding also records the frame; subtracting leaves the bookkeeping to the caller.
     fn add_stats(&mut self, id: usize, f: FrameRef<'_>, phi_t: &[f64], sign: f64) {
         let (m, l) = (self.m(), f.xy.len());
-        let pt = MatRef::from_column_major_slice(&phi_t, m, l);
+        let pt = MatRef::from_column_major_slice(phi_t, m, l);
         matmul(
             MatMut::from_column_major_slice_mut(&mut self.gram, m, m),
             Accum::Add,

@@ -1,6 +1,15 @@
 //! dpgp-core: the numerical core of dpgp — a Dirichlet-process mixture of Gaussian-process
 //! velocity fields (Guo, Kalidindi et al.). Pure Rust; the Python bindings live in `rust/py`.
 
+// Numeric code indexes parallel arrays by one loop variable (clippy::needless_range_loop), and
+// `!(x > 0.0)` is how a check also refuses NaN (clippy::neg_cmp_op_on_partial_ord); tuples of
+// result arrays are clearer than one-use type aliases (clippy::type_complexity).
+#![allow(
+    clippy::needless_range_loop,
+    clippy::neg_cmp_op_on_partial_ord,
+    clippy::type_complexity
+)]
+
 // Module layers, bottom to top; a module uses only modules of a lower layer (checked by
 // tests/test_layout_rust.py, which fails on any circle):
 //   1. error, special, vexp, rng, slice        (no crate imports but error)

@@ -1,6 +1,15 @@
 //! `dpgp._core`: the thin binding of dpgp-core. Arrays come in as zero-copy views, the GIL is
 //! released around the numerics, and core errors become typed Python exceptions.
 
+// Numeric code indexes parallel arrays by one loop variable (clippy::needless_range_loop), and
+// `!(x > 0.0)` is how a check also refuses NaN (clippy::neg_cmp_op_on_partial_ord); tuples of
+// result arrays are clearer than one-use type aliases (clippy::type_complexity).
+#![allow(
+    clippy::needless_range_loop,
+    clippy::neg_cmp_op_on_partial_ord,
+    clippy::type_complexity
+)]
+
 mod convert;
 mod errors;
 mod gp;

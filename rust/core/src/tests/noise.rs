@@ -9,7 +9,7 @@ use crate::pattern::FrameRef;
 use crate::pattern_model::Likelihood;
 
 const PRIOR: NoisePrior = NoisePrior {
-    log_mean: -2.302_585_092_994_046, // ln 0.1
+    log_mean: -std::f64::consts::LN_10, // ln 0.1
     sd: 2.0,
 };
 
@@ -59,7 +59,7 @@ fn noise_draws_follow_the_posterior_given_the_partition() {
         let ls = st.base.length_scales;
         s.set_state(&labels, &[ls, ls], 1.0).unwrap();
         let n = 20_000;
-        let mut draws = vec![Vec::with_capacity(n); 2];
+        let mut draws = [Vec::with_capacity(n), Vec::with_capacity(n)];
         for t in 0..n {
             s.sweep = t as u64;
             s.update_noise().unwrap();
