@@ -1,27 +1,48 @@
 # Type stubs of the native module dpgp._core (rust/py). Users import dpgp, not this.
+from typing import final
+
 import numpy as np
 from numpy.typing import NDArray
+from typing_extensions import Self
+
+__all__ = [
+    "check_params",
+    "log_marginal_likelihood",
+    "log_predictive",
+    "posterior",
+    "hsgp_basis",
+    "hsgp_log_marginal_likelihood",
+    "hsgp_log_predictive",
+    "hsgp_posterior",
+    "Sampler",
+    "field_means",
+    "integrate_affine",
+    "motion_rollouts",
+    "rollouts",
+    "scene_rollouts",
+    "__version__",
+]
 
 __version__: str
 
-ParamTuple = tuple[float, float, float, float, float, float, float, float]
+_ParamTuple = tuple[float, float, float, float, float, float, float, float]
 
-def check_params(p: ParamTuple) -> None: ...
-def log_marginal_likelihood(xy: NDArray[np.float64], v: NDArray[np.float64], p: ParamTuple) -> float: ...
+def check_params(p: _ParamTuple) -> None: ...
+def log_marginal_likelihood(xy: NDArray[np.float64], v: NDArray[np.float64], p: _ParamTuple) -> float: ...
 def log_predictive(
     train_xy: NDArray[np.float64],
     train_v: NDArray[np.float64],
     test_xy: NDArray[np.float64],
     test_v: NDArray[np.float64],
-    p: ParamTuple,
+    p: _ParamTuple,
 ) -> float: ...
 def posterior(
-    train_xy: NDArray[np.float64], train_v: NDArray[np.float64], query_xy: NDArray[np.float64], p: ParamTuple
+    train_xy: NDArray[np.float64], train_v: NDArray[np.float64], query_xy: NDArray[np.float64], p: _ParamTuple
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
 
 # Rollouts (rust/py/src/simulate.rs). Each returns (positions (R, 2), velocities (R, 2),
 # in_roi (R,), low_data (R,)), rows grouped by rollout, then time, then vehicle.
-RolloutArrays = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]
+_RolloutArrays = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]
 
 def rollouts(
     sampler: Sampler,
@@ -34,7 +55,7 @@ def rollouts(
     roi: tuple[float, float, float, float] | None = None,
     seeds: list[int] | None = None,
     low_data: float | None = None,
-) -> RolloutArrays: ...
+) -> _RolloutArrays: ...
 def motion_rollouts(
     sampler: Sampler,
     slots: list[int],
@@ -47,7 +68,7 @@ def motion_rollouts(
     roi: tuple[float, float, float, float] | None = None,
     seeds: list[int] | None = None,
     low_data: float | None = None,
-) -> RolloutArrays: ...
+) -> _RolloutArrays: ...
 def scene_rollouts(
     sampler: Sampler,
     slots: list[int],
@@ -76,45 +97,46 @@ def integrate_affine(
     steps: int,
     method: str,
     roi: tuple[float, float, float, float] | None = None,
-) -> RolloutArrays: ...
+) -> _RolloutArrays: ...
 
-BasisTuple = tuple[tuple[float, float], tuple[float, float], tuple[int, int]]
+_BasisTuple = tuple[tuple[float, float], tuple[float, float], tuple[int, int]]
 
 def hsgp_basis(
     xy: NDArray[np.float64],
     length_scale_prior: tuple[float, float],
     length_scales: tuple[float, float] | None = None,
     n_basis: tuple[int, int] | None = None,
-) -> BasisTuple: ...
+) -> _BasisTuple: ...
 def hsgp_log_marginal_likelihood(
-    xy: NDArray[np.float64], v: NDArray[np.float64], p: ParamTuple, b: BasisTuple
+    xy: NDArray[np.float64], v: NDArray[np.float64], p: _ParamTuple, b: _BasisTuple
 ) -> float: ...
 def hsgp_log_predictive(
     train_xy: NDArray[np.float64],
     train_v: NDArray[np.float64],
     test_xy: NDArray[np.float64],
     test_v: NDArray[np.float64],
-    p: ParamTuple,
-    b: BasisTuple,
+    p: _ParamTuple,
+    b: _BasisTuple,
 ) -> float: ...
 def hsgp_posterior(
     train_xy: NDArray[np.float64],
     train_v: NDArray[np.float64],
     query_xy: NDArray[np.float64],
-    p: ParamTuple,
-    b: BasisTuple,
+    p: _ParamTuple,
+    b: _BasisTuple,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
 
+@final
 class Sampler:
     """The DP-GP collapsed Gibbs sampler (rust/py/src/sampler.rs); dpgp.DPGP wraps it."""
 
-    def __init__(
-        self,
+    def __new__(
+        cls,
         xy: NDArray[np.float64],
         v: NDArray[np.float64],
         offsets: NDArray[np.int64],
         assignment: str,
-        params_: ParamTuple,
+        params_: _ParamTuple,
         fixed_length_scales: bool,
         length_scale_prior: tuple[float, float],
         alpha: float | None,
@@ -124,13 +146,13 @@ class Sampler:
         length_scale_fraction: float = 1.0,
         pattern_moments: bool = False,
         likelihood: str = "exact",
-        basis: BasisTuple | None = None,
+        basis: _BasisTuple | None = None,
         proposal: str = "full",
         memory_budget: int | None = None,
         split_merge: int = 0,
         split_merge_pairs: str = "uniform",
         noise_prior: tuple[float, float] | None = None,
-    ) -> None: ...
+    ) -> Self: ...
     def initialize(self) -> None: ...
     def sweep(self) -> tuple[int, int, float, float]: ...
     def labels(self) -> NDArray[np.uintp]: ...
