@@ -25,7 +25,10 @@ def test_info_prints_the_file_line_then_the_summary(model_file, capsys):
     assert "largest 2 patterns" in text and "settings: " in text and "resolved: noise variance" in text
     assert cli.main(["info", str(model_file), "--top", "2"]) == 0
     out = capsys.readouterr().out.splitlines()
-    assert out[0].startswith(f"{model_file}: dpgp-model format") and "\n".join(out[1:]) == text + "\n" + model.transitions_.summary()
+    assert (
+        out[0].startswith(f"{model_file}: dpgp-model format")
+        and "\n".join(out[1:]) == text + "\n" + model.transitions_.summary()
+    )
     with pytest.raises(dpgp.NotFittedError):
         dpgp.DPGP().summary()
 
