@@ -6,6 +6,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from test_layout import circles  # the package's own circle finder (Tarjan), shared
+
 CORE = Path(__file__).resolve().parents[1] / "rust" / "core" / "src"
 _PATH = re.compile(r"\bcrate::(\w+)")
 _GROUP = re.compile(r"\bcrate::\{([^}]*)\}")
@@ -27,41 +29,6 @@ def module_graph(src: Path) -> dict[str, set[str]]:
             used |= {part.strip().split("::")[0] for part in group.split(",") if part.strip()}
         graph[m] = {u for u in used if u in mods and u != m}
     return graph
-
-
-def circles(graph: dict[str, set[str]]) -> list[list[str]]:
-    """Strongly connected components of more than one module (Tarjan)."""
-    index: dict[str, int] = {}
-    low: dict[str, int] = {}
-    stack: list[str] = []
-    on: set[str] = set()
-    out: list[list[str]] = []
-
-    def visit(v: str) -> None:
-        index[v] = low[v] = len(index)
-        stack.append(v)
-        on.add(v)
-        for w in sorted(graph[v]):
-            if w not in index:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on:
-                low[v] = min(low[v], index[w])
-        if low[v] == index[v]:
-            comp = []
-            while True:
-                w = stack.pop()
-                on.discard(w)
-                comp.append(w)
-                if w == v:
-                    break
-            if len(comp) > 1:
-                out.append(sorted(comp))
-
-    for v in sorted(graph):
-        if v not in index:
-            visit(v)
-    return out
 
 
 def test_the_core_has_no_module_circle() -> None:
