@@ -25,9 +25,7 @@ def load_frames(path: str, fmt: str = "auto", roi: Any = None, dt: float | None 
     """Frames from a file of any supported format (:func:`dpgp.read`)."""
     from . import read
 
-    if units is not None and fmt == "frames":
-        raise InvalidInputError("--units applies to trajectories that are framed here, not to framed input")
-    return read(path, fmt, roi=roi, dt=dt, units=units)
+    return read(path, fmt, roi=roi, dt=dt, units=units)  # read refuses units for a file of frames
 
 
 # --- commands ----------------------------------------------------------------------------------

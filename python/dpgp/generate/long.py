@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from .._validate import real_number
 from ..data.timeorder import time_order
 from ..exceptions import InvalidInputError
 from ..gp.fitted import FittedPatterns
@@ -104,10 +105,10 @@ def sample_long_scenarios(
     dynamics: str = "interactive",
 ) -> list[LongScenario]:
     """``n`` :class:`LongScenario` of ``duration`` seconds; see the module's description."""
-    if not (isinstance(duration, (int, float, np.integer, np.floating)) and np.isfinite(duration) and duration > 0):
-        raise InvalidInputError(f"duration must be a positive number of seconds, got {duration!r}")
-    if not (isinstance(block, (int, float)) and np.isfinite(block) and block > 0):
-        raise InvalidInputError(f"block must be a positive number of seconds, got {block!r}")
+    for name, value in (("duration", duration), ("block", block)):
+        seconds = real_number(name, value)
+        if not (np.isfinite(seconds) and seconds > 0):
+            raise InvalidInputError(f"{name} must be a positive number of seconds, got {value!r}")
     dt = float(transitions.dt)
     steps = int(round(duration / dt))
     bsteps = max(1, int(round(block / dt)))
@@ -152,11 +153,11 @@ def sample_long_scenarios(
                 left = _dwell(transitions, k, dt, rng)
             # new vehicles of the pattern now in force, where its vehicles entered
             arrivals = rng.poisson(entries.rate[k] * m * dt) if len(entries.xy[k]) else 0
+            gap = max(motion.spacing[k] if len(motion.spacing) > k else 0.0, 1e-9)
             for _a in range(min(arrivals, MAX_VEHICLES - len(pos))):
                 i = int(rng.integers(len(entries.xy[k])))
                 p = entries.xy[k][i]
-                gap = motion.spacing[k] if len(motion.spacing) > k else 0.0
-                if len(pos) and np.min(np.hypot(*(pos - p).T)) < max(gap, 1e-9):
+                if len(pos) and np.min(np.hypot(*(pos - p).T)) < gap:
                     continue  # the entry is occupied
                 pos, vel = np.r_[pos, p[None]], np.r_[vel, entries.v[k][i][None]]
                 ids = np.r_[ids, next_id]
