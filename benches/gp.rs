@@ -9,9 +9,10 @@
 use std::hint::black_box;
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
-use dpgp_core::gp::{self, GpParams};
+use dpgp_core::gp::GpParams;
 use dpgp_core::kernel::{self, LengthScales, Point};
 use dpgp_core::linalg;
+use dpgp_core::pattern::Pattern;
 use faer::Par;
 
 fn points(n: usize) -> (Vec<Point>, Vec<[f64; 2]>) {
@@ -67,7 +68,7 @@ fn bench(c: &mut Criterion) {
         g.throughput(Throughput::Elements((n * n * n / 3 + 4 * n * n) as u64));
         g.sample_size(10);
         g.bench_with_input(BenchmarkId::new("exact", n), &(xy, v), |b, (xy, v)| {
-            b.iter(|| black_box(gp::log_marginal_likelihood(xy, v, &p, Par::Seq).unwrap()))
+            b.iter(|| black_box(Pattern::single(p, xy, v, Par::Seq).unwrap().log_marginal()))
         });
     }
     g.finish();

@@ -9,6 +9,7 @@ __all__ = [
     "check_params",
     "log_marginal_likelihood",
     "log_predictive",
+    "log_predictive_frames",
     "posterior",
     "hsgp_basis",
     "hsgp_log_marginal_likelihood",
@@ -36,6 +37,14 @@ def log_predictive(
     test_v: NDArray[np.float64],
     p: _ParamTuple,
 ) -> float: ...
+def log_predictive_frames(
+    train_xy: NDArray[np.float64],
+    train_v: NDArray[np.float64],
+    test_xy: NDArray[np.float64],
+    test_v: NDArray[np.float64],
+    offsets: NDArray[np.int64],
+    p: _ParamTuple,
+) -> NDArray[np.float64]: ...
 def posterior(
     train_xy: NDArray[np.float64], train_v: NDArray[np.float64], query_xy: NDArray[np.float64], p: _ParamTuple
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...

@@ -107,3 +107,30 @@ def test_real_lankershim_frames_match_numpy(lankershim_path):
     p = GPParams((20.0, 20.0), signal_var=tuple(train.v.var(axis=0)), noise_var=1.0, mean=tuple(train.v.mean(axis=0)))
     got = dpgp.gp.log_predictive(train.xy, train.v, test.xy, test.v, p)
     assert got == pytest.approx(ref_pred(train.xy, train.v, test.xy, test.v, p), rel=RTOL)
+
+
+@pytest.mark.parametrize("n", [7, 700])
+def test_log_predictive_of_a_large_test_set_matches_numpy(n):
+    # 300 test points: past the frame-sized kernels, so the faer factorisation of S is used.
+    xy, v, p = random_problem(n + 300, seed=300 + n)
+    tr, te = slice(0, n), slice(n, n + 300)
+    got = dpgp.gp.log_predictive(xy[tr], v[tr], xy[te], v[te], p)
+    assert got == pytest.approx(ref_pred(xy[tr], v[tr], xy[te], v[te], p), rel=RTOL)
+
+
+def test_log_predictive_frames_scores_each_frame_as_log_predictive():
+    # Frames of 1 to 1100 points: several blocks of the scoring loop, and one frame larger than a block.
+    sizes = [3, 1, 40, 1100, 9, 700, 2]
+    xy, v, p = random_problem(200 + sum(sizes), seed=11)
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    txy, tv, sxy, sv = xy[:200], v[:200], xy[200:], v[200:]
+    got = dpgp.gp.log_predictive_frames(txy, tv, sxy, sv, offsets, p)
+    want = [ref_pred(txy, tv, sxy[a:b], sv[a:b], p) for a, b in zip(offsets[:-1], offsets[1:])]
+    np.testing.assert_allclose(got, want, rtol=RTOL)
+
+
+@pytest.mark.parametrize("offsets", [[0, 2, 2, 5], [0, 3], [1, 5], [0, 6], [0, -1, 5]])
+def test_log_predictive_frames_refuses_bad_offsets(offsets):
+    xy, v, p = random_problem(10, seed=1)
+    with pytest.raises(dpgp.ShapeError):
+        dpgp.gp.log_predictive_frames(xy, v, xy[:5], v[:5], offsets, p)

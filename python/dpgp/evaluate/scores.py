@@ -45,7 +45,7 @@ from .._validate import inside_roi
 from ..data.frames import Frames
 from ..exceptions import InvalidInputError, ShapeError
 from ..gp.defaults import NOISE_GRID, refine_grid, vehicle_spacing
-from ..gp.exact import GPParams
+from ..gp.exact import GPParams, log_predictive_frames
 from .realism_checks import Realism, model_realism, realism
 
 if TYPE_CHECKING:
@@ -228,48 +228,12 @@ class SingleGP:
 
     def score_frames(self, test: Frames) -> np.ndarray:
         """log N(V_f ; posterior mean, posterior covariance + σ_n² I) per test frame, jointly over
-        its vehicles and summed over the two components."""
-        p = self.params
-        out = np.zeros(len(test))
-        r_tt = _correlation(self.train_xy, self.train_xy, p.length_scales)
-        r_tq = _correlation(self.train_xy, test.xy, p.length_scales)
-        for d in range(2):
-            k = p.signal_var[d] * r_tt + p.noise_var[d] * np.eye(len(r_tt))
-            chol = np.linalg.cholesky(k)
-            alpha = _cho_solve(chol, self.train_v[:, d] - p.mean[d])
-            v = _lower_solve(chol, p.signal_var[d] * r_tq)  # L⁻¹ K(train, test)
-            mean = p.mean[d] + p.signal_var[d] * r_tq.T @ alpha
-            for i, (a, b) in enumerate(zip(test.offsets[:-1], test.offsets[1:])):
-                q = test.xy[a:b]
-                cov = p.signal_var[d] * _correlation(q, q, p.length_scales) - v[:, a:b].T @ v[:, a:b]
-                cov[np.diag_indices_from(cov)] += p.noise_var[d]
-                out[i] += _gauss_logpdf(test.v[a:b, d] - mean[a:b], cov)
-        return out
+        its vehicles and summed over the two components (the core's exact GP, one factorisation)."""
+        return log_predictive_frames(self.train_xy, self.train_v, test.xy, test.v, test.offsets, self.params)
 
 
 def _times(rho: float, var: tuple[float, float]) -> tuple[float, float]:
     return (float(rho * var[0]), float(rho * var[1]))
-
-
-def _correlation(a: np.ndarray, b: np.ndarray, w: tuple[float, float]) -> np.ndarray:
-    dx = (a[:, None, 0] - b[None, :, 0]) / w[0]
-    dy = (a[:, None, 1] - b[None, :, 1]) / w[1]
-    return np.exp(-0.5 * (dx * dx + dy * dy))
-
-
-def _lower_solve(chol: np.ndarray, b: np.ndarray) -> np.ndarray:
-    # numpy has no triangular solver; the general one is exact here and the sizes are small
-    return np.linalg.solve(chol, b)
-
-
-def _cho_solve(chol: np.ndarray, b: np.ndarray) -> np.ndarray:
-    return np.linalg.solve(chol.T, np.linalg.solve(chol, b))
-
-
-def _gauss_logpdf(r: np.ndarray, cov: np.ndarray) -> float:
-    chol = np.linalg.cholesky(cov)
-    z = np.linalg.solve(chol, r)
-    return float(-0.5 * z @ z - np.log(np.diag(chol)).sum() - 0.5 * len(r) * np.log(2 * np.pi))
 
 
 # --- rollouts ----------------------------------------------------------------------------------

@@ -5,6 +5,13 @@ the kept posterior draws (:mod:`.draws`) and the snapshot of a fit that generati
 model files need (:mod:`.fitted`)."""
 
 from . import defaults, draws, exact, fitted, hsgp
-from .exact import GPParams, check_scales, log_marginal_likelihood, log_predictive, posterior
+from .exact import GPParams, check_scales, log_marginal_likelihood, log_predictive, log_predictive_frames, posterior
 
-__all__ = ["GPParams", "check_scales", "log_marginal_likelihood", "log_predictive", "posterior"]
+__all__ = [
+    "GPParams",
+    "check_scales",
+    "log_marginal_likelihood",
+    "log_predictive",
+    "log_predictive_frames",
+    "posterior",
+]

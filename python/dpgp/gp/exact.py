@@ -100,6 +100,22 @@ def log_predictive(train_xy: object, train_v: object, test_xy: object, test_v: o
     )
 
 
+def log_predictive_frames(
+    train_xy: object, train_v: object, test_xy: object, test_v: object, offsets: object, params: GPParams
+) -> np.ndarray:
+    """:func:`log_predictive` of each test frame on its own (rows ``offsets[i]:offsets[i + 1]`` of
+    ``test_xy`` and ``test_v``) given the same training data, from one factorisation of it."""
+    train_v, test_v = as_pairs("train_v", train_v), as_pairs("test_v", test_v)
+    check_scales(train_v, params, "train_v")
+    check_scales(test_v, params, "test_v")
+    offsets = np.ascontiguousarray(offsets, dtype=np.int64)
+    if offsets.ndim != 1:
+        raise ShapeError(f"offsets must be one-dimensional, got shape {offsets.shape}")
+    return _core.log_predictive_frames(
+        as_pairs("train_xy", train_xy), train_v, as_pairs("test_xy", test_xy), test_v, offsets, params.as_tuple()
+    )
+
+
 def posterior(train_xy: object, train_v: object, query_xy: object, params: GPParams) -> tuple[np.ndarray, np.ndarray]:
     """Posterior mean and variance of the noise-free velocity field at ``query_xy``.
 
@@ -111,4 +127,11 @@ def posterior(train_xy: object, train_v: object, query_xy: object, params: GPPar
     return _core.posterior(as_pairs("train_xy", train_xy), train_v, as_pairs("query_xy", query_xy), params.as_tuple())
 
 
-__all__ = ["GPParams", "check_scales", "log_marginal_likelihood", "log_predictive", "posterior"]
+__all__ = [
+    "GPParams",
+    "check_scales",
+    "log_marginal_likelihood",
+    "log_predictive",
+    "log_predictive_frames",
+    "posterior",
+]

@@ -21,16 +21,42 @@ impl Correlation {
     /// `scale * r(a, b)`, column-major `a.len() x b.len()` (single-threaded: callers run inside
     /// parallel loops).
     pub fn cross(&self, a: &[Point], b: &[Point], ls: LengthScales, scale: f64) -> Vec<f64> {
+        self.cross_par(a, b, ls, scale, false)
+    }
+
+    /// [`Correlation::cross`], with the squared exponential's columns spread over rayon when
+    /// `parallel` (a standalone GP, not inside the sampler's parallel loops); the entries are the
+    /// same either way.
+    pub fn cross_par(
+        &self,
+        a: &[Point],
+        b: &[Point],
+        ls: LengthScales,
+        scale: f64,
+        parallel: bool,
+    ) -> Vec<f64> {
         match self {
-            Self::SquaredExp => cross(a, b, ls, scale, false),
+            Self::SquaredExp => cross(a, b, ls, scale, parallel),
             Self::Reduced(basis) => basis.correlation(a, b, ls, scale),
         }
     }
 
     /// `scale * r(a, a) + noise * I`.
     pub fn gram(&self, a: &[Point], ls: LengthScales, scale: f64, noise: f64) -> Vec<f64> {
+        self.gram_par(a, ls, scale, noise, false)
+    }
+
+    /// [`Correlation::gram`], parallel as [`Correlation::cross_par`].
+    pub fn gram_par(
+        &self,
+        a: &[Point],
+        ls: LengthScales,
+        scale: f64,
+        noise: f64,
+        parallel: bool,
+    ) -> Vec<f64> {
         let n = a.len();
-        let mut k = self.cross(a, a, ls, scale);
+        let mut k = self.cross_par(a, a, ls, scale, parallel);
         for i in 0..n {
             k[i * n + i] += noise;
         }

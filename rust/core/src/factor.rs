@@ -28,6 +28,13 @@ impl GrowFactor {
         Self { n, cap, buf }
     }
 
+    /// Take ownership of a dense factor of order `n` with leading dimension `n` (entries above
+    /// the diagonal unspecified): no copy and no spare room, for a factor that will not grow.
+    pub fn from_owned(l: Vec<f64>, n: usize) -> Self {
+        debug_assert_eq!(l.len(), n * n);
+        Self { n, cap: n, buf: l }
+    }
+
     pub fn n(&self) -> usize {
         self.n
     }

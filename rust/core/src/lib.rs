@@ -15,7 +15,7 @@
 //   1. error, special, vexp, rng, slice        (no crate imports but error)
 //   2. frame                                   (Point, LengthScales, FrameRef)
 //   3. linalg, small, factor, kernel           (dense algebra, the squared-exponential kernel)
-//   4. gp                                      (one exact GP: parameters, posterior, likelihood)
+//   4. gp                                      (a pattern's GP parameters)
 //   5. hsgp                                    (the reduced-rank basis and its patterns)
 //   6. correlation                             (exact or reduced: the choice of the two)
 //   7. pattern, pattern_model, proposal        (a pattern's sufficient state; the model types)

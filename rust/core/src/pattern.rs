@@ -4,12 +4,15 @@
 //! Scoring a frame against a pattern is the append trial (docs/engine.md): with
 //! `V = L⁻¹ K(X_k, X_i)` and `S = K_ii + σ_n² I − VᵀV`, the GP predictive density of the frame is
 //! `N(r ; 0, S)` with `r = v_i − μ − Vᵀ z`. The same `V` and `chol S` are the new factor rows.
+//!
+//! This is the one implementation of the exact GP: the sampler's patterns, and a standalone GP
+//! over given points ([`Pattern::single`], what `dpgp.gp` and the single-GP baseline call).
 
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 
 use crate::correlation::Correlation;
-use crate::error::Result;
+use crate::error::{Error, Result, check_finite};
 use crate::factor::GrowFactor;
 pub use crate::frame::FrameRef;
 use crate::frame::{LengthScales, Point};
@@ -42,7 +45,14 @@ pub struct Pattern {
     groups: Vec<Group>,
     /// Per group, `K⁻¹ (v − μ)` (n x outputs), computed on first use after each change.
     weights: std::sync::OnceLock<Vec<Vec<f64>>>,
+    /// `Some(par)` for a standalone GP ([`Pattern::single`]): factored without spare room and
+    /// solved with `par`. `None` for the sampler's patterns, which run inside parallel loops.
+    solo: Option<Par>,
 }
+
+/// Frames larger than this are factored by faer rather than the frame-sized kernels (only in
+/// a standalone GP, so the sampler's arithmetic is unchanged).
+const SMALL_MAX: usize = 64;
 
 impl Pattern {
     /// Build and factor a pattern from scratch.
@@ -68,9 +78,37 @@ impl Pattern {
             v: members.iter().flat_map(|m| m.1.v.iter().copied()).collect(),
             groups: Vec::new(),
             weights: Default::default(),
+            solo: None,
         };
         p.refactor()?;
         Ok(p)
+    }
+
+    /// One GP over the points `xy` with velocities `v` (a pattern of one frame, id 0), factored
+    /// and solved with the parallelism `par`. Inputs are checked: non-empty, finite, row for row.
+    pub fn single(params: GpParams, xy: &[Point], v: &[[f64; 2]], par: Par) -> Result<Self> {
+        check_pair("train_xy", xy, "train_v", v)?;
+        let mut p = Self {
+            params,
+            corr: Correlation::SquaredExp,
+            frames: vec![0],
+            sizes: vec![xy.len()],
+            xy: xy.to_vec(),
+            v: v.to_vec(),
+            groups: Vec::new(),
+            weights: Default::default(),
+            solo: Some(par),
+        };
+        p.refactor()?;
+        Ok(p)
+    }
+
+    fn par(&self) -> Par {
+        self.solo.unwrap_or(Par::Seq)
+    }
+
+    fn parallel(&self) -> bool {
+        !matches!(self.par(), Par::Seq)
     }
 
     /// The same frames under other hyperparameters (a fresh factorisation).
@@ -121,6 +159,7 @@ impl Pattern {
             v: self.v.clone(),
             groups: Vec::new(),
             weights: Default::default(),
+            solo: self.solo,
         }
     }
 
@@ -143,17 +182,21 @@ impl Pattern {
                 self.groups.push(g.clone());
                 continue;
             }
-            let ls = self.params.length_scales;
-            let chol = Chol::factor(n, "training", Par::Seq, || {
-                self.corr.gram(&self.xy, ls, s2, noise)
+            let (ls, par, parallel) = (self.params.length_scales, self.par(), self.parallel());
+            let chol = Chol::factor(n, "training", par, || {
+                self.corr.gram_par(&self.xy, ls, s2, noise, parallel)
             })?;
             let mut z = centered(&self.v, outs, self.params.mean);
-            chol.solve_lower(&mut z, Par::Seq);
+            chol.solve_lower(&mut z, par);
+            let factor = match self.solo {
+                Some(_) => GrowFactor::from_owned(chol.l, n),
+                None => GrowFactor::from_dense(&chol.l, n),
+            };
             self.groups.push(Group {
                 outs,
                 signal_var: s2,
                 noise_var: noise,
-                factor: GrowFactor::from_dense(&chol.l, n),
+                factor,
                 z,
             });
         }
@@ -185,6 +228,7 @@ impl Pattern {
             v: Vec::new(),
             groups: Vec::new(),
             weights: Default::default(),
+            solo: None,
         }
     }
 
@@ -220,12 +264,13 @@ impl Pattern {
             .iter()
             .map(|f| -(f.xy.len() as f64) * LN_2PI)
             .collect();
+        let (par, parallel) = (self.par(), self.parallel());
         let corr = self
             .corr
-            .cross(&self.xy, &pts, self.params.length_scales, 1.0);
+            .cross_par(&self.xy, &pts, self.params.length_scales, 1.0, parallel);
         for g in &self.groups {
             let mut vbuf: Vec<f64> = corr.iter().map(|c| c * g.signal_var).collect();
-            g.factor.solve_lower(&mut vbuf, Par::Seq);
+            g.factor.solve_lower(&mut vbuf, par);
             let vall = MatRef::from_column_major_slice(&vbuf, n, total_m);
             let z = MatRef::from_column_major_slice(&g.z, n, g.outs.len());
             let mut col = 0;
@@ -233,7 +278,7 @@ impl Pattern {
                 let m = f.xy.len();
                 let v = vall.subcols(col, m);
                 col += m;
-                let (logdet, quad) = schur_terms(f, v, z, g, &self.params, &self.corr)?;
+                let (logdet, quad) = self.schur_terms(f, v, z, g)?;
                 *o -= 0.5 * quad + 0.5 * g.outs.len() as f64 * logdet;
             }
         }
@@ -251,7 +296,7 @@ impl Pattern {
                     faer::linalg::triangular_solve::solve_upper_triangular_in_place(
                         g.factor.mat().transpose(),
                         MatMut::from_column_major_slice_mut(&mut a, n, g.outs.len()),
-                        Par::Seq,
+                        self.par(),
                     );
                     a
                 })
@@ -260,16 +305,22 @@ impl Pattern {
     }
 
     /// Posterior mean velocity at `q`: `μ + σ² R(q, X) K⁻¹ (v − μ)` per output.
+    /// Queries in blocks of [`QUERY_BLOCK`], so memory stays `n x QUERY_BLOCK`.
     pub fn predict_mean(&self, q: &[Point]) -> Vec<[f64; 2]> {
         let n = self.xy.len();
-        let corr = self.corr.cross(&self.xy, q, self.params.length_scales, 1.0);
         let mut out = vec![self.params.mean; q.len()];
-        for (g, a) in self.groups.iter().zip(self.weights()) {
-            for (c, &d) in g.outs.iter().enumerate() {
-                let ad = &a[c * n..(c + 1) * n];
-                for (j, o) in out.iter_mut().enumerate() {
-                    let col = &corr[j * n..(j + 1) * n];
-                    o[d] += g.signal_var * col.iter().zip(ad).map(|(x, y)| x * y).sum::<f64>();
+        let ls = self.params.length_scales;
+        for (block, ob) in q.chunks(QUERY_BLOCK).zip(out.chunks_mut(QUERY_BLOCK)) {
+            let corr = self
+                .corr
+                .cross_par(&self.xy, block, ls, 1.0, self.parallel());
+            for (g, a) in self.groups.iter().zip(self.weights()) {
+                for (c, &d) in g.outs.iter().enumerate() {
+                    let ad = &a[c * n..(c + 1) * n];
+                    for (j, o) in ob.iter_mut().enumerate() {
+                        let col = &corr[j * n..(j + 1) * n];
+                        o[d] += g.signal_var * col.iter().zip(ad).map(|(x, y)| x * y).sum::<f64>();
+                    }
                 }
             }
         }
@@ -277,18 +328,20 @@ impl Pattern {
     }
 
     /// Posterior mean and variance of the latent field at each of the points `q`, from the cached
-    /// factor (queries in blocks, so memory stays `n x 1024`).
+    /// factor (queries in blocks, so memory stays `n x QUERY_BLOCK`).
     pub fn posterior(&self, q: &[Point]) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
         let n = self.xy.len();
         let mut var = Vec::with_capacity(q.len());
-        for block in q.chunks(1024) {
+        for block in q.chunks(QUERY_BLOCK) {
             let ls = self.params.length_scales;
-            let corr = self.corr.cross(&self.xy, block, ls, 1.0);
+            let corr = self
+                .corr
+                .cross_par(&self.xy, block, ls, 1.0, self.parallel());
             let prior = self.corr.diag(block, ls);
             let mut out = vec![[0.0; 2]; block.len()];
             for g in &self.groups {
                 let mut v: Vec<f64> = corr.iter().map(|c| c * g.signal_var).collect();
-                g.factor.solve_lower(&mut v, Par::Seq);
+                g.factor.solve_lower(&mut v, self.par());
                 for (j, o) in out.iter_mut().enumerate() {
                     let explained: f64 = v[j * n..(j + 1) * n].iter().map(|x| x * x).sum();
                     for &d in g.outs {
@@ -399,7 +452,7 @@ impl Pattern {
             g.factor.solve_lower(&mut vbuf, Par::Seq);
             let v = MatRef::from_column_major_slice(&vbuf, n, m);
             let k = g.outs.len();
-            let mut r = schur(&f, v, g, &self.params, &self.corr);
+            let mut r = schur(&f, v, g, &self.params, &self.corr, Par::Seq);
             small::cholesky(&mut r, m)?;
             // New whitened residuals: z_new = R⁻¹ (v_f − μ − Vᵀ z).
             let mut rz = residual(
@@ -408,6 +461,7 @@ impl Pattern {
                 MatRef::from_column_major_slice(&g.z, n, k),
                 g.outs,
                 &self.params,
+                Par::Seq,
             );
             small::solve_lower(&r, m, &mut rz);
             let mut z = Vec::with_capacity((n + m) * k);
@@ -461,11 +515,33 @@ impl Pattern {
     }
 }
 
+impl Pattern {
+    /// `(log |S|, ‖chol(S)⁻¹ r‖²)` for one frame and one output group. A standalone GP scores
+    /// test sets of any size, so large ones go to faer (in parallel where allowed).
+    fn schur_terms(
+        &self,
+        f: &FrameRef<'_>,
+        v: MatRef<'_, f64>,
+        z: MatRef<'_, f64>,
+        g: &Group,
+    ) -> Result<(f64, f64)> {
+        let (p, par, m) = (&self.params, self.par(), f.xy.len());
+        let s = schur(f, v, g, p, &self.corr, par);
+        let mut r = residual(f, v, z, g.outs, p, par);
+        if self.solo.is_none() || m <= SMALL_MAX {
+            return small::gaussian_terms(s, m, r);
+        }
+        let chol = Chol::factor(m, "predictive", par, || s.clone())?;
+        chol.solve_lower(&mut r, par);
+        Ok((chol.log_det(), r.iter().map(|x| x * x).sum()))
+    }
+}
+
 /// `dst -= Vᵀ x` for a column-major `dst` of `V.ncols()` rows (a no-op for an empty pattern).
-fn sub_vt_times(dst: &mut [f64], v: MatRef<'_, f64>, x: MatRef<'_, f64>) {
+fn sub_vt_times(dst: &mut [f64], v: MatRef<'_, f64>, x: MatRef<'_, f64>, par: Par) {
     if v.nrows() > 0 {
         let d = MatMut::from_column_major_slice_mut(dst, v.ncols(), x.ncols());
-        matmul(d, Accum::Add, v.transpose(), x, -1.0, Par::Seq);
+        matmul(d, Accum::Add, v.transpose(), x, -1.0, par);
     }
 }
 
@@ -476,9 +552,11 @@ fn schur(
     g: &Group,
     p: &GpParams,
     corr: &Correlation,
+    par: Par,
 ) -> Vec<f64> {
-    let mut s = corr.gram(f.xy, p.length_scales, g.signal_var, g.noise_var);
-    sub_vt_times(&mut s, v, v);
+    let parallel = !matches!(par, Par::Seq);
+    let mut s = corr.gram_par(f.xy, p.length_scales, g.signal_var, g.noise_var, parallel);
+    sub_vt_times(&mut s, v, v, par);
     s
 }
 
@@ -489,26 +567,38 @@ fn residual(
     z: MatRef<'_, f64>,
     outs: &[usize],
     p: &GpParams,
+    par: Par,
 ) -> Vec<f64> {
     let mut r = centered(f.v, outs, p.mean);
-    sub_vt_times(&mut r, v, z);
+    sub_vt_times(&mut r, v, z, par);
     r
 }
 
-/// `(log |S|, ‖chol(S)⁻¹ r‖²)` for one frame and one output group.
-fn schur_terms(
-    f: &FrameRef<'_>,
-    v: MatRef<'_, f64>,
-    z: MatRef<'_, f64>,
-    g: &Group,
-    p: &GpParams,
-    corr: &Correlation,
-) -> Result<(f64, f64)> {
-    small::gaussian_terms(
-        schur(f, v, g, p, corr),
-        f.xy.len(),
-        residual(f, v, z, g.outs, p),
-    )
+/// Queries per block of a posterior: bounds the cross-correlation buffer to `n x QUERY_BLOCK`.
+const QUERY_BLOCK: usize = 1024;
+
+/// Points that are non-empty and finite.
+pub fn check_points(name: &str, xy: &[Point]) -> Result<()> {
+    if xy.is_empty() {
+        return Err(Error::Shape(format!(
+            "{name} is empty: at least one point is needed"
+        )));
+    }
+    check_finite(name, xy.as_flattened())
+}
+
+/// Points and velocities that are non-empty, finite and row for row.
+pub fn check_pair(xy_name: &str, xy: &[Point], v_name: &str, v: &[[f64; 2]]) -> Result<()> {
+    check_points(xy_name, xy)?;
+    check_finite(v_name, v.as_flattened())?;
+    if xy.len() != v.len() {
+        return Err(Error::Shape(format!(
+            "{xy_name} has {} points but {v_name} has {} velocities; they must match row for row",
+            xy.len(),
+            v.len()
+        )));
+    }
+    Ok(())
 }
 
 /// `log N(V_f ; μ, σ² R_ff + σ_n² I)` summed over both outputs: the prior predictive of a frame

@@ -1,12 +1,17 @@
-//! Bindings of the exact GP layer (`dpgp.gp` wraps these).
+//! Bindings of the exact GP layer (`dpgp.gp` wraps these): the densities and posterior of one
+//! standalone GP, computed by the core's pattern type (`Pattern::single`), as the HSGP bindings
+//! go through `HsgpPattern`.
 
-use numpy::{PyArray2, PyReadonlyArray2};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 
 use crate::convert::{pairs, to_numpy};
 use crate::errors::CoreResult;
-use dpgp_core::gp::{self, GpParams};
+use crate::sampler::{frame_refs, offsets_vec};
+use dpgp_core::frame::{FrameRef, Point};
+use dpgp_core::gp::GpParams;
 use dpgp_core::linalg::par_for;
+use dpgp_core::pattern::{Pattern, check_pair, check_points};
 
 /// `(w_x, w_y, σ_x², σ_y², σ_n,x², σ_n,y², μ_x, μ_y)` as passed from Python.
 pub type ParamTuple = (f64, f64, f64, f64, f64, f64, f64, f64);
@@ -26,6 +31,11 @@ pub fn check_params(p: ParamTuple) -> CoreResult<()> {
     params(p).map(|_| ())
 }
 
+/// A standalone GP over the training points, with faer's parallelism chosen by its size.
+fn single(xy: &[Point], v: &[[f64; 2]], p: ParamTuple) -> CoreResult<Pattern> {
+    Ok(Pattern::single(params(p)?, xy, v, par_for(xy.len()))?)
+}
+
 #[pyfunction]
 pub fn log_marginal_likelihood(
     py: Python<'_>,
@@ -33,8 +43,9 @@ pub fn log_marginal_likelihood(
     v: PyReadonlyArray2<'_, f64>,
     p: ParamTuple,
 ) -> CoreResult<f64> {
-    let (xy, v, p) = (pairs("xy", &xy)?, pairs("v", &v)?, params(p)?);
-    py.detach(|| Ok(gp::log_marginal_likelihood(xy, v, &p, par_for(xy.len()))?))
+    let (xy, v) = (pairs("xy", &xy)?, pairs("v", &v)?);
+    check_pair("xy", xy, "v", v)?;
+    py.detach(|| Ok(single(xy, v, p)?.log_marginal()))
 }
 
 #[pyfunction]
@@ -48,18 +59,51 @@ pub fn log_predictive(
 ) -> CoreResult<f64> {
     let (txy, tv) = (pairs("train_xy", &train_xy)?, pairs("train_v", &train_v)?);
     let (sxy, sv) = (pairs("test_xy", &test_xy)?, pairs("test_v", &test_v)?);
-    let p = params(p)?;
-    py.detach(|| {
-        Ok(gp::log_predictive(
-            txy,
-            tv,
-            sxy,
-            sv,
-            &p,
-            par_for(txy.len().max(sxy.len())),
-        )?)
-    })
+    check_pair("test_xy", sxy, "test_v", sv)?;
+    py.detach(|| Ok(single(txy, tv, p)?.score(&[FrameRef { xy: sxy, v: sv }])?[0]))
 }
+
+/// The predictive density of each test frame (rows `offsets[i]..offsets[i + 1]`) given the
+/// training data, from one factorisation: the single-GP baseline's scores.
+#[pyfunction]
+pub fn log_predictive_frames<'py>(
+    py: Python<'py>,
+    train_xy: PyReadonlyArray2<'py, f64>,
+    train_v: PyReadonlyArray2<'py, f64>,
+    test_xy: PyReadonlyArray2<'py, f64>,
+    test_v: PyReadonlyArray2<'py, f64>,
+    offsets: PyReadonlyArray1<'py, i64>,
+    p: ParamTuple,
+) -> CoreResult<Bound<'py, PyArray1<f64>>> {
+    let (txy, tv) = (pairs("train_xy", &train_xy)?, pairs("train_v", &train_v)?);
+    let (sxy, sv) = (pairs("test_xy", &test_xy)?, pairs("test_v", &test_v)?);
+    check_pair("test_xy", sxy, "test_v", sv)?;
+    let offsets = offsets_vec("offsets", &offsets)?;
+    let frames = frame_refs(sxy, sv, &offsets)?;
+    let out = py.detach(|| -> CoreResult<Vec<f64>> {
+        let pat = single(txy, tv, p)?;
+        // Frames in blocks of about SCORE_POINTS test points bound the cross-correlation buffer.
+        let mut out = Vec::with_capacity(frames.len());
+        let mut start = 0;
+        while start < frames.len() {
+            let mut end = start;
+            let mut points = 0;
+            while end < frames.len()
+                && (end == start || points + frames[end].xy.len() <= SCORE_POINTS)
+            {
+                points += frames[end].xy.len();
+                end += 1;
+            }
+            out.extend(pat.score(&frames[start..end])?);
+            start = end;
+        }
+        Ok(out)
+    })?;
+    Ok(out.into_pyarray(py))
+}
+
+/// Test points scored per call in [`log_predictive_frames`].
+const SCORE_POINTS: usize = 1024;
 
 #[pyfunction]
 #[allow(clippy::type_complexity)]
@@ -72,7 +116,7 @@ pub fn posterior<'py>(
 ) -> CoreResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
     let (txy, tv) = (pairs("train_xy", &train_xy)?, pairs("train_v", &train_v)?);
     let q = pairs("query_xy", &query_xy)?;
-    let p = params(p)?;
-    let (mean, var) = py.detach(|| gp::posterior(txy, tv, q, &p, par_for(txy.len())))?;
+    check_points("query_xy", q)?;
+    let (mean, var) = py.detach(|| -> CoreResult<_> { Ok(single(txy, tv, p)?.posterior(q)) })?;
     Ok((to_numpy(py, mean), to_numpy(py, var)))
 }

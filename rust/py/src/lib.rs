@@ -22,7 +22,9 @@ mod _core {
     use pyo3::prelude::*;
 
     #[pymodule_export]
-    use super::gp::{check_params, log_marginal_likelihood, log_predictive, posterior};
+    use super::gp::{
+        check_params, log_marginal_likelihood, log_predictive, log_predictive_frames, posterior,
+    };
     #[pymodule_export]
     use super::hsgp::{
         hsgp_basis, hsgp_log_marginal_likelihood, hsgp_log_predictive, hsgp_posterior,

@@ -28,7 +28,7 @@ pub struct PySampler {
     pool: Arc<rayon::ThreadPool>,
 }
 
-fn offsets_vec(name: &str, o: &PyReadonlyArray1<'_, i64>) -> CoreResult<Vec<usize>> {
+pub(crate) fn offsets_vec(name: &str, o: &PyReadonlyArray1<'_, i64>) -> CoreResult<Vec<usize>> {
     o.as_array()
         .iter()
         .map(|&x| {
@@ -39,7 +39,7 @@ fn offsets_vec(name: &str, o: &PyReadonlyArray1<'_, i64>) -> CoreResult<Vec<usiz
 }
 
 /// Frames as views into flat arrays.
-fn frame_refs<'a>(
+pub(crate) fn frame_refs<'a>(
     xy: &'a [[f64; 2]],
     v: &'a [[f64; 2]],
     offsets: &[usize],
