@@ -304,39 +304,47 @@ impl Pattern {
         })
     }
 
-    /// Posterior mean velocity at `q`: `μ + σ² R(q, X) K⁻¹ (v − μ)` per output.
-    /// Queries in blocks of [`QUERY_BLOCK`], so memory stays `n x QUERY_BLOCK`.
+    /// Posterior mean velocity at `q`: `μ + σ² R(q, X) K⁻¹ (v − μ)` per output, queries in
+    /// blocks of [`QUERY_BLOCK`].
     pub fn predict_mean(&self, q: &[Point]) -> Vec<[f64; 2]> {
-        let n = self.xy.len();
         let mut out = vec![self.params.mean; q.len()];
         let ls = self.params.length_scales;
         for (block, ob) in q.chunks(QUERY_BLOCK).zip(out.chunks_mut(QUERY_BLOCK)) {
             let corr = self
                 .corr
                 .cross_par(&self.xy, block, ls, 1.0, self.parallel());
-            for (g, a) in self.groups.iter().zip(self.weights()) {
-                for (c, &d) in g.outs.iter().enumerate() {
-                    let ad = &a[c * n..(c + 1) * n];
-                    for (j, o) in ob.iter_mut().enumerate() {
-                        let col = &corr[j * n..(j + 1) * n];
-                        o[d] += g.signal_var * col.iter().zip(ad).map(|(x, y)| x * y).sum::<f64>();
-                    }
-                }
-            }
+            self.add_mean(&corr, ob);
         }
         out
     }
 
+    /// `out[j] += σ² R(q_j, X) K⁻¹ (v − μ)` per output, for the correlations `corr = R(X, q)`.
+    fn add_mean(&self, corr: &[f64], out: &mut [[f64; 2]]) {
+        let n = self.xy.len();
+        for (g, a) in self.groups.iter().zip(self.weights()) {
+            for (c, &d) in g.outs.iter().enumerate() {
+                let ad = &a[c * n..(c + 1) * n];
+                for (j, o) in out.iter_mut().enumerate() {
+                    let col = &corr[j * n..(j + 1) * n];
+                    o[d] += g.signal_var * col.iter().zip(ad).map(|(x, y)| x * y).sum::<f64>();
+                }
+            }
+        }
+    }
+
     /// Posterior mean and variance of the latent field at each of the points `q`, from the cached
-    /// factor (queries in blocks, so memory stays `n x QUERY_BLOCK`).
+    /// factor (queries in blocks, so memory stays `n x QUERY_BLOCK`; each block's correlations
+    /// serve both the mean and the variance).
     pub fn posterior(&self, q: &[Point]) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
         let n = self.xy.len();
+        let mut mean = vec![self.params.mean; q.len()];
         let mut var = Vec::with_capacity(q.len());
-        for block in q.chunks(QUERY_BLOCK) {
-            let ls = self.params.length_scales;
+        let ls = self.params.length_scales;
+        for (block, mb) in q.chunks(QUERY_BLOCK).zip(mean.chunks_mut(QUERY_BLOCK)) {
             let corr = self
                 .corr
                 .cross_par(&self.xy, block, ls, 1.0, self.parallel());
+            self.add_mean(&corr, mb);
             let prior = self.corr.diag(block, ls);
             let mut out = vec![[0.0; 2]; block.len()];
             for g in &self.groups {
@@ -355,7 +363,7 @@ impl Pattern {
             }
             var.extend(out);
         }
-        (self.predict_mean(q), var)
+        (mean, var)
     }
 
     /// Joint posterior of the latent field at `q`: the mean per point and, per output, the
