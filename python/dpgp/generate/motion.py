@@ -70,7 +70,7 @@ from ..gp.fitted import FittedPatterns
 
 MIN_PAIRS = 50  # recorded track-steps to learn τ, a and b from at all
 #: held-out track-steps for a pattern's own τ (fewer: the pooled one). Measured on ETH and Zara
-#: (test FDE at 4 s): 50 let patterns pick τ on a handful of pedestrians, 4% worse than 200
+#: (test FDE at 4 s): 50 let patterns pick τ on a handful of pedestrians, 2-5% worse than 200
 TAU_PATTERN_STEPS = 200
 MIN_DISTANCES = 20  # nearest-neighbour distances for a pattern's own spacing
 #: The recorded minimum spacing, robustly: this percentile of the nearest-neighbour distances
