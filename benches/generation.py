@@ -14,11 +14,11 @@ rollout FDE at 1 and 4 s from every test frame against constant velocity
 (:func:`dpgp.evaluate.rollout_errors`).
 
 ``throughput``: 1,000 US-101 scenarios of 40 steps (default seed); vehicle-steps per second of
-the generation call, the median of ``--reps`` calls. Pair two runs with farm-bench for the
-before/after ratio of whole processes:
+the generation call, the median of ``--reps`` calls. For a before/after ratio, run the two
+versions in turn (A B A B ..., same fitted model) as whole processes, e.g. under
+``/usr/bin/time -v``, and take the median ratio of the pairs:
 
-    farm-bench -n 5 --timeout 900 -- python benches/generation.py throughput --dynamics interactive \\
-        --vs 'python benches/generation.py throughput --dynamics field'
+    python benches/generation.py throughput --dynamics interactive --models /tmp/g15 --reps 2
 
 ``--models DIR`` keeps the fitted models there (fitted once, then loaded; the motion model
 stored with them is learned again, so that it is the code's under test).
