@@ -94,6 +94,8 @@ def scene_rollouts(
     steps: int,
     roi: tuple[float, float, float, float] | None = None,
     low_data: float | None = None,
+    starts: NDArray[np.float64] | None = None,
+    start_offsets: NDArray[np.int64] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], list[int]]: ...
 def field_means(
     sampler: Sampler, slots: list[int], xy: NDArray[np.float64], offsets: NDArray[np.int64]

@@ -19,15 +19,15 @@ FIXTURES = Path(__file__).parents[1] / "fixtures"
 
 
 def ou_tracks(
-    tau: float, sigma: float, dt: float = 0.5, n_tracks: int = 30, steps: int = 40, seed: int = 0
+    tau: float, sigma: float, dt: float = 0.5, n_tracks: int = 30, steps: int = 40, seed: int = 0, span: int = 60
 ) -> pd.DataFrame:
     """Vehicles on a road along x: velocity (8, 0) plus an exact OU residual (τ, σ per
-    component), positions integrated; tracks start at staggered times."""
+    component), positions integrated; tracks start at staggered times (within ``span`` steps)."""
     rng = np.random.default_rng(seed)
     rho = np.exp(-dt / tau)
     rows = []
     for tr in range(n_tracks):
-        t0 = rng.integers(0, 60) * dt
+        t0 = rng.integers(0, span) * dt
         r = rng.normal(0, sigma, 2)
         p = np.array([rng.uniform(0, 20), rng.uniform(-6, 6)])
         for s in range(steps):
@@ -40,23 +40,129 @@ def ou_tracks(
 
 def test_fitted_model_recovers_a_simulated_time_constant_and_spread():
     tau, sigma = 2.0, 0.5
-    frames = dpgp.make_frames(ou_tracks(tau, sigma), dt=0.5)
+    # τ is chosen on the last quarter of the training period: tracks spread over 2 minutes, so
+    # that it holds enough independent vehicles (reduced-rank fields keep the fit cheap)
+    tracks = dict(n_tracks=120, steps=30, span=240)
+    frames = dpgp.make_frames(ou_tracks(tau, sigma, **tracks), dt=0.5)
     assert frames.tracks is not None and len(frames.tracks) == frames.n_points
     # a smooth field (the paper's noise and length-scale prior): with a small noise variance
     # the fields would soak up the vehicles' persistent deviations, as they partly do on real data
     settings = dict(
-        iterations=2, seed=0, progress=False, noise_var=1.0, length_scale_prior=(10.0, 1.0), proposal="full"
-    )
+        iterations=1, seed=0, progress=False, noise_var=1.0, length_scale_prior=(10.0, 1.0), proposal="full",
+        likelihood="hsgp",
+    )  # fmt: skip
     model = dpgp.DPGP(**settings).fit(frames)
     m = motion.learn(model._fitted())
-    # the time constant and spread are recovered within 15% (measured: 1.91 s and 0.487)
+    # τ of recorded-frame rollouts (held out) within [0.8 τ, 1.4 τ], of generated scenes (in
+    # sample) within 15%, σ within 15%. Measured held out over data seeds 0-3: 2.72, 2.43, 1.99,
+    # 2.13 s (the fields, conditioned on three quarters of the data, explain a little less than
+    # the full fit, so the held-out choice leans long)
     weights = np.maximum(m.pairs, 1)
+    assert 0.8 * tau < float(np.median(m.rollout_tau)) < 1.4 * tau, m.rollout_tau
     tau_hat = float(np.average(m.tau, weights=weights))
     assert abs(tau_hat / tau - 1) < 0.15, m
     assert np.all(np.abs(np.average(m.sigma, axis=0, weights=weights) / sigma - 1) < 0.15), m.sigma
-    # a different τ gives a clearly different estimate (the test has power)
-    other = motion.learn(dpgp.DPGP(**settings).fit(dpgp.make_frames(ou_tracks(0.5, sigma), dt=0.5))._fitted())
+    # a different τ gives a clearly different estimate (the test has power; measured 0.40-0.51)
+    other = motion.learn(dpgp.DPGP(**settings).fit(dpgp.make_frames(ou_tracks(0.5, sigma, **tracks), dt=0.5))._fitted())
     assert float(np.average(other.tau, weights=np.maximum(other.pairs, 1))) < 0.75
+    assert float(np.median(other.rollout_tau)) < 0.75
+
+
+def test_held_out_time_constant_predicts_real_tracks_no_worse_than_constant_velocity():
+    """Peachtree split in time 70/30: τ chosen on held-out training frames rolls the test period
+    out no worse than constant velocity at 4 s (and within 10% at 1 s); the in-sample choice
+    (fields fitted to the very vehicles rolled out, the earlier rule) picks a short τ that is
+    worse than constant velocity (measured: 2.03 against 1.50 ft; held out, 1.27)."""
+    from dataclasses import replace
+
+    from dpgp.evaluate import rollout_errors, split_in_time
+
+    from conftest import data_file
+
+    tracks = dpgp.read_ngsim(data_file("ngsim_peachtree_raw.csv"))
+    train, test = split_in_time(dpgp.make_frames(tracks, roi=(-20, 30, 0, 80), dt=0.5))
+    model = dpgp.DPGP(iterations=20, seed=0, progress=False).fit(train)
+    fit = model._fitted()
+    fde = {}
+    for name, holdout in (("held out", motion.TAU_HOLDOUT), ("in sample", None)):
+        tau = motion.time_constants(fit, holdout=holdout)[0]
+        fit.cache["motion"] = (fit.frames, replace(motion.learn(fit), tau_rollout=tau))
+        fde[name] = rollout_errors(model, test, tracks, (1.0, 4.0)).set_index("horizon")
+    held, ins = fde["held out"], fde["in sample"]
+    assert held.loc[4.0, "dpgp_fde"] <= held.loc[4.0, "constant_velocity_fde"], held
+    assert held.loc[1.0, "dpgp_fde"] <= 1.1 * held.loc[1.0, "constant_velocity_fde"], held
+    assert ins.loc[4.0, "dpgp_fde"] > 1.2 * ins.loc[4.0, "constant_velocity_fde"], ins
+
+
+def test_batched_relaxed_rollouts_match_the_core():
+    """The batched mean rollouts that choose τ are the core's relaxed rollouts, τ = ∞ included
+    (constant velocity: the residual never relaxes)."""
+    from dpgp.generate.rollout import motion_rollouts
+
+    model = dpgp.DPGP.load(FIXTURES / "field_model.npz")
+    fit = model._fitted()
+    base = motion.motion_model(fit)
+    rows = np.r_[fit.frames.offsets[3] : fit.frames.offsets[6]]
+    pats = np.repeat(fit.labels[3:6], fit.frames.sizes[3:6])
+    taus = np.array([0.3, 4.0, np.inf])
+    got = motion.relaxed_mean_rollouts(fit, pats, fit.frames.xy[rows], fit.frames.v[rows], taus, 6, 0.5)
+    box = (-1e300, 1e300, -1e300, 1e300)
+    for g, tau in enumerate(taus):
+        m = motion.MotionModel("vehicles", np.full(fit.n_patterns, tau), np.zeros((fit.n_patterns, 2)),
+                               base.pairs, base.spacing, 1.0)  # fmt: skip
+        for f in range(3, 6):
+            sl = slice(fit.frames.offsets[f] - rows[0], fit.frames.offsets[f + 1] - rows[0])
+            sim = motion_rollouts(fit, [int(fit.labels[f])], [fit.frames[f].xy], [fit.frames[f].v], steps=6, dt=0.5,
+                                  seeds=None, roi=box, low_data_threshold=None, dynamics="relaxed", motion=m)[0]  # fmt: skip
+            np.testing.assert_allclose(got[:, sl, g], sim.positions, rtol=1e-12, atol=1e-9)
+    # τ = ∞ is constant velocity exactly
+    np.testing.assert_array_equal(
+        got[2, :, 2], fit.frames.xy[rows] + 0.5 * fit.frames.v[rows] + 0.5 * fit.frames.v[rows]
+    )
+
+
+def test_conditioned_fields_are_the_exact_gp_posterior_of_the_kept_frames():
+    """conditioned_on(rows): each pattern's field is the GP posterior mean of its frames among
+    ``rows`` only (oracle: the exact GP of dpgp._core.posterior on those points)."""
+    from dpgp import _core
+    from dpgp.generate.motion import field_means
+
+    model = dpgp.DPGP.load(FIXTURES / "field_model.npz")
+    fit = model._fitted()
+    rows = np.arange(0, 25)
+    sub, present = fit.conditioned_on(rows)
+    assert np.array_equal(present, np.unique(fit.labels[rows]))
+    q = np.random.default_rng(1).uniform(fit.frames.xy.min(0), fit.frames.xy.max(0), (7, 2))
+    for c, k in enumerate(present):
+        kept = [f for f in rows if fit.labels[f] == k]
+        xy = np.concatenate([fit.frames[f].xy for f in kept])
+        v = np.concatenate([fit.frames[f].v for f in kept])
+        p = (*model.length_scales_[k], *model.params_.signal_var, *model.params_.noise_var, *model.params_.mean)
+        want = _core.posterior(xy, v, q, p)[0]
+        got = field_means(sub, q, np.full(len(q), c))
+        np.testing.assert_allclose(got, want, rtol=1e-8, atol=1e-8)
+        # and not the field of all its frames (the test has power)
+        if len(kept) < int((fit.labels == k).sum()):
+            assert not np.allclose(field_means(fit, q, np.full(len(q), k)), want, atol=1e-6)
+    assert fit.conditioned_on(np.zeros(0, np.int64)) is None
+
+
+def test_an_infinite_time_constant_survives_the_model_file_as_strict_json():
+    import json
+
+    m = motion.MotionModel("pedestrians", np.array([np.inf, 2.0]), np.ones((2, 2)), np.zeros(2, np.int64),
+                           np.ones(2), 0.5, tau_rollout=np.array([3.0, np.inf]))  # fmt: skip
+    d = json.loads(json.dumps(m.to_dict(), allow_nan=False))
+    assert d["tau"] == ["inf", 2.0] and d["tau_rollout"] == [3.0, "inf"]
+    back = motion.MotionModel.from_dict(d)
+    assert np.array_equal(back.tau, [np.inf, 2.0]) and np.array_equal(back.rollout_tau, [3.0, np.inf])
+    assert back.record(0, recorded=True)[0] == 3.0 and back.record(0)[0] == np.inf
+    # files written before the held-out choice: recorded frames roll out with τ
+    old = {k: v for k, v in d.items() if k != "tau_rollout"}
+    assert np.array_equal(motion.MotionModel.from_dict(old).rollout_tau, [np.inf, 2.0])
+    for bad in ({"tau": ["-inf", 2.0]}, {"tau_rollout": [1.0]}, {"tau_rollout": ["nan", 1.0]}, {"tau": None}):
+        with pytest.raises(dpgp.DataFormatError):
+            motion.MotionModel.from_dict({**d, **bad})
 
 
 def test_consecutive_pairs_follow_tracks():
@@ -92,7 +198,7 @@ def test_rollouts_start_from_own_velocity_and_relax_toward_the_field():
     field = model.simulate(5, steps=40, dynamics="field", low_data_threshold=None)
     # the first move is the vehicle's own velocity; later the gap to the field shrinks
     np.testing.assert_allclose(sim.positions[1], f.xy + sim.dt * f.v)
-    tau = motion.motion_model(model._fitted()).tau[sim.pattern]
+    tau = motion.motion_model(model._fitted()).rollout_tau[sim.pattern]
     mean_now = model.velocity_field(sim.pattern, sim.positions[-1])[0]
     gap0 = np.abs(sim.velocities[0] - field.velocities[0]).max()
     assert gap0 > 0

@@ -38,9 +38,11 @@ def _pooled(observed: np.ndarray, expected: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def test_vehicle_counts_follow_phi(model):
+    """The paper's generator (dynamics="field") draws the count from φ; the interactive one
+    draws a frame of the pattern (whose sizes pool to φ) and thins it (next test)."""
     n = 3000
     # steps=0, mean velocities, no flags: only the draws under test cost anything
-    scen = model.sample_scenarios(n, steps=0, seed=2024, stochastic=False, low_data_threshold=None)
+    scen = model.sample_scenarios(n, steps=0, seed=2024, stochastic=False, low_data_threshold=None, dynamics="field")
     phi = sc.distributions(model).count_pmf()
     np.testing.assert_allclose(phi, np.bincount(model.frames_.sizes, minlength=len(phi)) / len(model.frames_))
     observed = np.bincount(scen.counts, minlength=len(phi)).astype(float)
@@ -53,6 +55,31 @@ def test_vehicle_counts_follow_phi(model):
     uniform = np.where(support, n / support.sum(), 0.0)
     o2, e2 = _pooled(observed, uniform)
     assert stats.chisquare(o2, e2).pvalue < 1e-6
+
+
+def _thinned(xy: np.ndarray, spacing: float) -> np.ndarray:
+    kept: list[np.ndarray] = []
+    for p in xy:
+        if all(np.hypot(*(p - q)) >= spacing for q in kept):
+            kept.append(p)
+    return np.array(kept).reshape(-1, 2)
+
+
+def test_interactive_scenes_start_from_a_thinned_recorded_configuration(model):
+    """Each generated scene starts at the positions of one of its pattern's training frames, less
+    the vehicles closer than the pattern's spacing to one kept before them (numpy oracle)."""
+    fit = model._fitted()
+    spacing = dpgp.generate.motion.motion_model(fit).spacing
+    scen = model.sample_scenarios(60, steps=0, seed=11, stochastic=False)
+    for s, k in zip(scen, scen.patterns):
+        own = [model.frames_[int(f)].xy for f in np.flatnonzero(model.labels_ == k)]
+        match = [xy for xy in own if np.array_equal(_thinned(xy, spacing[k]), s.positions[0])]
+        assert match, f"scene of pattern {k} is no thinned frame of it"
+    # the counts are the frames' sizes less what thinning removed: φ's mean, a little less
+    phi = sc.distributions(model).count_pmf()
+    mean_phi = float((np.arange(len(phi)) * phi).sum())
+    assert 0.8 * mean_phi < scen.counts.mean() <= mean_phi + 1.0
+    assert np.array_equal(scen.counts, [s.n_vehicles for s in scen])
 
 
 def test_patterns_follow_their_weights(model):

@@ -79,10 +79,14 @@ class Simulation:
         )
 
 
-def motion_records(patterns: Any, dynamics: str, motion: Any) -> np.ndarray:
+def motion_records(patterns: Any, dynamics: str, motion: Any, recorded: bool = False) -> np.ndarray:
     """(len(patterns), MOTION_FIELDS): each rollout's residual model and interaction rule, from
-    ``motion`` (a :class:`dpgp.generate.motion.MotionModel`)."""
-    rec = {int(k): motion.record(int(k), interaction=dynamics == "interactive") for k in np.unique(patterns)}
+    ``motion`` (a :class:`dpgp.generate.motion.MotionModel`); ``recorded``: rollouts of recorded
+    frames (their own time constant)."""
+    rec = {
+        int(k): motion.record(int(k), interaction=dynamics == "interactive", recorded=recorded)
+        for k in np.unique(patterns)
+    }
     return np.array([rec[int(k)] for k in patterns], dtype=np.float64).reshape(len(patterns), -1)
 
 
@@ -115,17 +119,18 @@ def split(pos: np.ndarray, vel: np.ndarray, inside: np.ndarray, low: np.ndarray,
 def motion_rollouts(
     fit: FittedPatterns, patterns: list[int], starts: list[np.ndarray], velocities: list[np.ndarray], *,
     steps: int, dt: float, seeds: list[int] | None, roi: Any, low_data_threshold: float | None, dynamics: str,
-    motion: Any,
+    motion: Any, recorded: bool = False,
 ) -> list[Simulation]:  # fmt: skip
     """Rollouts by the residual model ``motion`` (a :class:`dpgp.generate.motion.MotionModel`)
     and interaction: ``starts[i]`` (l_i, 2) from their own ``velocities[i]`` through pattern
-    ``patterns[i]``, run in parallel in the core."""
+    ``patterns[i]``, run in parallel in the core. ``recorded``: the starts are a recorded frame
+    (:meth:`dpgp.generate.motion.MotionModel.record`), not a generated scene."""
     sizes = np.array([len(s) for s in starts], dtype=np.int64)
     offsets = np.r_[0, np.cumsum(sizes)].astype(np.int64)
     cat = lambda a: np.ascontiguousarray(np.concatenate(a) if a else np.zeros((0, 2)), dtype=np.float64)  # noqa: E731
     pos, vel, inside, low = _core.motion_rollouts(
         fit.sampler, [int(fit.slots[k]) for k in patterns], cat(starts), cat(velocities), offsets,
-        motion_records(patterns, dynamics, motion), float(dt), int(steps), tuple(roi), seeds, low_data_threshold,
+        motion_records(patterns, dynamics, motion, recorded), float(dt), int(steps), tuple(roi), seeds, low_data_threshold,
     )  # fmt: skip
     return split(
         pos,

@@ -2,10 +2,10 @@
 rules: docs/generation.md).
 
 By default (``dynamics="interactive"``, issue 15) a scenario is: a pattern drawn by its weight;
-a vehicle count from that pattern's own frames (a frame's size, drawn uniformly); positions drawn
-jointly from the pattern's position histogram, no two closer than the pattern's recorded
-spacing (:mod:`dpgp.motion`; a vehicle with no room is left out, so ``counts`` may fall short of
-the drawn count in a crowded scene); velocities drawn jointly from the pattern's GP; then a
+one of that pattern's own frames, drawn uniformly, whose positions are the scene's (a recorded
+configuration: its count, spacing and groups), less any vehicle closer than the pattern's
+recorded spacing (:mod:`dpgp.motion`) to one kept before it, so ``counts`` may fall short of the
+frame's size; velocities drawn jointly from the pattern's GP at those positions; then a
 rollout by the residual model and interaction rules of :mod:`dpgp.motion` (see
 ``docs/generation.md``). ``dynamics="field"`` is the earlier generator, bit for bit:
 
@@ -289,33 +289,42 @@ def sample_scenarios(
     return Scenarios(sims, patterns, counts)
 
 
-def pattern_counts(fit: FittedPatterns, patterns: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """A vehicle count per scenario: the size of a frame drawn uniformly from its pattern's own."""
-    sizes = fit.frames.sizes
-    counts = np.zeros(len(patterns), dtype=np.int64)
+def pattern_frames(fit: FittedPatterns, patterns: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A training frame per scenario, drawn uniformly from its pattern's own."""
+    out = np.zeros(len(patterns), dtype=np.int64)
     for k in np.unique(patterns):
         mine = np.flatnonzero(patterns == k)
-        own = sizes[fit.labels == k]
-        counts[mine] = own[rng.integers(0, len(own), size=len(mine))]
-    return counts
+        own = np.flatnonzero(fit.labels == k)
+        out[mine] = own[rng.integers(0, len(own), size=len(mine))]
+    return out
+
+
+def pattern_counts(fit: FittedPatterns, patterns: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A vehicle count per scenario: the size of a frame drawn uniformly from its pattern's own."""
+    return fit.frames.sizes[pattern_frames(fit, patterns, rng)]
 
 
 def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistributions, rng: np.random.Generator, *,
                  steps: int, dt: float, stochastic: bool, roi: Any, low_data_threshold: float | None, dynamics: str) -> Scenarios:  # fmt: skip
-    """Scenes drawn from each pattern's own frames (count), joint positions with its recorded
-    spacing, velocities jointly from its GP, rolled out by the residual model and interaction;
-    placement, draws and rollouts run in parallel in the core, one seed per scenario."""
+    """Scenes from each pattern's own frames: the positions of one of them (a recorded
+    configuration: its count, spacing and groups), less any vehicle closer than the pattern's
+    recorded spacing to one kept before it; velocities jointly from its GP at those positions,
+    rolled out by the residual model and interaction. Thinning, draws and rollouts run in
+    parallel in the core, one seed per scenario."""
     if len(patterns) == 0:
         return Scenarios([], patterns, np.zeros(0, dtype=np.int64))
-    requested = pattern_counts(fit, patterns, rng)
+    chosen = pattern_frames(fit, patterns, rng)
+    requested = fit.frames.sizes[chosen]
+    rows = np.concatenate([np.arange(fit.frames.offsets[f], fit.frames.offsets[f + 1]) for f in chosen])
+    starts = np.ascontiguousarray(fit.frames.xy[rows], dtype=np.float64)
     seeds = [int(s) for s in rng.integers(0, 2**63, size=len(patterns), dtype=np.uint64)]
-    ks = np.unique(patterns)
-    grids = np.array([(h := pattern_positions(fit, int(k), psi)).position_hist.ravel() + h.pseudocount for k in ks])
     spacing = motion_model(fit).spacing[patterns]
+    unused = np.ones((1, 1))  # the core's histogram placement: not used when starts are given
     pos, vel, inside, low, sizes = _core.scene_rollouts(
-        fit.sampler, [int(fit.slots[k]) for k in patterns], requested.tolist(), np.searchsorted(ks, patterns).tolist(),
-        np.ascontiguousarray(grids.reshape(len(ks), -1), dtype=np.float64), psi.bins, tuple(psi.roi), spacing.tolist(),  # type: ignore[arg-type]
+        fit.sampler, [int(fit.slots[k]) for k in patterns], requested.tolist(), [0] * len(patterns),
+        unused, (1, 1), tuple(psi.roi), spacing.tolist(),  # type: ignore[arg-type]
         motion_records(patterns, dynamics, motion_model(fit)), seeds, bool(stochastic), float(dt), int(steps), tuple(roi), low_data_threshold,
+        starts, np.r_[0, np.cumsum(requested)].astype(np.int64),
     )  # fmt: skip
     sims = split(
         pos,

@@ -247,7 +247,7 @@ def simulate(
             )
         return motion_rollouts(
             fit, [k], [xy], [v], steps=steps, dt=dt, seeds=_seeds(seed, 1) if stochastic else None, roi=box,
-            low_data_threshold=thr, dynamics=dynamics, motion=motion_model(fit),
+            low_data_threshold=thr, dynamics=dynamics, motion=motion_model(fit), recorded=True,
         )[0]  # fmt: skip
     return rollouts(
         fit,

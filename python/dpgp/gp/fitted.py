@@ -8,6 +8,7 @@ order (by decreasing size), the training frames and the DP weights.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -22,7 +23,8 @@ class FittedPatterns:
     """A fitted mixture's state: ``sampler`` (the core sampler), ``slots[k]`` (its slot of
     pattern ``k``), ``slot_order`` (pattern ``k``'s index in the core's slot order), the training
     ``frames`` and their ``labels``, the pattern ``weights`` and ``alpha``. ``cache`` is shared
-    with the estimator (for φ and ψ)."""
+    with the estimator (for φ and ψ). ``new_sampler(frames)``: a core sampler over other frames
+    with the fit's settings (the estimator's own constructor), for :meth:`conditioned_on`."""
 
     sampler: Any
     slots: np.ndarray
@@ -32,6 +34,7 @@ class FittedPatterns:
     weights: np.ndarray
     alpha: float
     cache: dict = field(default_factory=dict)
+    new_sampler: Callable[[Frames], Any] | None = None
 
     @property
     def n_patterns(self) -> int:
@@ -68,6 +71,28 @@ class FittedPatterns:
     def predict(self, frames: Frames) -> np.ndarray:
         """The most probable existing pattern of each frame."""
         return np.argmax(self.log_joint_terms(frames)[:, :-1], axis=1)
+
+    def conditioned_on(self, rows: np.ndarray) -> tuple[FittedPatterns, np.ndarray] | None:
+        """The same patterns (assignments, length scales, α, noise) conditioned on the training
+        frames ``rows`` only: the fields a frame outside ``rows`` would meet as a new one. Returns
+        that fit (its patterns are those with a frame among ``rows``, in this fit's order) and
+        ``present``, its patterns' indices here; ``None`` without :attr:`new_sampler`."""
+        if self.new_sampler is None or len(rows) == 0:
+            return None
+        frames, labels = self.frames[rows], self.labels[rows]
+        present, compact = np.unique(labels, return_inverse=True)
+        theirs = self.sampler.patterns()  # (slot, id, n_frames, wx, wy), core slot order
+        ls = np.array([theirs[int(self.slot_order[k])][3:5] for k in present], dtype=np.float64).reshape(-1, 2)
+        sampler = self.new_sampler(frames)
+        sampler.set_noise_var(tuple(float(x) for x in self.sampler.noise_var()))
+        sampler.set_state(compact.astype(np.int64), ls, float(self.alpha))
+        mine = sampler.patterns()  # set_state keeps label c in slot order c
+        counts = np.bincount(compact, minlength=len(present)).astype(np.float64)
+        sub = FittedPatterns(
+            sampler, np.array([p[0] for p in mine], dtype=np.int64), np.arange(len(mine), dtype=np.int64), frames,
+            compact.astype(np.int64), counts / counts.sum(), float(self.alpha), {}, self.new_sampler,
+        )  # fmt: skip
+        return sub, present
 
 
 def frames_dt(frames: Frames) -> float:

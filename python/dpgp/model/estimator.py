@@ -588,7 +588,15 @@ class DPGP:
         self._check_fitted()
         cache = self.__dict__.setdefault("_cache", {})
         return FittedPatterns(
-            self._sampler, self._slots, self._slot_order, self.frames_, self.labels_, self.weights_, self.alpha_, cache
+            self._sampler,
+            self._slots,
+            self._slot_order,
+            self.frames_,
+            self.labels_,
+            self.weights_,
+            self.alpha_,
+            cache,
+            self._new_sampler,
         )
 
     @property

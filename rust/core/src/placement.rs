@@ -1,9 +1,14 @@
-//! Joint placement of a generated scene's vehicles (docs/generation.md): positions from a
-//! pattern's position histogram, drawn one after another and each redrawn while it lands closer
-//! than the pattern's recorded spacing to one already placed (hard-core rejection, in the
-//! manner of a random sequential adsorption process). A vehicle that finds no room in
-//! [`TRIES`] draws is left out, so a crowded scene comes out with fewer vehicles rather than
-//! with an overlapping pair.
+//! Joint placement of a generated scene's vehicles (docs/generation.md). Two ways, both keeping
+//! no pair closer than the pattern's recorded spacing:
+//!
+//! - [`thin`]: a recorded configuration (one of the pattern's frames), each vehicle kept unless
+//!   it stands closer than the spacing to one kept before it (what dpgp generates with: the
+//!   counts, spacing and groups of the recordings, minus the overlaps of tracking noise);
+//! - [`place`]: positions from a pattern's position histogram, drawn one after another and each
+//!   redrawn while it lands closer than the spacing to one already placed (hard-core rejection,
+//!   in the manner of a random sequential adsorption process). A vehicle that finds no room in
+//!   [`TRIES`] draws is left out, so a crowded scene comes out with fewer vehicles rather than
+//!   with an overlapping pair.
 
 use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
@@ -96,6 +101,21 @@ pub fn place(grid: &Grid, count: usize, spacing: f64, rng: &mut ChaCha8Rng) -> V
                 out.push(p);
                 break;
             }
+        }
+    }
+    out
+}
+
+/// The positions of `candidates` (in order) kept by the hard core: each unless it stands closer
+/// than `spacing` to one kept before it.
+pub fn thin(candidates: &[Point], spacing: f64) -> Vec<Point> {
+    let mut out: Vec<Point> = Vec::with_capacity(candidates.len());
+    for &p in candidates {
+        if out
+            .iter()
+            .all(|q| (p[0] - q[0]).hypot(p[1] - q[1]) >= spacing)
+        {
+            out.push(p);
         }
     }
     out

@@ -12,7 +12,7 @@ use dpgp_core::Error;
 use dpgp_core::kernel::Point;
 use dpgp_core::motion::{MOTION_FIELDS, Motion, drive};
 use dpgp_core::pattern_model::PatternModel;
-use dpgp_core::placement::{Grid, place};
+use dpgp_core::placement::{Grid, place, thin};
 use dpgp_core::rng::{Phase, stream};
 use dpgp_core::simulate::{Method, Options, PatternField, Roi, Rollout, integrate, rollout};
 
@@ -227,7 +227,7 @@ pub fn motion_rollouts<'py>(
 /// Every draw comes from `seeds[i]`. Returns the arrays of [`rollouts`] and each scene's
 /// vehicle count.
 #[pyfunction]
-#[pyo3(signature = (sampler, slots, counts, grid, grids, bins, grid_roi, spacing, motion, seeds, stochastic, dt, steps, roi=None, low_data=None))]
+#[pyo3(signature = (sampler, slots, counts, grid, grids, bins, grid_roi, spacing, motion, seeds, stochastic, dt, steps, roi=None, low_data=None, starts=None, start_offsets=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn scene_rollouts<'py>(
     py: Python<'py>,
@@ -246,6 +246,8 @@ pub fn scene_rollouts<'py>(
     steps: usize,
     roi: Option<(f64, f64, f64, f64)>,
     low_data: Option<f64>,
+    starts: Option<PyReadonlyArray2<'py, f64>>,
+    start_offsets: Option<PyReadonlyArray1<'py, i64>>,
 ) -> PyResult<(
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray2<f64>>,
@@ -254,6 +256,21 @@ pub fn scene_rollouts<'py>(
     Vec<usize>,
 )> {
     let n = slots.len();
+    // recorded configurations, one per scenario (thinned to the spacing), instead of placement
+    let configs: Option<(&[Point], Vec<usize>)> = match (&starts, &start_offsets) {
+        (Some(s), Some(o)) => {
+            let xy: &[Point] = pairs("starts", s)?;
+            dpgp_core::error::check_finite("starts", xy.as_flattened()).map_err(CoreError)?;
+            Some((xy, offsets_of(o, n, xy.len())?))
+        }
+        (None, None) => None,
+        _ => {
+            return Err(CoreError(Error::InvalidInput(
+                "starts and start_offsets go together".into(),
+            ))
+            .into());
+        }
+    };
     let opts = options(dt, steps, "euler", roi)?;
     if [counts.len(), grid.len(), spacing.len(), seeds.len()] != [n; 4] {
         return Err(CoreError(Error::Shape(format!(
@@ -280,8 +297,13 @@ pub fn scene_rollouts<'py>(
         .into());
     }
     let rollouts = in_parallel(py, &sampler, &slots, |p, i| {
-        let mut rng = stream(seeds[i], 0, Phase::Simulate, PLACEMENT_ENTITY);
-        let start = place(&grids[grid[i]], counts[i], spacing[i], &mut rng);
+        let start = match &configs {
+            Some((xy, off)) => thin(&xy[off[i]..off[i + 1]], spacing[i]),
+            None => {
+                let mut rng = stream(seeds[i], 0, Phase::Simulate, PLACEMENT_ENTITY);
+                place(&grids[grid[i]], counts[i], spacing[i], &mut rng)
+            }
+        };
         let seed = stochastic.then_some(seeds[i]);
         let mut field = PatternField::drawn_once(p, seed, low_data)?;
         drive(&start, None, &opts, &motion[i], seed, &mut field)

@@ -47,3 +47,13 @@ fn bad_grids_are_errors() {
     assert!(Grid::new(roi, 1, 1, &[0.0]).is_err());
     assert!(Grid::new(roi, 1, 1, &[f64::NAN]).is_err());
 }
+
+#[test]
+fn thinning_keeps_a_recorded_configuration_minus_its_overlaps() {
+    // (0,0) and (3,0) stay; (0.5,0) is too close to the first; (3,0.9) to the second; (6,0)
+    // stays; a far configuration is kept whole, in order
+    let c = [[0.0, 0.0], [0.5, 0.0], [3.0, 0.0], [3.0, 0.9], [6.0, 0.0]];
+    assert_eq!(thin(&c, 1.0), vec![[0.0, 0.0], [3.0, 0.0], [6.0, 0.0]]);
+    assert_eq!(thin(&c, 0.4), c.to_vec());
+    assert!(thin(&[], 1.0).is_empty());
+}
