@@ -192,7 +192,10 @@ fn settings_names_parse_in_the_core_and_a_wrong_one_lists_the_right_ones() {
     let Err(Error::InvalidInput(msg)) = "greedy".parse::<Assignment>() else {
         panic!("an unknown assignment must be InvalidInput");
     };
-    assert!(msg.contains("'gibbs', 'map'") && msg.contains("greedy"), "{msg}");
+    assert!(
+        msg.contains("'gibbs', 'map'") && msg.contains("greedy"),
+        "{msg}"
+    );
     assert!("smart".parse::<Proposal>().is_err());
     assert!("near".parse::<PairChoice>().is_err());
     assert!("sparse".parse::<LikelihoodKind>().is_err());
