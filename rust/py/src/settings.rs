@@ -55,6 +55,8 @@ pub struct SamplerSettings {
 
 /// Keys whose value is a bool; anywhere else a bool is a mistake, though Python counts it as 1.
 const BOOL_KEYS: [&str; 2] = ["fixed_length_scales", "pattern_moments"];
+/// The struct's fields: the dict may hold no other key (a misspelt one would silently take its
+/// default), and a field missing here is refused at once as unknown, so the two cannot drift.
 const KEYS: [&str; 17] = [
     "assignment",
     "likelihood",
