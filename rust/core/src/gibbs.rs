@@ -156,6 +156,18 @@ pub struct Settings {
     pub noise_prior: Option<NoisePrior>,
 }
 
+/// A number as Python's `{:g}` writes one far from 1 (`1e+100`, not 100 digits).
+fn g(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-4..1e16).contains(&x.abs()) {
+        return format!("{x}");
+    }
+    let s = format!("{x:e}");
+    match s.split_once('e') {
+        Some((m, e)) if !e.starts_with('-') => format!("{m}e+{e}"),
+        _ => s,
+    }
+}
+
 impl Default for Settings {
     /// Gibbs assignment, full proposals, the exact likelihood, unit GP parameters with sampled
     /// length scales under a Gamma(10, 1) prior, sampled α, 10 auxiliary patterns, no split–merge
@@ -200,8 +212,11 @@ impl Settings {
             && !(lo..=hi).contains(&al)
         {
             return Err(Error::InvalidInput(format!(
-                "alpha must be None (sampled) or a number in [{lo:e}, {hi:e}] (beyond it the log \
-                 joint is not finite in double precision), got {al:?}"
+                "alpha must be None (sampled) or a number in [{}, {}] (beyond it the log joint \
+                 is not finite in double precision), got {}",
+                g(lo),
+                g(hi),
+                g(al)
             )));
         }
         if !(self.length_scale_fraction > 0.0 && self.length_scale_fraction <= 1.0) {
