@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import _core
 from .exceptions import InvalidInputError, ShapeError
 
 #: Largest magnitude of a velocity, a centred position or a length scale whose squares and
@@ -15,7 +16,8 @@ MAX_MAGNITUDE = 1e100
 MIN_LENGTH_SCALE = 1e-150
 #: Range of the DP concentration α a fit accepts (and a model file may hold): the log joint's
 #: ``log Γ(α) - log Γ(α + N)``, ``-1/(2α)`` and the new-pattern weight ``log(α / m)`` stay finite.
-ALPHA_RANGE = (1e-100, 1e100)
+#: The core's limit (rust/core/src/gibbs.rs), which checks a fit's α itself.
+ALPHA_RANGE: tuple[float, float] = _core.ALPHA_RANGE
 
 
 def alpha_in_range(alpha: object) -> bool:

@@ -1,9 +1,9 @@
 # Type stubs of the native module dpgp._core (rust/py). Users import dpgp, not this.
-from typing import final
+from typing import Any, TypedDict, final
 
 import numpy as np
 from numpy.typing import NDArray
-from typing_extensions import Self
+from typing_extensions import NotRequired, Self
 
 __all__ = [
     "check_params",
@@ -16,6 +16,11 @@ __all__ = [
     "hsgp_log_predictive",
     "hsgp_posterior",
     "Sampler",
+    "check_settings",
+    "MAX_THREADS",
+    "MAX_NEW_PATTERN_SAMPLES",
+    "MAX_SPLIT_MERGE_MOVES",
+    "ALPHA_RANGE",
     "field_means",
     "integrate_affine",
     "motion_rollouts",
@@ -25,6 +30,12 @@ __all__ = [
 ]
 
 __version__: str
+
+# The settings' limits (rust/core/src/gibbs.rs); the core checks them, Python only shows them.
+MAX_THREADS: int
+MAX_NEW_PATTERN_SAMPLES: int
+MAX_SPLIT_MERGE_MOVES: int
+ALPHA_RANGE: tuple[float, float]
 
 _ParamTuple = tuple[float, float, float, float, float, float, float, float]
 
@@ -137,32 +148,37 @@ def hsgp_posterior(
     b: _BasisTuple,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
 
+class _SamplerSettings(TypedDict):
+    """The sampler's settings, one dict (rust/py/src/settings.rs). Values are passed as given:
+    the core parses the names and checks every rule; a bad one raises InvalidInputError. The
+    keys the data decide may be left out (check_settings, before they are known)."""
+
+    assignment: Any  # "gibbs" | "map"
+    proposal: Any  # "full" | "informed"
+    split_merge_pairs: Any  # "uniform" | "informed"
+    fixed_length_scales: Any  # bool
+    alpha: Any  # float | None (sampled)
+    new_pattern_samples: Any  # int
+    seed: Any  # int (its low 64 bits)
+    n_threads: Any  # int | None (one per core)
+    length_scale_fraction: Any  # float
+    pattern_moments: Any  # bool
+    split_merge: Any  # int: moves per sweep
+    likelihood: NotRequired[str]  # "exact" | "hsgp"
+    basis: NotRequired[_BasisTuple | None]
+    params: NotRequired[_ParamTuple]
+    length_scale_prior: NotRequired[tuple[float, float]]
+    memory_budget: NotRequired[int | None]
+    noise_prior: NotRequired[tuple[float, float] | None]
+
+def check_settings(settings: _SamplerSettings) -> None: ...
+
 @final
 class Sampler:
     """The DP-GP collapsed Gibbs sampler (rust/py/src/sampler.rs); dpgp.DPGP wraps it."""
 
     def __new__(
-        cls,
-        xy: NDArray[np.float64],
-        v: NDArray[np.float64],
-        offsets: NDArray[np.int64],
-        assignment: str,
-        params_: _ParamTuple,
-        fixed_length_scales: bool,
-        length_scale_prior: tuple[float, float],
-        alpha: float | None,
-        new_pattern_samples: int,
-        seed: int,
-        n_threads: int | None,
-        length_scale_fraction: float = 1.0,
-        pattern_moments: bool = False,
-        likelihood: str = "exact",
-        basis: _BasisTuple | None = None,
-        proposal: str = "full",
-        memory_budget: int | None = None,
-        split_merge: int = 0,
-        split_merge_pairs: str = "uniform",
-        noise_prior: tuple[float, float] | None = None,
+        cls, xy: NDArray[np.float64], v: NDArray[np.float64], offsets: NDArray[np.int64], settings: _SamplerSettings
     ) -> Self: ...
     def initialize(self) -> None: ...
     def sweep(self) -> tuple[int, int, float, float]: ...

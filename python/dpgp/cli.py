@@ -291,7 +291,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--units", help="convert trajectory units, e.g. 'ft->m' for NGSIM (default: keep)")
     p.add_argument("--iterations", type=int, default=100, help="Gibbs sweeps after the initialisation")
-    p.add_argument("--assignment", choices=("gibbs", "map"), default="gibbs",
+    p.add_argument("--assignment", default="gibbs",  # no choices: the core checks the name
                    help="'gibbs' samples each frame's pattern; 'map' takes the most probable (the paper's)")  # fmt: skip
     p.add_argument("--preset", choices=("paper",),
                    help="'paper': the paper's Gamma(10, 1) length scales, noise variance 1 and map assignment "

@@ -13,7 +13,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .. import _core
-from .._arrays import ALPHA_RANGE, alpha_in_range
 from .._arrays import MAX_MAGNITUDE as _MAX_MAGNITUDE
 from .._constants import LOW_DATA_THRESHOLD
 from .._resources import check_thread_reservations, default_memory_budget, parse_bytes
@@ -37,10 +36,6 @@ from ..io import checkpoint as ckpt
 
 if TYPE_CHECKING:
     from ..io.modelfile import ModelState
-
-_ASSIGNMENTS = ("gibbs", "map")
-_LIKELIHOODS = ("auto", "exact", "hsgp")
-_PROPOSALS = ("full", "informed")
 
 
 class DPGP:
@@ -254,38 +249,17 @@ class DPGP:
 
     # --- fitting ----------------------------------------------------------------------------------
     def _check_settings(self) -> None:
-        if self.assignment not in _ASSIGNMENTS:
-            raise InvalidInputError(f"assignment must be one of {_ASSIGNMENTS}, got {self.assignment!r}")
-        if self.likelihood not in _LIKELIHOODS:
-            raise InvalidInputError(f"likelihood must be one of {_LIKELIHOODS}, got {self.likelihood!r}")
-        if self.proposal not in _PROPOSALS:
-            raise InvalidInputError(f"proposal must be one of {_PROPOSALS}, got {self.proposal!r}")
+        """Check the settings before any work. The sampler's settings are the core's to check
+        (``_core.check_settings``: names, ranges and limits, one place for each rule,
+        docs/engine-layout.md); here only the estimator's own and the ``"auto"`` resolutions."""
         if self.n_basis is not None:
             _basis_counts(self.n_basis)
         parse_bytes("memory_budget", self.memory_budget)
         if not (isinstance(self.iterations, (int, np.integer)) and self.iterations >= 0):
             raise InvalidInputError(f"iterations must be a non-negative integer, got {self.iterations!r}")
-        if not (isinstance(self.new_pattern_samples, (int, np.integer)) and 1 <= self.new_pattern_samples <= 100_000):
-            raise InvalidInputError(
-                f"new_pattern_samples must be an integer in [1, 100000], got {self.new_pattern_samples!r}"
-            )
-        if self.n_threads is not None and not (
-            isinstance(self.n_threads, (int, np.integer)) and 1 <= self.n_threads <= 1024
-        ):
-            raise InvalidInputError(f"n_threads must be None or an integer in [1, 1024], got {self.n_threads!r}")
         if self.n_iter_no_change is not None and not (_is_int(self.n_iter_no_change) and self.n_iter_no_change >= 1):
             raise InvalidInputError(
                 f"n_iter_no_change must be a positive integer or None, got {self.n_iter_no_change!r}"
-            )
-        if not _is_int(self.seed):
-            raise InvalidInputError(f"seed must be an integer, got {self.seed!r}")
-        f = self.length_scale_fraction
-        if isinstance(f, bool) or not isinstance(f, (int, float, np.integer, np.floating)) or not 0 < f <= 1:
-            raise InvalidInputError(f"length_scale_fraction must be a number in (0, 1], got {f!r}")
-        if self.alpha is not None and not alpha_in_range(self.alpha):
-            raise InvalidInputError(
-                f"alpha must be None (sampled) or a number in [{ALPHA_RANGE[0]:g}, {ALPHA_RANGE[1]:g}] (beyond it the log "
-                f"joint is not finite in double precision), got {self.alpha!r}"
             )
         t = self.ari_tol
         if isinstance(t, bool) or not isinstance(t, (int, float, np.integer, np.floating)) or not 0 <= t <= 1:
@@ -293,11 +267,28 @@ class DPGP:
         ckpt.check_settings(self.checkpoint, self.checkpoint_every)
         if not (_is_int(self.posterior_draws) and 0 <= self.posterior_draws <= 100_000):
             raise InvalidInputError(f"posterior_draws must be an integer in [0, 100000], got {self.posterior_draws!r}")
-        _split_merge_moves(self.split_merge)
-        if self.split_merge_pairs not in ("uniform", "informed"):
-            raise InvalidInputError(
-                f"split_merge_pairs must be 'uniform' or 'informed', got {self.split_merge_pairs!r}"
-            )
+        _core.check_settings(self._sampler_settings())
+
+    def _sampler_settings(self) -> _core._SamplerSettings:
+        """The settings of the core sampler as the user gave them (``"auto"`` resolved where no
+        data is needed), unchecked: the core validates them. ``_new_sampler`` adds what the
+        data decide."""
+        settings: _core._SamplerSettings = {
+            "assignment": self.assignment,
+            "proposal": self.proposal,
+            "split_merge_pairs": self.split_merge_pairs,
+            "fixed_length_scales": self.length_scales is not None,
+            "alpha": self.alpha,
+            "new_pattern_samples": self.new_pattern_samples,
+            "seed": self.seed,
+            "n_threads": self.n_threads,
+            "length_scale_fraction": self.length_scale_fraction,
+            "pattern_moments": self.pattern_moments,
+            "split_merge": _split_merge_moves(self.split_merge),
+        }
+        if not _is_auto(self.likelihood):  # "auto" is decided from the data (_resolve_engine)
+            settings["likelihood"] = self.likelihood
+        return settings
 
     def fit(self, frames: Frames | Any, y: None = None, *, warm_start: bool = False) -> DPGP:
         """Fit the mixture to training frames (a :class:`~dpgp.Frames` or a framed DataFrame).
@@ -532,28 +523,17 @@ class DPGP:
         """A core sampler over ``frames`` with this model's settings and ``params_``; shared by
         ``fit`` and by loading a model file, so that both compute identically."""
         a, b = self.length_scale_prior_
-        return _core.Sampler(
-            frames.xy,
-            frames.v,
-            frames.offsets,
-            self.assignment_,
-            self.params_.as_tuple(),
-            self.length_scales is not None,
-            (a, b),
-            None if self.alpha is None else float(self.alpha),
-            int(self.new_pattern_samples),
-            int(self.seed) & 0xFFFF_FFFF_FFFF_FFFF,
-            self.n_threads,
-            float(self.length_scale_fraction),
-            bool(self.pattern_moments),
-            self.likelihood_,
-            None if self.basis_ is None else self.basis_.as_tuple(),
-            self.proposal,
-            self.memory_budget_,
-            _split_merge_moves(self.split_merge),
-            self.split_merge_pairs,
-            NOISE_PRIOR if getattr(self.defaults_, "noise_var_source", None) == "sampled" else None,
-        )
+        settings: _core._SamplerSettings = {
+            **self._sampler_settings(),
+            "assignment": self.assignment_,
+            "likelihood": self.likelihood_,
+            "basis": None if self.basis_ is None else self.basis_.as_tuple(),
+            "params": self.params_.as_tuple(),
+            "length_scale_prior": (a, b),
+            "memory_budget": self.memory_budget_,
+            "noise_prior": NOISE_PRIOR if getattr(self.defaults_, "noise_var_source", None) == "sampled" else None,
+        }
+        return _core.Sampler(frames.xy, frames.v, frames.offsets, settings)
 
     def _sync(self) -> None:
         """Read the sampler's state into the public attributes, patterns by decreasing size."""
@@ -974,17 +954,15 @@ def _check_magnitudes(frames: Frames, what: str) -> None:
 MIN_NOISE_RATIO = 1e-10
 
 
-def _split_merge_moves(value: Any) -> int:
-    """Split–merge moves per sweep: ``"auto"`` or a non-negative integer."""
+def _split_merge_moves(value: Any) -> Any:
+    """Split–merge moves per sweep: ``"auto"`` resolved, anything else as given (the core checks it)."""
     from ..gp.defaults import SPLIT_MERGE_MOVES
 
-    if isinstance(value, str) and value == "auto":
-        return SPLIT_MERGE_MOVES
-    if not (_is_int(value) and 0 <= value <= 1_000_000):
-        raise InvalidInputError(
-            f"split_merge must be 'auto' or a number of moves per sweep in [0, 1000000], got {value!r}"
-        )
-    return int(value)
+    return SPLIT_MERGE_MOVES if _is_auto(value) else value
+
+
+def _is_auto(value: Any) -> bool:
+    return isinstance(value, str) and value == "auto"
 
 
 def _check_noise(noise_var: Any, signal_var: Any) -> None:

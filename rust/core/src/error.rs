@@ -53,3 +53,12 @@ pub fn check_finite(name: &str, values: &[f64]) -> Result<()> {
         ))),
     }
 }
+
+/// The error for a setting given a name it does not know, listing the names it knows.
+pub fn unknown_option(setting: &str, allowed: &[&str], got: &str) -> Error {
+    let allowed: Vec<String> = allowed.iter().map(|a| format!("'{a}'")).collect();
+    Error::InvalidInput(format!(
+        "{setting} must be one of {}; got {got:?}",
+        allowed.join(", ")
+    ))
+}

@@ -18,7 +18,7 @@ use rand::RngExt;
 use rand_distr::{Distribution, Gamma};
 use rayon::prelude::*;
 
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, unknown_option};
 use crate::frame::FrameRef;
 use crate::frame::{LengthScales, Point};
 use crate::gp::GpParams;
@@ -42,8 +42,17 @@ const SCORE_BLOCK: usize = 64;
 const ALPHA_STEPS: usize = 10;
 /// Auxiliary patterns scored per parallel task.
 const AUX_CHUNK: usize = 25;
+// The limits of the settings live here and nowhere else: the binding exports them to Python
+// (`dpgp._core.MAX_THREADS`, ...), which validates no setting itself (docs/engine-layout.md).
 /// Most auxiliary patterns per frame (each costs an l x l factorisation).
 pub const MAX_NEW_PATTERN_SAMPLES: usize = 100_000;
+/// Most split–merge moves per sweep.
+pub const MAX_SPLIT_MERGE_MOVES: usize = 1_000_000;
+/// Most worker threads a sampler's pool may have (the pool is the caller's; see [`check_threads`]).
+pub const MAX_THREADS: usize = 1024;
+/// Range of a fixed concentration α: beyond it `log Γ(α) - log Γ(α + N)`, `-1/(2α)` and the
+/// new-pattern weight `log(α / m)` are not finite in double precision.
+pub const ALPHA_RANGE: (f64, f64) = (1e-100, 1e100);
 /// Informed proposals: the cheap scores are tempered (they treat a frame's vehicles as
 /// independent, so they are overconfident) and mixed with a uniform share, so that every
 /// pattern keeps a chance to be proposed.
@@ -55,6 +64,18 @@ const INFORMED_CANDIDATES: usize = 2;
 /// Frames placed one by one by the (restricted) conditional at initialisation with informed
 /// proposals; the rest join patterns by cheap score.
 pub const INIT_SEQUENTIAL: usize = 1000;
+
+/// The size of a sampler's thread pool: `None` for one thread per core (returned as 0, as
+/// rayon takes it), else 1 to [`MAX_THREADS`].
+pub fn check_threads(n: Option<usize>) -> Result<usize> {
+    match n {
+        None => Ok(0),
+        Some(k @ 1..=MAX_THREADS) => Ok(k),
+        Some(k) => Err(Error::InvalidInput(format!(
+            "n_threads must be None or an integer in [1, {MAX_THREADS}], got {k}"
+        ))),
+    }
+}
 
 /// How a frame's new pattern is proposed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -74,6 +95,30 @@ pub enum Assignment {
     Gibbs,
     /// Take the most probable pattern (the paper's Algorithm 1).
     Map,
+}
+
+// Settings arrive by name (from Python, a file or a command line): each enum parses its own
+// names, and a wrong one is an `InvalidInput` that lists the right ones.
+impl std::str::FromStr for Proposal {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "full" => Ok(Self::Full),
+            "informed" => Ok(Self::Informed),
+            _ => Err(unknown_option("proposal", &["full", "informed"], s)),
+        }
+    }
+}
+
+impl std::str::FromStr for Assignment {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "gibbs" => Ok(Self::Gibbs),
+            "map" => Ok(Self::Map),
+            _ => Err(unknown_option("assignment", &["gibbs", "map"], s)),
+        }
+    }
 }
 
 /// Everything that configures a run.
@@ -111,7 +156,50 @@ pub struct Settings {
     pub noise_prior: Option<NoisePrior>,
 }
 
+/// A number as Python's `{:g}` writes one far from 1 (`1e+100`, not 100 digits).
+fn g(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-4..1e16).contains(&x.abs()) {
+        return format!("{x}");
+    }
+    let s = format!("{x:e}");
+    match s.split_once('e') {
+        Some((m, e)) if !e.starts_with('-') => format!("{m}e+{e}"),
+        _ => s,
+    }
+}
+
+impl Default for Settings {
+    /// Gibbs assignment, full proposals, the exact likelihood, unit GP parameters with sampled
+    /// length scales under a Gamma(10, 1) prior, sampled α, 10 auxiliary patterns, no split–merge
+    /// and fixed noise: a valid start for `Settings { seed, ..Settings::default() }`.
+    fn default() -> Self {
+        Self {
+            assignment: Assignment::Gibbs,
+            base: GpParams {
+                length_scales: LengthScales { wx: 1.0, wy: 1.0 },
+                signal_var: [1.0, 1.0],
+                noise_var: [1.0, 1.0],
+                mean: [0.0, 0.0],
+            },
+            fixed_length_scales: false,
+            length_scale_prior: (10.0, 1.0),
+            alpha: None,
+            new_pattern_samples: 10,
+            pattern_moments: false,
+            length_scale_fraction: 1.0,
+            seed: 0,
+            likelihood: Likelihood::Exact,
+            proposal: Proposal::Full,
+            memory_budget: None,
+            split_merge: SplitMerge::default(),
+            noise_prior: None,
+        }
+    }
+}
+
 impl Settings {
+    /// Every rule a setting must keep; [`Sampler::new`] calls it, and callers may call it early
+    /// (before work that depends on the settings) with placeholders for what they resolve later.
     pub fn validate(&self) -> Result<()> {
         let (a, b) = self.length_scale_prior;
         if !(a.is_finite() && a > 0.0 && b.is_finite() && b > 0.0) {
@@ -119,11 +207,16 @@ impl Settings {
                 "length_scale_prior must be (shape, scale) with both positive, got ({a}, {b})"
             )));
         }
+        let (lo, hi) = ALPHA_RANGE;
         if let Some(al) = self.alpha
-            && !(al.is_finite() && al > 0.0)
+            && !(lo..=hi).contains(&al)
         {
             return Err(Error::InvalidInput(format!(
-                "alpha must be a positive number, got {al}"
+                "alpha must be None (sampled) or a number in [{}, {}] (beyond it the log joint \
+                 is not finite in double precision), got {}",
+                g(lo),
+                g(hi),
+                g(al)
             )));
         }
         if !(self.length_scale_fraction > 0.0 && self.length_scale_fraction <= 1.0) {
@@ -137,8 +230,14 @@ impl Settings {
         }
         if self.new_pattern_samples == 0 || self.new_pattern_samples > MAX_NEW_PATTERN_SAMPLES {
             return Err(Error::InvalidInput(format!(
-                "new_pattern_samples must be between 1 and {MAX_NEW_PATTERN_SAMPLES}, got {}",
+                "new_pattern_samples must be an integer in [1, {MAX_NEW_PATTERN_SAMPLES}], got {}",
                 self.new_pattern_samples
+            )));
+        }
+        if self.split_merge.moves_per_sweep > MAX_SPLIT_MERGE_MOVES {
+            return Err(Error::InvalidInput(format!(
+                "split_merge must be a number of moves per sweep in [0, {MAX_SPLIT_MERGE_MOVES}], got {}",
+                self.split_merge.moves_per_sweep
             )));
         }
         Ok(())

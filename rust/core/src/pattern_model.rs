@@ -10,7 +10,7 @@
 use std::sync::Arc;
 
 use crate::correlation::Correlation;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::frame::FrameRef;
 use crate::frame::{LengthScales, Point};
 use crate::gp::GpParams;
@@ -377,7 +377,41 @@ pub enum Likelihood {
     Hsgp(Arc<Basis>),
 }
 
+/// The name of a likelihood, as a setting spells it; the basis comes separately (it is sized
+/// from the data), see [`Likelihood::new`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LikelihoodKind {
+    Exact,
+    Hsgp,
+}
+
+impl std::str::FromStr for LikelihoodKind {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "exact" => Ok(Self::Exact),
+            "hsgp" => Ok(Self::Hsgp),
+            _ => Err(crate::error::unknown_option(
+                "likelihood",
+                &["exact", "hsgp"],
+                s,
+            )),
+        }
+    }
+}
+
 impl Likelihood {
+    /// The likelihood of `kind`; hsgp needs its basis.
+    pub fn new(kind: LikelihoodKind, basis: Option<Arc<Basis>>) -> Result<Self> {
+        match (kind, basis) {
+            (LikelihoodKind::Exact, _) => Ok(Self::Exact),
+            (LikelihoodKind::Hsgp, Some(b)) => Ok(Self::Hsgp(b)),
+            (LikelihoodKind::Hsgp, None) => Err(Error::InvalidInput(
+                "likelihood 'hsgp' needs a basis".into(),
+            )),
+        }
+    }
+
     pub fn name(&self) -> &'static str {
         match self {
             Self::Exact => "exact",

@@ -42,7 +42,7 @@ use rand::RngExt;
 use rand_distr::{Distribution, Gamma};
 
 use super::{Assignment, NONE, Sampler};
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, unknown_option};
 use crate::frame::FrameRef;
 use crate::frame::LengthScales;
 use crate::pattern_model::PatternModel;
@@ -55,6 +55,21 @@ pub enum PairChoice {
     Uniform,
     /// Half uniform, half by the similarity of the frames' mean velocities.
     Informed,
+}
+
+impl std::str::FromStr for PairChoice {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "uniform" => Ok(Self::Uniform),
+            "informed" => Ok(Self::Informed),
+            _ => Err(unknown_option(
+                "split_merge_pairs",
+                &["uniform", "informed"],
+                s,
+            )),
+        }
+    }
 }
 
 /// Split–merge settings: moves per sweep (0: off) and the pair choice.

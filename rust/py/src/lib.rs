@@ -15,6 +15,7 @@ mod errors;
 mod gp;
 mod hsgp;
 mod sampler;
+mod settings;
 mod simulate;
 
 #[pyo3::pymodule(gil_used = false)]
@@ -32,12 +33,20 @@ mod _core {
     #[pymodule_export]
     use super::sampler::PySampler;
     #[pymodule_export]
+    use super::settings::check_settings;
+    #[pymodule_export]
     use super::simulate::{
         field_means, integrate_affine, motion_rollouts, rollouts, scene_rollouts,
     };
 
     #[pymodule_init]
     fn init(m: &Bound<'_, PyModule>) -> PyResult<()> {
+        use dpgp_core::gibbs;
+        // The settings' limits, for Python to show (it checks none: the core does).
+        m.add("MAX_THREADS", gibbs::MAX_THREADS)?;
+        m.add("MAX_NEW_PATTERN_SAMPLES", gibbs::MAX_NEW_PATTERN_SAMPLES)?;
+        m.add("MAX_SPLIT_MERGE_MOVES", gibbs::MAX_SPLIT_MERGE_MOVES)?;
+        m.add("ALPHA_RANGE", gibbs::ALPHA_RANGE)?;
         m.add("__version__", env!("CARGO_PKG_VERSION"))
     }
 }

@@ -12,15 +12,11 @@ use pyo3::types::PyDict;
 
 use crate::convert::{pairs, to_numpy};
 use crate::errors::{CoreError, CoreResult};
-use crate::gp::{ParamTuple, params};
-use crate::hsgp::BasisTuple;
+use crate::settings::SamplerSettings;
 use dpgp_core::Error;
-use dpgp_core::gibbs::{
-    Assignment, Data, NoisePrior, PairChoice, Proposal, Sampler, Settings, SplitMerge,
-};
+use dpgp_core::gibbs::{Data, Sampler};
 use dpgp_core::kernel::LengthScales;
 use dpgp_core::pattern::FrameRef;
-use dpgp_core::pattern_model::Likelihood;
 
 #[pyclass(module = "dpgp._core", name = "Sampler")]
 pub struct PySampler {
@@ -63,19 +59,11 @@ pub(crate) fn frame_refs<'a>(
         .collect())
 }
 
-/// Most worker threads a sampler may ask for.
-const MAX_THREADS: usize = 1024;
-
 /// The process's rayon pool of `n` threads (0: one per core), created on first use: samplers
-/// share pools, so that many live models do not each hold their own threads.
+/// share pools, so that many live models do not each hold their own threads. `n` is checked
+/// against the core's limit (`gibbs::check_threads`) with the other settings.
 fn shared_pool(n: usize) -> PyResult<Arc<rayon::ThreadPool>> {
     static POOLS: Mutex<Vec<(usize, Arc<rayon::ThreadPool>)>> = Mutex::new(Vec::new());
-    if n > MAX_THREADS {
-        return Err(CoreError(Error::InvalidInput(format!(
-            "n_threads must be at most {MAX_THREADS}, got {n}"
-        )))
-        .into());
-    }
     let mut pools = POOLS.lock().unwrap_or_else(|e| e.into_inner());
     if let Some((_, p)) = pools.iter().find(|(k, _)| *k == n) {
         return Ok(Arc::clone(p));
@@ -154,98 +142,24 @@ impl PySampler {
 
 #[pymethods]
 impl PySampler {
+    /// A sampler over frames `xy`, `v` (rows of all frames, `offsets` where each starts) with
+    /// `settings`, a dict (settings.rs: `SamplerSettings`) that the core validates.
     #[new]
-    #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (xy, v, offsets, assignment, params_, fixed_length_scales, length_scale_prior, alpha, new_pattern_samples, seed, n_threads, length_scale_fraction=1.0, pattern_moments=false, likelihood="exact", basis=None, proposal="full", memory_budget=None, split_merge=0, split_merge_pairs="uniform", noise_prior=None))]
     fn new(
         py: Python<'_>,
         xy: PyReadonlyArray2<'_, f64>,
         v: PyReadonlyArray2<'_, f64>,
         offsets: PyReadonlyArray1<'_, i64>,
-        assignment: &str,
-        params_: ParamTuple,
-        fixed_length_scales: bool,
-        length_scale_prior: (f64, f64),
-        alpha: Option<f64>,
-        new_pattern_samples: usize,
-        seed: u64,
-        n_threads: Option<usize>,
-        length_scale_fraction: f64,
-        pattern_moments: bool,
-        likelihood: &str,
-        basis: Option<BasisTuple>,
-        proposal: &str,
-        memory_budget: Option<usize>,
-        split_merge: usize,
-        split_merge_pairs: &str,
-        noise_prior: Option<(f64, f64)>,
+        settings: &Bound<'_, PyAny>,
     ) -> PyResult<Self> {
-        let pair_choice = match split_merge_pairs {
-            "uniform" => PairChoice::Uniform,
-            "informed" => PairChoice::Informed,
-            other => {
-                return Err(CoreError(Error::InvalidInput(format!(
-                    "split_merge_pairs must be 'uniform' or 'informed', got {other:?}"
-                )))
-                .into());
-            }
-        };
-        let likelihood = match (likelihood, basis) {
-            ("exact", _) => Likelihood::Exact,
-            ("hsgp", Some(b)) => Likelihood::Hsgp(Arc::new(crate::hsgp::basis(b)?)),
-            (other, _) => {
-                return Err(CoreError(Error::InvalidInput(format!(
-                    "likelihood must be 'exact' or 'hsgp' (with a basis), got {other:?}"
-                )))
-                .into());
-            }
-        };
-        let proposal = match proposal {
-            "full" => Proposal::Full,
-            "informed" => Proposal::Informed,
-            other => {
-                return Err(CoreError(Error::InvalidInput(format!(
-                    "proposal must be 'full' or 'informed', got {other:?}"
-                )))
-                .into());
-            }
-        };
-        let assignment = match assignment {
-            "gibbs" => Assignment::Gibbs,
-            "map" => Assignment::Map,
-            other => {
-                return Err(CoreError(Error::InvalidInput(format!(
-                    "assignment must be 'gibbs' or 'map', got {other:?}"
-                )))
-                .into());
-            }
-        };
+        let (settings, n_threads) = SamplerSettings::extract(settings)?.into_core(false)?;
         let (xy, v) = (pairs("xy", &xy)?, pairs("v", &v)?);
         let offsets = offsets_vec("offsets", &offsets)?;
         let data = Data::new(xy.to_vec(), v.to_vec(), offsets).map_err(CoreError)?;
-        let settings = Settings {
-            assignment,
-            base: params(params_)?,
-            fixed_length_scales,
-            length_scale_prior,
-            alpha,
-            new_pattern_samples,
-            length_scale_fraction,
-            pattern_moments,
-            seed,
-            likelihood,
-            proposal,
-            memory_budget,
-            split_merge: SplitMerge {
-                moves_per_sweep: split_merge,
-                pairs: pair_choice,
-            },
-            noise_prior: noise_prior.map(|(log_mean, sd)| NoisePrior { log_mean, sd }),
-        };
         let sampler = py
             .detach(|| Sampler::new(data, settings))
             .map_err(CoreError)?;
-        let pool = shared_pool(n_threads.unwrap_or(0))?;
+        let pool = shared_pool(n_threads)?;
         Ok(Self {
             inner: Mutex::new(sampler),
             pool,

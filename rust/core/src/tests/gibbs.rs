@@ -181,3 +181,52 @@ fn pattern_moments_follow_each_patterns_own_data() {
         }
     }
 }
+
+#[test]
+fn settings_names_parse_in_the_core_and_a_wrong_one_lists_the_right_ones() {
+    use crate::pattern_model::LikelihoodKind;
+    assert_eq!("map".parse::<Assignment>(), Ok(Assignment::Map));
+    assert_eq!("informed".parse::<Proposal>(), Ok(Proposal::Informed));
+    assert_eq!("uniform".parse::<PairChoice>(), Ok(PairChoice::Uniform));
+    assert_eq!("hsgp".parse::<LikelihoodKind>(), Ok(LikelihoodKind::Hsgp));
+    let Err(Error::InvalidInput(msg)) = "greedy".parse::<Assignment>() else {
+        panic!("an unknown assignment must be InvalidInput");
+    };
+    assert!(
+        msg.contains("'gibbs', 'map'") && msg.contains("greedy"),
+        "{msg}"
+    );
+    assert!("smart".parse::<Proposal>().is_err());
+    assert!("near".parse::<PairChoice>().is_err());
+    assert!("sparse".parse::<LikelihoodKind>().is_err());
+    assert!(Likelihood::new(LikelihoodKind::Hsgp, None).is_err());
+}
+
+#[test]
+fn settings_limits_are_checked_once_here() {
+    assert!(Settings::default().validate().is_ok());
+    let bad = [
+        Settings {
+            new_pattern_samples: MAX_NEW_PATTERN_SAMPLES + 1,
+            ..Settings::default()
+        },
+        Settings {
+            alpha: Some(ALPHA_RANGE.1 * 10.0),
+            ..Settings::default()
+        },
+        Settings {
+            split_merge: SplitMerge {
+                moves_per_sweep: MAX_SPLIT_MERGE_MOVES + 1,
+                pairs: PairChoice::Uniform,
+            },
+            ..Settings::default()
+        },
+    ];
+    for st in bad {
+        assert!(matches!(st.validate(), Err(Error::InvalidInput(_))));
+    }
+    assert_eq!(check_threads(None), Ok(0));
+    assert_eq!(check_threads(Some(MAX_THREADS)), Ok(MAX_THREADS));
+    assert!(check_threads(Some(0)).is_err());
+    assert!(check_threads(Some(MAX_THREADS + 1)).is_err());
+}
