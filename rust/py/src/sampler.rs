@@ -241,6 +241,7 @@ impl PySampler {
                 pairs: pair_choice,
             },
             noise_prior: noise_prior.map(|(log_mean, sd)| NoisePrior { log_mean, sd }),
+            dynamics: None,
         };
         let sampler = py
             .detach(|| Sampler::new(data, settings))
