@@ -190,8 +190,9 @@ pub(super) struct Block {
 }
 
 impl Block {
-    fn crp(&self, k: usize, m: &[usize], total: usize) -> f64 {
-        let mk = m.get(k).copied().unwrap_or(0);
+    /// `CRP(k | m + extra·δ_k)` with `total` draws: the count, or α for a table not in `m`.
+    fn crp(&self, k: usize, extra: usize, total: usize) -> f64 {
+        let mk = self.m.get(k).copied().unwrap_or(0) + extra;
         let w = if mk > 0 { mk as f64 } else { self.alpha };
         w / (self.alpha + total as f64)
     }
@@ -207,52 +208,24 @@ impl Block {
             (2, false, true),
             (3, false, false),
         ] {
-            let mut w = 1.0;
-            if a == NONE {
-                if st {
-                    continue;
-                }
-            } else if st {
-                if k != a {
-                    continue;
-                }
-                w *= rho;
-            } else {
-                w *= 1.0 - rho;
-            }
-            if b == NONE {
-                if sn {
-                    continue;
-                }
-            } else if sn {
-                if k != b || k == NONE {
-                    continue;
-                }
-                w *= rho;
-            } else {
-                w *= 1.0 - rho;
-            }
-            if k == NONE && (st || sn) {
+            if (st && (a == NONE || k != a)) || (sn && (b == NONE || k != b)) {
                 continue;
             }
-            let mut m_after = None;
+            let mut w = 1.0;
+            if a != NONE {
+                w *= if st { rho } else { 1.0 - rho };
+            }
+            if b != NONE {
+                w *= if sn { rho } else { 1.0 - rho };
+            }
             if !st {
-                w *= self.crp(k, &self.m, self.total);
-                if k != NONE {
-                    let mut m = self.m.clone();
-                    if m.len() <= k {
-                        m.resize(k + 1, 0);
-                    }
-                    m[k] += 1;
-                    m_after = Some(m);
-                }
+                // Frame t's fresh draw joins k's table (a new one for k = NONE).
+                w *= self.crp(k, 0, self.total);
             }
             if b != NONE && !sn {
-                let total = self.total + usize::from(!st);
-                w *= match &m_after {
-                    Some(m) => self.crp(b, m, total),
-                    None => self.crp(b, &self.m, total),
-                };
+                // Then the successor's fresh draw joins b's, t's draw included.
+                let extra = usize::from(!st && k == b);
+                w *= self.crp(b, extra, self.total + usize::from(!st));
             }
             out[o] = ((st, sn), w);
         }

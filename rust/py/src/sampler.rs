@@ -16,11 +16,35 @@ use crate::gp::{ParamTuple, params};
 use crate::hsgp::BasisTuple;
 use dpgp_core::Error;
 use dpgp_core::gibbs::{
-    Assignment, Data, NoisePrior, PairChoice, Proposal, Sampler, Settings, SplitMerge,
+    Assignment, Data, NoisePrior, PairChoice, Proposal, Sampler, Settings, SplitMerge, StickyPrior,
 };
 use dpgp_core::kernel::LengthScales;
 use dpgp_core::pattern::FrameRef;
 use dpgp_core::pattern_model::Likelihood;
+
+/// The sticky prior as Python passes it: each frame's predecessor (-1: a run's first frame),
+/// the Beta prior of ρ, and a fixed ρ or `None`.
+type StickyTuple<'py> = (PyReadonlyArray1<'py, i64>, (f64, f64), Option<f64>);
+
+fn sticky((prev, rho_prior, rho): StickyTuple<'_>) -> CoreResult<StickyPrior> {
+    let prev: Vec<usize> = prev
+        .as_array()
+        .iter()
+        .map(|&p| match p {
+            -1 => Ok(usize::MAX),
+            p => usize::try_from(p).map_err(|_| {
+                CoreError(Error::InvalidInput(format!(
+                    "a predecessor must be a frame index or -1, got {p}"
+                )))
+            }),
+        })
+        .collect::<CoreResult<_>>()?;
+    Ok(StickyPrior {
+        prev: prev.into(),
+        rho,
+        rho_prior,
+    })
+}
 
 #[pyclass(module = "dpgp._core", name = "Sampler")]
 pub struct PySampler {
@@ -156,7 +180,7 @@ impl PySampler {
 impl PySampler {
     #[new]
     #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (xy, v, offsets, assignment, params_, fixed_length_scales, length_scale_prior, alpha, new_pattern_samples, seed, n_threads, length_scale_fraction=1.0, pattern_moments=false, likelihood="exact", basis=None, proposal="full", memory_budget=None, split_merge=0, split_merge_pairs="uniform", noise_prior=None))]
+    #[pyo3(signature = (xy, v, offsets, assignment, params_, fixed_length_scales, length_scale_prior, alpha, new_pattern_samples, seed, n_threads, length_scale_fraction=1.0, pattern_moments=false, likelihood="exact", basis=None, proposal="full", memory_budget=None, split_merge=0, split_merge_pairs="uniform", noise_prior=None, dynamics=None))]
     fn new(
         py: Python<'_>,
         xy: PyReadonlyArray2<'_, f64>,
@@ -179,6 +203,7 @@ impl PySampler {
         split_merge: usize,
         split_merge_pairs: &str,
         noise_prior: Option<(f64, f64)>,
+        dynamics: Option<StickyTuple<'_>>,
     ) -> PyResult<Self> {
         let pair_choice = match split_merge_pairs {
             "uniform" => PairChoice::Uniform,
@@ -241,7 +266,7 @@ impl PySampler {
                 pairs: pair_choice,
             },
             noise_prior: noise_prior.map(|(log_mean, sd)| NoisePrior { log_mean, sd }),
-            dynamics: None,
+            dynamics: dynamics.map(sticky).transpose()?,
         };
         let sampler = py
             .detach(|| Sampler::new(data, settings))
@@ -251,6 +276,25 @@ impl PySampler {
             inner: Mutex::new(sampler),
             pool,
         })
+    }
+
+    /// ρ of the sticky prior (`None` without it).
+    fn stickiness(&self) -> Option<f64> {
+        self.lock().stickiness()
+    }
+
+    /// Each frame's link under the sticky prior (`True`: it stays in its predecessor's
+    /// pattern), or `None` without it.
+    fn links<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<bool>>> {
+        self.lock().links().map(|l| l.to_vec().into_pyarray(py))
+    }
+
+    /// Set the links and ρ (a resumed chain); links the labels do not allow are dropped.
+    fn set_links(&self, links: PyReadonlyArray1<'_, bool>, rho: f64) -> PyResult<()> {
+        let links: Vec<bool> = links.as_array().to_vec();
+        self.lock()
+            .set_links(&links, rho)
+            .map_err(|e| CoreError(e).into())
     }
 
     /// Place every unassigned frame by the sequential CRP conditional.
