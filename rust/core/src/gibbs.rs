@@ -647,6 +647,11 @@ impl Sampler {
             let mut rng = stream(self.settings.seed, self.sweep, Phase::Assign, i as u64);
             moves += usize::from(self.update_frame(i, &mut rng, true)?);
         }
+        if self.links.is_some() {
+            let t = Instant::now();
+            self.segment_moves()?;
+            self.timings.moves += t.elapsed().as_secs_f64();
+        }
         if self.settings.split_merge.moves_per_sweep > 0 {
             let t = Instant::now();
             self.split_merge_moves()?;

@@ -93,7 +93,7 @@ struct Allocation {
 
 /// `log p(V_item | D)`: one frame's predictive, or the joint predictive of a segment's frames
 /// (their points scored as one block).
-fn item_score(p: &dyn PatternModel, data: &Data, item: &[usize]) -> Result<f64> {
+pub(super) fn item_score(p: &dyn PatternModel, data: &Data, item: &[usize]) -> Result<f64> {
     if let [f] = item {
         return Ok(p.score(&[data.frame(*f)])?[0]);
     }

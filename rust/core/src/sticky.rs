@@ -124,6 +124,8 @@ pub(super) struct Links {
     /// `link[t]`: frame `t` stays in its predecessor's pattern (never for a run's first frame).
     link: Vec<bool>,
     rho: f64,
+    /// Segment moves proposed and accepted, over the run.
+    pub(super) segment_moves: (u64, u64),
 }
 
 impl Links {
@@ -137,6 +139,7 @@ impl Links {
             next,
             link: vec![false; n],
             rho,
+            segment_moves: (0, 0),
         })
     }
 
@@ -429,6 +432,77 @@ impl Sampler {
             Some(l) => l.segment_of(t),
             None => vec![t],
         }
+    }
+}
+
+impl Sampler {
+    /// Segment moves, after the frame updates: a segment whose neighbours (the frames before and
+    /// after it) lie in two different patterns, its own one of them, is proposed to move whole
+    /// to the other. The proposal is deterministic and its own reverse (the neighbours do not
+    /// move), so the Metropolis ratio is the target's:
+    /// `m_to / m_own · p(V_seg | D_to) / p(V_seg | D_own \ seg)`, with `m` the fresh draws
+    /// without the segment's (its own pattern keeps the neighbour's). Links do not change. This
+    /// moves a whole segment between the two patterns around it, which frame moves reach only
+    /// through improbable states when ρ is large.
+    pub(super) fn segment_moves(&mut self) -> Result<()> {
+        let Some(links) = self.links.as_ref() else {
+            return Ok(());
+        };
+        let segments: Vec<Vec<usize>> = (0..self.labels.len())
+            .filter(|&t| !links.link[t])
+            .map(|t| links.segment_from(t))
+            .collect();
+        let data = Arc::clone(&self.data);
+        for (j, seg) in segments.iter().enumerate() {
+            let links = self.links.as_ref().expect("links");
+            let (p, q) = (links.prev(seg[0]), links.next[seg[seg.len() - 1]]);
+            if p == NONE || q == NONE {
+                continue;
+            }
+            let (a, b, own) = (self.labels[p], self.labels[q], self.labels[seg[0]]);
+            if a == b || (own != a && own != b) || own == NONE {
+                continue;
+            }
+            let to = if own == a { b } else { a };
+            let (m, _) = self.fresh_counts().expect("links");
+            // The neighbour in `own` is in another segment: `m[own] >= 2`.
+            let (m_own, m_to) = ((m[own] - 1) as f64, m[to] as f64);
+            let mut without = self.live_slot(own).pattern.clone();
+            for &f in seg {
+                without.remove(f)?;
+            }
+            let s_own = super::split_merge::item_score(without.as_ref(), &data, seg)?;
+            let s_to =
+                super::split_merge::item_score(self.live_slot(to).pattern.as_ref(), &data, seg)?;
+            let log_ratio = m_to.ln() - m_own.ln() + s_to - s_own;
+            self.links.as_mut().expect("links").segment_moves.0 += 1;
+            let accept = match self.settings.assignment {
+                super::Assignment::Map => log_ratio > 0.0,
+                super::Assignment::Gibbs => {
+                    let mut rng =
+                        stream(self.settings.seed, self.sweep, Phase::Sticky, 1 + j as u64);
+                    rng.random::<f64>().ln() < log_ratio
+                }
+            };
+            if !accept {
+                continue;
+            }
+            self.links.as_mut().expect("links").segment_moves.1 += 1;
+            let version = self.fresh_version();
+            let slot = self.live_slot_mut(own);
+            slot.pattern = without;
+            slot.version = version;
+            for &f in seg {
+                if let Some(c) = slot.cells.as_mut() {
+                    c.add(data.frame(f), -1.0);
+                }
+            }
+            for &f in seg {
+                self.labels[f] = NONE;
+                self.move_frame(f, NONE, to)?;
+            }
+        }
+        Ok(())
     }
 }
 

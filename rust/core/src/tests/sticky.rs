@@ -162,7 +162,9 @@ fn sticky_chain_samples_the_enumerated_posterior() {
                     sm.split_accepted > 100 && sm.merge_accepted > 100,
                     "{name}: {sm:?}"
                 );
-                eprintln!("{name}: TV {d:.4}");
+                let seg = s.links.as_ref().unwrap().segment_moves;
+                assert!(seg.1 > 200, "{name}: segment moves {seg:?}");
+                eprintln!("{name}: TV {d:.4}, segment moves {seg:?}");
             }
         }
     }
@@ -345,4 +347,63 @@ fn bad_time_orders_are_refused() {
     st.dynamics.as_mut().unwrap().rho = None;
     st.dynamics.as_mut().unwrap().rho_prior = (0.0, 1.0);
     assert!(Sampler::new(tiny(), st).is_err());
+}
+
+/// Segment moves alone, links fixed (all off: every frame its own segment), from a state where
+/// they can only shift the boundary between two patterns: the chain samples the posterior
+/// restricted to those four states, whose CRP weights differ (so a wrong count ratio fails).
+#[test]
+fn segment_moves_sample_the_restricted_posterior() {
+    let st = sticky_settings(ORDERS[0], Some(0.8), Proposal::Full);
+    let data = tiny();
+    let links = [false; 5];
+    let states = [
+        [0, 1, 1, 1, 1],
+        [0, 0, 1, 1, 1],
+        [0, 0, 0, 1, 1],
+        [0, 0, 0, 0, 1],
+    ];
+    let w: Vec<f64> = states
+        .iter()
+        .map(|z| log_weight(&data, &st, z, &links, false).unwrap())
+        .collect();
+    let norm = log_sum_exp(&w);
+    let exact: HashMap<Vec<usize>, f64> = states
+        .iter()
+        .zip(&w)
+        .map(|(z, w)| (z.to_vec(), (w - norm).exp()))
+        .collect();
+    // Without the CRP's count ratio the target would be this one.
+    let flat: Vec<f64> = states
+        .iter()
+        .zip(&w)
+        .map(|(z, w)| {
+            let m0 = z.iter().filter(|&&k| k == 0).count() as f64;
+            w - ln_gamma(m0) - ln_gamma(5.0 - m0)
+        })
+        .collect();
+    let fnorm = log_sum_exp(&flat);
+    let wrong: HashMap<Vec<usize>, f64> = states
+        .iter()
+        .zip(&flat)
+        .map(|(z, w)| (z.to_vec(), (w - fnorm).exp()))
+        .collect();
+    let mut s = Sampler::new(data, st).unwrap();
+    let ls = s.settings.base.length_scales;
+    s.set_state(&[0, 0, 1, 1, 1], &[ls; 2], 1.0).unwrap();
+    s.set_links(&links, 0.8).unwrap();
+    let steps = 60_000;
+    let mut counts: HashMap<Vec<usize>, f64> = HashMap::new();
+    for step in 0..steps {
+        s.sweep = step as u64;
+        s.segment_moves().unwrap();
+        *counts.entry(canonical(s.labels())).or_default() += 1.0 / steps as f64;
+    }
+    let d = tv(&counts, &exact);
+    let bad = tv(&counts, &wrong);
+    eprintln!("segment moves alone: TV {d:.4}; against the target without counts {bad:.4}");
+    assert!(d <= 0.03, "TV {d:.4}: {counts:?} vs {exact:?}");
+    assert!(bad > 0.06, "no power: {bad:.4}");
+    let moves = s.links.as_ref().unwrap().segment_moves;
+    assert!(moves.1 > 10_000, "{moves:?}");
 }
