@@ -1,9 +1,9 @@
 """Held-out pattern dynamics (issue 20, docs/dynamics.md): label-sequence log-likelihood and
 per-vehicle density of frame t given the frames before it, under the transitions learned by a fit
-(HMM forward pass) against the independent DP. First 70% of frames to fit (defaults, 20 sweeps),
-the rest held out in time order.
+(HMM forward pass) against the independent DP. First 70% of frames to fit (defaults, 20 sweeps;
+``--dynamics sticky`` for the sticky prior), the rest held out in time order.
 
-    PYTHONPATH=$PWD/python nice python benches/dynamics_heldout.py [--only sumo,us101,eth,zara01]
+    PYTHONPATH=$PWD/python nice python benches/dynamics_heldout.py [--only sumo,us101,eth,zara01] [--dynamics sticky]
 """
 
 from __future__ import annotations
@@ -34,13 +34,17 @@ def main() -> None:
     ap.add_argument("--only", default="sumo,us101,eth,zara01")
     ap.add_argument("--iterations", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--dynamics", default=None, choices=[None, "sticky"])
+    ap.add_argument("--frames", type=int, default=None, help="the first N frames only")
     a = ap.parse_args()
     for name in a.only.split(","):
-        train, test = split_in_time(load(name))
+        frames = load(name)
+        train, test = split_in_time(frames if a.frames is None else frames[: a.frames])
         t = time.perf_counter()
-        model = dpgp.DPGP(iterations=a.iterations, seed=a.seed, progress=False).fit(train)
+        model = dpgp.DPGP(iterations=a.iterations, seed=a.seed, progress=False, dynamics=a.dynamics).fit(train)
         s = sequence_scores(model, test)
-        row = {"data": name, "train": len(train), "K": model.n_patterns_,
+        row = {"data": name, "dynamics": a.dynamics, "train": len(train), "K": model.n_patterns_,
+               "stickiness": model.stickiness_,
                "train_share_same": round(model.transitions_.share_same, 4), **s.to_dict(),
                "seconds": round(time.perf_counter() - t, 1)}  # fmt: skip
         print(json.dumps(row), flush=True)

@@ -124,6 +124,7 @@ class ModelState:
     label_trace: np.ndarray | None = None
     draws: Any = None  # dpgp.gp.draws.Draws
     transitions: dict[str, Any] | None = None  # dpgp.evaluate.transitions.Transitions.to_dict (issue 20)
+    sticky: dict[str, Any] | None = None  # dynamics="sticky": {"rho": ρ, "links": frames linked to their predecessor}
 
 
 def save(state: ModelState, path: str | os.PathLike, resume: Any = None, compress: bool = True) -> None:
@@ -163,6 +164,8 @@ def save(state: ModelState, path: str | os.PathLike, resume: Any = None, compres
         meta["chain_summary"] = state.chain_summary  # a model summarising chains (dpgp.fit_chains)
     if state.transitions is not None:
         meta["transitions"] = state.transitions  # optional: files before issue 20 and unordered frames lack it
+    if state.sticky is not None:
+        meta["sticky"] = state.sticky  # optional: only fits with dynamics="sticky" have it
     if resume is not None:
         meta[RESUME_KEY] = resume.meta()  # a checkpoint
     arrays: dict[str, np.ndarray] = {
@@ -298,6 +301,7 @@ class ModelFile:
     resume: Any = None
     motion: Any = None  # a dpgp.motion.MotionModel; None in files written before issue 15
     transitions: Any = None  # a dpgp.evaluate.transitions.Transitions; None before issue 20 or without times
+    sticky: dict[str, Any] | None = None  # ρ and the linked frames under dynamics="sticky"
 
 
 def read_model_file(path: str | os.PathLike) -> ModelFile:
@@ -390,7 +394,20 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
         path, settings, frames, labels, ls, float(meta["alpha"]), params, _resolved(meta), likelihood, basis, state,
         None if d is None else EmpiricalDistributions.from_dict(d), parse_resume(meta, arrays, frames),
         None if meta.get("motion") is None else MotionModel.from_dict(meta["motion"]), transitions,
+        _sticky(meta.get("sticky"), len(frames)),
     )  # fmt: skip
+
+
+def _sticky(value: Any, n_frames: int) -> dict[str, Any] | None:
+    """The stored ρ and links of a dynamics="sticky" fit, checked (None when absent)."""
+    if value is None:
+        return None
+    rho, links = (value.get("rho"), value.get("links")) if isinstance(value, dict) else (None, None)
+    if not (isinstance(rho, float) and 0 < rho < 1 and isinstance(links, list)) or not all(
+        isinstance(t, int) and not isinstance(t, bool) and 0 <= t < n_frames for t in links
+    ):
+        raise ModelFileError("the sticky prior's stored rho or links are not valid")
+    return {"rho": rho, "links": links}
 
 
 def _check_counts(arrays: dict[str, np.ndarray]) -> None:

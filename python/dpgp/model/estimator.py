@@ -37,6 +37,11 @@ from ..io import checkpoint as ckpt
 if TYPE_CHECKING:
     from ..io.modelfile import ModelState
 
+_DYNAMICS = (None, "sticky")
+# ρ ~ Beta(1, 1) under dynamics="sticky": uniform, so the recording decides how sticky its scene is
+# (thousands of links outweigh it); a prior favouring stickiness would hide a scene that flickers.
+STICKINESS_PRIOR = (1.0, 1.0)
+
 
 class DPGP:
     """Dirichlet-process mixture of GP motion patterns.
@@ -85,6 +90,12 @@ class DPGP:
         proposals and acceptances per sweep are in ``history_`` (``split_proposed``, ...).
     split_merge_pairs : ``"informed"`` (default) or ``"uniform"``: how the second frame of a
         move's pair is drawn (half the time by similar mean velocity when informed).
+    dynamics : ``None`` (default): frames are exchangeable, the paper's independent DP.
+        ``"sticky"``: a Markov prior on consecutive frames' labels (docs/dynamics.md): each
+        frame stays in its predecessor's pattern with probability ρ (``stickiness_``, sampled
+        under a Beta(1, 1) prior; per sweep in ``history_["stickiness"]``), else draws afresh
+        from the DP. Needs frames with times (:class:`~dpgp.exceptions.UnorderedFramesError`
+        otherwise); not with ``checkpoint`` yet.
     preset : ``"paper"``: the paper's settings wherever ``"auto"`` is left — Gamma(10, 1)
         length scales (feet), σ_n² = 1 ((ft/s)²) — and map assignment. :meth:`paper` builds one.
     signal_var, mean : per-output signal variance and mean; ``None`` takes the variance and mean
@@ -151,6 +162,7 @@ class DPGP:
         posterior_draws: int = MAX_DRAWS,
         split_merge: int | str = "auto",
         split_merge_pairs: str = "informed",
+        dynamics: str | None = None,
     ) -> None:
         self.iterations = iterations
         self.assignment = assignment
@@ -179,6 +191,7 @@ class DPGP:
         self.posterior_draws = posterior_draws
         self.split_merge = split_merge
         self.split_merge_pairs = split_merge_pairs
+        self.dynamics = dynamics
 
     # Set outside __init__ (not settings): a resumed chain's start, the generation cache, and
     # whether Ctrl-C keeps the state reached (a pilot fit's does not).
@@ -267,6 +280,10 @@ class DPGP:
         ckpt.check_settings(self.checkpoint, self.checkpoint_every)
         if not (_is_int(self.posterior_draws) and 0 <= self.posterior_draws <= 100_000):
             raise InvalidInputError(f"posterior_draws must be an integer in [0, 100000], got {self.posterior_draws!r}")
+        if self.dynamics not in _DYNAMICS:  # the estimator's own: it decides what the core is given
+            raise InvalidInputError(f"dynamics must be None or 'sticky', got {self.dynamics!r}")
+        if self.dynamics is not None and self.checkpoint is not None:
+            raise InvalidInputError("dynamics='sticky' cannot write checkpoints yet (its links are not stored in them)")
         _core.check_settings(self._sampler_settings())
 
     def _sampler_settings(self) -> _core._SamplerSettings:
@@ -328,6 +345,8 @@ class DPGP:
         self._sampler = self._new_sampler(frames)
         self.frames_ = frames
         self.history_: dict[str, list] = {k: [] for k in ckpt.HISTORY_KEYS}
+        if self.dynamics is not None:
+            self.history_["stickiness"] = []
         self.draws_ = Draws(len(frames))
         self.__dict__.pop("label_trace_", None)
         self.converged_ = False
@@ -395,6 +414,9 @@ class DPGP:
                 extra += self._sampler.noise_var()
                 for key, val in zip(ckpt.HISTORY_KEYS, (k, alpha, log_joint, moves, ari, seconds, *extra)):
                     self.history_[key].append(val)
+                rho = self._sampler.stickiness()
+                if rho is not None:
+                    self.history_.setdefault("stickiness", []).append(rho)
                 if self.store_labels:
                     traces.append(canonical_labels(labels))
                 self.n_iter_ += 1
@@ -532,6 +554,7 @@ class DPGP:
             "length_scale_prior": (a, b),
             "memory_budget": self.memory_budget_,
             "noise_prior": NOISE_PRIOR if getattr(self.defaults_, "noise_var_source", None) == "sampled" else None,
+            "dynamics": _sticky_prior(frames) if self.dynamics == "sticky" else None,
         }
         return _core.Sampler(frames.xy, frames.v, frames.offsets, settings)
 
@@ -555,6 +578,8 @@ class DPGP:
             self.params_ = dataclasses.replace(self.params_, noise_var=noise)
         self.noise_var_ = noise
         self.log_joint_ = float(self._sampler.log_joint())
+        rho = self._sampler.stickiness()
+        self.stickiness_ = None if rho is None else float(rho)
         self.timings_ = dict(self._sampler.timings())
 
     # --- using the fit ----------------------------------------------------------------------------
@@ -765,8 +790,15 @@ class DPGP:
             converged=getattr(self, "converged_", None), init_seconds=getattr(self, "init_seconds_", None),
             timings=getattr(self, "timings_", {}), log_joint=getattr(self, "log_joint_", None),
             chain_summary=getattr(self, "chain_summary_", None), label_trace=getattr(self, "label_trace_", None),
-            draws=getattr(self, "draws_", None), transitions=self._transitions_dict(),
+            draws=getattr(self, "draws_", None), transitions=self._transitions_dict(), sticky=self._sticky_dict(),
         )  # fmt: skip
+
+    def _sticky_dict(self) -> dict[str, Any] | None:
+        """ρ and the links of the sticky prior, as a model file stores them (None without it)."""
+        links, rho = self._sampler.links(), self._sampler.stickiness()
+        if links is None or rho is None:
+            return None
+        return {"rho": float(rho), "links": np.flatnonzero(links).tolist()}
 
     def _transitions_dict(self) -> dict[str, Any] | None:
         """The transitions a model file stores (None for frames without time order)."""
@@ -877,6 +909,10 @@ class DPGP:
         model._sampler = model._new_sampler(file.frames)
         model.frames_ = file.frames
         model._sampler.set_state(file.labels, file.length_scales, file.alpha)
+        if file.sticky is not None and model.dynamics == "sticky":
+            links = np.zeros(len(file.frames), dtype=bool)
+            links[np.asarray(file.sticky["links"], dtype=np.int64)] = True
+            model._sampler.set_links(links, float(file.sticky["rho"]))
         model._sync()
         if not np.array_equal(model.labels_, file.labels):
             raise ModelFileError(
@@ -931,6 +967,17 @@ def _resume_target(file: Any, iterations: Any) -> int:
             f"checkpoint holds (None finishes the original {original}), got {iterations!r}"
         )
     return int(iterations)
+
+
+def _sticky_prior(frames: Frames) -> tuple[list[int], tuple[float, float], None]:
+    """The core's sticky prior: each frame's predecessor (-1: a run's first frame) and ρ's prior."""
+    from ..data.timeorder import time_order
+
+    try:
+        prev = time_order(frames).prev
+    except UnorderedFramesError as e:
+        raise UnorderedFramesError(f"dynamics='sticky' needs frames in time order: {e}") from None
+    return np.asarray(prev, dtype=np.int64).tolist(), STICKINESS_PRIOR, None
 
 
 def _is_int(x: object) -> bool:

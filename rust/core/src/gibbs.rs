@@ -32,8 +32,11 @@ use crate::special::{ln_gamma, ln_gamma_pdf, log_sum_exp};
 mod noise;
 #[path = "split_merge.rs"]
 mod split_merge;
+#[path = "sticky.rs"]
+mod sticky;
 pub use noise::NoisePrior;
 pub use split_merge::{PairChoice, SplitMerge, SplitMergeStats};
+pub use sticky::StickyPrior;
 
 const NONE: usize = usize::MAX;
 /// Frames scored together in one triangular solve when refreshing a pattern's scores.
@@ -154,6 +157,8 @@ pub struct Settings {
     /// Sample the noise pair each sweep under this prior (noise.rs); `None` keeps
     /// `base.noise_var` fixed.
     pub noise_prior: Option<NoisePrior>,
+    /// The sticky prior on consecutive frames' labels (sticky.rs); `None`: the independent DP.
+    pub dynamics: Option<StickyPrior>,
 }
 
 /// A number as Python's `{:g}` writes one far from 1 (`1e+100`, not 100 digits).
@@ -171,7 +176,7 @@ fn g(x: f64) -> String {
 impl Default for Settings {
     /// Gibbs assignment, full proposals, the exact likelihood, unit GP parameters with sampled
     /// length scales under a Gamma(10, 1) prior, sampled α, 10 auxiliary patterns, no split–merge
-    /// and fixed noise: a valid start for `Settings { seed, ..Settings::default() }`.
+    /// fixed noise and the independent DP: a valid start for `Settings { seed, ..Settings::default() }`.
     fn default() -> Self {
         Self {
             assignment: Assignment::Gibbs,
@@ -193,6 +198,7 @@ impl Default for Settings {
             memory_budget: None,
             split_merge: SplitMerge::default(),
             noise_prior: None,
+            dynamics: None,
         }
     }
 }
@@ -227,6 +233,9 @@ impl Settings {
         }
         if let Some(p) = &self.noise_prior {
             p.validate()?;
+        }
+        if let Some(d) = &self.dynamics {
+            d.validate()?;
         }
         if self.new_pattern_samples == 0 || self.new_pattern_samples > MAX_NEW_PATTERN_SAMPLES {
             return Err(Error::InvalidInput(format!(
@@ -363,6 +372,8 @@ pub struct Sampler {
     pub split_merge: SplitMergeStats,
     /// Each frame's mean velocity, for informed split–merge pairs (computed once, on demand).
     frame_means: std::sync::OnceLock<Arc<Vec<[f64; 2]>>>,
+    /// Links and ρ under the sticky prior.
+    links: Option<sticky::Links>,
 }
 
 impl Sampler {
@@ -391,7 +402,12 @@ impl Sampler {
             };
             Arc::new(CellGrid::new(&data.xy, cell))
         });
+        let links = match &settings.dynamics {
+            Some(d) => Some(sticky::Links::new(d.clone(), n)?),
+            None => None,
+        };
         Ok(Self {
+            links,
             grid,
             proposals: ProposalStats::default(),
             settings,
@@ -588,7 +604,7 @@ impl Sampler {
                 return Err(Error::Interrupted);
             }
             let f = data.frame(i);
-            let (cands, logq) = self.proposal(f, NONE);
+            let (cands, logq) = self.proposal(f, NONE, None);
             let (best, _) = argmax(&logq[..cands.len()]);
             let k = cands[best];
             if let Some(c) = self.live_slot_mut(k).cells.as_mut() {
@@ -706,6 +722,7 @@ impl Sampler {
                 self.labels[i] = k;
             }
         }
+        self.repair_links();
         Ok(())
     }
 
@@ -729,6 +746,11 @@ impl Sampler {
             }
             let mut rng = stream(self.settings.seed, self.sweep, Phase::Assign, i as u64);
             moves += usize::from(self.update_frame(i, &mut rng, true)?);
+        }
+        if self.links.is_some() {
+            let t = Instant::now();
+            self.segment_moves()?;
+            self.timings.moves += t.elapsed().as_secs_f64();
         }
         if self.settings.split_merge.moves_per_sweep > 0 {
             let t = Instant::now();
@@ -755,6 +777,7 @@ impl Sampler {
             self.update_alpha();
             self.timings.alpha += t.elapsed().as_secs_f64();
         }
+        self.update_rho()?;
         Ok(SweepStats {
             moves,
             n_patterns: self.live().count(),
@@ -981,7 +1004,8 @@ impl Sampler {
         // frame's own, and a new one.
         let t = Instant::now();
         let f = self.data.frame(i);
-        let (cands, logq) = self.proposal(f, old);
+        let block = self.block(i);
+        let (cands, logq) = self.proposal(f, old, block.as_ref());
         let mut order: Vec<usize> = (0..cands.len()).collect();
         order.sort_by(|&a, &b| logq[b].total_cmp(&logq[a]));
         let mut only: Vec<usize> = order
@@ -1014,23 +1038,31 @@ impl Sampler {
         let old = self.labels[i];
         let t = Instant::now();
         let own_ls = self.singleton_scales(old);
+        let block = self.block(i);
         let own_score = match own_ls {
             Some(_) => None,
             None if old == NONE => None,
             None if only.is_some_and(|o| !o.contains(&old)) => None,
-            None => Some(self.own_weight(i, old)?),
+            None => Some(self.own_weight(i, old, block.as_ref())?),
         };
         let mut candidates: Vec<(usize, f64)> = self
             .scores_for(i, old, only, lookahead)?
             .into_iter()
-            .map(|(k, s)| (k, (self.live_slot(k).pattern.n_frames() as f64).ln() + s))
+            .map(|(k, s)| {
+                let n = self.live_slot(k).pattern.n_frames();
+                (k, prior_log(block.as_ref(), k, n) + s)
+            })
             .collect();
         if let Some(w) = own_score {
             candidates.push((old, w));
         }
         self.timings.scoring += t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let aux = self.auxiliaries(f, own_ls, rng)?;
+        let mut aux = self.auxiliaries(f, own_ls, rng)?;
+        if block.is_some() {
+            let shift = self.new_shift(block.as_ref());
+            aux.iter_mut().for_each(|a| a.1 += shift);
+        }
         self.timings.new_pattern += t.elapsed().as_secs_f64();
 
         let mut logw: Vec<f64> = candidates.iter().map(|c| c.1).collect();
@@ -1065,6 +1097,15 @@ impl Sampler {
             }
             own_ls.is_none()
         };
+        if let Some(b) = &block {
+            let k = candidates.get(choice).map_or(NONE, |c| c.0);
+            let mut u = sticky::uniforms(rng);
+            let draw: Option<&mut dyn FnMut() -> f64> = match self.settings.assignment {
+                Assignment::Gibbs => Some(&mut u),
+                Assignment::Map => None,
+            };
+            self.relink(i, b, k, draw);
+        }
         self.timings.moves += t.elapsed().as_secs_f64();
         Ok(changed)
     }
@@ -1079,17 +1120,17 @@ impl Sampler {
     }
 
     /// `log [(n_k − 1) p(V_i | D_k \ i)]` for frame `i` in its own (non-singleton) pattern `k`.
-    fn own_weight(&self, i: usize, k: usize) -> Result<f64> {
+    fn own_weight(&self, i: usize, k: usize, block: Option<&sticky::Block>) -> Result<f64> {
         let p = &self.live_slot(k).pattern;
         let loo = p.loo_score(i)?.unwrap_or(f64::NEG_INFINITY);
-        Ok((p.n_frames() as f64 - 1.0).ln() + loo)
+        Ok(prior_log(block, k, p.n_frames() - 1) + loo)
     }
 
     /// `log [n_k p(V_i | D_k)]` for a pattern `k` that does not hold frame `i`, from the cache
     /// when current.
-    fn other_weight(&mut self, i: usize, k: usize) -> Result<f64> {
+    fn other_weight(&mut self, i: usize, k: usize, block: Option<&sticky::Block>) -> Result<f64> {
         let slot = self.live_slot(k);
-        let (version, n) = (slot.version, slot.pattern.n_frames() as f64);
+        let (version, n) = (slot.version, slot.pattern.n_frames());
         let score = match self.cache[i].get(k) {
             Some(&(v, s)) if v == version => s,
             _ => {
@@ -1102,14 +1143,19 @@ impl Sampler {
                 s
             }
         };
-        Ok(n.ln() + score)
+        Ok(prior_log(block, k, n) + score)
     }
 
     /// The informed proposal for frame `f` whose pattern is `old` (or none): the candidate
     /// existing patterns (slots; not `old` if the frame is alone there) and the log proposal
     /// probability of each, then of "new" (last). It depends on the other frames only: the
     /// own pattern is scored with the frame left out.
-    fn proposal(&self, f: FrameRef<'_>, old: usize) -> (Vec<usize>, Vec<f64>) {
+    fn proposal(
+        &self,
+        f: FrameRef<'_>,
+        old: usize,
+        block: Option<&sticky::Block>,
+    ) -> (Vec<usize>, Vec<f64>) {
         let grid = self.grid.as_ref().expect("informed proposals have a grid");
         let cells = grid.cells(f.xy);
         let mut cands = Vec::new();
@@ -1125,9 +1171,10 @@ impl Sampler {
                 .as_ref()
                 .map_or(0.0, |c| c.score(f, &cells, own, s.pattern.params()));
             cands.push(k);
-            logq.push((n as f64).ln() + TEMPER * cheap);
+            logq.push(prior_log(block, k, n) + TEMPER * cheap);
         }
-        logq.push(self.alpha.ln() + TEMPER * proposal::prior_score(f, &self.settings.base));
+        let new = self.alpha.ln() + self.new_shift(block);
+        logq.push(new + TEMPER * proposal::prior_score(f, &self.settings.base));
         let z = log_sum_exp(&logq);
         let floor = UNIFORM_SHARE / logq.len() as f64;
         let logq = logq
@@ -1150,7 +1197,8 @@ impl Sampler {
         let f = data.frame(i);
         let old = self.labels[i];
         let t = Instant::now();
-        let (cands, logq) = self.proposal(f, old);
+        let block = self.block(i);
+        let (cands, logq) = self.proposal(f, old, block.as_ref());
         let new = cands.len();
         let own_ls = self.singleton_scales(old);
         let current = match own_ls {
@@ -1163,12 +1211,19 @@ impl Sampler {
         let pick = sample_log(&logq, rng);
         self.timings.scoring += t.elapsed().as_secs_f64();
         if pick == current && own_ls.is_none() {
+            if let Some(b) = &block {
+                self.relink(i, b, old, Some(&mut sticky::uniforms(rng)));
+            }
             return Ok(false);
         }
         self.proposals.proposed += 1;
         let t = Instant::now();
         let aux = if pick == new || own_ls.is_some() {
-            let a = self.auxiliaries(f, own_ls, rng)?;
+            let shift = self.new_shift(block.as_ref());
+            let mut a = self.auxiliaries(f, own_ls, rng)?;
+            if block.is_some() {
+                a.iter_mut().for_each(|x| x.1 += shift);
+            }
             let mass = log_sum_exp(&a.iter().map(|x| x.1).collect::<Vec<_>>());
             Some((a, mass))
         } else {
@@ -1179,16 +1234,21 @@ impl Sampler {
         let h_new = aux.as_ref().map(|a| a.1 - logq[new]);
         let h_current = match h_new {
             Some(h) if current == new => h,
-            _ => self.own_weight(i, old)? - logq[current],
+            _ => self.own_weight(i, old, block.as_ref())? - logq[current],
         };
         let h_pick = if pick == new {
             h_new.expect("auxiliaries drawn for a new pattern")
         } else {
-            self.other_weight(i, cands[pick])? - logq[pick]
+            self.other_weight(i, cands[pick], block.as_ref())? - logq[pick]
         };
         self.timings.scoring += t.elapsed().as_secs_f64();
         let log_u = rng.random::<f64>().ln();
         if log_u >= h_pick - h_current {
+            if let Some(b) = &block {
+                // Rejected: the frame keeps its pattern (a singleton's is "new").
+                let k = if own_ls.is_some() { NONE } else { old };
+                self.relink(i, b, k, Some(&mut sticky::uniforms(rng)));
+            }
             return Ok(false);
         }
         self.proposals.accepted += 1;
@@ -1204,6 +1264,10 @@ impl Sampler {
             self.move_frame(i, old, cands[pick])?;
             true
         };
+        if let Some(b) = &block {
+            let k = if pick == new { NONE } else { cands[pick] };
+            self.relink(i, b, k, Some(&mut sticky::uniforms(rng)));
+        }
         self.timings.moves += t.elapsed().as_secs_f64();
         Ok(changed)
     }
@@ -1326,7 +1390,9 @@ impl Sampler {
     }
 
     fn update_alpha(&mut self) {
-        let (k, n) = (self.live().count(), self.data.len());
+        // Under the sticky prior the CRP is over the fresh draws only.
+        let n = self.fresh_counts().map_or(self.data.len(), |c| c.1);
+        let k = self.live().count();
         let mut rng = stream(self.settings.seed, self.sweep, Phase::Alpha, 0);
         // Each step costs O(1): take several so that α tracks K closely from the first sweeps.
         let mut x = self.alpha.ln();
@@ -1340,17 +1406,20 @@ impl Sampler {
     /// `log p(z, w, α, V)`: CRP prior, length-scale priors, α's prior (when sampled) and the GP
     /// marginal likelihood of every pattern.
     pub fn log_joint(&self) -> f64 {
-        let n = self.data.len() as f64;
+        // Under the sticky prior: the CRP over fresh draws, and the links' prior.
+        let fresh = self.fresh_counts();
+        let n = fresh.as_ref().map_or(self.data.len(), |c| c.1) as f64;
         let a = self.alpha;
-        let mut total = ln_gamma(a) - ln_gamma(n + a);
+        let mut total = ln_gamma(a) - ln_gamma(n + a) + self.links_log_prior();
         if self.settings.alpha.is_none() {
             // InvGamma(1/2, 1/2) density of α.
             total += -0.5 * (2.0 * std::f64::consts::PI).ln() - 1.5 * a.ln() - 0.5 / a;
         }
         total += self.noise_log_prior();
         let (pa, pb) = self.settings.length_scale_prior;
-        for (_, s) in self.live() {
-            total += a.ln() + ln_gamma(s.pattern.n_frames() as f64) + s.pattern.log_marginal();
+        for (k, s) in self.live() {
+            let nk = fresh.as_ref().map_or(s.pattern.n_frames(), |c| c.0[k]);
+            total += a.ln() + ln_gamma(nk as f64) + s.pattern.log_marginal();
             if !self.settings.fixed_length_scales {
                 let ls = s.pattern.length_scales();
                 total += ln_gamma_pdf(ls.wx, pa, pb) + ln_gamma_pdf(ls.wy, pa, pb);
@@ -1371,6 +1440,7 @@ impl Sampler {
         }
         let f = self.data.frame(i);
         let own = self.labels[i];
+        let block = self.block(i);
         let mut logw = Vec::new();
         let mut own_ls = None;
         for (k, s) in self.live() {
@@ -1382,16 +1452,18 @@ impl Sampler {
                 }
                 // The same leave-one-block-out score the sweep uses.
                 let loo = s.pattern.loo_score(i)?.unwrap_or(f64::NEG_INFINITY);
-                logw.push((s.pattern.n_frames() as f64 - 1.0).ln() + loo);
+                logw.push(prior_log(block.as_ref(), k, s.pattern.n_frames() - 1) + loo);
             } else {
-                logw.push((s.pattern.n_frames() as f64).ln() + s.pattern.score(&[f])?[0]);
+                let n = s.pattern.n_frames();
+                logw.push(prior_log(block.as_ref(), k, n) + s.pattern.score(&[f])?[0]);
             }
         }
         let mut rng = stream(self.settings.seed, self.sweep + 1, Phase::Assign, i as u64);
+        let shift = self.new_shift(block.as_ref());
         let aux: Vec<f64> = self
             .auxiliaries(f, own_ls, &mut rng)?
             .iter()
-            .map(|a| a.1)
+            .map(|a| a.1 + shift)
             .collect();
         logw.push(log_sum_exp(&aux));
         let z = log_sum_exp(&logw);
@@ -1421,6 +1493,15 @@ impl Sampler {
             .map(|j| cols.iter().map(|c| c[j]).collect())
             .collect();
         Ok((rows, new))
+    }
+}
+
+/// `log` of pattern `k`'s prior weight in a frame's conditional: `n` (its other frames) under
+/// the DP, the sticky weight with a block.
+fn prior_log(block: Option<&sticky::Block>, k: usize, n: usize) -> f64 {
+    match block {
+        Some(b) => b.log_weight(k),
+        None => (n as f64).ln(),
     }
 }
 

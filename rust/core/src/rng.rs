@@ -16,6 +16,7 @@ pub enum Phase {
     Simulate = 6,
     SplitMerge = 7,
     Noise = 8,
+    Sticky = 9,
 }
 
 fn splitmix(mut x: u64) -> u64 {

@@ -41,7 +41,7 @@ use std::sync::Arc;
 use rand::RngExt;
 use rand_distr::{Distribution, Gamma};
 
-use super::{Assignment, NONE, Sampler};
+use super::{Assignment, Data, NONE, Sampler};
 use crate::error::{Error, Result, unknown_option};
 use crate::frame::FrameRef;
 use crate::frame::LengthScales;
@@ -97,11 +97,28 @@ pub struct SplitMergeStats {
     pub merge_accepted: u64,
 }
 
-/// A split allocation: the two patterns grown from the seeds, and `log q` of the allocation.
+/// A split allocation: the two patterns grown from the seeds, their numbers of items, and
+/// `log q` of the allocation.
 struct Allocation {
     a: Box<dyn PatternModel>,
     b: Box<dyn PatternModel>,
+    items: (usize, usize),
     log_q: f64,
+}
+
+/// `log p(V_item | D)`: one frame's predictive, or the joint predictive of a segment's frames
+/// (their points scored as one block).
+pub(super) fn item_score(p: &dyn PatternModel, data: &Data, item: &[usize]) -> Result<f64> {
+    if let [f] = item {
+        return Ok(p.score(&[data.frame(*f)])?[0]);
+    }
+    let (mut xy, mut v) = (Vec::new(), Vec::new());
+    for &f in item {
+        let fr = data.frame(f);
+        xy.extend_from_slice(fr.xy);
+        v.extend_from_slice(fr.v);
+    }
+    Ok(p.score(&[FrameRef { xy: &xy, v: &v }])?[0])
 }
 
 impl Sampler {
@@ -180,7 +197,7 @@ impl Sampler {
     }
 
     /// One split or merge proposal, by the pair drawn from `rng`.
-    fn split_merge_step(&mut self, rng: &mut impl rand::Rng) -> Result<()> {
+    pub(super) fn split_merge_step(&mut self, rng: &mut impl rand::Rng) -> Result<()> {
         let n = self.data.len();
         let i = ((rng.random::<f64>() * n as f64) as usize).min(n - 1);
         let j = self.pair_partner(i, rng);
@@ -208,48 +225,62 @@ impl Sampler {
         })
     }
 
-    /// Grow two patterns from seeds `i` (params of `a_params_from`) and `j` (length scales
-    /// `ls_b`) over `rest` in a random order. With `forced`, each frame goes where `forced`
-    /// says (the reverse of a merge) and only its probability is accumulated.
+    /// Grow two patterns from the seed items `i` (params of `template`) and `j` (length scales
+    /// `ls_b`) over the items `rest` in a random order. An item is a frame, or under the sticky
+    /// prior a segment (frames joined by links: one CRP draw), scored by the joint predictive
+    /// of its frames. With `forced`, each item goes where `forced` says of its first frame (the
+    /// reverse of a merge) and only its probability is accumulated.
     #[allow(clippy::too_many_arguments)]
     fn allocate(
         &self,
-        i: usize,
-        j: usize,
+        i: &[usize],
+        j: &[usize],
         template: &dyn PatternModel,
         ls_b: LengthScales,
-        mut rest: Vec<usize>,
+        mut rest: Vec<Vec<usize>>,
         forced: Option<&dyn Fn(usize) -> bool>,
         rng: &mut impl rand::Rng,
     ) -> Result<Allocation> {
         let data = Arc::clone(&self.data);
         let lik = &self.settings.likelihood;
-        let mut a = lik.pattern(*template.params(), &[(i, data.frame(i))])?;
-        let mut b = lik.pattern(self.pattern_params(ls_b), &[(j, data.frame(j))])?;
+        let members = |item: &[usize]| -> Vec<(usize, FrameRef)> {
+            item.iter().map(|&f| (f, data.frame(f))).collect()
+        };
+        let mut a = lik.pattern(*template.params(), &members(i))?;
+        let mut b = lik.pattern(self.pattern_params(ls_b), &members(j))?;
         // Fisher–Yates: a uniform order, independent of the state.
         for t in (1..rest.len()).rev() {
             let s = ((rng.random::<f64>() * (t + 1) as f64) as usize).min(t);
             rest.swap(t, s);
         }
+        let (mut na, mut nb) = (1usize, 1usize);
         let mut log_q = 0.0;
-        for &f in &rest {
-            let fr: FrameRef = data.frame(f);
-            let la = (a.n_frames() as f64).ln() + a.score(&[fr])?[0];
-            let lb = (b.n_frames() as f64).ln() + b.score(&[fr])?[0];
+        for item in &rest {
+            let la = (na as f64).ln() + item_score(a.as_ref(), &data, item)?;
+            let lb = (nb as f64).ln() + item_score(b.as_ref(), &data, item)?;
             let top = la.max(lb);
             let norm = top + ((la - top).exp() + (lb - top).exp()).ln();
             let to_a = match forced {
-                Some(side) => side(f),
+                Some(side) => side(item[0]),
                 None => rng.random::<f64>() < (la - norm).exp(),
             };
             log_q += if to_a { la - norm } else { lb - norm };
-            if to_a {
-                a.insert(f, fr)?;
+            let (side, n) = if to_a {
+                (&mut a, &mut na)
             } else {
-                b.insert(f, fr)?;
+                (&mut b, &mut nb)
+            };
+            for &f in item {
+                side.insert(f, data.frame(f))?;
             }
+            *n += 1;
         }
-        Ok(Allocation { a, b, log_q })
+        Ok(Allocation {
+            a,
+            b,
+            items: (na, nb),
+            log_q,
+        })
     }
 
     /// `log [α Γ(n_a) Γ(n_b) / Γ(n_a + n_b)]`: the CRP prior ratio of two patterns to their union.
@@ -276,15 +307,19 @@ impl Sampler {
                 .likelihood
                 .pattern_bytes(template.n_points(), groups),
         )?;
-        let rest: Vec<usize> = template
-            .frames()
-            .iter()
-            .copied()
-            .filter(|&f| f != i && f != j)
+        let (seed_i, seed_j) = (self.item_of(i), self.item_of(j));
+        if seed_i[0] == seed_j[0] {
+            // One segment: it cannot be split (links do not change in these moves).
+            return Ok(());
+        }
+        let rest: Vec<Vec<usize>> = self
+            .items(template.frames())
+            .into_iter()
+            .filter(|it| it[0] != seed_i[0] && it[0] != seed_j[0])
             .collect();
         let ls_b = self.prior_length_scales(rng)?;
-        let alloc = self.allocate(i, j, template.as_ref(), ls_b, rest, None, rng)?;
-        let log_target = self.crp_split_ratio(alloc.a.n_frames(), alloc.b.n_frames())
+        let alloc = self.allocate(&seed_i, &seed_j, template.as_ref(), ls_b, rest, None, rng)?;
+        let log_target = self.crp_split_ratio(alloc.items.0, alloc.items.1)
             + alloc.a.log_marginal()
             + alloc.b.log_marginal()
             - template.log_marginal();
@@ -327,7 +362,9 @@ impl Sampler {
         members.extend(b.members());
         let merged = self.settings.likelihood.pattern(*a.params(), &members)?;
         drop(members);
-        let log_target = -self.crp_split_ratio(a.n_frames(), b.n_frames()) + merged.log_marginal()
+        let (items_a, items_b) = (self.items(a.frames()), self.items(b.frames()));
+        let log_target = -self.crp_split_ratio(items_a.len(), items_b.len())
+            + merged.log_marginal()
             - a.log_marginal()
             - b.log_marginal();
         // The reverse split's log q is at most 0, so a uniform that rejects the target ratio
@@ -342,17 +379,17 @@ impl Sampler {
         }
         if self.settings.assignment == Assignment::Gibbs {
             // The reverse split: seeds i and j, each other frame forced to the side it is on now.
-            let rest: Vec<usize> = a
-                .frames()
-                .iter()
-                .chain(b.frames())
-                .copied()
-                .filter(|&f| f != i && f != j)
+            let (seed_i, seed_j) = (self.item_of(i), self.item_of(j));
+            let rest: Vec<Vec<usize>> = items_a
+                .into_iter()
+                .chain(items_b)
+                .filter(|it| it[0] != seed_i[0] && it[0] != seed_j[0])
                 .collect();
             let labels = &self.labels;
             let side = |f: usize| labels[f] == ki;
+            let (ls_b, template) = (b.length_scales(), a.as_ref());
             let reverse =
-                self.allocate(i, j, a.as_ref(), b.length_scales(), rest, Some(&side), rng)?;
+                self.allocate(&seed_i, &seed_j, template, ls_b, rest, Some(&side), rng)?;
             if log_u >= log_target + reverse.log_q {
                 return Ok(());
             }

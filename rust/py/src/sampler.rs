@@ -166,6 +166,25 @@ impl PySampler {
         })
     }
 
+    /// ρ of the sticky prior (`None` without it).
+    fn stickiness(&self) -> Option<f64> {
+        self.lock().stickiness()
+    }
+
+    /// Each frame's link under the sticky prior (`True`: it stays in its predecessor's
+    /// pattern), or `None` without it.
+    fn links<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<bool>>> {
+        self.lock().links().map(|l| l.to_vec().into_pyarray(py))
+    }
+
+    /// Set the links and ρ (a resumed chain); links the labels do not allow are dropped.
+    fn set_links(&self, links: PyReadonlyArray1<'_, bool>, rho: f64) -> PyResult<()> {
+        let links: Vec<bool> = links.as_array().to_vec();
+        self.lock()
+            .set_links(&links, rho)
+            .map_err(|e| CoreError(e).into())
+    }
+
     /// Place every unassigned frame by the sequential CRP conditional.
     fn initialize(&self, py: Python<'_>) -> PyResult<()> {
         self.run(py, |s, stop| s.initialize(stop))

@@ -11,7 +11,7 @@ use pyo3::types::{PyBool, PyDict};
 use crate::errors::{CoreError, InvalidInputError};
 use crate::gp::{ParamTuple, params};
 use crate::hsgp::BasisTuple;
-use dpgp_core::gibbs::{NoisePrior, Settings, SplitMerge, check_threads};
+use dpgp_core::gibbs::{NoisePrior, Settings, SplitMerge, StickyPrior, check_threads};
 use dpgp_core::pattern_model::{Likelihood, LikelihoodKind};
 
 /// The keys a user sets are required; those the estimator resolves from the data (`params`,
@@ -51,13 +51,17 @@ pub struct SamplerSettings {
     /// `(log mean, sd)`; `None` keeps the noise fixed.
     #[pyo3(default)]
     noise_prior: Option<(f64, f64)>,
+    /// The sticky prior: each frame's predecessor (-1: a run's first frame), the Beta prior of ρ,
+    /// and a fixed ρ or `None`; `None` for the independent DP.
+    #[pyo3(default)]
+    dynamics: Option<(Vec<i64>, (f64, f64), Option<f64>)>,
 }
 
 /// Keys whose value is a bool; anywhere else a bool is a mistake, though Python counts it as 1.
 const BOOL_KEYS: [&str; 2] = ["fixed_length_scales", "pattern_moments"];
 /// The struct's fields: the dict may hold no other key (a misspelt one would silently take its
 /// default), and a field missing here is refused at once as unknown, so the two cannot drift.
-const KEYS: [&str; 17] = [
+const KEYS: [&str; 18] = [
     "assignment",
     "likelihood",
     "proposal",
@@ -75,6 +79,7 @@ const KEYS: [&str; 17] = [
     "memory_budget",
     "split_merge",
     "noise_prior",
+    "dynamics",
 ];
 
 /// A value's repr cut to 40 characters (a 300-digit integer says nothing more).
@@ -169,11 +174,32 @@ impl SamplerSettings {
             noise_prior: self
                 .noise_prior
                 .map(|(log_mean, sd)| NoisePrior { log_mean, sd }),
+            dynamics: self.dynamics.map(sticky).transpose()?,
         };
         settings.validate().map_err(CoreError)?;
         let threads = check_threads(self.n_threads).map_err(CoreError)?;
         Ok((settings, threads))
     }
+}
+
+/// The core's sticky prior from the predecessors (-1 for none) as Python gives them.
+fn sticky((prev, rho_prior, rho): (Vec<i64>, (f64, f64), Option<f64>)) -> PyResult<StickyPrior> {
+    let prev = prev
+        .into_iter()
+        .map(|p| match p {
+            -1 => Ok(usize::MAX),
+            p => usize::try_from(p).map_err(|_| {
+                InvalidInputError::new_err(format!(
+                    "a predecessor must be a frame index or -1, got {p}"
+                ))
+            }),
+        })
+        .collect::<PyResult<Vec<usize>>>()?;
+    Ok(StickyPrior {
+        prev: prev.into(),
+        rho,
+        rho_prior,
+    })
 }
 
 /// Check sampler settings without data: every rule the core applies when a sampler is built,

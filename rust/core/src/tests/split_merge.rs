@@ -50,6 +50,7 @@ pub(crate) fn tiny_settings(likelihood: Likelihood, seed: u64) -> Settings {
             pairs: PairChoice::Uniform,
         },
         noise_prior: None,
+        dynamics: None,
     }
 }
 
