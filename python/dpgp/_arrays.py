@@ -12,8 +12,9 @@ from .exceptions import InvalidInputError, ShapeError
 #: sums stay finite in double precision, with room to spare (fits refuse larger values; model
 #: files holding them are damaged).
 MAX_MAGNITUDE = 1e100
-#: Smallest length scale whose square is still a normal double.
-MIN_LENGTH_SCALE = 1e-150
+#: Smallest length scale whose square is still a normal double (the core's lower limit of the
+#: length-scale prior's mean, rust/core/src/gibbs.rs).
+MIN_LENGTH_SCALE: float = _core.LENGTH_SCALE_MEAN_RANGE[0]
 #: Range of the DP concentration α a fit accepts (and a model file may hold): the log joint's
 #: ``log Γ(α) - log Γ(α + N)``, ``-1/(2α)`` and the new-pattern weight ``log(α / m)`` stay finite.
 #: The core's limit (rust/core/src/gibbs.rs), which checks a fit's α itself.

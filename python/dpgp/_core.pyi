@@ -7,6 +7,7 @@ from typing_extensions import NotRequired, Self
 
 __all__ = [
     "check_params",
+    "check_length_scale_prior",
     "log_marginal_likelihood",
     "log_predictive",
     "log_predictive_frames",
@@ -21,6 +22,7 @@ __all__ = [
     "MAX_NEW_PATTERN_SAMPLES",
     "MAX_SPLIT_MERGE_MOVES",
     "ALPHA_RANGE",
+    "LENGTH_SCALE_MEAN_RANGE",
     "field_means",
     "integrate_affine",
     "motion_rollouts",
@@ -36,6 +38,7 @@ MAX_THREADS: int
 MAX_NEW_PATTERN_SAMPLES: int
 MAX_SPLIT_MERGE_MOVES: int
 ALPHA_RANGE: tuple[float, float]
+LENGTH_SCALE_MEAN_RANGE: tuple[float, float]
 
 _ParamTuple = tuple[float, float, float, float, float, float, float, float]
 
@@ -174,6 +177,7 @@ class _SamplerSettings(TypedDict):
     dynamics: NotRequired[tuple[list[int], tuple[float, float], float | None] | None]
 
 def check_settings(settings: _SamplerSettings) -> None: ...
+def check_length_scale_prior(prior: tuple[float, float]) -> None: ...
 
 @final
 class Sampler:

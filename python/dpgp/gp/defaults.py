@@ -63,7 +63,7 @@ from typing import Any
 
 import numpy as np
 
-from .._arrays import MAX_MAGNITUDE, MIN_LENGTH_SCALE
+from .. import _core
 from .._constants import TRAIN_FRACTION
 from ..data.frames import Frames
 from ..exceptions import InvalidInputError
@@ -263,18 +263,10 @@ def _positive_pair(name: str, value: Any) -> tuple[float, float]:
 
 
 def _gamma(name: str, value: Any) -> tuple[float, float]:
+    """A Gamma (shape, scale) pair, checked by the core's rule (its limits keep the chain's log
+    joint finite in double precision; issue 17)."""
     a, b = _pair(name, value)
-    if not (np.isfinite(a) and np.isfinite(b) and a > 0 and b > 0):
-        raise InvalidInputError(f"{name} must be 'auto' or a Gamma (shape, scale) with both positive, got {value!r}")
-    # The chain starts at the prior mean a·b and evaluates log Γ(a) and x/b: past these limits
-    # its log joint is not finite in double precision (issue 17).
-    if not (
-        1e-100 <= a <= MAX_MAGNITUDE and 1e-100 <= b <= MAX_MAGNITUDE and MIN_LENGTH_SCALE <= a * b <= MAX_MAGNITUDE
-    ):
-        raise InvalidInputError(
-            f"{name} {value!r}: shape and scale must lie in [1e-100, {MAX_MAGNITUDE:g}] and their product (the prior mean "
-            f"length scale) in [{MIN_LENGTH_SCALE:g}, {MAX_MAGNITUDE:g}]; convert the positions to sensible units"
-        )
+    _core.check_length_scale_prior((a, b))
     return (a, b)
 
 

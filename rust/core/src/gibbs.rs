@@ -203,16 +203,42 @@ impl Default for Settings {
     }
 }
 
+/// Shape and scale of the length-scale prior: each in this range (past it `ln Γ(a)` and `x / b`
+/// leave double precision), and their product, the prior mean length scale where chains start, in
+/// [`LENGTH_SCALE_MEAN_RANGE`].
+pub const LENGTH_SCALE_PRIOR_RANGE: (f64, f64) = (1e-100, 1e100);
+pub const LENGTH_SCALE_MEAN_RANGE: (f64, f64) = (1e-150, 1e100);
+
+/// The rule of a Gamma(shape, scale) length-scale prior: both positive and finite, within
+/// [`LENGTH_SCALE_PRIOR_RANGE`], their product within [`LENGTH_SCALE_MEAN_RANGE`]. Python calls
+/// it too (a prior given by the user or read from a model file is checked before any work).
+pub fn check_length_scale_prior((a, b): (f64, f64)) -> Result<()> {
+    if !(a.is_finite() && a > 0.0 && b.is_finite() && b > 0.0) {
+        return Err(Error::InvalidInput(format!(
+            "length_scale_prior must be 'auto' or a Gamma (shape, scale) with both positive, got ({a}, {b})"
+        )));
+    }
+    let ((lo, hi), (mlo, mhi)) = (LENGTH_SCALE_PRIOR_RANGE, LENGTH_SCALE_MEAN_RANGE);
+    if !((lo..=hi).contains(&a) && (lo..=hi).contains(&b) && (mlo..=mhi).contains(&(a * b))) {
+        return Err(Error::InvalidInput(format!(
+            "length_scale_prior ({}, {}): shape and scale must lie in [{}, {}] and their product \
+             (the prior mean length scale) in [{}, {}]; convert the positions to sensible units",
+            g(a),
+            g(b),
+            g(lo),
+            g(hi),
+            g(mlo),
+            g(mhi)
+        )));
+    }
+    Ok(())
+}
+
 impl Settings {
     /// Every rule a setting must keep; [`Sampler::new`] calls it, and callers may call it early
     /// (before work that depends on the settings) with placeholders for what they resolve later.
     pub fn validate(&self) -> Result<()> {
-        let (a, b) = self.length_scale_prior;
-        if !(a.is_finite() && a > 0.0 && b.is_finite() && b > 0.0) {
-            return Err(Error::InvalidInput(format!(
-                "length_scale_prior must be (shape, scale) with both positive, got ({a}, {b})"
-            )));
-        }
+        check_length_scale_prior(self.length_scale_prior)?;
         let (lo, hi) = ALPHA_RANGE;
         if let Some(al) = self.alpha
             && !(lo..=hi).contains(&al)

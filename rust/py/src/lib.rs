@@ -33,7 +33,7 @@ mod _core {
     #[pymodule_export]
     use super::sampler::PySampler;
     #[pymodule_export]
-    use super::settings::check_settings;
+    use super::settings::{check_length_scale_prior, check_settings};
     #[pymodule_export]
     use super::simulate::{
         field_means, integrate_affine, motion_rollouts, rollouts, scene_rollouts,
@@ -47,6 +47,7 @@ mod _core {
         m.add("MAX_NEW_PATTERN_SAMPLES", gibbs::MAX_NEW_PATTERN_SAMPLES)?;
         m.add("MAX_SPLIT_MERGE_MOVES", gibbs::MAX_SPLIT_MERGE_MOVES)?;
         m.add("ALPHA_RANGE", gibbs::ALPHA_RANGE)?;
+        m.add("LENGTH_SCALE_MEAN_RANGE", gibbs::LENGTH_SCALE_MEAN_RANGE)?;
         m.add("__version__", env!("CARGO_PKG_VERSION"))
     }
 }

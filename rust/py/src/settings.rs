@@ -11,7 +11,10 @@ use pyo3::types::{PyBool, PyDict};
 use crate::errors::{CoreError, InvalidInputError};
 use crate::gp::{ParamTuple, params};
 use crate::hsgp::BasisTuple;
-use dpgp_core::gibbs::{NoisePrior, Settings, SplitMerge, StickyPrior, check_threads};
+use dpgp_core::gibbs::{
+    NoisePrior, Settings, SplitMerge, StickyPrior, check_length_scale_prior as core_check_prior,
+    check_threads,
+};
 use dpgp_core::pattern_model::{Likelihood, LikelihoodKind};
 
 /// The keys a user sets are required; those the estimator resolves from the data (`params`,
@@ -209,4 +212,11 @@ pub fn check_settings(settings: &Bound<'_, PyAny>) -> PyResult<()> {
     SamplerSettings::extract(settings)?
         .into_core(true)
         .map(|_| ())
+}
+
+/// The core's rule of a Gamma(shape, scale) length-scale prior, for a prior Python has before any
+/// sampler exists (given by the user, or read from a model file).
+#[pyfunction]
+pub fn check_length_scale_prior(prior: (f64, f64)) -> PyResult<()> {
+    core_check_prior(prior).map_err(|e| CoreError(e).into())
 }

@@ -231,3 +231,27 @@ fn settings_limits_are_checked_once_here() {
     assert!(check_threads(Some(0)).is_err());
     assert!(check_threads(Some(MAX_THREADS + 1)).is_err());
 }
+
+#[test]
+fn the_length_scale_prior_rule_refuses_what_leaves_double_precision() {
+    assert!(check_length_scale_prior((10.0, 1.0)).is_ok());
+    assert!(check_length_scale_prior((1e-100, 1e-50)).is_ok());
+    for bad in [
+        (0.0, 1.0),
+        (1.0, f64::NAN),
+        (1e101, 1.0),
+        (1.0, 1e-101),
+        (1e-100, 1e-60),
+        (1e60, 1e60),
+    ] {
+        assert!(
+            matches!(check_length_scale_prior(bad), Err(Error::InvalidInput(_))),
+            "{bad:?}"
+        );
+        let s = Settings {
+            length_scale_prior: bad,
+            ..Settings::default()
+        };
+        assert!(s.validate().is_err(), "{bad:?}");
+    }
+}
