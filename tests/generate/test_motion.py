@@ -19,22 +19,33 @@ FIXTURES = Path(__file__).parents[1] / "fixtures"
 
 
 def ou_tracks(
-    tau: float, sigma: float, dt: float = 0.5, n_tracks: int = 30, steps: int = 40, seed: int = 0, span: int = 60
+    tau: float,
+    sigma: float | tuple[float, float],
+    dt: float = 0.5,
+    n_tracks: int = 30,
+    steps: int = 40,
+    seed: int = 0,
+    span: int = 60,
+    angle: float = 0.0,
 ) -> pd.DataFrame:
-    """Vehicles on a road along x: velocity (8, 0) plus an exact OU residual (τ, σ per
-    component), positions integrated; tracks start at staggered times (within ``span`` steps)."""
+    """Vehicles on a road along x: velocity (8, 0) plus an exact OU residual (τ; σ along and
+    across the road, one number: both), positions integrated; tracks start at staggered times
+    (within ``span`` steps). ``angle`` (radians) turns the road, positions and velocities."""
     rng = np.random.default_rng(seed)
     rho = np.exp(-dt / tau)
+    sd = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (2,))
+    rot = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
     rows = []
     for tr in range(n_tracks):
         t0 = rng.integers(0, span) * dt
-        r = rng.normal(0, sigma, 2)
+        r = rng.normal(0, sd, 2)
         p = np.array([rng.uniform(0, 20), rng.uniform(-6, 6)])
         for s in range(steps):
             v = np.array([8.0, 0.0]) + r
-            rows.append((tr, t0 + s * dt, p[0], p[1], v[0], v[1]))
+            q, u = rot @ p, rot @ v
+            rows.append((tr, t0 + s * dt, q[0], q[1], u[0], u[1]))
             p = p + dt * v
-            r = rho * r + sigma * np.sqrt(1 - rho**2) * rng.normal(size=2)
+            r = rho * r + sd * np.sqrt(1 - rho**2) * rng.normal(size=2)
     return pd.DataFrame(rows, columns=["track", "t", "x", "y", "vx", "vy"])
 
 
@@ -66,6 +77,58 @@ def test_fitted_model_recovers_a_simulated_time_constant_and_spread():
     other = motion.learn(dpgp.DPGP(**settings).fit(dpgp.make_frames(ou_tracks(0.5, sigma, **tracks), dt=0.5))._fitted())
     assert float(np.average(other.tau, weights=np.maximum(other.pairs, 1))) < 0.75
     assert float(np.median(other.rollout_tau)) < 0.75
+
+
+def test_fitted_model_recovers_spreads_along_and_across_the_heading():
+    # a road turned by 35°: the residual spreads 0.8 along it and 0.3 across it
+    along, across = 0.8, 0.3
+    frames = dpgp.make_frames(ou_tracks(2.0, (along, across), n_tracks=80, steps=30, span=160, angle=0.61), dt=0.5)
+    settings = dict(
+        iterations=1, seed=0, progress=False, noise_var=1.0, length_scale_prior=(10.0, 1.0), likelihood="hsgp"
+    )
+    m = motion.learn(dpgp.DPGP(**settings).fit(frames)._fitted())  # type: ignore[arg-type]
+    assert m.sigma_frame == "heading" and m.min_speed > 0
+    got = np.average(m.sigma, axis=0, weights=np.maximum(m.pairs, 1))
+    assert np.all(np.abs(got / [along, across] - 1) < 0.15), m.sigma
+    # the record draws the innovation in the heading frame: min_speed, τ across
+    rec = m.record(0)
+    assert len(rec) == 12 and rec[10] == m.min_speed and rec[11] == m.tau[0] * m.tau_across_share
+
+
+def test_heading_spreads_recover_simulated_ones_and_ignore_rotation():
+    rng = np.random.default_rng(1)
+    n = 20000
+    heading = rng.uniform(-np.pi, np.pi, n)
+    speed = rng.uniform(2.0, 10.0, n)
+    means = np.stack([np.cos(heading), np.sin(heading)], axis=1) * speed[:, None]
+    e, nrm = means / speed[:, None], np.stack([-np.sin(heading), np.cos(heading)], axis=1)
+    labels = rng.integers(0, 2, n)
+    sd = np.array([[1.38, 0.53], [0.4, 0.9]])[labels]
+    resid = rng.normal(size=(n, 1)) * sd[:, :1] * e + rng.normal(size=(n, 1)) * sd[:, 1:] * nrm
+    got = motion.heading_spreads(resid, means, labels, 2, 0.5)
+    assert np.all(np.abs(got / [[1.38, 0.53], [0.4, 0.9]] - 1) < 0.05), got
+    # rotating the data (fields and residuals alike) rotates nothing in the spreads
+    for a in (0.3, 2.0, -1.1):
+        rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        turned = motion.heading_spreads(resid @ rot.T, means @ rot.T, labels, 2, 0.5)
+        np.testing.assert_allclose(turned, got, rtol=1e-10)
+    # a field at rest has no heading: isotropic from every row
+    still = motion.heading_spreads(resid, np.zeros_like(means), labels, 2, 0.5)
+    assert np.allclose(still, np.sqrt((resid**2).mean()))
+
+
+def test_model_files_before_the_heading_frame_keep_per_component_spreads():
+    m = motion.MotionModel("vehicles", np.array([2.0]), np.array([[0.7, 0.3]]), np.zeros(1, np.int64), np.ones(1),
+                           0.5, 7.0, 1.5, 1.0, 2.0, 1.5, sigma_frame="heading", min_speed=0.4)  # fmt: skip
+    d = m.to_dict()
+    back = motion.MotionModel.from_dict(d)
+    assert back.sigma_frame == "heading" and back.min_speed == 0.4 and np.array_equal(back.record(0), m.record(0))
+    old = {k: v for k, v in d.items() if k not in ("sigma_frame", "min_speed", "tau_across_share")}
+    old["version"] = 1
+    legacy = motion.MotionModel.from_dict(old)
+    assert legacy.sigma_frame == "xy" and legacy.record(0)[10] == -1.0  # the core's per-component spread
+    with pytest.raises(dpgp.DataFormatError):
+        motion.MotionModel.from_dict({**d, "sigma_frame": "polar"})
 
 
 def test_held_out_time_constant_predicts_real_tracks_no_worse_than_constant_velocity():

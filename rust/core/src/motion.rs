@@ -8,8 +8,13 @@
 //! 2. each agent's desired velocity `w` relaxes toward the field's mean `m(x)` at its new
 //!    position as an Ornstein–Uhlenbeck process, exactly discretised:
 //!    `w ← m(x) + ρ (w − m(x)) + σ √(1 − ρ²) z` with `ρ = exp(−dt / τ)` (`z = 0` in mean
-//!    mode): the residual `w − m` decays with time constant `τ` and has stationary spread `σ`
-//!    per component. The deviation is measured at the new position, so a field that changes
+//!    mode): the residual `w − m` decays with time constant `τ` and has stationary spread `σ`.
+//!    The spread is given along and across the field's local heading `e = m(x) / |m(x)|`
+//!    ([`Spread::Heading`]): the innovation is drawn in that rotated frame, `σ_along z₁ e +
+//!    σ_across z₂ e⊥` (and the across part may relax with its own `τ_across`), so a vehicle
+//!    keeps its lane while its speed varies; where the field is slower than a threshold (no
+//!    heading: pedestrians standing), it is isotropic with `σ² = (σ_along² + σ_across²) / 2`.
+//!    Models stored before that give it per x/y component ([`Spread::Components`]). The deviation is measured at the new position, so a field that changes
 //!    along the path is followed with the lag `τ` (a first-order lag of the velocity), and a
 //!    large `τ` keeps an agent close to constant velocity;
 //! 3. interaction turns desired into actual velocities ([`Rule`]): vehicles follow the leader
@@ -62,19 +67,33 @@ pub enum Rule {
     Pedestrians { personal: f64 },
 }
 
+/// In which frame the residual's spreads [`Motion::sigma`] are given.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Spread {
+    /// Per x/y component (models stored before the heading frame).
+    Components,
+    /// `[along, across]` the field's local heading; isotropic where `|m(x)|` is below
+    /// `min_speed`. The across part relaxes with time constant `tau_across`.
+    Heading { min_speed: f64, tau_across: f64 },
+}
+
 /// The residual model and the interaction rule of one pattern.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Motion {
-    /// OU time constant (s); `f64::INFINITY` holds the residual (constant-velocity deviation).
+    /// OU time constant (s), along the heading in [`Spread::Heading`]; `f64::INFINITY` holds
+    /// the residual (constant-velocity deviation).
     pub tau: f64,
-    /// Stationary standard deviation of the residual per component.
+    /// Stationary standard deviation of the residual: per component, or along and across the
+    /// field's heading ([`Motion::spread`]).
     pub sigma: [f64; 2],
+    pub spread: Spread,
     pub rule: Rule,
 }
 
-/// Numbers in a flat [`Motion`] record: `tau, sigma_x, sigma_y, kind (0 free, 1 vehicles,
-/// 2 pedestrians), personal, jam, headway, accel, decel, lateral`.
-pub const MOTION_FIELDS: usize = 10;
+/// Numbers in a flat [`Motion`] record: `tau, sigma_0, sigma_1, kind (0 free, 1 vehicles,
+/// 2 pedestrians), personal, jam, headway, accel, decel, lateral, min_speed, tau_across`;
+/// `min_speed < 0`: [`Spread::Components`] (`tau_across` unused), else [`Spread::Heading`].
+pub const MOTION_FIELDS: usize = 12;
 
 impl Motion {
     /// From the flat record of [`MOTION_FIELDS`] numbers (what the binding passes).
@@ -104,9 +123,18 @@ impl Motion {
                 )));
             }
         };
+        let spread = if v[10] < 0.0 {
+            Spread::Components
+        } else {
+            Spread::Heading {
+                min_speed: v[10],
+                tau_across: v[11],
+            }
+        };
         let m = Self {
             tau: v[0],
             sigma: [v[1], v[2]],
+            spread,
             rule,
         };
         m.validate()?;
@@ -129,6 +157,20 @@ impl Motion {
                 )));
             }
         }
+        if let Spread::Heading {
+            min_speed,
+            tau_across,
+        } = self.spread
+        {
+            if !(min_speed.is_finite() && min_speed >= 0.0) {
+                return Err(Error::InvalidInput(format!(
+                    "motion parameter min_speed must be finite and >= 0, got {min_speed}"
+                )));
+            }
+            if !(tau_across > 0.0) || tau_across.is_nan() {
+                return bad("tau_across (s; inf holds the residual)", tau_across);
+            }
+        }
         let positive = |what: &str, x: f64| {
             if x.is_finite() && x > 0.0 {
                 Ok(())
@@ -149,6 +191,79 @@ impl Motion {
             }
         }
         Ok(())
+    }
+}
+
+/// The unit heading and its left normal of the field's mean `m`, when the spread is given in
+/// the heading frame and `m` is fast enough to have one.
+fn heading(m: [f64; 2], motion: &Motion) -> Option<([f64; 2], [f64; 2])> {
+    match motion.spread {
+        Spread::Components => None,
+        Spread::Heading { min_speed, .. } => {
+            let speed = m[0].hypot(m[1]);
+            if speed > min_speed && speed > TINY {
+                let e = [m[0] / speed, m[1] / speed];
+                Some((e, [-e[1], e[0]]))
+            } else {
+                None
+            }
+        }
+    }
+}
+
+/// A stationary draw of the residual at a point where the field's mean is `m`, from the
+/// standard normals `z`.
+fn stationary(m: [f64; 2], z: [f64; 2], motion: &Motion) -> [f64; 2] {
+    let s = motion.sigma;
+    match (motion.spread, heading(m, motion)) {
+        (Spread::Components, _) => [s[0] * z[0], s[1] * z[1]],
+        (_, Some((e, n))) => {
+            let (a, c) = (s[0] * z[0], s[1] * z[1]);
+            [a * e[0] + c * n[0], a * e[1] + c * n[1]]
+        }
+        (_, None) => {
+            let iso = (0.5 * (s[0] * s[0] + s[1] * s[1])).sqrt();
+            [iso * z[0], iso * z[1]]
+        }
+    }
+}
+
+/// One OU step of the desired velocity `w` toward the field's mean `m`, given the innovations
+/// `z` (zero in mean mode) and, per axis (along, across), `rho` and `kick = √(1 − ρ²)`.
+fn relax(
+    w: [f64; 2],
+    m: [f64; 2],
+    z: [f64; 2],
+    rho: [f64; 2],
+    kick: [f64; 2],
+    motion: &Motion,
+) -> [f64; 2] {
+    let s = motion.sigma;
+    if let Spread::Components = motion.spread {
+        let mut out = [0.0; 2];
+        for d in 0..2 {
+            out[d] = m[d] + rho[0] * (w[d] - m[d]) + s[d] * kick[0] * z[d];
+        }
+        return out;
+    }
+    let r = [w[0] - m[0], w[1] - m[1]];
+    match heading(m, motion) {
+        Some((e, n)) => {
+            let along = rho[0] * (r[0] * e[0] + r[1] * e[1]) + s[0] * kick[0] * z[0];
+            let across = rho[1] * (r[0] * n[0] + r[1] * n[1]) + s[1] * kick[1] * z[1];
+            [
+                m[0] + along * e[0] + across * n[0],
+                m[1] + along * e[1] + across * n[1],
+            ]
+        }
+        None => {
+            // no heading: isotropic, relaxing with the along axis' time constant
+            let iso = (0.5 * (s[0] * s[0] + s[1] * s[1])).sqrt();
+            [
+                m[0] + rho[0] * r[0] + iso * kick[0] * z[0],
+                m[1] + rho[0] * r[1] + iso * kick[0] * z[1],
+            ]
+        }
     }
 }
 
@@ -290,8 +405,12 @@ pub fn drive(
     }
     let mut out = Rollout::begin(start, opts)?;
     let (l, dt) = (start.len(), opts.dt);
-    let rho = (-dt / motion.tau).exp();
-    let kick = (1.0 - rho * rho).max(0.0).sqrt();
+    let tau_across = match motion.spread {
+        Spread::Components => motion.tau,
+        Spread::Heading { tau_across, .. } => tau_across,
+    };
+    let rho = [(-dt / motion.tau).exp(), (-dt / tau_across).exp()];
+    let kick = rho.map(|r| (1.0 - r * r).max(0.0).sqrt());
     let mut want = vec![[0.0; 2]; l]; // desired velocities
     let mut vel = vec![[0.0; 2]; l]; // actual velocities
     for t in 0..=opts.steps {
@@ -316,17 +435,20 @@ pub fn drive(
                     want[j] = match v0 {
                         Some(v) => v[j],
                         None => {
-                            let mut w = [
+                            let w = [
                                 mean[a][0] + info.offset[a][0],
                                 mean[a][1] + info.offset[a][1],
                             ];
-                            if let Some(rng) = rng.as_mut() {
-                                for (d, wd) in w.iter_mut().enumerate() {
-                                    let z: f64 = StandardNormal.sample(rng);
-                                    *wd += motion.sigma[d] * z;
+                            match rng.as_mut() {
+                                // the stationary residual, in the spread's frame at the mean
+                                Some(rng) => {
+                                    let z =
+                                        [StandardNormal.sample(rng), StandardNormal.sample(rng)];
+                                    let r = stationary(mean[a], z, motion);
+                                    [w[0] + r[0], w[1] + r[1]]
                                 }
+                                None => w,
                             }
-                            w
                         }
                     };
                     vel[j] = want[j];
@@ -336,15 +458,11 @@ pub fn drive(
                 let mut desired = Vec::with_capacity(x.len());
                 let mut current = Vec::with_capacity(x.len());
                 for (a, &j) in active.iter().enumerate() {
-                    for d in 0..2 {
-                        let z: f64 = match rng.as_mut() {
-                            Some(rng) => StandardNormal.sample(rng),
-                            None => 0.0,
-                        };
-                        want[j][d] = mean[a][d]
-                            + rho * (want[j][d] - mean[a][d])
-                            + motion.sigma[d] * kick * z;
-                    }
+                    let z: [f64; 2] = match rng.as_mut() {
+                        Some(rng) => [StandardNormal.sample(rng), StandardNormal.sample(rng)],
+                        None => [0.0; 2],
+                    };
+                    want[j] = relax(want[j], mean[a], z, rho, kick, motion);
                     desired.push(want[j]);
                     current.push(vel[j]);
                 }

@@ -96,6 +96,7 @@ fn the_residual_relaxes_at_the_time_constant() {
     let motion = Motion {
         tau: 2.0,
         sigma: [0.5, 0.5],
+        spread: Spread::Components,
         rule: Rule::Free,
     };
     let mut zero = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0; 2]; q.len()]) };
@@ -126,6 +127,7 @@ fn stochastic_residual_has_the_stationary_spread_and_is_seeded() {
     let motion = Motion {
         tau: 1.0,
         sigma: [0.7, 0.3],
+        spread: Spread::Components,
         rule: Rule::Free,
     };
     let mut zero = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0; 2]; q.len()]) };
@@ -161,10 +163,94 @@ fn stochastic_residual_has_the_stationary_spread_and_is_seeded() {
 #[test]
 fn bad_motion_records_are_errors() {
     assert!(Motion::from_slice(&[1.0; 3]).is_err());
-    assert!(Motion::from_slice(&[0.0, 1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]).is_err());
-    assert!(Motion::from_slice(&[1.0, 1.0, 1.0, 7.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]).is_err());
-    assert!(Motion::from_slice(&[1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0, 1.0, 1.0, 1.0]).is_err());
-    let m =
-        Motion::from_slice(&[f64::INFINITY, 1.0, 1.0, 2.0, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0]).unwrap();
+    assert!(
+        Motion::from_slice(&[0.0, 1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0]).is_err()
+    );
+    assert!(
+        Motion::from_slice(&[1.0, 1.0, 1.0, 7.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0]).is_err()
+    );
+    assert!(
+        Motion::from_slice(&[1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0])
+            .is_err()
+    );
+    let m = Motion::from_slice(&[
+        f64::INFINITY,
+        1.0,
+        1.0,
+        2.0,
+        0.5,
+        1.0,
+        1.0,
+        1.0,
+        1.0,
+        1.0,
+        -1.0,
+        1.0,
+    ])
+    .unwrap();
     assert_eq!(m.rule, Rule::Pedestrians { personal: 0.5 });
+}
+
+#[test]
+fn heading_spread_is_along_and_across_the_field() {
+    // a uniform field heading at 30°: the stationary residual spreads 0.8 along it and 0.2
+    // across; a field at rest gives the isotropic spread
+    let (c, s) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
+    let motion = Motion {
+        tau: 1.0,
+        sigma: [0.8, 0.2],
+        spread: Spread::Heading {
+            min_speed: 0.1,
+            tau_across: 1.0,
+        },
+        rule: Rule::Free,
+    };
+    let mut uniform =
+        |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[5.0 * c, 5.0 * s]; q.len()]) };
+    let start = vec![[0.0, 0.0]; 2000];
+    let v0 = vec![[5.0 * c, 5.0 * s]; 2000];
+    let a = drive(
+        &start,
+        Some(&v0),
+        &opts(0.5, 20),
+        &motion,
+        Some(3),
+        &mut uniform,
+    )
+    .unwrap();
+    let last = &a.velocities[20 * 2000..];
+    let (mut along, mut across) = (0.0, 0.0);
+    for v in last {
+        let r = [v[0] - 5.0 * c, v[1] - 5.0 * s];
+        along += (r[0] * c + r[1] * s).powi(2) / 2000.0;
+        across += (-r[0] * s + r[1] * c).powi(2) / 2000.0;
+    }
+    assert!((along / 0.64 - 1.0).abs() < 0.15, "{along}");
+    assert!((across / 0.04 - 1.0).abs() < 0.15, "{across}");
+    let mut rest = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0, 0.0]; q.len()]) };
+    let b = drive(
+        &start,
+        Some(&vec![[0.0; 2]; 2000]),
+        &opts(0.5, 20),
+        &motion,
+        Some(3),
+        &mut rest,
+    )
+    .unwrap();
+    let var = b.velocities[20 * 2000..]
+        .iter()
+        .map(|v| v[0] * v[0])
+        .sum::<f64>()
+        / 2000.0;
+    assert!((var / 0.34 - 1.0).abs() < 0.15, "{var}");
+    // the record: min_speed >= 0 selects the heading frame
+    let m =
+        Motion::from_slice(&[1.0, 0.8, 0.2, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.1, 0.5]).unwrap();
+    assert_eq!(
+        m.spread,
+        Spread::Heading {
+            min_speed: 0.1,
+            tau_across: 0.5
+        }
+    );
 }
