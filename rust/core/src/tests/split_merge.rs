@@ -4,6 +4,8 @@
 //! (which tests/pattern.rs checks against the direct formulas). Every likelihood × pair choice.
 
 use std::collections::HashMap;
+
+use crate::test_util::tv;
 use std::sync::Arc;
 
 use super::*;
@@ -116,13 +118,6 @@ fn enumerated(data: &Data, st: &Settings) -> HashMap<Vec<usize>, f64> {
         .zip(logw)
         .map(|(p, w)| (p, (w - z).exp()))
         .collect()
-}
-
-fn tv(freq: &HashMap<Vec<usize>, f64>, exact: &HashMap<Vec<usize>, f64>) -> f64 {
-    0.5 * exact
-        .iter()
-        .map(|(p, e)| (freq.get(p).copied().unwrap_or(0.0) - e).abs())
-        .sum::<f64>()
 }
 
 /// Partition frequencies of a chain of `steps` split–merge moves alone, from all singletons.

@@ -10,6 +10,8 @@
 //! sampled.
 
 use std::collections::HashMap;
+
+use crate::test_util::tv;
 use std::sync::Arc;
 
 use super::super::split_merge::tests::{canonical, partitions, tiny, tiny_settings};
@@ -119,13 +121,6 @@ fn enumerated(st: &Settings, drop_rho: bool) -> HashMap<Vec<usize>, f64> {
     out.into_iter()
         .map(|(z, w)| (z, (w - norm).exp()))
         .collect()
-}
-
-fn tv(freq: &HashMap<Vec<usize>, f64>, exact: &HashMap<Vec<usize>, f64>) -> f64 {
-    0.5 * exact
-        .iter()
-        .map(|(p, e)| (freq.get(p).copied().unwrap_or(0.0) - e).abs())
-        .sum::<f64>()
 }
 
 /// Label-sequence frequencies over `sweeps` sweeps (after 100 of burn-in).

@@ -1,4 +1,7 @@
-//! Test data shared by the pattern tests: random frames of 2-7 vehicles on a 30 x 100 area.
+//! Test data shared by the pattern tests: random frames of 2-7 vehicles on a 30 x 100 area; the
+//! total variation between a chain's partition frequencies and the exact posterior.
+
+use std::collections::HashMap;
 
 use crate::kernel::Point;
 use crate::pattern::FrameRef;
@@ -32,4 +35,12 @@ pub fn frames(seed: u64, count: usize) -> Vec<(Vec<Point>, Vec<[f64; 2]>)> {
 
 pub fn refs(fs: &[(Vec<Point>, Vec<[f64; 2]>)]) -> Vec<FrameRef<'_>> {
     fs.iter().map(|(xy, v)| FrameRef { xy, v }).collect()
+}
+
+/// Total variation between partition frequencies and the exact posterior over partitions.
+pub fn tv(freq: &HashMap<Vec<usize>, f64>, exact: &HashMap<Vec<usize>, f64>) -> f64 {
+    0.5 * exact
+        .iter()
+        .map(|(p, e)| (freq.get(p).copied().unwrap_or(0.0) - e).abs())
+        .sum::<f64>()
 }
