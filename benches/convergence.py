@@ -38,6 +38,7 @@ def main() -> None:
     ap.add_argument("--runs", nargs="+", default=["split-merge", "no-split-merge"], choices=sorted(RUNS))
     ap.add_argument("--block", type=int, default=10)
     ap.add_argument("--out", default="convergence.jsonl")
+    ap.add_argument("--traces", default=None, help="save each run's (chains, sweeps) traces to PREFIX_RUN.npz")
     args = ap.parse_args()
     frames = dpgp.read_frames(DATA)[: args.frames]
     for name in args.runs:
@@ -59,6 +60,8 @@ def main() -> None:
             "noise_var": [list(map(float, m.noise_var_)) for m in models],
         }  # fmt: skip
         print(json.dumps(row), flush=True)
+        if args.traces:
+            np.savez(f"{args.traces}_{name}.npz", **{q: np.asarray(v) for q, v in ch.traces.items()})
         with open(args.out, "a") as f:
             f.write(json.dumps(row) + "\n")
         del hist
