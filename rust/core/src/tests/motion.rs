@@ -9,6 +9,15 @@ const IDM: Idm = Idm {
     lateral: 1.5,
 };
 
+/// A record of the 12 numbers before steering and the profile: no steering, a flat profile.
+fn rec(head: &[f64]) -> Vec<f64> {
+    let mut v = head.to_vec();
+    v.push(-1.0);
+    v.push(-1.0);
+    v.resize(MOTION_FIELDS, 0.0);
+    v
+}
+
 fn opts(dt: f64, steps: usize) -> Options {
     Options {
         dt,
@@ -98,6 +107,8 @@ fn the_residual_relaxes_at_the_time_constant() {
         sigma: [0.5, 0.5],
         spread: Spread::Components,
         rule: Rule::Free,
+        profile: Profile::FLAT,
+        tau_heading: None,
     };
     let mut zero = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0; 2]; q.len()]) };
     let r = drive(
@@ -129,6 +140,8 @@ fn stochastic_residual_has_the_stationary_spread_and_is_seeded() {
         sigma: [0.7, 0.3],
         spread: Spread::Components,
         rule: Rule::Free,
+        profile: Profile::FLAT,
+        tau_heading: None,
     };
     let mut zero = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0; 2]; q.len()]) };
     let start = vec![[0.0, 0.0]; 400];
@@ -164,16 +177,24 @@ fn stochastic_residual_has_the_stationary_spread_and_is_seeded() {
 fn bad_motion_records_are_errors() {
     assert!(Motion::from_slice(&[1.0; 3]).is_err());
     assert!(
-        Motion::from_slice(&[0.0, 1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0]).is_err()
+        Motion::from_slice(&rec(&[
+            0.0, 1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0
+        ]))
+        .is_err()
     );
     assert!(
-        Motion::from_slice(&[1.0, 1.0, 1.0, 7.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0]).is_err()
+        Motion::from_slice(&rec(&[
+            1.0, 1.0, 1.0, 7.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0
+        ]))
+        .is_err()
     );
     assert!(
-        Motion::from_slice(&[1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0])
-            .is_err()
+        Motion::from_slice(&rec(&[
+            1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0
+        ]))
+        .is_err()
     );
-    let m = Motion::from_slice(&[
+    let m = Motion::from_slice(&rec(&[
         f64::INFINITY,
         1.0,
         1.0,
@@ -186,7 +207,7 @@ fn bad_motion_records_are_errors() {
         1.0,
         -1.0,
         1.0,
-    ])
+    ]))
     .unwrap();
     assert_eq!(m.rule, Rule::Pedestrians { personal: 0.5 });
 }
@@ -204,6 +225,8 @@ fn heading_spread_is_along_and_across_the_field() {
             tau_across: 1.0,
         },
         rule: Rule::Free,
+        profile: Profile::FLAT,
+        tau_heading: None,
     };
     let mut uniform =
         |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[5.0 * c, 5.0 * s]; q.len()]) };
@@ -244,8 +267,10 @@ fn heading_spread_is_along_and_across_the_field() {
         / 2000.0;
     assert!((var / 0.34 - 1.0).abs() < 0.15, "{var}");
     // the record: min_speed >= 0 selects the heading frame
-    let m =
-        Motion::from_slice(&[1.0, 0.8, 0.2, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.1, 0.5]).unwrap();
+    let m = Motion::from_slice(&rec(&[
+        1.0, 0.8, 0.2, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.1, 0.5,
+    ]))
+    .unwrap();
     assert_eq!(
         m.spread,
         Spread::Heading {
