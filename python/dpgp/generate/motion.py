@@ -167,7 +167,10 @@ class MotionModel:
             [tau, self.sigma[k, 0], self.sigma[k, 1], kind, self.personal,
              *(nan_free(v) for v in (self.jam, self.headway, self.accel, self.decel, self.lateral)),
              self.min_speed if heading else -1.0, tau if recorded or not heading else tau * self.tau_across_share,
-             self.tau_heading if heading and self.tau_heading > 0 else -1.0,
+             # rollouts of recorded frames do not steer: their vehicles keep their own heading
+             # and relax it with τ_rollout (steering toward the field raised Peachtree's FDE at
+             # 1 s from 0.395 to 0.463 ft, relaxed dynamics)
+             self.tau_heading if heading and not recorded and self.tau_heading > 0 else -1.0,
              *(self.profile.T.ravel() if heading and self.profile is not None else [-1.0] + [0.0] * (3 * PROFILE_KNOTS - 1))],
             dtype=np.float64,
         )  # fmt: skip
