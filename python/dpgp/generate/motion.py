@@ -46,6 +46,24 @@ from 6.14 to 6.45 m, relaxed dynamics). Model files written before this keep ``�
 "xy"``) and are generated with it as before. Frames without track ids give no tracks to
 follow: ``τ`` is then :data:`DEFAULT_TAU`.
 
+**Spread profile** (all agents). The residual's spread depends on the field's speed: on the SUMO
+junction it is 0.07 m/s along the heading where ``|m| ≈ 0.06`` (queues) and 1.7 m/s where
+``|m| ≈ 3``; one spread for both made queued vehicles creep and jitter. :func:`spread_profile`
+learns (along, across) factors at :data:`PROFILE_KNOTS` field speeds (bins of equal count,
+pooled over patterns); ``sigma[k]`` is then the spread of the residuals divided by the factors
+(:func:`heading_spreads`), and the core draws innovations with ``sigma[k] × factor(|m(x)|)``.
+
+**Steering** (vehicles, generated scenes). A vehicle keeps a heading and a desired speed instead
+of a residual vector: the speed relaxes toward ``|m(x)|`` as the along residual does (a negative
+one stands: vehicles do not reverse), and the heading turns toward the field's with the time
+constant ``tau_heading`` (:func:`heading_time_constant`: the one that best predicts the
+recorded heading changes from the field's heading one step on). The fitted fields are rough at
+the scale of a lane (their heading along the recorded SUMO paths changes by 0.5 rad/s at the
+90th percentile, the vehicles' by 0.11), so a vehicle that took the field's heading at every
+step turned where recorded ones drive straight. A generated vehicle starts along the field's
+heading. Rollouts of recorded frames do not steer (they keep their own heading and relax with
+``τ_rollout``).
+
 **Agents.** ``"pedestrians"`` when 99% of the training speeds are below
 :data:`PEDESTRIAN_SPEED` (data units per second), else ``"vehicles"``.
 
@@ -57,7 +75,9 @@ all followers when there are too few). Time headway ``T``: the median of ``(gap 
 of followers moving at least 30% of the median speed within ``s0 + 3 s × speed`` of a leader
 (car-following rather than free driving), clipped to [0.3, 3] s. Acceleration ``a`` and
 comfortable deceleration ``b``: the 90th percentiles of the tracks' speed increases and
-decreases per second.
+decreases per second. A free vehicle (no leader) changes speed by IDM's free-road term too,
+toward its desired speed and not past it, instead of taking it at once: the residual's
+innovations change the wish, not the speed, from one step to the next.
 
 **Personal distance.** Pedestrians: the :data:`SPACING_PERCENTILE` (5th) percentile of
 nearest-neighbour distances. Vehicles: the same, at most half the jam distance (a last guard;
@@ -234,8 +254,15 @@ class MotionModel:
             or not (np.isfinite(m.min_speed) and m.min_speed >= 0)
             or not m.tau_across_share > 0
             or not (np.isnan(m.tau_heading) or m.tau_heading > 0)
-            or (m.profile is not None and (m.profile.shape != (PROFILE_KNOTS, 3) or not np.all(np.isfinite(m.profile))
-                                           or np.any(m.profile < 0) or np.any(np.diff(m.profile[:, 0]) < 0)))
+            or (
+                m.profile is not None
+                and (
+                    m.profile.shape != (PROFILE_KNOTS, 3)
+                    or not np.all(np.isfinite(m.profile))
+                    or np.any(m.profile < 0)
+                    or np.any(np.diff(m.profile[:, 0]) < 0)
+                )
+            )
             or len(m.spacing) != len(tau)
             or not np.all(tau > 0)  # NaN fails too
             or (roll is not None and (roll.shape != tau.shape or not np.all(roll > 0)))
@@ -305,7 +332,9 @@ def spread_profile(resid: np.ndarray, means: np.ndarray, min_speed: float) -> np
     if np.any(n == 0):  # ties in the field speeds: too few distinct speeds for a profile
         return None
     knots = np.array([np.median(speed[b == i]) for i in range(PROFILE_KNOTS)])
-    rms = np.sqrt(np.stack([np.bincount(b, weights=aa[:, c] ** 2, minlength=PROFILE_KNOTS) for c in (0, 1)], 1) / n[:, None])
+    rms = np.sqrt(
+        np.stack([np.bincount(b, weights=aa[:, c] ** 2, minlength=PROFILE_KNOTS) for c in (0, 1)], 1) / n[:, None]
+    )
     total = np.sqrt((aa**2).mean(axis=0))
     factor = np.where(total > 0, rms / np.where(total > 0, total, 1.0), 1.0)
     return np.column_stack([np.maximum.accumulate(knots), factor])

@@ -14,12 +14,17 @@
 //!    σ_across z₂ e⊥` (and the across part may relax with its own `τ_across`), so a vehicle
 //!    keeps its lane while its speed varies; where the field is slower than a threshold (no
 //!    heading: pedestrians standing), it is isotropic with `σ² = (σ_along² + σ_across²) / 2`.
-//!    Models stored before that give it per x/y component ([`Spread::Components`]). The deviation is measured at the new position, so a field that changes
+//!    Models stored before that give it per x/y component ([`Spread::Components`]). The
+//!    spreads are scaled by a [`Profile`] of the field's speed `|m(x)|` (small where the field
+//!    is slow: queues). A steering vehicle ([`Motion::tau_heading`]) keeps a heading and a
+//!    desired speed instead: the speed relaxes as the along part, the heading turns toward the
+//!    field's with its own time constant, and a negative desired speed stands. The deviation is measured at the new position, so a field that changes
 //!    along the path is followed with the lag `τ` (a first-order lag of the velocity), and a
 //!    large `τ` keeps an agent close to constant velocity;
 //! 3. interaction turns desired into actual velocities ([`Rule`]): vehicles follow the leader
 //!    in a corridor ahead by the Intelligent Driver Model (IDM, Treiber et al. 2000), the
-//!    desired speed being `|w|`; every agent then keeps a personal distance from its
+//!    desired speed being `|w|`, and change speed by its free-road term without a leader
+//!    (toward `|w|`, not past it); every agent then keeps a personal distance from its
 //!    neighbours (the part of a pair's approach that would bring it closer than the distance is
 //!    removed, half from each).
 //!
@@ -300,13 +305,12 @@ fn spread_at(m: [f64; 2], motion: &Motion) -> [f64; 2] {
     [motion.sigma[0] * f[0], motion.sigma[1] * f[1]]
 }
 
-/// One step of a steering vehicle's heading `theta` and desired speed `u` toward the field's
+/// One step of a steering vehicle's `state`, its heading `θ` and desired speed `u`, toward the field's
 /// mean `m` ([`Motion::tau_heading`]): `u` as the along residual (`rho`, `kick`, spread at `m`,
 /// innovation `z`), `theta` by the share `turn = 1 − exp(−dt / τ_h)` of its angle to the
 /// field's heading.
 fn steer(
-    theta: &mut f64,
-    u: &mut f64,
+    state: &mut [f64; 2],
     m: [f64; 2],
     z: f64,
     rho: f64,
@@ -314,6 +318,7 @@ fn steer(
     turn: f64,
     motion: &Motion,
 ) {
+    let [theta, u] = state;
     let ms = m[0].hypot(m[1]);
     let s = spread_at(m, motion)[0];
     *u = ms + rho * (*u - ms) + s * kick * z;
@@ -532,7 +537,7 @@ pub fn drive(
     let kick = rho.map(|r| (1.0 - r * r).max(0.0).sqrt());
     let turn = motion.tau_heading.map_or(0.0, |t| 1.0 - (-dt / t).exp());
     // steering vehicles: heading and (signed) desired speed
-    let (mut theta, mut speed) = (vec![0.0; l], vec![0.0; l]);
+    let mut steering = vec![[0.0; 2]; l];
     let mut want = vec![[0.0; 2]; l]; // desired velocities
     let mut vel = vec![[0.0; 2]; l]; // actual velocities
     for t in 0..=opts.steps {
@@ -573,16 +578,15 @@ pub fn drive(
                             }
                         }
                     };
-                    theta[j] = want[j][1].atan2(want[j][0]);
-                    speed[j] = want[j][0].hypot(want[j][1]);
+                    steering[j] = [want[j][1].atan2(want[j][0]), want[j][0].hypot(want[j][1])];
                     if let (None, Some(_), Some((e, _))) =
                         (v0, motion.tau_heading, heading(mean[a], motion))
                     {
                         // a generated vehicle starts along its lane: the field's heading, at
                         // the drawn velocity's speed along it (standing if that is negative)
-                        theta[j] = e[1].atan2(e[0]);
-                        speed[j] = want[j][0] * e[0] + want[j][1] * e[1];
-                        let go = speed[j].max(0.0);
+                        let along = want[j][0] * e[0] + want[j][1] * e[1];
+                        steering[j] = [e[1].atan2(e[0]), along];
+                        let go = along.max(0.0);
                         want[j] = [go * e[0], go * e[1]];
                     }
                     vel[j] = want[j];
@@ -597,8 +601,16 @@ pub fn drive(
                         None => [0.0; 2],
                     };
                     want[j] = if motion.tau_heading.is_some() {
-                        let (th, u) = (&mut theta[j], &mut speed[j]);
-                        steer(th, u, mean[a], z[0], rho[0], kick[0], turn, motion);
+                        steer(
+                            &mut steering[j],
+                            mean[a],
+                            z[0],
+                            rho[0],
+                            kick[0],
+                            turn,
+                            motion,
+                        );
+                        let [th, u] = steering[j];
                         let go = u.max(0.0);
                         [go * th.cos(), go * th.sin()]
                     } else {
