@@ -92,7 +92,8 @@ def test_fitted_model_recovers_spreads_along_and_across_the_heading():
     assert np.all(np.abs(got / [along, across] - 1) < 0.15), m.sigma
     # the record draws the innovation in the heading frame: min_speed, τ across
     rec = m.record(0)
-    assert len(rec) == 12 and rec[10] == m.min_speed and rec[11] == m.tau[0] * m.tau_across_share
+    assert len(rec) == 13 + 3 * motion.PROFILE_KNOTS and rec[10] == m.min_speed
+    assert rec[11] == m.tau[0] * m.tau_across_share
 
 
 def test_heading_spreads_recover_simulated_ones_and_ignore_rotation():
@@ -115,6 +116,93 @@ def test_heading_spreads_recover_simulated_ones_and_ignore_rotation():
     # a field at rest has no heading: isotropic from every row
     still = motion.heading_spreads(resid, np.zeros_like(means), labels, 2, 0.5)
     assert np.allclose(still, np.sqrt((resid**2).mean()))
+
+
+def test_spread_profile_recovers_a_spread_that_grows_with_the_field_speed():
+    """Residuals whose spread along the heading is 0.1 + 0.2 |m| and across 0.05 |m| (numpy
+    oracle): the profile's factors times the per-pattern spread give them back at the knots,
+    and a flat spread gives factors of 1."""
+    rng = np.random.default_rng(3)
+    n = 40000
+    heading = rng.uniform(-np.pi, np.pi, n)
+    speed = rng.uniform(0.0, 12.0, n)
+    e = np.stack([np.cos(heading), np.sin(heading)], axis=1)
+    nrm = np.stack([-e[:, 1], e[:, 0]], axis=1)
+    means = e * speed[:, None]
+    sd = np.stack([0.1 + 0.2 * speed, 0.05 * speed], axis=1)
+    resid = rng.normal(size=(n, 1)) * sd[:, :1] * e + rng.normal(size=(n, 1)) * sd[:, 1:] * nrm
+    prof = motion.spread_profile(resid, means, 0.0)
+    assert prof.shape == (motion.PROFILE_KNOTS, 3) and np.all(np.diff(prof[:, 0]) > 0)
+    labels = np.zeros(n, np.int64)
+    sigma = motion.heading_spreads(resid, means, labels, 1, 0.0, prof)
+    # spread at each knot: the bin's RMS (the oracle's RMS of sd over the bin) within 5%
+    edges = np.quantile(speed, np.linspace(0, 1, motion.PROFILE_KNOTS + 1))
+    for i in range(1, motion.PROFILE_KNOTS - 1):
+        inside = (speed >= edges[i]) & (speed < edges[i + 1])
+        want = np.sqrt((sd[inside] ** 2).mean(axis=0))
+        got = sigma[0] * prof[i, 1:]
+        assert np.all(np.abs(got / want - 1) < 0.05), (i, got, want)
+    flat = motion.spread_profile(rng.normal(size=(n, 2)), means, 0.0)
+    assert np.all(np.abs(flat[:, 1:] - 1) < 0.05)
+    # too few rows with a heading: no profile
+    assert motion.spread_profile(resid[:50], means[:50], 0.0) is None
+
+
+def test_heading_time_constant_recovers_a_simulated_one():
+    """Vehicles whose heading turns by 1 - exp(-dt / 1.5 s) of its angle to a field heading each
+    step (plus small noise): the learned τ_h is within 15% of 1.5 s; without the turning (the
+    heading held), the largest time constant of the grid (∞)."""
+    from dpgp.data.frames import Frames
+
+    rng = np.random.default_rng(4)
+    dt, n_tracks, steps = 0.5, 300, 12
+    share = 1 - np.exp(-dt / 1.5)
+
+    def frames_of(turn_share):
+        th = rng.uniform(-np.pi, np.pi, n_tracks)
+        xy, v, fh, fr, tr = [], [], [], [], []
+        for t in range(steps):
+            field = rng.uniform(-np.pi, np.pi, n_tracks) if t == 0 else th + rng.normal(0, 0.4, n_tracks)
+            if t > 0:
+                d = np.angle(np.exp(1j * (field - th)))
+                th = th + turn_share * d + rng.normal(0, 0.01, n_tracks)
+            xy.append(rng.uniform(0, 100, (n_tracks, 2)))
+            v.append(8.0 * np.stack([np.cos(th), np.sin(th)], axis=1))
+            fh.append(field)
+            fr.append(np.full(n_tracks, t))
+            tr.append(np.arange(n_tracks))
+        xy, v, fh = np.concatenate(xy), np.concatenate(v), np.concatenate(fh)
+        frames = Frames.from_arrays(np.concatenate(fr) * dt, xy[:, 0], xy[:, 1], v[:, 0], v[:, 1],
+                                    track=np.concatenate(tr))  # fmt: skip
+        return frames, 8.0 * np.stack([np.cos(fh), np.sin(fh)], axis=1)
+
+    frames, means = frames_of(share)
+    got = motion.heading_time_constant(frames, means, dt, 0.1, 8.0)
+    assert abs(got / 1.5 - 1) < 0.15, got
+    frames, means = frames_of(0.0)
+    assert motion.heading_time_constant(frames, means, dt, 0.1, 8.0) > 100
+
+
+def test_model_files_keep_steering_and_the_profile():
+    import json
+
+    prof = np.column_stack([np.arange(motion.PROFILE_KNOTS, dtype=float), np.linspace(0.1, 1.0, 8), np.ones(8)])
+    m = motion.MotionModel("vehicles", np.array([2.0]), np.array([[0.7, 0.3]]), np.zeros(1, np.int64), np.ones(1),
+                           0.5, 7.0, 1.5, 1.0, 2.0, 1.5, sigma_frame="heading", min_speed=0.4, tau_heading=2.5,
+                           profile=prof)  # fmt: skip
+    d = json.loads(json.dumps(m.to_dict(), allow_nan=False))
+    back = motion.MotionModel.from_dict(d)
+    assert back.tau_heading == 2.5 and np.array_equal(back.profile, prof)
+    rec = back.record(0)
+    assert len(rec) == 13 + 3 * motion.PROFILE_KNOTS and rec[12] == 2.5
+    np.testing.assert_array_equal(rec[13:], prof.T.ravel())
+    # rollouts of recorded frames do not steer; files written before: no steering, flat profile
+    assert back.record(0, recorded=True)[12] == -1.0
+    old = motion.MotionModel.from_dict({k: v for k, v in d.items() if k not in ("tau_heading", "profile")})
+    assert np.isnan(old.tau_heading) and old.profile is None and old.record(0)[12] == -1 and old.record(0)[13] == -1
+    for bad in ({"tau_heading": -1.0}, {"profile": prof[:3].tolist()}, {"profile": prof[::-1].tolist()}):
+        with pytest.raises(dpgp.DataFormatError):
+            motion.MotionModel.from_dict({**d, **bad})
 
 
 def test_model_files_before_the_heading_frame_keep_per_component_spreads():

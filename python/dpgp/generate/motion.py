@@ -46,6 +46,24 @@ from 6.14 to 6.45 m, relaxed dynamics). Model files written before this keep ``�
 "xy"``) and are generated with it as before. Frames without track ids give no tracks to
 follow: ``τ`` is then :data:`DEFAULT_TAU`.
 
+**Spread profile** (all agents). The residual's spread depends on the field's speed: on the SUMO
+junction it is 0.07 m/s along the heading where ``|m| ≈ 0.06`` (queues) and 1.7 m/s where
+``|m| ≈ 3``; one spread for both made queued vehicles creep and jitter. :func:`spread_profile`
+learns (along, across) factors at :data:`PROFILE_KNOTS` field speeds (bins of equal count,
+pooled over patterns); ``sigma[k]`` is then the spread of the residuals divided by the factors
+(:func:`heading_spreads`), and the core draws innovations with ``sigma[k] × factor(|m(x)|)``.
+
+**Steering** (vehicles, generated scenes). A vehicle keeps a heading and a desired speed instead
+of a residual vector: the speed relaxes toward ``|m(x)|`` as the along residual does (a negative
+one stands: vehicles do not reverse), and the heading turns toward the field's with the time
+constant ``tau_heading`` (:func:`heading_time_constant`: the one that best predicts the
+recorded heading changes from the field's heading one step on). The fitted fields are rough at
+the scale of a lane (their heading along the recorded SUMO paths changes by 0.5 rad/s at the
+90th percentile, the vehicles' by 0.11), so a vehicle that took the field's heading at every
+step turned where recorded ones drive straight. A generated vehicle starts along the field's
+heading. Rollouts of recorded frames do not steer (they keep their own heading and relax with
+``τ_rollout``).
+
 **Agents.** ``"pedestrians"`` when 99% of the training speeds are below
 :data:`PEDESTRIAN_SPEED` (data units per second), else ``"vehicles"``.
 
@@ -57,7 +75,9 @@ all followers when there are too few). Time headway ``T``: the median of ``(gap 
 of followers moving at least 30% of the median speed within ``s0 + 3 s × speed`` of a leader
 (car-following rather than free driving), clipped to [0.3, 3] s. Acceleration ``a`` and
 comfortable deceleration ``b``: the 90th percentiles of the tracks' speed increases and
-decreases per second.
+decreases per second. A free vehicle (no leader) changes speed by IDM's free-road term too,
+toward its desired speed and not past it, instead of taking it at once: the residual's
+innovations change the wish, not the speed, from one step to the next.
 
 **Personal distance.** Pedestrians: the :data:`SPACING_PERCENTILE` (5th) percentile of
 nearest-neighbour distances. Vehicles: the same, at most half the jam distance (a last guard;
@@ -98,6 +118,8 @@ TAU_HORIZON = 4.0  # seconds of the training rollouts that choose τ
 TAU_FRAMES = 120  # training frames rolled out to choose τ
 PEDESTRIAN_SPEED = 5.0  # 99th percentile speed below this (data units per second): pedestrians
 AGENTS = ("auto", "vehicles", "pedestrians")
+#: vehicles moving at least this share of the median speed show their heading (learning τ_h)
+STEER_SPEED_SHARE = 0.3
 #: below this share of the median field speed |m| of the training rows, the field has no heading
 #: (isotropic residual). Measured on the SUMO junction (realism ratio, interactive): 0.3 → 0.37,
 #: 0.1 → 0.43, 0.02 → 0.46, 0 → 0.47 (queued vehicles stand in slow parts of the field);
@@ -111,6 +133,10 @@ HEADING_SHARE = 0.02
 TAU_ACROSS_SHARE = {"vehicles": float("inf"), "pedestrians": 1.0}
 SIGMA_FRAMES = ("xy", "heading")
 _FORMAT_VERSION = 2
+#: learn the spread's profile over the field's speed (all agents) and steering (vehicles)
+PROFILE = True
+STEER = True
+PROFILE_KNOTS = 8  # knots of the spread's profile over the field's speed (motion.rs: PROFILE_KNOTS)
 _KIND = {"free": 0, "vehicles": 1, "pedestrians": 2}
 
 
@@ -142,6 +168,8 @@ class MotionModel:
     sigma_frame: str = "xy"
     min_speed: float = 0.0
     tau_across_share: float = 1.0
+    tau_heading: float = float("nan")
+    profile: np.ndarray | None = None
 
     @property
     def rollout_tau(self) -> np.ndarray:
@@ -158,7 +186,12 @@ class MotionModel:
         return np.array(
             [tau, self.sigma[k, 0], self.sigma[k, 1], kind, self.personal,
              *(nan_free(v) for v in (self.jam, self.headway, self.accel, self.decel, self.lateral)),
-             self.min_speed if heading else -1.0, tau if recorded or not heading else tau * self.tau_across_share],
+             self.min_speed if heading else -1.0, tau if recorded or not heading else tau * self.tau_across_share,
+             # rollouts of recorded frames do not steer: their vehicles keep their own heading
+             # and relax it with τ_rollout (steering toward the field raised Peachtree's FDE at
+             # 1 s from 0.395 to 0.463 ft, relaxed dynamics)
+             self.tau_heading if heading and not recorded and self.tau_heading > 0 else -1.0,
+             *(self.profile.T.ravel() if heading and self.profile is not None else [-1.0] + [0.0] * (3 * PROFILE_KNOTS - 1))],
             dtype=np.float64,
         )  # fmt: skip
 
@@ -178,6 +211,9 @@ class MotionModel:
         out["min_speed"] = float(self.min_speed)
         share = float(self.tau_across_share)
         out["tau_across_share"] = share if np.isfinite(share) else "inf"
+        th = float(self.tau_heading)
+        out["tau_heading"] = None if np.isnan(th) else (th if np.isfinite(th) else "inf")
+        out["profile"] = None if self.profile is None else np.asarray(self.profile).tolist()
         return out
 
     @classmethod
@@ -206,6 +242,9 @@ class MotionModel:
                 sigma_frame=str(d.get("sigma_frame", "xy")),
                 min_speed=float(d.get("min_speed", 0.0)),
                 tau_across_share=float(d.get("tau_across_share", 1.0)),
+                # files written before steering and the profile: neither
+                tau_heading=float("nan") if d.get("tau_heading") is None else float(d["tau_heading"]),
+                profile=None if d.get("profile") is None else np.asarray(d["profile"], dtype=np.float64),
             )
         except (KeyError, TypeError, ValueError) as e:
             raise DataFormatError(f"not a stored motion model ({type(e).__name__}: {e})") from None
@@ -214,6 +253,16 @@ class MotionModel:
             or m.sigma_frame not in SIGMA_FRAMES
             or not (np.isfinite(m.min_speed) and m.min_speed >= 0)
             or not m.tau_across_share > 0
+            or not (np.isnan(m.tau_heading) or m.tau_heading > 0)
+            or (
+                m.profile is not None
+                and (
+                    m.profile.shape != (PROFILE_KNOTS, 3)
+                    or not np.all(np.isfinite(m.profile))
+                    or np.any(m.profile < 0)
+                    or np.any(np.diff(m.profile[:, 0]) < 0)
+                )
+            )
             or len(m.spacing) != len(tau)
             or not np.all(tau > 0)  # NaN fails too
             or (roll is not None and (roll.shape != tau.shape or not np.all(roll > 0)))
@@ -228,7 +277,9 @@ class MotionModel:
         )  # fmt: skip
         return (
             f"MotionModel({self.agents}, {len(self.tau)} patterns, tau {np.median(self.tau):.3g} s (median), "
-            f"sigma {self._sigma_text()}; {rule})"
+            f"sigma {self._sigma_text()}; {rule}"
+            + ("" if np.isnan(self.tau_heading) else f"; heading tau {self.tau_heading:.3g} s")
+            + ")"
         )
 
     def _sigma_text(self) -> str:
@@ -249,18 +300,63 @@ def field_means(fit: FittedPatterns, xy: np.ndarray, row_label: np.ndarray) -> n
     return out
 
 
-def heading_spreads(
-    resid: np.ndarray, means: np.ndarray, row_label: np.ndarray, K: int, min_speed: float
-) -> np.ndarray:
-    """(K, 2): per pattern, the root mean square of the residuals ``resid`` along and across the
-    heading of the field means ``means`` at the same rows, over rows whose field is faster than
-    ``min_speed`` (the pooled spreads for a pattern with fewer than 2 such rows; isotropic from
-    every row when no row has a heading)."""
+def _along_across(resid: np.ndarray, means: np.ndarray, min_speed: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rows with a heading, their field speeds, (n, 2) residuals along and across the heading)."""
     speed = np.hypot(means[:, 0], means[:, 1])
     ok = (speed > min_speed) & (speed > 0)
     e = means[ok] / speed[ok, None]
     r = resid[ok]
-    sq = np.stack([(r * e).sum(axis=1), r[:, 1] * e[:, 0] - r[:, 0] * e[:, 1]], axis=1) ** 2
+    return ok, speed[ok], np.stack([(r * e).sum(axis=1), r[:, 1] * e[:, 0] - r[:, 0] * e[:, 1]], axis=1)
+
+
+def profile_factors(profile: np.ndarray | None, speed: np.ndarray) -> np.ndarray:
+    """(n, 2): the spread's (along, across) factors at field speeds ``speed`` (linear between
+    the knots, constant beyond; ``motion.rs``: ``Profile::at``); ones without a profile."""
+    if profile is None:
+        return np.ones((len(speed), 2))
+    return np.stack([np.interp(speed, profile[:, 0], profile[:, c]) for c in (1, 2)], axis=1)
+
+
+def spread_profile(resid: np.ndarray, means: np.ndarray, min_speed: float) -> np.ndarray | None:
+    """(PROFILE_KNOTS, 3): field speed, along factor, across factor. The rows with a heading are
+    cut into :data:`PROFILE_KNOTS` bins of equal count by their field speed ``|m|``; a knot is
+    a bin's median field speed, its factors the root mean squares of the residuals along and
+    across the heading in the bin over those of all the rows. ``None`` with fewer than
+    ``PROFILE_KNOTS × MIN_DISTANCES`` such rows."""
+    _, speed, aa = _along_across(resid, means, min_speed)
+    if len(speed) < PROFILE_KNOTS * MIN_DISTANCES:
+        return None
+    edges = np.quantile(speed, np.linspace(0.0, 1.0, PROFILE_KNOTS + 1))
+    b = np.clip(np.searchsorted(edges, speed, side="right") - 1, 0, PROFILE_KNOTS - 1)
+    n = np.bincount(b, minlength=PROFILE_KNOTS)
+    if np.any(n == 0):  # ties in the field speeds: too few distinct speeds for a profile
+        return None
+    knots = np.array([np.median(speed[b == i]) for i in range(PROFILE_KNOTS)])
+    rms = np.sqrt(
+        np.stack([np.bincount(b, weights=aa[:, c] ** 2, minlength=PROFILE_KNOTS) for c in (0, 1)], 1) / n[:, None]
+    )
+    total = np.sqrt((aa**2).mean(axis=0))
+    factor = np.where(total > 0, rms / np.where(total > 0, total, 1.0), 1.0)
+    return np.column_stack([np.maximum.accumulate(knots), factor])
+
+
+def heading_spreads(
+    resid: np.ndarray,
+    means: np.ndarray,
+    row_label: np.ndarray,
+    K: int,
+    min_speed: float,
+    profile: np.ndarray | None = None,
+) -> np.ndarray:
+    """(K, 2): per pattern, the root mean square of the residuals ``resid`` along and across the
+    heading of the field means ``means`` at the same rows, over rows whose field is faster than
+    ``min_speed`` (the pooled spreads for a pattern with fewer than 2 such rows; isotropic from
+    every row when no row has a heading). With a ``profile`` (:func:`spread_profile`), of the
+    residuals divided by its factors at each row's field speed: the spread where the factors
+    are 1."""
+    ok, speed, aa = _along_across(resid, means, min_speed)
+    f = profile_factors(profile, speed)
+    sq = np.where(f > 0, aa / np.where(f > 0, f, 1.0), 0.0) ** 2
     if len(sq) == 0:
         iso = np.sqrt((resid**2).mean()) if len(resid) else 0.0
         return np.full((K, 2), iso)
@@ -458,8 +554,9 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     roll = time_constants(fit)[0]
     field_speed = np.hypot(means[:, 0], means[:, 1])
     min_speed = HEADING_SHARE * float(np.median(field_speed)) if len(field_speed) else 0.0
-    sigma = heading_spreads(resid, means, row_label, K, min_speed)
-    frame: dict[str, Any] = {"sigma_frame": "heading", "min_speed": min_speed}
+    profile = spread_profile(resid, means, min_speed) if PROFILE else None
+    sigma = heading_spreads(resid, means, row_label, K, min_speed, profile)
+    frame: dict[str, Any] = {"sigma_frame": "heading", "min_speed": min_speed, "profile": profile}
     nn_all = nearest_distances(frames)
     spacing = np.full(K, np.percentile(nn_all, SPACING_PERCENTILE) if len(nn_all) else 0.0)
     for k in range(K):
@@ -488,10 +585,38 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     headway = float(np.clip(np.median((gap[follow] - jam) / u[follow]), 0.3, 3.0)) if follow.any() else 1.5
     accel, decel = _accelerations(frames, *consecutive_pairs(frames, dt), dt, med)
     personal = max(min(nn_floor, 0.5 * jam), 1e-9)
+    tau_h = heading_time_constant(frames, means, dt, min_speed, med) if STEER else float("nan")
     return MotionModel(
         agents, tau, sigma, pairs, spacing, personal, jam, headway, accel, decel, max(lateral, 1e-9), tau_rollout=roll,
-        tau_across_share=TAU_ACROSS_SHARE["vehicles"], **frame,
+        tau_across_share=TAU_ACROSS_SHARE["vehicles"], tau_heading=tau_h, **frame,
     )  # fmt: skip
+
+
+def heading_time_constant(
+    frames: Frames, means: np.ndarray, dt: float, min_speed: float, typical_speed: float
+) -> float:
+    """The time constant ``τ_h`` with which a vehicle's heading turns toward the field's (NaN
+    without enough tracks). Over consecutive track pairs ``(a, b)`` both moving at least
+    :data:`STEER_SPEED_SHARE` of ``typical_speed``, with a field heading at ``b``: the heading
+    ``θ_b`` is predicted by ``θ_a + (1 − exp(−dt / τ_h)) wrap(θ_m(b) − θ_a)`` (the core's
+    steering step), and ``τ_h`` of :data:`TAU_GRID` with the least mean squared (wrapped) error
+    is kept, refined as ``τ`` is. A rough field turns where vehicles drive straight; this is how
+    much of its turning the recorded vehicles follow per step."""
+    a, b = consecutive_pairs(frames, dt)
+    v = frames.v
+    speed = np.hypot(v[:, 0], v[:, 1])
+    ms = np.hypot(means[:, 0], means[:, 1])
+    ok = (speed[a] >= STEER_SPEED_SHARE * typical_speed) & (speed[b] >= STEER_SPEED_SHARE * typical_speed)
+    ok &= (ms[b] > min_speed) & (ms[b] > 0)
+    if ok.sum() < MIN_PAIRS:
+        return float("nan")
+    a, b = a[ok], b[ok]
+    wrap = lambda x: np.angle(np.exp(1j * x))  # noqa: E731
+    th = np.arctan2(v[:, 1], v[:, 0])
+    d = wrap(np.arctan2(means[b, 1], means[b, 0]) - th[a])
+    turned = wrap(th[b] - th[a])
+    err = np.array([np.mean(wrap(turned - (1.0 - np.exp(-dt / t)) * d) ** 2) for t in TAU_GRID])
+    return _refined(err, TAU_GRID)
 
 
 def _accelerations(

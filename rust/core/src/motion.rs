@@ -14,12 +14,17 @@
 //!    σ_across z₂ e⊥` (and the across part may relax with its own `τ_across`), so a vehicle
 //!    keeps its lane while its speed varies; where the field is slower than a threshold (no
 //!    heading: pedestrians standing), it is isotropic with `σ² = (σ_along² + σ_across²) / 2`.
-//!    Models stored before that give it per x/y component ([`Spread::Components`]). The deviation is measured at the new position, so a field that changes
+//!    Models stored before that give it per x/y component ([`Spread::Components`]). The
+//!    spreads are scaled by a [`Profile`] of the field's speed `|m(x)|` (small where the field
+//!    is slow: queues). A steering vehicle ([`Motion::tau_heading`]) keeps a heading and a
+//!    desired speed instead: the speed relaxes as the along part, the heading turns toward the
+//!    field's with its own time constant, and a negative desired speed stands. The deviation is measured at the new position, so a field that changes
 //!    along the path is followed with the lag `τ` (a first-order lag of the velocity), and a
 //!    large `τ` keeps an agent close to constant velocity;
 //! 3. interaction turns desired into actual velocities ([`Rule`]): vehicles follow the leader
 //!    in a corridor ahead by the Intelligent Driver Model (IDM, Treiber et al. 2000), the
-//!    desired speed being `|w|`; every agent then keeps a personal distance from its
+//!    desired speed being `|w|`, and change speed by its free-road term without a leader
+//!    (toward `|w|`, not past it); every agent then keeps a personal distance from its
 //!    neighbours (the part of a pair's approach that would bring it closer than the distance is
 //!    removed, half from each).
 //!
@@ -77,6 +82,44 @@ pub enum Spread {
     Heading { min_speed: f64, tau_across: f64 },
 }
 
+/// Knots of a [`Profile`].
+pub const PROFILE_KNOTS: usize = 8;
+
+/// The residual's spread as a function of the field's local speed `|m(x)|`: factors on
+/// [`Motion::sigma`] (along, across) at increasing field speeds, linear in between and constant
+/// beyond the ends. Recorded vehicles deviate from the field by tenths of a m/s where it is slow
+/// (a queue) and by metres per second where it is fast; one spread for both made queued
+/// vehicles creep.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Profile {
+    pub speed: [f64; PROFILE_KNOTS],
+    pub factor: [[f64; 2]; PROFILE_KNOTS],
+}
+
+impl Profile {
+    /// Factor 1 everywhere (the spread does not depend on the field's speed).
+    pub const FLAT: Self = Self {
+        speed: [0.0; PROFILE_KNOTS],
+        factor: [[1.0; 2]; PROFILE_KNOTS],
+    };
+
+    /// The (along, across) factors at field speed `s`.
+    pub fn at(&self, s: f64) -> [f64; 2] {
+        let k = &self.speed;
+        if !(s > k[0]) {
+            return self.factor[0];
+        }
+        for i in 1..PROFILE_KNOTS {
+            if s < k[i] {
+                let w = (s - k[i - 1]) / (k[i] - k[i - 1]);
+                let (a, b) = (self.factor[i - 1], self.factor[i]);
+                return [a[0] + w * (b[0] - a[0]), a[1] + w * (b[1] - a[1])];
+            }
+        }
+        self.factor[PROFILE_KNOTS - 1]
+    }
+}
+
 /// The residual model and the interaction rule of one pattern.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Motion {
@@ -88,12 +131,24 @@ pub struct Motion {
     pub sigma: [f64; 2],
     pub spread: Spread,
     pub rule: Rule,
+    /// The spread's dependence on the field's speed ([`Spread::Heading`] only).
+    pub profile: Profile,
+    /// `Some(τ_h)`: the agent is a vehicle that steers ([`Spread::Heading`] only): it keeps a
+    /// heading `θ` and a desired speed `u`; `θ` turns toward the field's heading with time
+    /// constant `τ_h` (held where the field has no heading; `∞`: never turns), `u` relaxes
+    /// toward the field's speed as the along residual does, and it drives at `max(u, 0)` along
+    /// `θ` (a vehicle does not reverse: it stands). `None`: the desired velocity is the field's
+    /// mean plus the residual vector.
+    pub tau_heading: Option<f64>,
 }
 
 /// Numbers in a flat [`Motion`] record: `tau, sigma_0, sigma_1, kind (0 free, 1 vehicles,
-/// 2 pedestrians), personal, jam, headway, accel, decel, lateral, min_speed, tau_across`;
-/// `min_speed < 0`: [`Spread::Components`] (`tau_across` unused), else [`Spread::Heading`].
-pub const MOTION_FIELDS: usize = 12;
+/// 2 pedestrians), personal, jam, headway, accel, decel, lateral, min_speed, tau_across,
+/// tau_heading`, then the [`Profile`]: [`PROFILE_KNOTS`] field speeds, as many along factors and
+/// as many across factors. `min_speed < 0`: [`Spread::Components`] (`tau_across`, `tau_heading`
+/// and the profile unused), else [`Spread::Heading`]; `tau_heading < 0`: no steering;
+/// a first knot speed `< 0`: the flat profile.
+pub const MOTION_FIELDS: usize = 13 + 3 * PROFILE_KNOTS;
 
 impl Motion {
     /// From the flat record of [`MOTION_FIELDS`] numbers (what the binding passes).
@@ -131,11 +186,23 @@ impl Motion {
                 tau_across: v[11],
             }
         };
+        let heading = matches!(spread, Spread::Heading { .. });
+        let tau_heading = (heading && !(v[12] < 0.0)).then_some(v[12]);
+        let mut profile = Profile::FLAT;
+        if heading && !(v[13] < 0.0) {
+            let p = PROFILE_KNOTS;
+            for i in 0..p {
+                profile.speed[i] = v[13 + i];
+                profile.factor[i] = [v[13 + p + i], v[13 + 2 * p + i]];
+            }
+        }
         let m = Self {
             tau: v[0],
             sigma: [v[1], v[2]],
             spread,
             rule,
+            profile,
+            tau_heading,
         };
         m.validate()?;
         Ok(m)
@@ -170,6 +237,27 @@ impl Motion {
             if !(tau_across > 0.0) || tau_across.is_nan() {
                 return bad("tau_across (s; inf holds the residual)", tau_across);
             }
+        }
+        if let Some(t) = self.tau_heading
+            && (!(t > 0.0) || t.is_nan() || self.spread == Spread::Components)
+        {
+            return bad(
+                "tau_heading (s, with the heading frame; inf holds the heading)",
+                t,
+            );
+        }
+        let p = &self.profile;
+        let knots_ok = p.speed.iter().all(|s| s.is_finite() && *s >= 0.0)
+            && p.speed.windows(2).all(|w| w[1] >= w[0]);
+        let factors_ok = p
+            .factor
+            .as_flattened()
+            .iter()
+            .all(|f| f.is_finite() && *f >= 0.0);
+        if !(knots_ok && factors_ok) {
+            return Err(Error::InvalidInput(
+                "the spread's profile needs finite rising field speeds >= 0 and finite factors >= 0".into(),
+            ));
         }
         let positive = |what: &str, x: f64| {
             if x.is_finite() && x > 0.0 {
@@ -211,10 +299,40 @@ fn heading(m: [f64; 2], motion: &Motion) -> Option<([f64; 2], [f64; 2])> {
     }
 }
 
+/// The residual's spreads (along, across; or per component) where the field's mean is `m`.
+fn spread_at(m: [f64; 2], motion: &Motion) -> [f64; 2] {
+    let f = motion.profile.at(m[0].hypot(m[1]));
+    [motion.sigma[0] * f[0], motion.sigma[1] * f[1]]
+}
+
+/// One step of a steering vehicle's `state`, its heading `θ` and desired speed `u`, toward the field's
+/// mean `m` ([`Motion::tau_heading`]): `u` as the along residual (`rho`, `kick`, spread at `m`,
+/// innovation `z`), `theta` by the share `turn = 1 − exp(−dt / τ_h)` of its angle to the
+/// field's heading.
+fn steer(
+    state: &mut [f64; 2],
+    m: [f64; 2],
+    z: f64,
+    rho: f64,
+    kick: f64,
+    turn: f64,
+    motion: &Motion,
+) {
+    let [theta, u] = state;
+    let ms = m[0].hypot(m[1]);
+    let s = spread_at(m, motion)[0];
+    *u = ms + rho * (*u - ms) + s * kick * z;
+    if let Some((e, _)) = heading(m, motion) {
+        let d = e[1].atan2(e[0]) - *theta;
+        let d = d.sin().atan2(d.cos()); // wrapped to (−π, π]
+        *theta += turn * d;
+    }
+}
+
 /// A stationary draw of the residual at a point where the field's mean is `m`, from the
 /// standard normals `z`.
 fn stationary(m: [f64; 2], z: [f64; 2], motion: &Motion) -> [f64; 2] {
-    let s = motion.sigma;
+    let s = spread_at(m, motion);
     match (motion.spread, heading(m, motion)) {
         (Spread::Components, _) => [s[0] * z[0], s[1] * z[1]],
         (_, Some((e, n))) => {
@@ -238,7 +356,7 @@ fn relax(
     kick: [f64; 2],
     motion: &Motion,
 ) -> [f64; 2] {
-    let s = motion.sigma;
+    let s = spread_at(m, motion);
     if let Spread::Components = motion.spread {
         let mut out = [0.0; 2];
         for d in 0..2 {
@@ -321,19 +439,25 @@ pub fn interact(
         Rule::Vehicles { idm, personal } => {
             for i in 0..x.len() {
                 let u0 = desired[i][0].hypot(desired[i][1]);
-                if u0 <= TINY {
-                    continue;
-                }
-                let e = [desired[i][0] / u0, desired[i][1] / u0];
-                let Some((j, g)) = leader(i, x, e, idm.lateral) else {
+                let u = current[i][0].hypot(current[i][1]);
+                // the direction it wants to go, else (standing wish) the one it goes
+                let e = if u0 > TINY {
+                    [desired[i][0] / u0, desired[i][1] / u0]
+                } else if u > TINY {
+                    [current[i][0] / u, current[i][1] / u]
+                } else {
                     continue;
                 };
-                let u = current[i][0].hypot(current[i][1]);
-                let lead = current[j][0] * e[0] + current[j][1] * e[1];
-                let next = u + dt * idm_accel(u, u0, Some((g, lead)), &idm);
-                // Euler can overshoot a hard stop: never close more than half the jam distance.
-                let guard = (g - 0.5 * idm.jam) / dt + lead.max(0.0);
-                let speed = next.min(guard).clamp(0.0, u0);
+                let ahead = leader(i, x, e, idm.lateral);
+                let gap = ahead.map(|(j, g)| (g, current[j][0] * e[0] + current[j][1] * e[1]));
+                let mut next = u + dt * idm_accel(u, u0, gap, &idm);
+                match gap {
+                    // free road: toward the desired speed, not past it
+                    None => next = next.max(u.min(u0)),
+                    // Euler can overshoot a hard stop: never close more than half the jam distance.
+                    Some((g, lead)) => next = next.min((g - 0.5 * idm.jam) / dt + lead.max(0.0)),
+                }
+                let speed = next.clamp(0.0, u0.max(u));
                 v[i] = [e[0] * speed, e[1] * speed];
             }
             personal
@@ -411,6 +535,9 @@ pub fn drive(
     };
     let rho = [(-dt / motion.tau).exp(), (-dt / tau_across).exp()];
     let kick = rho.map(|r| (1.0 - r * r).max(0.0).sqrt());
+    let turn = motion.tau_heading.map_or(0.0, |t| 1.0 - (-dt / t).exp());
+    // steering vehicles: heading and (signed) desired speed
+    let mut steering = vec![[0.0; 2]; l];
     let mut want = vec![[0.0; 2]; l]; // desired velocities
     let mut vel = vec![[0.0; 2]; l]; // actual velocities
     for t in 0..=opts.steps {
@@ -451,6 +578,17 @@ pub fn drive(
                             }
                         }
                     };
+                    steering[j] = [want[j][1].atan2(want[j][0]), want[j][0].hypot(want[j][1])];
+                    if let (None, Some(_), Some((e, _))) =
+                        (v0, motion.tau_heading, heading(mean[a], motion))
+                    {
+                        // a generated vehicle starts along its lane: the field's heading, at
+                        // the drawn velocity's speed along it (standing if that is negative)
+                        let along = want[j][0] * e[0] + want[j][1] * e[1];
+                        steering[j] = [e[1].atan2(e[0]), along];
+                        let go = along.max(0.0);
+                        want[j] = [go * e[0], go * e[1]];
+                    }
                     vel[j] = want[j];
                 }
             } else {
@@ -462,7 +600,22 @@ pub fn drive(
                         Some(rng) => [StandardNormal.sample(rng), StandardNormal.sample(rng)],
                         None => [0.0; 2],
                     };
-                    want[j] = relax(want[j], mean[a], z, rho, kick, motion);
+                    want[j] = if motion.tau_heading.is_some() {
+                        steer(
+                            &mut steering[j],
+                            mean[a],
+                            z[0],
+                            rho[0],
+                            kick[0],
+                            turn,
+                            motion,
+                        );
+                        let [th, u] = steering[j];
+                        let go = u.max(0.0);
+                        [go * th.cos(), go * th.sin()]
+                    } else {
+                        relax(want[j], mean[a], z, rho, kick, motion)
+                    };
                     desired.push(want[j]);
                     current.push(vel[j]);
                 }

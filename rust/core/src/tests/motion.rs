@@ -9,6 +9,15 @@ const IDM: Idm = Idm {
     lateral: 1.5,
 };
 
+/// A record of the 12 numbers before steering and the profile: no steering, a flat profile.
+fn rec(head: &[f64]) -> Vec<f64> {
+    let mut v = head.to_vec();
+    v.push(-1.0);
+    v.push(-1.0);
+    v.resize(MOTION_FIELDS, 0.0);
+    v
+}
+
 fn opts(dt: f64, steps: usize) -> Options {
     Options {
         dt,
@@ -54,12 +63,164 @@ fn follower_brakes_behind_a_slow_leader_and_the_leader_is_free() {
         "{:?} vs {want}",
         v[0]
     );
-    // a vehicle in the next lane (lateral offset 3.5 > 1.5) is no leader
+    // a vehicle in the next lane (lateral offset 3.5 > 1.5) is no leader: on a free road the
+    // follower speeds up by IDM's free term, not to its desired speed at once
     let x2 = [[0.0, 0.0], [20.0, 3.5]];
-    assert_eq!(
-        interact(&x2, &current, &desired, &rule, 0.5)[0],
-        [15.0, 0.0]
+    let free = 10.0 + 0.5 * (1.0 - (10.0f64 / 15.0).powi(4));
+    let got = interact(&x2, &current, &desired, &rule, 0.5)[0];
+    assert!((got[0] - free).abs() < 1e-12 && got[1] == 0.0, "{got:?}");
+}
+
+#[test]
+fn free_vehicles_change_speed_by_idm_and_stop_without_reversing() {
+    let rule = Rule::Vehicles {
+        idm: IDM,
+        personal: 2.0,
+    };
+    let x = [[0.0, 0.0]];
+    // wants less than it drives: brakes by IDM's free term, but not below the desired speed
+    let v = interact(&x, &[[10.0, 0.0]], &[[5.0, 0.0]], &rule, 0.5);
+    assert_eq!(v[0], [5.0, 0.0]);
+    let v = interact(&x, &[[10.0, 0.0]], &[[9.5, 0.0]], &rule, 0.5);
+    let want = 10.0 + 0.5 * (1.0 - (10.0f64 / 9.5).powi(4));
+    assert!((v[0][0] - want).abs() < 1e-12 && want > 9.5, "{:?}", v[0]);
+    // wants to stand: slows at the acceleration a along its own heading, never backward
+    let v = interact(&x, &[[0.0, 3.0]], &[[0.0, 0.0]], &rule, 0.5);
+    assert_eq!(v[0], [0.0, 2.5]);
+    let v = interact(&x, &[[0.0, 0.3]], &[[0.0, 0.0]], &rule, 0.5);
+    assert_eq!(v[0], [0.0, 0.0]);
+}
+
+#[test]
+fn the_profile_interpolates_and_scales_the_spread() {
+    let mut p = Profile::FLAT;
+    for i in 0..PROFILE_KNOTS {
+        p.speed[i] = 1.0 + i as f64;
+        p.factor[i] = [0.1 * (i + 1) as f64, 1.0];
+    }
+    assert_eq!(p.at(0.0), [0.1, 1.0]);
+    assert_eq!(p.at(100.0), [0.8, 1.0]);
+    let mid = p.at(2.25);
+    assert!((mid[0] - 0.225).abs() < 1e-12 && (mid[1] - 1.0).abs() < 1e-12);
+    // a slow field (speed 1: factor 0.1) spreads the stationary residual ten times less along
+    // its heading than the factor 1 of the flat profile
+    let motion = Motion {
+        tau: 1.0,
+        sigma: [0.8, 0.2],
+        spread: Spread::Heading {
+            min_speed: 0.01,
+            tau_across: 1.0,
+        },
+        rule: Rule::Free,
+        profile: p,
+        tau_heading: None,
+    };
+    let mut slow = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[1.0, 0.0]; q.len()]) };
+    let start = vec![[0.0, 0.0]; 2000];
+    let r = drive(
+        &start,
+        Some(&vec![[1.0, 0.0]; 2000]),
+        &opts(0.5, 20),
+        &motion,
+        Some(5),
+        &mut slow,
+    )
+    .unwrap();
+    let var = r.velocities[20 * 2000..]
+        .iter()
+        .map(|v| (v[0] - 1.0).powi(2))
+        .sum::<f64>()
+        / 2000.0;
+    assert!((var / 0.0064 - 1.0).abs() < 0.15, "{var}");
+}
+
+#[test]
+fn steering_vehicles_turn_toward_the_field_at_their_time_constant_and_stand() {
+    // a field heading north at 5; a vehicle starting east at 5 turns as 1 - exp(-t / 2) of
+    // the remaining angle per step (mean mode), its speed held at 5
+    let motion = Motion {
+        tau: f64::INFINITY,
+        sigma: [0.5, 0.5],
+        spread: Spread::Heading {
+            min_speed: 0.1,
+            tau_across: f64::INFINITY,
+        },
+        rule: Rule::Free,
+        profile: Profile::FLAT,
+        tau_heading: Some(2.0),
+    };
+    let mut north = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0, 5.0]; q.len()]) };
+    let r = drive(
+        &[[0.0, 0.0]],
+        Some(&[[5.0, 0.0]]),
+        &opts(0.5, 10),
+        &motion,
+        None,
+        &mut north,
+    )
+    .unwrap();
+    let half_pi = std::f64::consts::FRAC_PI_2;
+    for t in 1..=10 {
+        let v = r.velocities[t];
+        let want = half_pi * (1.0 - (-(t as f64) * 0.5 / 2.0).exp());
+        assert!((v[1].atan2(v[0]) - want).abs() < 1e-12, "{t}: {v:?}");
+        assert!((v[0].hypot(v[1]) - 5.0).abs() < 1e-12);
+    }
+    // a field at rest turns nobody
+    let mut rest = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0, 0.0]; q.len()]) };
+    let m = Motion { tau: 0.5, ..motion };
+    let r = drive(
+        &[[0.0, 0.0]],
+        Some(&[[-1.0, 1.0]]),
+        &opts(0.5, 4),
+        &m,
+        None,
+        &mut rest,
+    )
+    .unwrap();
+    assert!(r.velocities[1][0] < 0.0 && r.velocities[1][1] > 0.0);
+    let h = r.velocities[1][1].atan2(r.velocities[1][0]);
+    assert!((h - 0.75 * std::f64::consts::PI).abs() < 1e-12);
+    // generated scenes start along the field's heading (speed: the draw's part along it)
+    let r = drive(
+        &[[0.0, 0.0]],
+        None,
+        &opts(0.5, 2),
+        &motion,
+        None,
+        &mut north,
+    )
+    .unwrap();
+    assert_eq!(r.velocities[0], [0.0, 5.0]);
+    // a drawn velocity against the field's heading (desired speed -3 along it) stands, heading
+    // north, and stays (τ = ∞)
+    struct Against;
+    impl Field for Against {
+        fn velocity(&mut self, q: &[Point]) -> Result<Vec<[f64; 2]>> {
+            Ok(vec![[0.0, 5.0]; q.len()])
+        }
+        fn step_start(&mut self, _: usize, q: &[Point]) -> Result<crate::simulate::StepInfo> {
+            Ok(crate::simulate::StepInfo {
+                offset: vec![[0.0, -8.0]; q.len()],
+                low_data: vec![false; q.len()],
+            })
+        }
+    }
+    let r = drive(
+        &[[0.0, 0.0]],
+        None,
+        &opts(0.5, 3),
+        &motion,
+        None,
+        &mut Against,
+    )
+    .unwrap();
+    assert!(
+        r.velocities.iter().all(|v| *v == [0.0, 0.0]),
+        "{:?}",
+        r.velocities
     );
+    assert!(r.positions.iter().all(|p| *p == [0.0, 0.0]));
 }
 
 #[test]
@@ -98,6 +259,8 @@ fn the_residual_relaxes_at_the_time_constant() {
         sigma: [0.5, 0.5],
         spread: Spread::Components,
         rule: Rule::Free,
+        profile: Profile::FLAT,
+        tau_heading: None,
     };
     let mut zero = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0; 2]; q.len()]) };
     let r = drive(
@@ -129,6 +292,8 @@ fn stochastic_residual_has_the_stationary_spread_and_is_seeded() {
         sigma: [0.7, 0.3],
         spread: Spread::Components,
         rule: Rule::Free,
+        profile: Profile::FLAT,
+        tau_heading: None,
     };
     let mut zero = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0; 2]; q.len()]) };
     let start = vec![[0.0, 0.0]; 400];
@@ -164,16 +329,24 @@ fn stochastic_residual_has_the_stationary_spread_and_is_seeded() {
 fn bad_motion_records_are_errors() {
     assert!(Motion::from_slice(&[1.0; 3]).is_err());
     assert!(
-        Motion::from_slice(&[0.0, 1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0]).is_err()
+        Motion::from_slice(&rec(&[
+            0.0, 1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0
+        ]))
+        .is_err()
     );
     assert!(
-        Motion::from_slice(&[1.0, 1.0, 1.0, 7.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0]).is_err()
+        Motion::from_slice(&rec(&[
+            1.0, 1.0, 1.0, 7.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0
+        ]))
+        .is_err()
     );
     assert!(
-        Motion::from_slice(&[1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0])
-            .is_err()
+        Motion::from_slice(&rec(&[
+            1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0, 1.0, 1.0, 1.0, -1.0, 1.0
+        ]))
+        .is_err()
     );
-    let m = Motion::from_slice(&[
+    let m = Motion::from_slice(&rec(&[
         f64::INFINITY,
         1.0,
         1.0,
@@ -186,7 +359,7 @@ fn bad_motion_records_are_errors() {
         1.0,
         -1.0,
         1.0,
-    ])
+    ]))
     .unwrap();
     assert_eq!(m.rule, Rule::Pedestrians { personal: 0.5 });
 }
@@ -204,6 +377,8 @@ fn heading_spread_is_along_and_across_the_field() {
             tau_across: 1.0,
         },
         rule: Rule::Free,
+        profile: Profile::FLAT,
+        tau_heading: None,
     };
     let mut uniform =
         |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[5.0 * c, 5.0 * s]; q.len()]) };
@@ -244,8 +419,10 @@ fn heading_spread_is_along_and_across_the_field() {
         / 2000.0;
     assert!((var / 0.34 - 1.0).abs() < 0.15, "{var}");
     // the record: min_speed >= 0 selects the heading frame
-    let m =
-        Motion::from_slice(&[1.0, 0.8, 0.2, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.1, 0.5]).unwrap();
+    let m = Motion::from_slice(&rec(&[
+        1.0, 0.8, 0.2, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.1, 0.5,
+    ]))
+    .unwrap();
     assert_eq!(
         m.spread,
         Spread::Heading {
