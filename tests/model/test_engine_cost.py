@@ -98,3 +98,47 @@ def test_choice_is_saved_with_the_model(tmp_path):
     m.save(tmp_path / "m.npz")
     back = dpgp.DPGP.load(tmp_path / "m.npz")
     assert back.engine_choice_ == m.engine_choice_ and back.engine_choice_["engine"] == "exact"
+
+
+def _gp_draw(w: float, n: int = 300, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Velocities of a squared-exponential GP (length scale ``w``, unit variance, noise 0.01) at
+    ``n`` positions on a 100 x 100 square: a numpy draw, independent of the package."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0, 100, size=(n, 2))
+    d2 = ((xy[:, None, :] - xy[None, :, :]) ** 2).sum(-1)
+    k = np.exp(-0.5 * d2 / w**2) + 0.01 * np.eye(n)
+    v = np.linalg.cholesky(k) @ rng.standard_normal((n, 2))
+    return xy, v
+
+
+def test_the_probe_sees_length_scales_the_basis_cannot_hold():
+    """Data drawn with a length scale a fifth of the basis resolution: exact's best fit beats
+    hsgp's by far more than the tolerance and auto's accuracy step picks exact; drawn with twice the
+    resolution, the two agree and hsgp stays. Exact is kept out of reach when it does not fit."""
+    basis = dpgp.hsgp.basis_for(np.array([[0.0, 0.0], [100.0, 100.0]]), (10.0, 1.0))
+    res = min(2 * h / m for h, m in zip(basis.half_widths, basis.counts))
+    params = dpgp.GPParams(length_scales=(1.0, 1.0), signal_var=(1.0, 1.0), noise_var=(0.01, 0.01), mean=(0.0, 0.0))
+    fast = ec.Choice("hsgp", basis.size, "hsgp initialisation", 10.0, 0.1, True)
+    short = ec.resolution_gap(*_gp_draw(res / 5), params, basis)
+    long = ec.resolution_gap(*_gp_draw(2 * res), params, basis)
+    assert short > 2 * ec.PROBE_TOLERANCE and abs(long) < ec.PROBE_TOLERANCE / 5
+    assert ec.check_accuracy(fast, short).engine == "exact"
+    assert ec.check_accuracy(fast, long).engine == "hsgp"
+    assert ec.check_accuracy(fast, long).resolution_gap == long
+    unfit = ec.Choice("hsgp", basis.size, "hsgp initialisation", 10.0, 0.1, False)
+    assert ec.check_accuracy(unfit, short).engine == "hsgp"
+
+
+def test_auto_keeps_exact_where_hsgp_would_be_faster_but_inaccurate(monkeypatch):
+    """hsgp predicted far faster, but the scene's fields are finer than the basis it is given:
+    auto runs exact, bitwise the explicit exact fit, and records the probe's gap."""
+    frames = dpgp.datasets.synthetic("intersection", n_frames=40, seed=4)
+    monkeypatch.setattr(ec, "COEFFICIENTS", {"exact": (1.0, 0.0, 0.0), "hsgp": (1e-9, 0.0, 0.0, 0.0)})
+    kw = dict(iterations=2, noise_var=0.5, length_scale_prior=(10.0, 1.0), seed=3, progress=False, posterior_draws=2)
+    coarse = dict(kw, n_basis=(4, 4))  # a basis far too coarse for the intersection's turns
+    auto = dpgp.DPGP(**coarse).fit(frames)
+    assert auto.engine_choice_["resolution_gap"] > ec.PROBE_TOLERANCE
+    assert auto.likelihood_ == "exact"
+    _same_fit(auto, dpgp.DPGP(likelihood="exact", **kw).fit(frames))
+    fine = dpgp.DPGP(**kw).fit(frames)  # the basis the sizing rule gives resolves it: hsgp stays
+    assert fine.likelihood_ == "hsgp" and fine.engine_choice_["resolution_gap"] < ec.PROBE_TOLERANCE

@@ -528,12 +528,16 @@ class DPGP:
         """Step 2 of ``likelihood="auto"`` (:mod:`dpgp.engine_cost`), once hsgp has initialised:
         predict both engines' sweeps from its pattern sizes; if exact is faster, start the exact
         sampler afresh (its own initialisation: the chain is then ``likelihood="exact"``'s)."""
-        from .engine_cost import choose, pattern_points
+        from .engine_cost import check_accuracy, choose, pattern_points, probe_points, resolution_gap
 
         self._auto_pending = False
-        points = pattern_points(np.asarray(self._sampler.labels(), dtype=np.int64), frames.sizes)
+        labels = np.asarray(self._sampler.labels(), dtype=np.int64)
+        points = pattern_points(labels, frames.sizes)
         assert self.basis_ is not None  # hsgp ran the initialisation
         choice = choose(points[points > 0], frames.sizes, self.basis_.size, self.memory_budget_)
+        if choice.engine == "hsgp" and choice.exact_fits:  # faster: is it accurate on these data?
+            xy, v = probe_points(labels, frames)
+            choice = check_accuracy(choice, resolution_gap(xy, v, self.params_, self.basis_))
         self.engine_choice_ = choice.to_dict()
         if choice.engine == "exact":
             self.likelihood_, self.basis_ = "exact", None
