@@ -102,9 +102,10 @@ def test_choice_is_saved_with_the_model(tmp_path):
 
 def _gp_draw(w: float, n: int = 300, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Velocities of a squared-exponential GP (length scale ``w``, unit variance, noise 0.01) at
-    ``n`` positions on a 100 x 100 square: a numpy draw, independent of the package."""
+    ``n`` positions on a 40 x 40 square (dense enough for short length scales to show): a numpy
+    draw, independent of the package."""
     rng = np.random.default_rng(seed)
-    xy = rng.uniform(0, 100, size=(n, 2))
+    xy = rng.uniform(0, 40, size=(n, 2))
     d2 = ((xy[:, None, :] - xy[None, :, :]) ** 2).sum(-1)
     k = np.exp(-0.5 * d2 / w**2) + 0.01 * np.eye(n)
     v = np.linalg.cholesky(k) @ rng.standard_normal((n, 2))

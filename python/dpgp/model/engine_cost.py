@@ -155,11 +155,11 @@ def choose(pattern_points: object, frame_sizes: object, basis_size: int, memory_
 #: Points of the accuracy probe: enough for the data's length scales to show, few enough that
 #: its exact marginal likelihoods (24 of them) cost a few seconds at most.
 PROBE_POINTS = 800
-#: Nats per point by which exact's best probe fit may beat hsgp's. On the shared data the gap is
-#: below 0.025 where hsgp's held-out density is within 0.07 nats of exact's (US-101, ETH, Zara 1,
-#: Lankershim, synthetic scenes) and 0.33 to 0.54 where it is 0.22 to 1.2 nats worse (Peachtree,
-#: the SUMO grid junction): docs/engines-and-scores.md.
-PROBE_TOLERANCE = 0.05
+#: Nats per point by which exact's best probe fit may beat hsgp's. On the shared data and the
+#: synthetic scenes the gap is at most 0.06 where hsgp's held-out density is within 0.13 nats of
+#: exact's, and 0.33 to 0.54 where it is 0.22 to 1.2 nats worse (Peachtree, the SUMO grid
+#: junction); the tolerance sits between them on a log scale (docs/engines-and-scores.md).
+PROBE_TOLERANCE = 0.15
 #: Noise of the probe's grid, as shares of each component's signal variance.
 PROBE_NOISE = (0.03, 0.1, 0.3)
 
