@@ -71,7 +71,9 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=1, help="fit each data set with seeds 0..SEEDS-1 and summarise")
     ap.add_argument("--no-rollouts", action="store_true", help="skip the rollouts (log densities only)")
     ap.add_argument("--jsonl", help="append each fit's row to this file")
-    ap.add_argument("--noise", default="auto", help="noise_var of the fits: 'auto' (the global pair sampled) or 'per_pattern'")
+    ap.add_argument(
+        "--noise", default="auto", help="noise_var of the fits: 'auto' (the global pair sampled) or 'per_pattern'"
+    )
     ap.add_argument("--seed-list", help="comma-separated seeds to fit (instead of 0..SEEDS-1)")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seed_list.split(",")] if args.seed_list else list(range(args.seeds))

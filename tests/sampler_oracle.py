@@ -299,7 +299,7 @@ def partition_posterior_noise_per_pattern(
     for mask in range(1, 1 << n):
         xy, v = _rows(frames, [j for j in range(n) if mask >> j & 1])
 
-        def lml(noise):
+        def lml(noise, xy=xy, v=v):
             return gp_oracle.log_marginal_likelihood(xy, v, dataclasses.replace(p, noise_var=noise))
 
         lx = np.array([lml((float(np.exp(a)), ref[1])) for a in axes[0]])

@@ -46,7 +46,9 @@ def test_per_pattern_noise_chain_matches_the_posterior_with_each_patterns_noise_
     tv = so.total_variation(got, np.exp(logp))
     tv_global = so.total_variation(got, np.exp(global_logp))
     gap = so.total_variation(np.exp(logp), np.exp(global_logp))
-    print(f"{likelihood}/{proposal}, per-pattern noise: TV {tv:.4f} (chain to the global-noise posterior {tv_global:.4f}; posteriors {gap:.4f} apart)")
+    print(
+        f"{likelihood}/{proposal}, per-pattern noise: TV {tv:.4f} (chain to the global-noise posterior {tv_global:.4f}; posteriors {gap:.4f} apart)"
+    )
     assert tv <= 0.03
     # Power: a sampler that ignored the per-pattern noise (global pair) would be this far off.
     assert gap > 0.03 and tv_global > 0.03

@@ -113,7 +113,10 @@ class Draws:
             # NaN: a draw without its own noise (read from a file before the noise was sampled);
             # per-pattern noise: the first pattern's pair here, every pattern's in draw_pattern_noise_var
             "draw_noise_var": np.array(
-                [(np.nan, np.nan) if v is None else np.asarray(v, dtype=np.float64).reshape(-1, 2)[0] for v in self.noise_var],
+                [
+                    (np.nan, np.nan) if v is None else np.asarray(v, dtype=np.float64).reshape(-1, 2)[0]
+                    for v in self.noise_var
+                ],
                 dtype=np.float64,
             ).reshape(d, 2),
             **self._pattern_noise_arrays(),
@@ -152,7 +155,7 @@ class Draws:
         for lab, k in zip(labels, counts):
             if n_frames and (lab.min() < 0 or lab.max() >= k or len(np.unique(lab)) != k):
                 raise ValueError("a posterior draw's labels do not name exactly its patterns")
-        noise: list[tuple[float, float] | None] = [None] * d  # files before the noise was sampled
+        noise: list[Any] = [None] * d  # files before the noise was sampled
         if "draw_noise_var" in arrays:
             nv = arrays["draw_noise_var"]
             if nv.shape != (d, 2) or nv.dtype.kind != "f":

@@ -493,7 +493,12 @@ class DPGP:
         if self.checkpoint is None:
             return np.asarray(self._sampler.labels())
         self._resume_point = ckpt.ResumePoint(
-            self.n_iter_, self.labels_, self.length_scales_, self.alpha_, stable, self._data_sha256,
+            self.n_iter_,
+            self.labels_,
+            self.length_scales_,
+            self.alpha_,
+            stable,
+            self._data_sha256,
             self.pattern_noise_var_.copy() if self._per_pattern_noise() else None,
         )
         self._write_checkpoint(traces)
@@ -661,7 +666,12 @@ class DPGP:
         draws: Any = getattr(self, "draws_", None)  # used() gives no index without draws
         own = (float(self.noise_var_[0]), float(self.noise_var_[1]))  # for draws from files without their noise
         states = [
-            (draws.labels[i], draws.length_scales[i], draws.alpha[i], own if draws.noise_var[i] is None else draws.noise_var[i])
+            (
+                draws.labels[i],
+                draws.length_scales[i],
+                draws.alpha[i],
+                own if draws.noise_var[i] is None else draws.noise_var[i],
+            )
             for i in used(draws, self.n_iter_)
         ]
         return averaged(terms, self.labels_, states, lambda: self._new_sampler(self.frames_), frames)
