@@ -97,6 +97,7 @@ fn bench(c: &mut Criterion) {
         memory_budget: None,
         split_merge: Default::default(),
         noise_prior: None,
+        noise_scope: Default::default(),
         dynamics: None,
     };
     let mut sampler = Sampler::new(data, settings).unwrap();

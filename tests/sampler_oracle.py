@@ -269,3 +269,47 @@ def partition_posterior_noise_summed(
             sx, sy, rest = sx + lx, sy + ly, rest - lr + np.log(alpha) + lgamma(len(members))
         logw[t] = logsumexp(sx) + logsumexp(sy) + rest
     return parts, logw - logsumexp(logw)
+
+
+def partition_posterior_noise_per_pattern(
+    frames, p: Params, alpha: float, prior: tuple[float, float], grid: int = 81, span: float = 5.0
+):
+    """``(partitions, log_probs)``: the posterior over partitions when each pattern has its own
+    noise pair under the prior, integrated out per pattern,
+
+        p(z | V) ∝ α^K Π_k Γ(n_k) ∫∫ p(D_k | w, σ_x², σ_y²) p(σ_x²) p(σ_y²) dσ_x² dσ_y²,
+
+    each output on a 1-D grid of ``grid`` points over the prior's mean ± ``span`` sds of log σ_n²
+    (trapezoid weights), by the same split into two lines through a reference point as
+    :func:`partition_posterior_noise_summed` (the outputs are independent GPs given the partition)."""
+    import dataclasses
+
+    n = len(frames)
+    parts = set_partitions(n)
+    axes = []
+    for d in range(2):
+        centre = np.log(p.signal_var[d]) + prior[0]
+        axes.append(np.linspace(centre - span * prior[1], centre + span * prior[1], grid))
+    ref = (float(np.exp(axes[0][grid // 2])), float(np.exp(axes[1][grid // 2])))
+    h = [ax[1] - ax[0] for ax in axes]
+    trap = [np.log(np.r_[0.5, np.ones(grid - 2), 0.5] * hd) for hd in h]
+    prior_x, prior_y = (log_noise_prior(axes[d], p.signal_var[d], prior) for d in range(2))
+    # per subset (bitmask): log ∫∫ prior × p(D | σ²)
+    own: dict[int, float] = {}
+    for mask in range(1, 1 << n):
+        xy, v = _rows(frames, [j for j in range(n) if mask >> j & 1])
+
+        def lml(noise, xy=xy, v=v):
+            return gp_oracle.log_marginal_likelihood(xy, v, dataclasses.replace(p, noise_var=noise))
+
+        lx = np.array([lml((float(np.exp(a)), ref[1])) for a in axes[0]])
+        ly = np.array([lml((ref[0], float(np.exp(b)))) for b in axes[1]])
+        own[mask] = logsumexp(prior_x + trap[0] + lx) + logsumexp(prior_y + trap[1] + ly) - lml(ref)
+    logw = np.empty(len(parts))
+    for t, z in enumerate(parts):
+        total = 0.0
+        for k in np.unique(z):
+            members = np.flatnonzero(z == k)
+            total += own[int(sum(1 << int(j) for j in members))] + np.log(alpha) + lgamma(len(members))
+        logw[t] = total
+    return parts, logw - logsumexp(logw)

@@ -63,6 +63,7 @@ class _State:
     # The likelihood and basis the first block chose (likelihood="auto"): every later block
     # must sample the same model.
     engine: dict[str, Any] | None = None
+    pattern_noise_var: np.ndarray | None = None  # (K, 2) under per-pattern noise
 
 
 @dataclass
@@ -92,7 +93,10 @@ def _state_of(model: Any) -> _State:
     defaults = getattr(model, "defaults_", None)
     resolved = None if defaults is None else defaults.to_dict()
     engine = model.engine_info()
-    return _State(model.labels_.copy(), model.length_scales_.copy(), float(model.alpha_), params, resolved, engine)
+    noise = model.pattern_noise_var_.copy() if model._per_pattern_noise() else None
+    return _State(
+        model.labels_.copy(), model.length_scales_.copy(), float(model.alpha_), params, resolved, engine, noise
+    )
 
 
 def _model_at(frames: Frames, settings: dict[str, Any], state: _State, extra_meta: dict[str, Any] | None = None) -> Any:
@@ -121,6 +125,8 @@ def _model_at(frames: Frames, settings: dict[str, Any], state: _State, extra_met
     }
     if frames.labels is not None:
         arrays["frame_labels"] = frames.labels
+    if state.pattern_noise_var is not None:
+        arrays["pattern_noise_var"] = np.asarray(state.pattern_noise_var, dtype=np.float64).reshape(-1, 2)
     return DPGP.from_model_file(io.parse(meta, arrays))
 
 
@@ -160,7 +166,7 @@ def _explicit(settings: dict[str, Any], resolved: dict[str, Any] | None) -> dict
         return settings
     # A noise sampled inside the chain stays "auto": each chain samples it (resolving it costs nothing).
     keys = ("assignment", "length_scale_prior") + (
-        () if resolved.get("noise_var_source") == "sampled" else ("noise_var",)
+        () if resolved.get("noise_var_source") in ("sampled", "per_pattern") else ("noise_var",)
     )
     out = {**settings, **{k: resolved[k] for k in keys}}
     out["length_scale_prior"] = tuple(out["length_scale_prior"])
@@ -764,7 +770,10 @@ class Chains:
         ls = _matching_length_scales(est.labels, self._states)
         alpha = float(np.median(self.draws("alpha")))
         first = self._states[0]
-        state = _State(est.labels.astype(np.int64), ls, alpha, first.params, None, first.engine)
+        noise = None
+        if all(s.pattern_noise_var is not None for s in self._states):  # per-pattern noise: the same match
+            noise = _matching_length_scales(est.labels, self._states, "pattern_noise_var")
+        state = _State(est.labels.astype(np.int64), ls, alpha, first.params, None, first.engine, noise)
         model = self._model(state, history={}, n_iter=self.n_sweeps, converged=bool(self.converged_))
         model.chain_summary_ = self.summary_dict(loss)
         if keep_traces:
@@ -772,9 +781,10 @@ class Chains:
         return model
 
 
-def _matching_length_scales(labels: np.ndarray, states: list[_State]) -> np.ndarray:
-    """For each cluster of ``labels``, the length scales of the final-state pattern (any chain)
-    with the largest Jaccard overlap."""
+def _matching_length_scales(labels: np.ndarray, states: list[_State], attr: str = "length_scales") -> np.ndarray:
+    """For each cluster of ``labels``, the length scales (or another per-pattern pair ``attr``,
+    such as ``pattern_noise_var``) of the final-state pattern (any chain) with the largest Jaccard
+    overlap."""
     k = int(labels.max()) + 1
     best = np.full(k, -1.0)
     out = np.zeros((k, 2))
@@ -787,7 +797,7 @@ def _matching_length_scales(labels: np.ndarray, states: list[_State]) -> np.ndar
         j = jac.argmax(axis=1)
         better = jac[np.arange(k), j] > best
         best[better] = jac[np.arange(k), j][better]
-        out[better] = np.asarray(s.length_scales)[j[better]]
+        out[better] = np.asarray(getattr(s, attr))[j[better]]
     return out
 
 

@@ -24,6 +24,11 @@ slice-sampled on the log scale each sweep under the weakly informative prior
 velocity variance σ_η², so the chain is the same in any units. The chain starts at the prior's
 median, ``0.1 σ_η²``. The resolved value (``noise_var_``) is then the chain's last draw.
 
+**Noise variance** ``"per_pattern"``: each pattern samples its own pair under the same prior
+(``noise_var_source`` ``"per_pattern"``); a new pattern draws its pair from the prior.
+``pattern_noise_var_`` holds each pattern's; ``noise_var_`` (and ``history_``'s ``noise_var_x``,
+``noise_var_y``) the frame-weighted median of the patterns' pairs, per component.
+
 **Noise variance** ``"pilot"`` (the earlier default, kept to reproduce its figures): a noise variance per velocity component, σ_n,η² = ρ_η σ_η², a
 fraction of the component's signal variance, chosen by held-out score before sampling, the
 criterion the model is judged by (:mod:`dpgp.evaluate`). :data:`PILOT_FRAMES` frames spread
@@ -133,16 +138,18 @@ def resolve(
     else:
         prior, prior_source = _gamma("length_scale_prior", length_scale_prior), "user"
     if isinstance(noise_var, str):
-        if noise_var not in ("auto", "pilot"):
+        if noise_var not in ("auto", "per_pattern", "pilot"):
             raise InvalidInputError(
-                f"noise_var must be 'auto' (sampled), 'pilot', a positive number or a pair of them, got {noise_var!r}"
+                f"noise_var must be 'auto' (sampled), 'per_pattern' (sampled per pattern), 'pilot', a positive "
+                f"number or a pair of them, got {noise_var!r}"
             )
         if paper and noise_var == "auto":
             sn2, noise_source = PAPER["noise_var"], "paper"
-        elif noise_var == "auto":
+        elif noise_var in ("auto", "per_pattern"):
             sv, _ = _moments(frames, signal_var, mean)
             start = float(np.exp(NOISE_PRIOR[0]))
-            sn2, noise_source = (start * sv[0], start * sv[1]), "sampled"
+            sn2 = (start * sv[0], start * sv[1])
+            noise_source = "sampled" if noise_var == "auto" else "per_pattern"
         else:
             if pilot is None:
                 raise InvalidInputError("noise_var='pilot' needs a pilot fit (DPGP.fit provides one); pass a number")

@@ -62,14 +62,15 @@ class Draws:
     labels: list[np.ndarray] = field(default_factory=list)
     length_scales: list[np.ndarray] = field(default_factory=list)
     alpha: list[float] = field(default_factory=list)
-    noise_var: list[tuple[float, float] | None] = field(default_factory=list)
+    noise_var: list[Any] = field(default_factory=list)  # a pair, a (K_d, 2) array per pattern, or None
 
     def __len__(self) -> int:
         return len(self.sweeps)
 
     @property
     def nbytes(self) -> int:
-        return sum(a.nbytes for a in self.labels) + sum(a.nbytes for a in self.length_scales) + 16 * len(self)
+        per = sum(v.nbytes for v in self.noise_var if isinstance(v, np.ndarray))
+        return sum(a.nbytes for a in self.labels) + sum(a.nbytes for a in self.length_scales) + 16 * len(self) + per
 
     def record(self, sweep: int, state: Callable[[], State], max_draws: int) -> None:
         """After sweep ``sweep``: drop what the thinning no longer keeps, then keep this state
@@ -84,7 +85,7 @@ class Draws:
             self.labels.append(np.asarray(labels, dtype=np.int32).copy())
             self.length_scales.append(np.asarray(length_scales, dtype=np.float64).reshape(-1, 2).copy())
             self.alpha.append(float(alpha))
-            self.noise_var.append(None if noise is None else (float(noise[0]), float(noise[1])))
+            self.noise_var.append(_noise_entry(noise))
 
     def up_to(self, sweep: int) -> Draws:
         """The draws of sweeps ``<= sweep`` (a checkpoint's resume point)."""
@@ -109,11 +110,24 @@ class Draws:
             "draw_n_patterns": np.asarray([len(w) for w in self.length_scales], dtype=np.int64),
             "draw_length_scales": np.concatenate(self.length_scales) if d else np.zeros((0, 2)),
             "draw_alpha": np.asarray(self.alpha, dtype=np.float64),
-            # NaN: a draw without its own noise (read from a file before the noise was sampled)
+            # NaN: a draw without its own noise (read from a file before the noise was sampled);
+            # per-pattern noise: the first pattern's pair here, every pattern's in draw_pattern_noise_var
             "draw_noise_var": np.array(
-                [(np.nan, np.nan) if v is None else v for v in self.noise_var], dtype=np.float64
+                [
+                    (np.nan, np.nan) if v is None else np.asarray(v, dtype=np.float64).reshape(-1, 2)[0]
+                    for v in self.noise_var
+                ],
+                dtype=np.float64,
             ).reshape(d, 2),
+            **self._pattern_noise_arrays(),
         }
+
+    def _pattern_noise_arrays(self) -> dict[str, np.ndarray]:
+        """``draw_pattern_noise_var`` (ΣK, 2): each pattern's noise pair, draw by draw, when the
+        draws hold per-pattern noise (then every draw does)."""
+        if not self.noise_var or not all(isinstance(v, np.ndarray) for v in self.noise_var):
+            return {}
+        return {"draw_pattern_noise_var": np.concatenate(self.noise_var).reshape(-1, 2)}
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], n_frames: int, min_ls: float, max_ls: float) -> Draws | None:
@@ -141,7 +155,7 @@ class Draws:
         for lab, k in zip(labels, counts):
             if n_frames and (lab.min() < 0 or lab.max() >= k or len(np.unique(lab)) != k):
                 raise ValueError("a posterior draw's labels do not name exactly its patterns")
-        noise: list[tuple[float, float] | None] = [None] * d  # files before the noise was sampled
+        noise: list[Any] = [None] * d  # files before the noise was sampled
         if "draw_noise_var" in arrays:
             nv = arrays["draw_noise_var"]
             if nv.shape != (d, 2) or nv.dtype.kind != "f":
@@ -150,17 +164,31 @@ class Draws:
             if not (np.isfinite(nv[known]).all() and (nv[known] > 0).all() and (nv[known] <= max_ls).all()):
                 raise ValueError(f"the posterior draws' noise variances must be positive and at most {max_ls:g}")
             noise = [(float(a), float(b)) if k else None for (a, b), k in zip(nv, known)]
+        if "draw_pattern_noise_var" in arrays:
+            pn = arrays["draw_pattern_noise_var"]
+            if pn.shape != ls.shape or pn.dtype.kind != "f" or not (np.isfinite(pn).all() and (pn > 0).all()):
+                raise ValueError("the posterior draws' per-pattern noise must be positive, one pair per pattern")
+            noise = list(np.split(pn.astype(np.float64), np.cumsum(counts)[:-1])) if d else []
         return cls(n_frames, [int(s) for s in sweeps], [np.asarray(x, dtype=np.int32) for x in labels], list(parts),
                    [float(a) for a in alpha], noise)  # fmt: skip
 
 
-#: One kept state: labels, length scales (K, 2), α and the noise pair (None: the model's own).
-State = tuple[np.ndarray, np.ndarray, float, "tuple[float, float] | None"]
+#: One kept state: labels, length scales (K, 2), α and the noise: a pair, each pattern's pairs
+#: ((K, 2) array, per-pattern noise), or None (the model's own).
+State = tuple[np.ndarray, np.ndarray, float, Any]
 
 
-def state_of(sampler: Any) -> State:
+def _noise_entry(noise: Any) -> Any:
+    if noise is None:
+        return None
+    if isinstance(noise, np.ndarray) and noise.ndim == 2:
+        return np.asarray(noise, dtype=np.float64).copy()
+    return (float(noise[0]), float(noise[1]))
+
+
+def state_of(sampler: Any, per_pattern: bool = False) -> State:
     """A sampler's state as a draw: labels with patterns by decreasing size (ties by slot), their
-    length scales (K, 2), α and the noise pair."""
+    length scales (K, 2), α and the noise pair (``per_pattern``: each pattern's, (K, 2))."""
     patterns = sampler.patterns()  # (slot, id, n_frames, wx, wy)
     order = sorted(range(len(patterns)), key=lambda j: (-patterns[j][2], patterns[j][0]))
     slots = np.array([patterns[j][0] for j in order], dtype=np.int64)
@@ -168,6 +196,9 @@ def state_of(sampler: Any) -> State:
     lookup = np.zeros(int(slots.max()) + 1 if len(slots) else 1, dtype=np.int64)
     lookup[slots] = np.arange(len(slots))
     ls = np.array([[patterns[j][3], patterns[j][4]] for j in order], dtype=np.float64).reshape(-1, 2)
+    if per_pattern:
+        per_slot = np.asarray(sampler.pattern_noise(), dtype=np.float64).reshape(-1, 2)
+        return lookup[raw], ls, float(sampler.alpha()), per_slot[order]
     noise = tuple(float(x) for x in sampler.noise_var())
     return lookup[raw], ls, float(sampler.alpha()), (noise[0], noise[1])
 
@@ -184,9 +215,12 @@ def _draw_terms(sampler: Any, state: State, frames: Any) -> tuple[np.ndarray, np
     """For one state: (n_test, K+1) log [DP weight × likelihood] per pattern (state label order)
     and a new one, and the (K,) training-frame counts per pattern."""
     labels, ls, alpha, noise = state
-    if noise is not None:
-        sampler.set_noise_var(noise)
-    sampler.set_state(np.asarray(labels, dtype=np.int64), ls, alpha)
+    if isinstance(noise, np.ndarray) and noise.ndim == 2:  # each pattern's own pair
+        sampler.set_state(np.asarray(labels, dtype=np.int64), ls, alpha, noise)
+    else:
+        if noise is not None:
+            sampler.set_noise_var(noise)
+        sampler.set_state(np.asarray(labels, dtype=np.int64), ls, alpha)
     cur = state_of(sampler)[0]
     if not np.array_equal(cur, labels):  # set_state keeps label k in slot order k
         raise RuntimeError("the sampler did not take the draw's labels")

@@ -85,7 +85,9 @@ class FittedPatterns:
         ls = np.array([theirs[int(self.slot_order[k])][3:5] for k in present], dtype=np.float64).reshape(-1, 2)
         sampler = self.new_sampler(frames)
         sampler.set_noise_var(tuple(float(x) for x in self.sampler.noise_var()))
-        sampler.set_state(compact.astype(np.int64), ls, float(self.alpha))
+        own = np.asarray(self.sampler.pattern_noise(), dtype=np.float64).reshape(-1, 2)
+        noise = np.array([own[int(self.slot_order[k])] for k in present], dtype=np.float64).reshape(-1, 2)
+        sampler.set_state(compact.astype(np.int64), ls, float(self.alpha), noise)  # each pattern's own noise
         mine = sampler.patterns()  # set_state keeps label c in slot order c
         counts = np.bincount(compact, minlength=len(present)).astype(np.float64)
         sub = FittedPatterns(

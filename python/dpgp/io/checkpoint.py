@@ -43,7 +43,7 @@ from ..exceptions import InvalidInputError, ModelFileError
 
 #: The metadata key and array names a checkpoint adds to a model file.
 META_KEY = "resume"
-LABELS, LENGTH_SCALES = "resume_labels", "resume_length_scales"
+LABELS, LENGTH_SCALES, NOISE = "resume_labels", "resume_length_scales", "resume_pattern_noise_var"
 #: What ``history_`` records per sweep (a fit's and a checkpoint's).
 HISTORY_KEYS = (
     "n_patterns", "alpha", "log_joint", "moves", "ari", "seconds",
@@ -73,6 +73,7 @@ class ResumePoint:
     alpha: float
     stable: int  # sweeps the stopping rule has seen K and the ARI stable
     data_sha256: str
+    pattern_noise_var: np.ndarray | None = None  # (K, 2): each pattern's noise pair (per-pattern noise)
 
     def meta(self) -> dict[str, Any]:
         return {
@@ -86,6 +87,7 @@ class ResumePoint:
         return {
             LABELS: np.asarray(self.labels, dtype=np.int64),
             LENGTH_SCALES: np.asarray(self.length_scales, dtype=np.float64),
+            **({} if self.pattern_noise_var is None else {NOISE: np.asarray(self.pattern_noise_var, dtype=np.float64)}),
         }
 
 
@@ -170,7 +172,19 @@ def parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], frames: Any) -> R
             "the training data in the checkpoint do not match its fingerprint (data_sha256): the file was edited "
             "or damaged, and the chain cannot be resumed"
         )
-    return ResumePoint(int(done), labels, ls, float(alpha), int(stable), r["data_sha256"])  # type: ignore[arg-type]
+    noise = _noise_array(arrays, NOISE, len(ls))
+    return ResumePoint(int(done), labels, ls, float(alpha), int(stable), r["data_sha256"], noise)  # type: ignore[arg-type]
+
+
+def _noise_array(arrays: dict[str, np.ndarray], name: str, k: int) -> np.ndarray | None:
+    """The optional (K, 2) per-pattern noise member ``name``, checked (None if absent)."""
+    a = arrays.get(name)
+    if a is None:
+        return None
+    a = np.asarray(a)
+    if a.shape != (k, 2) or a.dtype.kind != "f" or not (np.isfinite(a).all() and (a > 0).all()):
+        raise ModelFileError(f"{name} must be one positive noise pair per pattern ({k}, 2), got shape {a.shape}")
+    return a.astype(np.float64)
 
 
 def _count(x: Any) -> TypeGuard[int]:
@@ -214,4 +228,7 @@ def at_resume_point(file: Any) -> Any:
         state["label_trace_"] = state["label_trace_"][:n]
     if state.get("draws_") is not None:  # what is kept is a function of the sweep count (dpgp.posterior)
         state["draws_"] = state["draws_"].up_to(n)
-    return replace(file, labels=p.labels, length_scales=p.length_scales, alpha=p.alpha, state=state)
+    return replace(
+        file, labels=p.labels, length_scales=p.length_scales, alpha=p.alpha, state=state,
+        pattern_noise_var=p.pattern_noise_var,
+    )  # fmt: skip

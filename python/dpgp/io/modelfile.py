@@ -17,6 +17,8 @@ name                dtype, shape            content
 ``labels``          int64 (N,)              fitted pattern of each frame (patterns by size)
 ``length_scales``   float64 (K, 2)          ``(w_x, w_y)`` per pattern
 ``pattern_ids``     uint64 (K,)             the sampler's stable pattern ids
+``pattern_noise_v…``  float64 (K, 2), opt.  ``pattern_noise_var``: each pattern's noise pair
+                                            (``noise_var="per_pattern"``; absent: the global pair)
 ``label_trace``     int64 (sweeps, N), opt.  labels per sweep (``store_labels=True``)
 ``draw_sweeps``     int64 (D,), optional    sweeps of the kept posterior draws (below)
 ``draw_labels``     int32 (D, N), optional  their labels (patterns by size within each draw)
@@ -125,6 +127,7 @@ class ModelState:
     draws: Any = None  # dpgp.gp.draws.Draws
     transitions: dict[str, Any] | None = None  # dpgp.evaluate.transitions.Transitions.to_dict (issue 20)
     sticky: dict[str, Any] | None = None  # dynamics="sticky": {"rho": ρ, "links": frames linked to their predecessor}
+    pattern_noise_var: np.ndarray | None = None  # (K, 2) under per-pattern noise
 
 
 def save(state: ModelState, path: str | os.PathLike, resume: Any = None, compress: bool = True) -> None:
@@ -178,6 +181,8 @@ def save(state: ModelState, path: str | os.PathLike, resume: Any = None, compres
         "length_scales": np.asarray(state.length_scales, dtype=np.float64),
         "pattern_ids": np.asarray(state.pattern_ids, dtype=np.uint64),
     }
+    if state.pattern_noise_var is not None:
+        arrays["pattern_noise_var"] = np.asarray(state.pattern_noise_var, dtype=np.float64).reshape(-1, 2)
     if frames.labels is not None:
         arrays["frame_labels"] = _ids_array(frames.labels)
     if frames.tracks is not None:  # what generation learns motion from (issue 15)
@@ -302,6 +307,7 @@ class ModelFile:
     motion: Any = None  # a dpgp.motion.MotionModel; None in files written before issue 15
     transitions: Any = None  # a dpgp.evaluate.transitions.Transitions; None before issue 20 or without times
     sticky: dict[str, Any] | None = None  # ρ and the linked frames under dynamics="sticky"
+    pattern_noise_var: np.ndarray | None = None  # (K, 2): each pattern's noise pair (per-pattern noise)
 
 
 def read_model_file(path: str | os.PathLike) -> ModelFile:
@@ -394,8 +400,14 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
         path, settings, frames, labels, ls, float(meta["alpha"]), params, _resolved(meta), likelihood, basis, state,
         None if d is None else EmpiricalDistributions.from_dict(d), parse_resume(meta, arrays, frames),
         None if meta.get("motion") is None else MotionModel.from_dict(meta["motion"]), transitions,
-        _sticky(meta.get("sticky"), len(frames)),
+        _sticky(meta.get("sticky"), len(frames)), _pattern_noise(arrays, len(ls)),
     )  # fmt: skip
+
+
+def _pattern_noise(arrays: dict[str, np.ndarray], k: int) -> np.ndarray | None:
+    from .checkpoint import _noise_array
+
+    return _noise_array(arrays, "pattern_noise_var", k)
 
 
 def _sticky(value: Any, n_frames: int) -> dict[str, Any] | None:

@@ -82,9 +82,12 @@ class DPGP:
     noise_var : observation noise variance σ_n² (velocity units squared), one number for both
         velocity components or a pair ``(x, y)``, fixed; ``"auto"`` (default): sampled inside
         the chain each sweep under a prior relative to each component's velocity variance
-        (docs/inference.md); ``"pilot"``: chosen before sampling by the held-out score of
-        short pilot fits (:mod:`dpgp.defaults`). The pair the fit ends at is ``noise_var_``,
-        each sweep's in ``history_["noise_var_x"]``, ``history_["noise_var_y"]``.
+        (docs/inference.md), one pair for all patterns; ``"per_pattern"``: each pattern samples
+        its own pair under the same prior (``pattern_noise_var_``, (K, 2)); ``"pilot"``: chosen
+        before sampling by the held-out score of short pilot fits (:mod:`dpgp.defaults`). The
+        pair the fit ends at is ``noise_var_`` (per pattern: the frame-weighted median of the
+        patterns' pairs, per component), each sweep's in ``history_["noise_var_x"]``,
+        ``history_["noise_var_y"]``.
     split_merge : split–merge moves (docs/inference.md) after each sweep's frame updates; 0
         turns them off; ``"auto"`` (default): :data:`dpgp.defaults.SPLIT_MERGE_MOVES`. Their
         proposals and acceptances per sweep are in ``history_`` (``split_proposed``, ...).
@@ -411,7 +414,7 @@ class DPGP:
                 labels = np.asarray(self._sampler.labels())
                 ari = adjusted_rand_index(previous, labels)
                 extra: tuple[float, ...] = tuple(b - a for a, b in zip(counts, self._sampler.split_merge_counts()))
-                extra += self._sampler.noise_var()
+                extra += _noise_summary(self._sampler, self._per_pattern_noise())
                 for key, val in zip(ckpt.HISTORY_KEYS, (k, alpha, log_joint, moves, ari, seconds, *extra)):
                     self.history_[key].append(val)
                 rho = self._sampler.stickiness()
@@ -452,7 +455,7 @@ class DPGP:
         self._sync()
         # Refactor every pattern in canonical order (patterns by size, frames by index), which is
         # also what loading a saved model does: both then compute with identical factors.
-        self._sampler.set_state(self.labels_, self.length_scales_, self.alpha_)
+        self._set_state(self.labels_, self.length_scales_, self.alpha_, self.pattern_noise_var_)
         self._sync()
         if self.checkpoint is not None and not interrupted and self._resume_point.sweeps_done != self.n_iter_:
             self._write_checkpoint(traces)  # the finished model, with the last resume point
@@ -462,7 +465,19 @@ class DPGP:
         from ..gp.draws import state_of
 
         draws = self.__dict__.setdefault("draws_", Draws(len(self.frames_)))
-        draws.record(self.n_iter_, lambda: state_of(self._sampler), int(self.posterior_draws))
+        per = self._per_pattern_noise()
+        draws.record(self.n_iter_, lambda: state_of(self._sampler, per), int(self.posterior_draws))
+
+    def _per_pattern_noise(self) -> bool:
+        """Whether each pattern samples its own noise pair (``noise_var="per_pattern"``)."""
+        return getattr(getattr(self, "defaults_", None), "noise_var_source", None) == "per_pattern"
+
+    def _set_state(self, labels: Any, length_scales: Any, alpha: float, noise: Any = None) -> None:
+        """``set_state`` of the sampler; per-pattern noise: with each pattern's pair ``noise``."""
+        if self._per_pattern_noise() and noise is not None:
+            self._sampler.set_state(labels, length_scales, alpha, np.asarray(noise, dtype=np.float64).reshape(-1, 2))
+        else:
+            self._sampler.set_state(labels, length_scales, alpha)
 
     def _save_checkpoint(self, stable: int, traces: list[np.ndarray]) -> np.ndarray:
         """Rebuild the sampler from its own state in canonical order, as a resumed chain does
@@ -471,14 +486,20 @@ class DPGP:
         checkpoints never changes the result. Returns the sampler's labels after the rebuild."""
         t = time.perf_counter()
         self._sync()
-        self._sampler.set_state(self.labels_, self.length_scales_, self.alpha_)
+        self._set_state(self.labels_, self.length_scales_, self.alpha_, self.pattern_noise_var_)
         self._sync()
         reset = time.perf_counter()
         self.checkpoint_seconds_["reset"].append(reset - t)
         if self.checkpoint is None:
             return np.asarray(self._sampler.labels())
         self._resume_point = ckpt.ResumePoint(
-            self.n_iter_, self.labels_, self.length_scales_, self.alpha_, stable, self._data_sha256
+            self.n_iter_,
+            self.labels_,
+            self.length_scales_,
+            self.alpha_,
+            stable,
+            self._data_sha256,
+            self.pattern_noise_var_.copy() if self._per_pattern_noise() else None,
         )
         self._write_checkpoint(traces)
         self.checkpoint_seconds_["write"].append(time.perf_counter() - reset)
@@ -557,7 +578,10 @@ class DPGP:
             "params": self.params_.as_tuple(),
             "length_scale_prior": (a, b),
             "memory_budget": self.memory_budget_,
-            "noise_prior": NOISE_PRIOR if getattr(self.defaults_, "noise_var_source", None) == "sampled" else None,
+            "noise_prior": NOISE_PRIOR
+            if getattr(self.defaults_, "noise_var_source", None) in ("sampled", "per_pattern")
+            else None,
+            "noise_scope": "per_pattern" if self._per_pattern_noise() else "global",
             "dynamics": _sticky_prior(frames) if self.dynamics == "sticky" else None,
         }
         return _core.Sampler(frames.xy, frames.v, frames.offsets, settings)
@@ -576,11 +600,18 @@ class DPGP:
         self.length_scales_ = np.array([[patterns[j][3], patterns[j][4]] for j in order]).reshape(-1, 2)
         self.pattern_ids_ = np.array([patterns[j][1] for j in order], dtype=np.uint64)
         self.alpha_ = float(self._sampler.alpha())
-        nx, ny = self._sampler.noise_var()
-        noise = (float(nx), float(ny))
-        if noise != tuple(self.params_.noise_var):  # sampled inside the chain
-            self.params_ = dataclasses.replace(self.params_, noise_var=noise)
-        self.noise_var_ = noise
+        per_slot = np.asarray(self._sampler.pattern_noise(), dtype=np.float64).reshape(-1, 2)
+        self.pattern_noise_var_ = per_slot[order]  # each pattern's pair (the chain's pair unless per pattern)
+        if self._per_pattern_noise():
+            # params_ keeps the pair the chain started at (the sampler's base: a resumed or loaded
+            # chain is rebuilt with it); noise_var_ summarises the patterns' own pairs.
+            self.noise_var_ = _weighted_median_pair(self.pattern_noise_var_, counts)
+        else:
+            nx, ny = self._sampler.noise_var()
+            noise = (float(nx), float(ny))
+            if noise != tuple(self.params_.noise_var):  # sampled inside the chain
+                self.params_ = dataclasses.replace(self.params_, noise_var=noise)
+            self.noise_var_ = noise
         self.log_joint_ = float(self._sampler.log_joint())
         rho = self._sampler.stickiness()
         self.stickiness_ = None if rho is None else float(rho)
@@ -639,7 +670,12 @@ class DPGP:
         draws: Any = getattr(self, "draws_", None)  # used() gives no index without draws
         own = (float(self.noise_var_[0]), float(self.noise_var_[1]))  # for draws from files without their noise
         states = [
-            (draws.labels[i], draws.length_scales[i], draws.alpha[i], draws.noise_var[i] or own)
+            (
+                draws.labels[i],
+                draws.length_scales[i],
+                draws.alpha[i],
+                own if draws.noise_var[i] is None else draws.noise_var[i],
+            )
             for i in used(draws, self.n_iter_)
         ]
         return averaged(terms, self.labels_, states, lambda: self._new_sampler(self.frames_), frames)
@@ -788,6 +824,7 @@ class DPGP:
         return ModelState(
             settings=self.get_params(), params=self.params_, alpha=self.alpha_, n_patterns=self.n_patterns_,
             frames=self.frames_, labels=self.labels_, length_scales=self.length_scales_,
+            pattern_noise_var=self.pattern_noise_var_ if self._per_pattern_noise() else None,
             pattern_ids=self.pattern_ids_, distributions=distributions(self).to_dict(),
             motion=motion_model(self._fitted()).to_dict(), resolved=self._resolved_dict(),
             engine=self.engine_info(), history=getattr(self, "history_", {}), n_iter=getattr(self, "n_iter_", None),
@@ -912,7 +949,7 @@ class DPGP:
         model.memory_budget_ = budget if budget is not None else default_memory_budget(model.n_threads)
         model._sampler = model._new_sampler(file.frames)
         model.frames_ = file.frames
-        model._sampler.set_state(file.labels, file.length_scales, file.alpha)
+        model._set_state(file.labels, file.length_scales, file.alpha, file.pattern_noise_var)
         if file.sticky is not None and model.dynamics == "sticky":
             links = np.zeros(len(file.frames), dtype=bool)
             links[np.asarray(file.sticky["links"], dtype=np.int64)] = True
@@ -1014,6 +1051,28 @@ def _split_merge_moves(value: Any) -> Any:
 
 def _is_auto(value: Any) -> bool:
     return isinstance(value, str) and value == "auto"
+
+
+def _weighted_median_pair(noise: np.ndarray, counts: np.ndarray) -> tuple[float, float]:
+    """Per component, the median of the patterns' noise variances weighted by their frames (the
+    lower weighted median: the least value with at least half the frames at or below it)."""
+    out = []
+    for d in range(2):
+        order = np.argsort(noise[:, d], kind="stable")
+        cum = np.cumsum(counts[order])
+        j = int(np.searchsorted(cum, 0.5 * cum[-1])) if len(cum) else 0
+        out.append(float(noise[order[j], d]) if len(cum) else float("nan"))
+    return out[0], out[1]
+
+
+def _noise_summary(sampler: Any, per_pattern: bool) -> tuple[float, float]:
+    """The noise pair a sweep records in ``history_``: the chain's, or per pattern the
+    frame-weighted median of the patterns' pairs."""
+    if not per_pattern:
+        nx, ny = sampler.noise_var()
+        return float(nx), float(ny)
+    counts = np.array([p[2] for p in sampler.patterns()], dtype=np.float64)
+    return _weighted_median_pair(np.asarray(sampler.pattern_noise(), dtype=np.float64).reshape(-1, 2), counts)
 
 
 def _check_noise(noise_var: Any, signal_var: Any) -> None:

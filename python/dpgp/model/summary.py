@@ -21,14 +21,19 @@ def summary(model: Any, top: int = 10) -> str:
         "ROI: x [{:g}, {:g}], y [{:g}, {:g}]; dt {:g} s".format(*default_roi(model), default_dt(model)),
         f"patterns: {model.n_patterns_}; α = {model.alpha_:.4g}; log joint = {model.log_joint_:.6g}",
         f"sweeps: {model.n_iter_}" + (" (stopped early: converged)" if model.converged_ else ""),
-        f"largest {top} patterns (frames, weight, length scales w_x, w_y):",
+        f"largest {top} patterns (frames, weight, length scales w_x, w_y"
+        + (", noise variance x, y):" if _per_pattern(model) else "):"),
     ]
     if getattr(model, "chain_summary_", None):
         lines[-1:-1] = _chain_lines(model.chain_summary_)
     counts = np.bincount(model.labels_, minlength=model.n_patterns_)
     for k in range(top):
         wx, wy = model.length_scales_[k]
-        lines.append(f"  {k:>4}: {counts[k]:>6} frames  {w[k]:.3f}  ({wx:.3g}, {wy:.3g})")
+        row = f"  {k:>4}: {counts[k]:>6} frames  {w[k]:.3f}  ({wx:.3g}, {wy:.3g})"
+        if _per_pattern(model):
+            nx, ny = model.pattern_noise_var_[k]
+            row += f"  ({nx:.3g}, {ny:.3g})"
+        lines.append(row)
     if model.n_patterns_ > top:
         lines.append(f"  ... and {model.n_patterns_ - top} more")
     p = model.params_
@@ -38,7 +43,13 @@ def summary(model: Any, top: int = 10) -> str:
     )
     r = model.defaults_
     a, b = r.length_scale_prior
-    if r.noise_var_source == "sampled":  # r.noise_var is where the chain started; show its last draw
+    if r.noise_var_source == "per_pattern":
+        n = model.noise_var_
+        noise = (
+            f"noise variance per pattern (frame-weighted median ({n[0]:.4g}, {n[1]:.4g}); sampled in the chain, "
+            f"each from ({r.noise_var[0]:.4g}, {r.noise_var[1]:.4g}))"
+        )
+    elif r.noise_var_source == "sampled":  # r.noise_var is where the chain started; show its last draw
         n = model.noise_var_
         noise = f"noise variance ({n[0]:.4g}, {n[1]:.4g}) (sampled in the chain, from ({r.noise_var[0]:.4g}, {r.noise_var[1]:.4g}))"
     else:
@@ -50,6 +61,10 @@ def summary(model: Any, top: int = 10) -> str:
     settings = {k: v for k, v in model.get_params().items() if k not in ("progress",)}
     lines.append("settings: " + ", ".join(f"{k}={v!r}" for k, v in settings.items()))
     return "\n".join(lines)
+
+
+def _per_pattern(model: Any) -> bool:
+    return getattr(getattr(model, "defaults_", None), "noise_var_source", None) == "per_pattern"
 
 
 def _chain_lines(summary: dict[str, Any]) -> list[str]:

@@ -34,7 +34,7 @@ mod noise;
 mod split_merge;
 #[path = "sticky.rs"]
 mod sticky;
-pub use noise::NoisePrior;
+pub use noise::{NoisePrior, NoiseScope};
 pub use split_merge::{PairChoice, SplitMerge, SplitMergeStats};
 pub use sticky::StickyPrior;
 
@@ -157,6 +157,8 @@ pub struct Settings {
     /// Sample the noise pair each sweep under this prior (noise.rs); `None` keeps
     /// `base.noise_var` fixed.
     pub noise_prior: Option<NoisePrior>,
+    /// One noise pair for all patterns, or each pattern's own (needs `noise_prior`; noise.rs).
+    pub noise_scope: NoiseScope,
     /// The sticky prior on consecutive frames' labels (sticky.rs); `None`: the independent DP.
     pub dynamics: Option<StickyPrior>,
 }
@@ -198,6 +200,7 @@ impl Default for Settings {
             memory_budget: None,
             split_merge: SplitMerge::default(),
             noise_prior: None,
+            noise_scope: NoiseScope::Global,
             dynamics: None,
         }
     }
@@ -259,6 +262,12 @@ impl Settings {
         }
         if let Some(p) = &self.noise_prior {
             p.validate()?;
+        }
+        if self.noise_scope == NoiseScope::PerPattern && self.noise_prior.is_none() {
+            return Err(Error::InvalidInput(
+                "a per-pattern noise is sampled: it needs a noise prior (noise_var=\"per_pattern\" sets one)"
+                    .into(),
+            ));
         }
         if let Some(d) = &self.dynamics {
             d.validate()?;
@@ -376,6 +385,8 @@ pub struct PatternInfo {
     pub id: u64,
     pub n_frames: usize,
     pub length_scales: LengthScales,
+    /// Its noise pair (the chain's pair unless the noise is per pattern).
+    pub noise_var: [f64; 2],
 }
 
 /// The sampler's state and caches.
@@ -530,6 +541,7 @@ impl Sampler {
                 id: (u64::from(s.generation) << 32) | k as u64,
                 n_frames: s.pattern.n_frames(),
                 length_scales: s.pattern.length_scales(),
+                noise_var: s.pattern.params().noise_var,
             })
             .collect()
     }
@@ -575,6 +587,14 @@ impl Sampler {
 
     fn pattern_params(&self, ls: LengthScales) -> GpParams {
         self.settings.base.with_length_scales(ls)
+    }
+
+    /// A new pattern's parameters: `base` with length scales `ls` and noise pair `noise`.
+    fn new_params(&self, ls: LengthScales, noise: [f64; 2]) -> GpParams {
+        GpParams {
+            noise_var: noise,
+            ..self.pattern_params(ls)
+        }
     }
 
     /// Sequential initialisation: frames join one at a time by the same conditional, seeing only
@@ -683,6 +703,32 @@ impl Sampler {
         length_scales: &[LengthScales],
         alpha: f64,
     ) -> Result<()> {
+        self.set_state_with_noise(labels, length_scales, None, alpha)
+    }
+
+    /// [`Sampler::set_state`] with each group's noise pair (per-pattern noise; `None`: the
+    /// chain's pair for every group).
+    pub fn set_state_with_noise(
+        &mut self,
+        labels: &[usize],
+        length_scales: &[LengthScales],
+        noise_var: Option<&[[f64; 2]]>,
+        alpha: f64,
+    ) -> Result<()> {
+        if let Some(nv) = noise_var {
+            if nv.len() != length_scales.len() {
+                return Err(Error::Shape(format!(
+                    "{} noise pairs for {} groups",
+                    nv.len(),
+                    length_scales.len()
+                )));
+            }
+            if !nv.as_flattened().iter().all(|v| v.is_finite() && *v > 0.0) {
+                return Err(Error::InvalidInput(
+                    "every pattern's noise_var must be two positive variances".into(),
+                ));
+            }
+        }
         if labels.len() != self.data.len() {
             return Err(Error::Shape(format!(
                 "{} labels for {} frames",
@@ -730,10 +776,11 @@ impl Sampler {
             .map(|&g| {
                 let frames: Vec<(usize, FrameRef)> =
                     members[g].iter().map(|&i| (i, data.frame(i))).collect();
-                let pattern = self
-                    .settings
-                    .likelihood
-                    .pattern(self.pattern_params(length_scales[g]), &frames)?;
+                let mut params = self.pattern_params(length_scales[g]);
+                if let Some(nv) = noise_var {
+                    params.noise_var = nv[g];
+                }
+                let pattern = self.settings.likelihood.pattern(params, &frames)?;
                 if self.settings.pattern_moments
                     && let Some(p) = pattern.with_own_moments(floor)?
                 {
@@ -898,19 +945,20 @@ impl Sampler {
         Ok(live.iter().map(|&(k, _)| (k, self.cache[i][k].1)).collect())
     }
 
-    /// Algorithm 8's auxiliary patterns for frame `f`: `(length scales, log weight)` each,
+    /// Algorithm 8's auxiliary patterns for frame `f`: `(parameters, log weight)` each,
     /// weights `log(α/m) + log N(V_f ; μ, K_ff(w_j) + σ_n² I)`. A frame that was alone in its
-    /// pattern brings that pattern's length scales as the first auxiliary.
+    /// pattern brings that pattern's parameters as the first auxiliary. Per-pattern noise: each
+    /// auxiliary draws its noise pair from the prior after its length scales.
     fn auxiliaries(
         &self,
         f: FrameRef<'_>,
-        own: Option<LengthScales>,
+        own: Option<GpParams>,
         rng: &mut impl rand::Rng,
-    ) -> Result<Vec<(LengthScales, f64)>> {
-        if self.settings.fixed_length_scales {
-            let ls = self.settings.base.length_scales;
+    ) -> Result<Vec<(GpParams, f64)>> {
+        let per_pattern = self.per_pattern_noise();
+        if self.settings.fixed_length_scales && !per_pattern {
             return Ok(vec![(
-                ls,
+                self.settings.base,
                 self.alpha.ln()
                     + self
                         .settings
@@ -921,27 +969,35 @@ impl Sampler {
         let m = self.settings.new_pattern_samples;
         let (a, b) = self.settings.length_scale_prior;
         let gamma = Gamma::new(a, b).map_err(|e| Error::InvalidInput(e.to_string()))?;
-        let draws: Vec<LengthScales> = (0..m)
+        let fixed = self.settings.fixed_length_scales;
+        let draws: Vec<GpParams> = (0..m)
             .map(|j| match (j, own) {
-                (0, Some(ls)) => ls,
-                _ => LengthScales {
-                    wx: gamma.sample(rng).max(1e-12),
-                    wy: gamma.sample(rng).max(1e-12),
-                },
+                (0, Some(p)) => p,
+                _ => {
+                    let ls = if fixed {
+                        self.settings.base.length_scales
+                    } else {
+                        LengthScales {
+                            wx: gamma.sample(rng).max(1e-12),
+                            wy: gamma.sample(rng).max(1e-12),
+                        }
+                    };
+                    let noise = self.new_noise(rng);
+                    self.new_params(ls, noise)
+                }
             })
             .collect();
         let log_w0 = (self.alpha / m as f64).ln();
         // The draws come from one stream in order; their scores (a few µs each) are independent,
         // so score them in parallel chunks.
-        let scored: Vec<Result<Vec<(LengthScales, f64)>>> = draws
+        let scored: Vec<Result<Vec<(GpParams, f64)>>> = draws
             .par_chunks(AUX_CHUNK)
             .map(|chunk| {
-                let ps: Vec<GpParams> = chunk.iter().map(|&ls| self.pattern_params(ls)).collect();
-                let scores = self.settings.likelihood.prior_scores(f, &ps)?;
+                let scores = self.settings.likelihood.prior_scores(f, chunk)?;
                 Ok(chunk
                     .iter()
                     .zip(scores)
-                    .map(|(&ls, s)| (ls, log_w0 + s))
+                    .map(|(&p, s)| (p, log_w0 + s))
                     .collect())
             })
             .collect();
@@ -986,16 +1042,13 @@ impl Sampler {
         Ok(())
     }
 
-    /// Move frame `i` from `old` (or nowhere) into a new pattern with length scales `ls`.
-    fn move_to_new(&mut self, i: usize, old: usize, ls: LengthScales) -> Result<()> {
+    /// Move frame `i` from `old` (or nowhere) into a new pattern with parameters `params`.
+    fn move_to_new(&mut self, i: usize, old: usize, params: GpParams) -> Result<()> {
         let data = Arc::clone(&self.data);
         let f = data.frame(i);
         let groups = self.settings.base.groups().len();
         self.check_memory(self.settings.likelihood.pattern_bytes(f.xy.len(), groups))?;
-        let pattern = self
-            .settings
-            .likelihood
-            .pattern(self.pattern_params(ls), &[(i, f)])?;
+        let pattern = self.settings.likelihood.pattern(params, &[(i, f)])?;
         if old != NONE {
             self.detach_frame(i, old)?;
         }
@@ -1063,7 +1116,7 @@ impl Sampler {
         let f = data.frame(i);
         let old = self.labels[i];
         let t = Instant::now();
-        let own_ls = self.singleton_scales(old);
+        let own_ls = self.singleton_params(old);
         let block = self.block(i);
         let own_score = match own_ls {
             Some(_) => None,
@@ -1136,13 +1189,14 @@ impl Sampler {
         Ok(changed)
     }
 
-    /// The length scales of frame `i`'s pattern `k` if the frame is alone in it.
-    fn singleton_scales(&self, k: usize) -> Option<LengthScales> {
+    /// The parameters a new pattern would need to be frame `i`'s pattern `k`, if the frame is
+    /// alone in it: `base` with its length scales and noise pair.
+    fn singleton_params(&self, k: usize) -> Option<GpParams> {
         self.slots
             .get(k)
             .and_then(|s| s.as_ref())
             .filter(|s| s.pattern.n_frames() == 1)
-            .map(|s| s.pattern.length_scales())
+            .map(|s| self.new_params(s.pattern.length_scales(), s.pattern.params().noise_var))
     }
 
     /// `log [(n_k − 1) p(V_i | D_k \ i)]` for frame `i` in its own (non-singleton) pattern `k`.
@@ -1226,7 +1280,7 @@ impl Sampler {
         let block = self.block(i);
         let (cands, logq) = self.proposal(f, old, block.as_ref());
         let new = cands.len();
-        let own_ls = self.singleton_scales(old);
+        let own_ls = self.singleton_params(old);
         let current = match own_ls {
             Some(_) => new,
             None => cands
@@ -1472,7 +1526,7 @@ impl Sampler {
         for (k, s) in self.live() {
             if k == own {
                 if s.pattern.n_frames() == 1 {
-                    own_ls = Some(s.pattern.length_scales());
+                    own_ls = self.singleton_params(k);
                     logw.push(f64::NEG_INFINITY);
                     continue;
                 }

@@ -10,15 +10,21 @@
 //! the noise with the data and leaves the chain unchanged. Every candidate refactors every
 //! pattern (in parallel); the factors at the accepted point become the patterns' factors.
 //!
-//! Why global: one pair shared by all patterns is estimated from all frames and keeps the
-//! split–merge ratio free of noise proposals. A per-pattern noise, measured at the fitted
-//! partition (benches/noise_per_pattern.py), scores better held out on three of six shared data
-//! sets and is recommended; it is not implemented here (docs/inference.md).
+//! Two scopes ([`NoiseScope`]). **Global** (the default): one pair shared by all patterns,
+//! estimated from all frames. **Per pattern**: each pattern's `GpParams::noise_var` is its own,
+//! under the same prior; each sweep slice-samples every pattern's `log σ_n,x²` then `log σ_n,y²`
+//! from `N(log(σ_n,d² / s_d²); m, τ²) · p(D_k | w_k, σ_n,k²)`, in parallel over patterns, each
+//! pattern on its own random stream (keyed by its stable id, as the length-scale step), so the
+//! chain does not depend on the thread count. A new pattern (Algorithm 8's auxiliaries, the
+//! new-pattern term of scores, the second pattern of a split) draws its noise pair from the prior
+//! with its length scales. Measured at the fitted partition (benches/noise_per_pattern.py), a
+//! per-pattern noise scores better held out on three of six shared data sets (docs/inference.md).
 
+use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
 use super::Sampler;
-use crate::error::{Error, Result};
+use crate::error::{Error, Result, unknown_option};
 use crate::gp::GpParams;
 use crate::pattern_model::PatternModel;
 use crate::rng::{Phase, stream};
@@ -47,6 +53,38 @@ impl NoisePrior {
         let z = (x - scale.ln() - self.log_mean) / self.sd;
         -0.5 * z * z - self.sd.ln() - 0.5 * crate::gp::LN_2PI
     }
+
+    /// A draw of the noise pair from the prior given the velocity variances `scale` (x then y),
+    /// kept at least [`MIN_RATIO`] times them (the prior puts ~1e-23 of its mass below that).
+    pub fn sample(&self, scale: [f64; 2], rng: &mut impl rand::Rng) -> [f64; 2] {
+        scale.map(|s| {
+            let z: f64 = StandardNormal.sample(rng);
+            (s.ln() + self.log_mean + self.sd * z)
+                .exp()
+                .max(MIN_RATIO * s)
+        })
+    }
+}
+
+/// Whether the noise pair is one for all patterns or each pattern's own.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum NoiseScope {
+    /// One pair shared by every pattern.
+    #[default]
+    Global,
+    /// Each pattern has its own pair (sampled only with a noise prior).
+    PerPattern,
+}
+
+impl std::str::FromStr for NoiseScope {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "global" => Ok(Self::Global),
+            "per_pattern" => Ok(Self::PerPattern),
+            _ => Err(unknown_option("noise_scope", &["global", "per_pattern"], s)),
+        }
+    }
 }
 
 /// Least noise, as a share of the velocity variance, a candidate may take: below it the
@@ -59,7 +97,8 @@ fn width(points: usize) -> f64 {
 }
 
 impl Sampler {
-    /// The noise pair the chain is at (fixed, or the last draw).
+    /// The noise pair the chain is at (fixed, or the last draw); per pattern, the pair new
+    /// patterns' noise is not drawn from but the chain started at (see [`Sampler::patterns`]).
     pub fn noise_var(&self) -> [f64; 2] {
         self.settings.base.noise_var
     }
@@ -91,15 +130,113 @@ impl Sampler {
         }
     }
 
-    /// The prior's log density of the current noise pair (0 when the noise is fixed).
+    /// The prior's log density of the current noise pair, or of every pattern's pair per
+    /// pattern (0 when the noise is fixed).
     pub(super) fn noise_log_prior(&self) -> f64 {
         let Some(prior) = self.settings.noise_prior else {
             return 0.0;
         };
         let b = &self.settings.base;
-        (0..2)
-            .map(|d| prior.log_density(b.noise_var[d].ln(), b.signal_var[d]))
-            .sum()
+        let pair = |n: [f64; 2]| -> f64 {
+            (0..2)
+                .map(|d| prior.log_density(n[d].ln(), b.signal_var[d]))
+                .sum()
+        };
+        match self.settings.noise_scope {
+            NoiseScope::Global => pair(b.noise_var),
+            NoiseScope::PerPattern => self
+                .live()
+                .map(|(_, s)| pair(s.pattern.params().noise_var))
+                .sum(),
+        }
+    }
+
+    /// Whether each pattern samples its own noise pair.
+    pub(super) fn per_pattern_noise(&self) -> bool {
+        self.settings.noise_scope == NoiseScope::PerPattern && self.settings.noise_prior.is_some()
+    }
+
+    /// A new pattern's noise pair: a prior draw per pattern, else the chain's pair.
+    pub(super) fn new_noise(&self, rng: &mut impl rand::Rng) -> [f64; 2] {
+        match self.settings.noise_prior {
+            Some(prior) if self.settings.noise_scope == NoiseScope::PerPattern => {
+                prior.sample(self.settings.base.signal_var, rng)
+            }
+            _ => self.settings.base.noise_var,
+        }
+    }
+
+    /// Slice-sample each pattern's `log σ_n,x²` then `log σ_n,y²` (per-pattern noise), in
+    /// parallel over patterns, each on its own stream keyed by the pattern's stable id. The width
+    /// is [`width`] of the pattern's point count (fixed during the step).
+    fn update_noise_per_pattern(&mut self, prior: NoisePrior) -> Result<()> {
+        let keys: Vec<(usize, u64)> = self.patterns().iter().map(|p| (p.slot, p.id)).collect();
+        // Each worker holds up to two candidate copies of the pattern it is updating.
+        let largest = self
+            .live()
+            .map(|(_, s)| s.pattern.bytes())
+            .max()
+            .unwrap_or(0);
+        let workers = rayon::current_num_threads().min(keys.len());
+        self.check_memory(2 * workers * largest)?;
+        let (seed, sweep) = (self.settings.seed, self.sweep);
+        let scale = self.settings.base.signal_var;
+        let updated: Vec<Result<Option<Box<dyn PatternModel>>>> = keys
+            .par_iter()
+            .map(|&(k, id)| {
+                let mut rng = stream(seed, sweep, Phase::Noise, id);
+                let p0 = &self.live_slot(k).pattern;
+                let w = width(p0.n_points());
+                let mut current: Option<Box<dyn PatternModel>> = None;
+                for d in 0..2 {
+                    let cur: &dyn PatternModel = current.as_deref().unwrap_or(p0.as_ref());
+                    let params = *cur.params();
+                    let x0 = params.noise_var[d].ln();
+                    let f0 = prior.log_density(x0, scale[d]) + cur.log_marginal();
+                    let at = |x: f64| {
+                        let mut noise_var = params.noise_var;
+                        noise_var[d] = x.exp();
+                        GpParams {
+                            noise_var,
+                            ..params
+                        }
+                    };
+                    let mut last: Option<(f64, Box<dyn PatternModel>)> = None;
+                    let (x, _) = slice_step(x0, f0, w, &mut rng, |x| {
+                        let v = x.exp();
+                        if !(v.is_finite() && v >= MIN_RATIO * scale[d]) {
+                            return f64::NEG_INFINITY;
+                        }
+                        match cur.with_params(at(x)) {
+                            Ok(p) => {
+                                let lm = p.log_marginal();
+                                last = Some((x, p));
+                                prior.log_density(x, scale[d]) + lm
+                            }
+                            Err(_) => f64::NEG_INFINITY,
+                        }
+                    });
+                    if x == x0 {
+                        continue;
+                    }
+                    let p = match last {
+                        Some((lx, p)) if lx == x => p,
+                        _ => cur.with_params(at(x))?,
+                    };
+                    current = Some(p);
+                }
+                Ok(current)
+            })
+            .collect();
+        for ((k, _), p) in keys.iter().zip(updated) {
+            if let Some(p) = p? {
+                let v = self.fresh_version();
+                let slot = self.live_slot_mut(*k);
+                slot.pattern = p;
+                slot.version = v;
+            }
+        }
+        Ok(())
     }
 
     /// The patterns in `slots` refactored under the noise pair `noise` (in parallel).
@@ -116,11 +253,15 @@ impl Sampler {
             .collect()
     }
 
-    /// Slice-sample `log σ_n,x²` then `log σ_n,y²` (when the noise prior is set).
+    /// Slice-sample `log σ_n,x²` then `log σ_n,y²` (when the noise prior is set): the global
+    /// pair, or each pattern's own.
     pub(super) fn update_noise(&mut self) -> Result<()> {
         let Some(prior) = self.settings.noise_prior else {
             return Ok(());
         };
+        if self.settings.noise_scope == NoiseScope::PerPattern {
+            return self.update_noise_per_pattern(prior);
+        }
         let slots: Vec<usize> = self.live().map(|(k, _)| k).collect();
         // Each candidate holds a second copy of every pattern.
         let held: usize = self.live().map(|(_, s)| s.pattern.bytes()).sum();

@@ -45,6 +45,7 @@ use super::{Assignment, Data, NONE, Sampler};
 use crate::error::{Error, Result, unknown_option};
 use crate::frame::FrameRef;
 use crate::frame::LengthScales;
+use crate::gp::GpParams;
 use crate::pattern_model::PatternModel;
 use crate::rng::{Phase, stream};
 use crate::special::ln_gamma;
@@ -212,21 +213,25 @@ impl Sampler {
         }
     }
 
-    /// Length scales for the new split pattern: a prior draw (the fixed ones when fixed).
-    fn prior_length_scales(&self, rng: &mut impl rand::Rng) -> Result<LengthScales> {
-        if self.settings.fixed_length_scales {
-            return Ok(self.settings.base.length_scales);
-        }
-        let (a, b) = self.settings.length_scale_prior;
-        let g = Gamma::new(a, b).map_err(|e| Error::InvalidInput(e.to_string()))?;
-        Ok(LengthScales {
-            wx: g.sample(rng).max(1e-12),
-            wy: g.sample(rng).max(1e-12),
-        })
+    /// Parameters of the new split pattern: length scales drawn from their prior (the fixed
+    /// ones when fixed), then, per-pattern noise, the noise pair from its prior.
+    fn prior_params(&self, rng: &mut impl rand::Rng) -> Result<GpParams> {
+        let ls = if self.settings.fixed_length_scales {
+            self.settings.base.length_scales
+        } else {
+            let (a, b) = self.settings.length_scale_prior;
+            let g = Gamma::new(a, b).map_err(|e| Error::InvalidInput(e.to_string()))?;
+            LengthScales {
+                wx: g.sample(rng).max(1e-12),
+                wy: g.sample(rng).max(1e-12),
+            }
+        };
+        let noise = self.new_noise(rng);
+        Ok(self.new_params(ls, noise))
     }
 
-    /// Grow two patterns from the seed items `i` (params of `template`) and `j` (length scales
-    /// `ls_b`) over the items `rest` in a random order. An item is a frame, or under the sticky
+    /// Grow two patterns from the seed items `i` (params of `template`) and `j` (params
+    /// `params_b`) over the items `rest` in a random order. An item is a frame, or under the sticky
     /// prior a segment (frames joined by links: one CRP draw), scored by the joint predictive
     /// of its frames. With `forced`, each item goes where `forced` says of its first frame (the
     /// reverse of a merge) and only its probability is accumulated.
@@ -236,7 +241,7 @@ impl Sampler {
         i: &[usize],
         j: &[usize],
         template: &dyn PatternModel,
-        ls_b: LengthScales,
+        params_b: GpParams,
         mut rest: Vec<Vec<usize>>,
         forced: Option<&dyn Fn(usize) -> bool>,
         rng: &mut impl rand::Rng,
@@ -247,7 +252,7 @@ impl Sampler {
             item.iter().map(|&f| (f, data.frame(f))).collect()
         };
         let mut a = lik.pattern(*template.params(), &members(i))?;
-        let mut b = lik.pattern(self.pattern_params(ls_b), &members(j))?;
+        let mut b = lik.pattern(params_b, &members(j))?;
         // Fisher–Yates: a uniform order, independent of the state.
         for t in (1..rest.len()).rev() {
             let s = ((rng.random::<f64>() * (t + 1) as f64) as usize).min(t);
@@ -317,8 +322,16 @@ impl Sampler {
             .into_iter()
             .filter(|it| it[0] != seed_i[0] && it[0] != seed_j[0])
             .collect();
-        let ls_b = self.prior_length_scales(rng)?;
-        let alloc = self.allocate(&seed_i, &seed_j, template.as_ref(), ls_b, rest, None, rng)?;
+        let params_b = self.prior_params(rng)?;
+        let alloc = self.allocate(
+            &seed_i,
+            &seed_j,
+            template.as_ref(),
+            params_b,
+            rest,
+            None,
+            rng,
+        )?;
         let log_target = self.crp_split_ratio(alloc.items.0, alloc.items.1)
             + alloc.a.log_marginal()
             + alloc.b.log_marginal()
@@ -387,9 +400,16 @@ impl Sampler {
                 .collect();
             let labels = &self.labels;
             let side = |f: usize| labels[f] == ki;
-            let (ls_b, template) = (b.length_scales(), a.as_ref());
-            let reverse =
-                self.allocate(&seed_i, &seed_j, template, ls_b, rest, Some(&side), rng)?;
+            let params_b = self.new_params(b.length_scales(), b.params().noise_var);
+            let reverse = self.allocate(
+                &seed_i,
+                &seed_j,
+                a.as_ref(),
+                params_b,
+                rest,
+                Some(&side),
+                rng,
+            )?;
             if log_u >= log_target + reverse.log_q {
                 return Ok(());
             }

@@ -266,6 +266,16 @@ impl PySampler {
         (n[0], n[1])
     }
 
+    /// Each pattern's noise pair, in slot order (the chain's pair unless the noise is per
+    /// pattern).
+    fn pattern_noise(&self) -> Vec<(f64, f64)> {
+        self.lock()
+            .patterns()
+            .into_iter()
+            .map(|p| (p.noise_var[0], p.noise_var[1]))
+            .collect()
+    }
+
     /// Put the chain at a noise pair (a resumed chain).
     fn set_noise_var(&self, py: Python<'_>, noise_var: (f64, f64)) -> PyResult<()> {
         self.run(py, |s, _| s.set_noise_var([noise_var.0, noise_var.1]))
@@ -325,13 +335,16 @@ impl PySampler {
         Ok((to_numpy(py, mean), to_numpy(py, var)))
     }
 
-    /// Set the state: a group number per frame, the length scales of each group, and alpha.
+    /// Set the state: a group number per frame, the length scales of each group, and alpha;
+    /// `noise_var`: each group's noise pair (per-pattern noise), `None` for the chain's pair.
+    #[pyo3(signature = (labels, length_scales, alpha, noise_var=None))]
     fn set_state(
         &self,
         py: Python<'_>,
         labels: PyReadonlyArray1<'_, i64>,
         length_scales: PyReadonlyArray2<'_, f64>,
         alpha: f64,
+        noise_var: Option<PyReadonlyArray2<'_, f64>>,
     ) -> PyResult<()> {
         let labels = offsets_vec("labels", &labels)?;
         let ls: Vec<LengthScales> = pairs("length_scales", &length_scales)?
@@ -339,6 +352,12 @@ impl PySampler {
             .map(|w| LengthScales::new(w[0], w[1]))
             .collect::<dpgp_core::Result<_>>()
             .map_err(CoreError)?;
-        self.run(py, |s, _| s.set_state(&labels, &ls, alpha))
+        let noise: Option<Vec<[f64; 2]>> = match &noise_var {
+            Some(n) => Some(pairs("noise_var", n)?.to_vec()),
+            None => None,
+        };
+        self.run(py, |s, _| {
+            s.set_state_with_noise(&labels, &ls, noise.as_deref(), alpha)
+        })
     }
 }

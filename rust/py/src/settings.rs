@@ -54,6 +54,9 @@ pub struct SamplerSettings {
     /// `(log mean, sd)`; `None` keeps the noise fixed.
     #[pyo3(default)]
     noise_prior: Option<(f64, f64)>,
+    /// "global" or "per_pattern" (parsed by the core); `None`: global.
+    #[pyo3(default)]
+    noise_scope: Option<String>,
     /// The sticky prior: each frame's predecessor (-1: a run's first frame), the Beta prior of ρ,
     /// and a fixed ρ or `None`; `None` for the independent DP.
     #[pyo3(default)]
@@ -64,7 +67,7 @@ pub struct SamplerSettings {
 const BOOL_KEYS: [&str; 2] = ["fixed_length_scales", "pattern_moments"];
 /// The struct's fields: the dict may hold no other key (a misspelt one would silently take its
 /// default), and a field missing here is refused at once as unknown, so the two cannot drift.
-const KEYS: [&str; 18] = [
+const KEYS: [&str; 19] = [
     "assignment",
     "likelihood",
     "proposal",
@@ -82,6 +85,7 @@ const KEYS: [&str; 18] = [
     "memory_budget",
     "split_merge",
     "noise_prior",
+    "noise_scope",
     "dynamics",
 ];
 
@@ -177,6 +181,10 @@ impl SamplerSettings {
             noise_prior: self
                 .noise_prior
                 .map(|(log_mean, sd)| NoisePrior { log_mean, sd }),
+            noise_scope: match self.noise_scope {
+                Some(name) => name.parse().map_err(CoreError)?,
+                None => d.noise_scope,
+            },
             dynamics: self.dynamics.map(sticky).transpose()?,
         };
         settings.validate().map_err(CoreError)?;

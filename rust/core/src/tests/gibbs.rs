@@ -36,6 +36,7 @@ fn settings(assignment: Assignment, seed: u64) -> Settings {
         memory_budget: None,
         split_merge: Default::default(),
         noise_prior: None,
+        noise_scope: crate::gibbs::NoiseScope::Global,
         dynamics: None,
     }
 }

@@ -52,6 +52,7 @@ pub(crate) fn tiny_settings(likelihood: Likelihood, seed: u64) -> Settings {
             pairs: PairChoice::Uniform,
         },
         noise_prior: None,
+        noise_scope: crate::gibbs::NoiseScope::Global,
         dynamics: None,
     }
 }
