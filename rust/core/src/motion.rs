@@ -140,15 +140,20 @@ pub struct Motion {
     /// `θ` (a vehicle does not reverse: it stands). `None`: the desired velocity is the field's
     /// mean plus the residual vector.
     pub tau_heading: Option<f64>,
+    /// A steering vehicle's tolerance (rad): its heading turns by the part of its angle to the
+    /// field's heading beyond this, so within it the vehicle drives straight (0: it always turns
+    /// toward the field). The fitted fields' heading is rough at the scale of a lane; recorded
+    /// vehicles do not follow that roughness.
+    pub heading_tolerance: f64,
 }
 
 /// Numbers in a flat [`Motion`] record: `tau, sigma_0, sigma_1, kind (0 free, 1 vehicles,
 /// 2 pedestrians), personal, jam, headway, accel, decel, lateral, min_speed, tau_across,
 /// tau_heading`, then the [`Profile`]: [`PROFILE_KNOTS`] field speeds, as many along factors and
-/// as many across factors. `min_speed < 0`: [`Spread::Components`] (`tau_across`, `tau_heading`
+/// as many across factors, then `heading_tolerance` (rad). `min_speed < 0`: [`Spread::Components`] (`tau_across`, `tau_heading`
 /// and the profile unused), else [`Spread::Heading`]; `tau_heading < 0`: no steering;
 /// a first knot speed `< 0`: the flat profile.
-pub const MOTION_FIELDS: usize = 13 + 3 * PROFILE_KNOTS;
+pub const MOTION_FIELDS: usize = 14 + 3 * PROFILE_KNOTS;
 
 impl Motion {
     /// From the flat record of [`MOTION_FIELDS`] numbers (what the binding passes).
@@ -203,6 +208,7 @@ impl Motion {
             rule,
             profile,
             tau_heading,
+            heading_tolerance: v[13 + 3 * PROFILE_KNOTS],
         };
         m.validate()?;
         Ok(m)
@@ -245,6 +251,12 @@ impl Motion {
                 "tau_heading (s, with the heading frame; inf holds the heading)",
                 t,
             );
+        }
+        let tol = self.heading_tolerance;
+        if !(tol.is_finite() && (0.0..std::f64::consts::PI).contains(&tol)) {
+            return Err(Error::InvalidInput(format!(
+                "motion parameter heading_tolerance must be in [0, pi) rad, got {tol}"
+            )));
         }
         let p = &self.profile;
         let knots_ok = p.speed.iter().all(|s| s.is_finite() && *s >= 0.0)
@@ -307,8 +319,8 @@ fn spread_at(m: [f64; 2], motion: &Motion) -> [f64; 2] {
 
 /// One step of a steering vehicle's `state`, its heading `θ` and desired speed `u`, toward the field's
 /// mean `m` ([`Motion::tau_heading`]): `u` as the along residual (`rho`, `kick`, spread at `m`,
-/// innovation `z`), `theta` by the share `turn = 1 − exp(−dt / τ_h)` of its angle to the
-/// field's heading.
+/// innovation `z`), `theta` by the share `turn = 1 − exp(−dt / τ_h)` of the part of its angle to
+/// the field's heading beyond [`Motion::heading_tolerance`].
 fn steer(
     state: &mut [f64; 2],
     m: [f64; 2],
@@ -325,7 +337,8 @@ fn steer(
     if let Some((e, _)) = heading(m, motion) {
         let d = e[1].atan2(e[0]) - *theta;
         let d = d.sin().atan2(d.cos()); // wrapped to (−π, π]
-        *theta += turn * d;
+        let excess = d.signum() * (d.abs() - motion.heading_tolerance).max(0.0);
+        *theta += turn * excess;
     }
 }
 

@@ -114,6 +114,7 @@ fn the_profile_interpolates_and_scales_the_spread() {
         rule: Rule::Free,
         profile: p,
         tau_heading: None,
+        heading_tolerance: 0.0,
     };
     let mut slow = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[1.0, 0.0]; q.len()]) };
     let start = vec![[0.0, 0.0]; 2000];
@@ -148,6 +149,7 @@ fn steering_vehicles_turn_toward_the_field_at_their_time_constant_and_stand() {
         rule: Rule::Free,
         profile: Profile::FLAT,
         tau_heading: Some(2.0),
+        heading_tolerance: 0.0,
     };
     let mut north = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0, 5.0]; q.len()]) };
     let r = drive(
@@ -261,6 +263,7 @@ fn the_residual_relaxes_at_the_time_constant() {
         rule: Rule::Free,
         profile: Profile::FLAT,
         tau_heading: None,
+        heading_tolerance: 0.0,
     };
     let mut zero = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0; 2]; q.len()]) };
     let r = drive(
@@ -294,6 +297,7 @@ fn stochastic_residual_has_the_stationary_spread_and_is_seeded() {
         rule: Rule::Free,
         profile: Profile::FLAT,
         tau_heading: None,
+        heading_tolerance: 0.0,
     };
     let mut zero = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0; 2]; q.len()]) };
     let start = vec![[0.0, 0.0]; 400];
@@ -379,6 +383,7 @@ fn heading_spread_is_along_and_across_the_field() {
         rule: Rule::Free,
         profile: Profile::FLAT,
         tau_heading: None,
+        heading_tolerance: 0.0,
     };
     let mut uniform =
         |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[5.0 * c, 5.0 * s]; q.len()]) };
