@@ -145,15 +145,19 @@ pub struct Motion {
     /// toward the field). The fitted fields' heading is rough at the scale of a lane; recorded
     /// vehicles do not follow that roughness.
     pub heading_tolerance: f64,
+    /// A steering vehicle whose desired speed is below this stands (0: only a negative one).
+    /// Recorded vehicles stop from and start to about this speed; the field is slow, not at
+    /// rest, in a queue, and a wish that small made queued vehicles creep.
+    pub stand_speed: f64,
 }
 
 /// Numbers in a flat [`Motion`] record: `tau, sigma_0, sigma_1, kind (0 free, 1 vehicles,
 /// 2 pedestrians), personal, jam, headway, accel, decel, lateral, min_speed, tau_across,
 /// tau_heading`, then the [`Profile`]: [`PROFILE_KNOTS`] field speeds, as many along factors and
-/// as many across factors, then `heading_tolerance` (rad). `min_speed < 0`: [`Spread::Components`] (`tau_across`, `tau_heading`
+/// as many across factors, then `heading_tolerance` (rad) and `stand_speed`. `min_speed < 0`: [`Spread::Components`] (`tau_across`, `tau_heading`
 /// and the profile unused), else [`Spread::Heading`]; `tau_heading < 0`: no steering;
 /// a first knot speed `< 0`: the flat profile.
-pub const MOTION_FIELDS: usize = 14 + 3 * PROFILE_KNOTS;
+pub const MOTION_FIELDS: usize = 15 + 3 * PROFILE_KNOTS;
 
 impl Motion {
     /// From the flat record of [`MOTION_FIELDS`] numbers (what the binding passes).
@@ -209,6 +213,7 @@ impl Motion {
             profile,
             tau_heading,
             heading_tolerance: v[13 + 3 * PROFILE_KNOTS],
+            stand_speed: v[14 + 3 * PROFILE_KNOTS],
         };
         m.validate()?;
         Ok(m)
@@ -256,6 +261,12 @@ impl Motion {
         if !(tol.is_finite() && (0.0..std::f64::consts::PI).contains(&tol)) {
             return Err(Error::InvalidInput(format!(
                 "motion parameter heading_tolerance must be in [0, pi) rad, got {tol}"
+            )));
+        }
+        if !(self.stand_speed.is_finite() && self.stand_speed >= 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "motion parameter stand_speed must be finite and >= 0, got {}",
+                self.stand_speed
             )));
         }
         let p = &self.profile;
@@ -340,6 +351,12 @@ fn steer(
         let excess = d.signum() * (d.abs() - motion.heading_tolerance).max(0.0);
         *theta += turn * excess;
     }
+}
+
+/// The speed at which a steering vehicle with desired speed `u` drives: `u`, or 0 (it stands)
+/// below [`Motion::stand_speed`] (a negative wish always stands: vehicles do not reverse).
+fn drive_speed(u: f64, motion: &Motion) -> f64 {
+    if u >= motion.stand_speed { u.max(0.0) } else { 0.0 }
 }
 
 /// A stationary draw of the residual at a point where the field's mean is `m`, from the
@@ -599,7 +616,7 @@ pub fn drive(
                         // the drawn velocity's speed along it (standing if that is negative)
                         let along = want[j][0] * e[0] + want[j][1] * e[1];
                         steering[j] = [e[1].atan2(e[0]), along];
-                        let go = along.max(0.0);
+                        let go = drive_speed(along, motion);
                         want[j] = [go * e[0], go * e[1]];
                     }
                     vel[j] = want[j];
@@ -624,7 +641,7 @@ pub fn drive(
                             motion,
                         );
                         let [th, u] = steering[j];
-                        let go = u.max(0.0);
+                        let go = drive_speed(u, motion);
                         [go * th.cos(), go * th.sin()]
                     } else {
                         relax(want[j], mean[a], z, rho, kick, motion)

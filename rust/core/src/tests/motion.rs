@@ -115,6 +115,7 @@ fn the_profile_interpolates_and_scales_the_spread() {
         profile: p,
         tau_heading: None,
         heading_tolerance: 0.0,
+        stand_speed: 0.0,
     };
     let mut slow = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[1.0, 0.0]; q.len()]) };
     let start = vec![[0.0, 0.0]; 2000];
@@ -150,6 +151,7 @@ fn steering_vehicles_turn_toward_the_field_at_their_time_constant_and_stand() {
         profile: Profile::FLAT,
         tau_heading: Some(2.0),
         heading_tolerance: 0.0,
+        stand_speed: 0.0,
     };
     let mut north = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0, 5.0]; q.len()]) };
     let r = drive(
@@ -264,6 +266,7 @@ fn the_residual_relaxes_at_the_time_constant() {
         profile: Profile::FLAT,
         tau_heading: None,
         heading_tolerance: 0.0,
+        stand_speed: 0.0,
     };
     let mut zero = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0; 2]; q.len()]) };
     let r = drive(
@@ -298,6 +301,7 @@ fn stochastic_residual_has_the_stationary_spread_and_is_seeded() {
         profile: Profile::FLAT,
         tau_heading: None,
         heading_tolerance: 0.0,
+        stand_speed: 0.0,
     };
     let mut zero = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0; 2]; q.len()]) };
     let start = vec![[0.0, 0.0]; 400];
@@ -384,6 +388,7 @@ fn heading_spread_is_along_and_across_the_field() {
         profile: Profile::FLAT,
         tau_heading: None,
         heading_tolerance: 0.0,
+        stand_speed: 0.0,
     };
     let mut uniform =
         |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[5.0 * c, 5.0 * s]; q.len()]) };
