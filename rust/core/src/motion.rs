@@ -356,7 +356,11 @@ fn steer(
 /// The speed at which a steering vehicle with desired speed `u` drives: `u`, or 0 (it stands)
 /// below [`Motion::stand_speed`] (a negative wish always stands: vehicles do not reverse).
 fn drive_speed(u: f64, motion: &Motion) -> f64 {
-    if u >= motion.stand_speed { u.max(0.0) } else { 0.0 }
+    if u >= motion.stand_speed {
+        u.max(0.0)
+    } else {
+        0.0
+    }
 }
 
 /// A stationary draw of the residual at a point where the field's mean is `m`, from the
