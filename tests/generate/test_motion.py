@@ -92,7 +92,7 @@ def test_fitted_model_recovers_spreads_along_and_across_the_heading():
     assert np.all(np.abs(got / [along, across] - 1) < 0.15), m.sigma
     # the record draws the innovation in the heading frame: min_speed, τ across
     rec = m.record(0)
-    assert len(rec) == 13 + 3 * motion.PROFILE_KNOTS and rec[10] == m.min_speed
+    assert len(rec) == 15 + 3 * motion.PROFILE_KNOTS and rec[10] == m.min_speed
     assert rec[11] == m.tau[0] * m.tau_across_share
 
 

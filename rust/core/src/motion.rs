@@ -18,7 +18,8 @@
 //!    spreads are scaled by a [`Profile`] of the field's speed `|m(x)|` (small where the field
 //!    is slow: queues). A steering vehicle ([`Motion::tau_heading`]) keeps a heading and a
 //!    desired speed instead: the speed relaxes as the along part, the heading turns toward the
-//!    field's with its own time constant, and a negative desired speed stands. The deviation is measured at the new position, so a field that changes
+//!    field's with its own time constant (by the part of the angle beyond a tolerance), and a
+//!    desired speed below a stand speed stands. The deviation is measured at the new position, so a field that changes
 //!    along the path is followed with the lag `τ` (a first-order lag of the velocity), and a
 //!    large `τ` keeps an agent close to constant velocity;
 //! 3. interaction turns desired into actual velocities ([`Rule`]): vehicles follow the leader
