@@ -92,7 +92,7 @@ def test_fitted_model_recovers_spreads_along_and_across_the_heading():
     assert np.all(np.abs(got / [along, across] - 1) < 0.15), m.sigma
     # the record draws the innovation in the heading frame: min_speed, τ across
     rec = m.record(0)
-    assert len(rec) == 13 + 3 * motion.PROFILE_KNOTS and rec[10] == m.min_speed
+    assert len(rec) == 15 + 3 * motion.PROFILE_KNOTS and rec[10] == m.min_speed
     assert rec[11] == m.tau[0] * m.tau_across_share
 
 
@@ -194,13 +194,87 @@ def test_model_files_keep_steering_and_the_profile():
     back = motion.MotionModel.from_dict(d)
     assert back.tau_heading == 2.5 and np.array_equal(back.profile, prof)
     rec = back.record(0)
-    assert len(rec) == 13 + 3 * motion.PROFILE_KNOTS and rec[12] == 2.5
-    np.testing.assert_array_equal(rec[13:], prof.T.ravel())
+    assert len(rec) == 15 + 3 * motion.PROFILE_KNOTS and rec[12] == 2.5
+    np.testing.assert_array_equal(rec[13:-2], prof.T.ravel())
     # rollouts of recorded frames do not steer; files written before: no steering, flat profile
     assert back.record(0, recorded=True)[12] == -1.0
     old = motion.MotionModel.from_dict({k: v for k, v in d.items() if k not in ("tau_heading", "profile")})
     assert np.isnan(old.tau_heading) and old.profile is None and old.record(0)[12] == -1 and old.record(0)[13] == -1
     for bad in ({"tau_heading": -1.0}, {"profile": prof[:3].tolist()}, {"profile": prof[::-1].tolist()}):
+        with pytest.raises(dpgp.DataFormatError):
+            motion.MotionModel.from_dict({**d, **bad})
+
+
+def test_heading_tolerance_recovers_a_simulated_one():
+    """Vehicles that turn by 1 - exp(-dt / 1.5 s) of the part of their angle to a rough field
+    heading beyond 0.1 rad (most steps: within it, so they drive dead straight): the learned
+    tolerance is within 25% of 0.1 rad; vehicles that follow every bit of the field's
+    roughness (tolerance 0): below 0.02 rad."""
+    from dpgp.data.frames import Frames
+
+    rng = np.random.default_rng(5)
+    dt, n_tracks, steps = 0.5, 300, 12
+    share = 1 - np.exp(-dt / 1.5)
+
+    def frames_of(tol):
+        th = rng.uniform(-np.pi, np.pi, n_tracks)
+        xy, v, fh, fr, tr = [], [], [], [], []
+        for t in range(steps):
+            # the field: mostly rough around the heading (lanes), sometimes a real turn
+            turn = np.where(rng.random(n_tracks) < 0.1, rng.normal(0, 1.0, n_tracks), 0.0)
+            field = th + turn + rng.normal(0, 0.06, n_tracks)
+            if t > 0:
+                d = np.angle(np.exp(1j * (field - th)))
+                th = th + share * np.sign(d) * np.maximum(np.abs(d) - tol, 0.0)
+            xy.append(rng.uniform(0, 100, (n_tracks, 2)))
+            v.append(8.0 * np.stack([np.cos(th), np.sin(th)], axis=1))
+            fh.append(field)
+            fr.append(np.full(n_tracks, t))
+            tr.append(np.arange(n_tracks))
+        xy, v, fh = np.concatenate(xy), np.concatenate(v), np.concatenate(fh)
+        frames = Frames.from_arrays(np.concatenate(fr) * dt, xy[:, 0], xy[:, 1], v[:, 0], v[:, 1],
+                                    track=np.concatenate(tr))  # fmt: skip
+        return frames, 8.0 * np.stack([np.cos(fh), np.sin(fh)], axis=1)
+
+    frames, means = frames_of(0.1)
+    got = motion.heading_tolerance(frames, means, dt, 0.1, 8.0, 1.5)
+    assert abs(got / 0.1 - 1) < 0.25, got
+    frames, means = frames_of(0.0)
+    assert motion.heading_tolerance(frames, means, dt, 0.1, 8.0, 1.5) < 0.02
+    assert motion.heading_tolerance(frames, means, dt, 0.1, 8.0, float("nan")) == 0.0
+
+
+def test_stand_speed_is_the_recorded_speed_next_to_a_stand():
+    """Tracks that stand, then start at 0.3 and stop from 0.2 (a median of 0.25 over both), then
+    drive at 5: the learned stand speed is 0.25; tracks that never stand: 0."""
+    from dpgp.data.frames import Frames
+
+    dt, n = 0.5, 60
+    profile = [0.0, 0.0, 0.3, 5.0, 5.0, 0.2, 0.0, 0.0]
+    t = np.repeat(np.arange(len(profile)), n) * dt
+    speed = np.repeat(profile, n)
+    track = np.tile(np.arange(n), len(profile))
+    rng = np.random.default_rng(0)
+    frames = Frames.from_arrays(t, rng.uniform(0, 50, len(t)), rng.uniform(0, 50, len(t)), speed,
+                                np.zeros(len(t)), track=track)  # fmt: skip
+    assert motion.stand_speed(frames, dt) == pytest.approx(0.25)
+    moving = Frames.from_arrays(t, rng.uniform(0, 50, len(t)), rng.uniform(0, 50, len(t)), speed + 1.0,
+                                np.zeros(len(t)), track=track)  # fmt: skip
+    assert motion.stand_speed(moving, dt) == 0.0
+
+
+def test_model_files_keep_the_tolerance_and_the_stand_speed():
+    m = motion.MotionModel("vehicles", np.array([2.0]), np.array([[0.7, 0.3]]), np.zeros(1, np.int64), np.ones(1),
+                           0.5, 7.0, 1.5, 1.0, 2.0, 1.5, sigma_frame="heading", min_speed=0.4, tau_heading=2.5,
+                           heading_tolerance=0.08, stand_speed=0.2)  # fmt: skip
+    d = m.to_dict()
+    back = motion.MotionModel.from_dict(d)
+    assert back.heading_tolerance == 0.08 and back.stand_speed == 0.2
+    assert list(back.record(0)[-2:]) == [0.08, 0.2]
+    assert list(back.record(0, recorded=True)[-2:]) == [0.0, 0.0]  # rollouts of recorded frames: neither
+    old = motion.MotionModel.from_dict({k: v for k, v in d.items() if k not in ("heading_tolerance", "stand_speed")})
+    assert list(old.record(0)[-2:]) == [0.0, 0.0]
+    for bad in ({"heading_tolerance": -0.1}, {"heading_tolerance": 4.0}, {"stand_speed": -1.0}):
         with pytest.raises(dpgp.DataFormatError):
             motion.MotionModel.from_dict({**d, **bad})
 

@@ -18,7 +18,8 @@
 //!    spreads are scaled by a [`Profile`] of the field's speed `|m(x)|` (small where the field
 //!    is slow: queues). A steering vehicle ([`Motion::tau_heading`]) keeps a heading and a
 //!    desired speed instead: the speed relaxes as the along part, the heading turns toward the
-//!    field's with its own time constant, and a negative desired speed stands. The deviation is measured at the new position, so a field that changes
+//!    field's with its own time constant (by the part of the angle beyond a tolerance), and a
+//!    desired speed below a stand speed stands. The deviation is measured at the new position, so a field that changes
 //!    along the path is followed with the lag `τ` (a first-order lag of the velocity), and a
 //!    large `τ` keeps an agent close to constant velocity;
 //! 3. interaction turns desired into actual velocities ([`Rule`]): vehicles follow the leader
@@ -140,15 +141,24 @@ pub struct Motion {
     /// `θ` (a vehicle does not reverse: it stands). `None`: the desired velocity is the field's
     /// mean plus the residual vector.
     pub tau_heading: Option<f64>,
+    /// A steering vehicle's tolerance (rad): its heading turns by the part of its angle to the
+    /// field's heading beyond this, so within it the vehicle drives straight (0: it always turns
+    /// toward the field). The fitted fields' heading is rough at the scale of a lane; recorded
+    /// vehicles do not follow that roughness.
+    pub heading_tolerance: f64,
+    /// A steering vehicle whose desired speed is below this stands (0: only a negative one).
+    /// Recorded vehicles stop from and start to about this speed; the field is slow, not at
+    /// rest, in a queue, and a wish that small made queued vehicles creep.
+    pub stand_speed: f64,
 }
 
 /// Numbers in a flat [`Motion`] record: `tau, sigma_0, sigma_1, kind (0 free, 1 vehicles,
 /// 2 pedestrians), personal, jam, headway, accel, decel, lateral, min_speed, tau_across,
 /// tau_heading`, then the [`Profile`]: [`PROFILE_KNOTS`] field speeds, as many along factors and
-/// as many across factors. `min_speed < 0`: [`Spread::Components`] (`tau_across`, `tau_heading`
+/// as many across factors, then `heading_tolerance` (rad) and `stand_speed`. `min_speed < 0`: [`Spread::Components`] (`tau_across`, `tau_heading`
 /// and the profile unused), else [`Spread::Heading`]; `tau_heading < 0`: no steering;
 /// a first knot speed `< 0`: the flat profile.
-pub const MOTION_FIELDS: usize = 13 + 3 * PROFILE_KNOTS;
+pub const MOTION_FIELDS: usize = 15 + 3 * PROFILE_KNOTS;
 
 impl Motion {
     /// From the flat record of [`MOTION_FIELDS`] numbers (what the binding passes).
@@ -203,6 +213,8 @@ impl Motion {
             rule,
             profile,
             tau_heading,
+            heading_tolerance: v[13 + 3 * PROFILE_KNOTS],
+            stand_speed: v[14 + 3 * PROFILE_KNOTS],
         };
         m.validate()?;
         Ok(m)
@@ -245,6 +257,18 @@ impl Motion {
                 "tau_heading (s, with the heading frame; inf holds the heading)",
                 t,
             );
+        }
+        let tol = self.heading_tolerance;
+        if !(tol.is_finite() && (0.0..std::f64::consts::PI).contains(&tol)) {
+            return Err(Error::InvalidInput(format!(
+                "motion parameter heading_tolerance must be in [0, pi) rad, got {tol}"
+            )));
+        }
+        if !(self.stand_speed.is_finite() && self.stand_speed >= 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "motion parameter stand_speed must be finite and >= 0, got {}",
+                self.stand_speed
+            )));
         }
         let p = &self.profile;
         let knots_ok = p.speed.iter().all(|s| s.is_finite() && *s >= 0.0)
@@ -307,8 +331,8 @@ fn spread_at(m: [f64; 2], motion: &Motion) -> [f64; 2] {
 
 /// One step of a steering vehicle's `state`, its heading `θ` and desired speed `u`, toward the field's
 /// mean `m` ([`Motion::tau_heading`]): `u` as the along residual (`rho`, `kick`, spread at `m`,
-/// innovation `z`), `theta` by the share `turn = 1 − exp(−dt / τ_h)` of its angle to the
-/// field's heading.
+/// innovation `z`), `theta` by the share `turn = 1 − exp(−dt / τ_h)` of the part of its angle to
+/// the field's heading beyond [`Motion::heading_tolerance`].
 fn steer(
     state: &mut [f64; 2],
     m: [f64; 2],
@@ -325,7 +349,18 @@ fn steer(
     if let Some((e, _)) = heading(m, motion) {
         let d = e[1].atan2(e[0]) - *theta;
         let d = d.sin().atan2(d.cos()); // wrapped to (−π, π]
-        *theta += turn * d;
+        let excess = d.signum() * (d.abs() - motion.heading_tolerance).max(0.0);
+        *theta += turn * excess;
+    }
+}
+
+/// The speed at which a steering vehicle with desired speed `u` drives: `u`, or 0 (it stands)
+/// below [`Motion::stand_speed`] (a negative wish always stands: vehicles do not reverse).
+fn drive_speed(u: f64, motion: &Motion) -> f64 {
+    if u >= motion.stand_speed {
+        u.max(0.0)
+    } else {
+        0.0
     }
 }
 
@@ -586,7 +621,7 @@ pub fn drive(
                         // the drawn velocity's speed along it (standing if that is negative)
                         let along = want[j][0] * e[0] + want[j][1] * e[1];
                         steering[j] = [e[1].atan2(e[0]), along];
-                        let go = along.max(0.0);
+                        let go = drive_speed(along, motion);
                         want[j] = [go * e[0], go * e[1]];
                     }
                     vel[j] = want[j];
@@ -611,7 +646,7 @@ pub fn drive(
                             motion,
                         );
                         let [th, u] = steering[j];
-                        let go = u.max(0.0);
+                        let go = drive_speed(u, motion);
                         [go * th.cos(), go * th.sin()]
                     } else {
                         relax(want[j], mean[a], z, rho, kick, motion)

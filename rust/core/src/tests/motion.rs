@@ -114,6 +114,8 @@ fn the_profile_interpolates_and_scales_the_spread() {
         rule: Rule::Free,
         profile: p,
         tau_heading: None,
+        heading_tolerance: 0.0,
+        stand_speed: 0.0,
     };
     let mut slow = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[1.0, 0.0]; q.len()]) };
     let start = vec![[0.0, 0.0]; 2000];
@@ -148,6 +150,8 @@ fn steering_vehicles_turn_toward_the_field_at_their_time_constant_and_stand() {
         rule: Rule::Free,
         profile: Profile::FLAT,
         tau_heading: Some(2.0),
+        heading_tolerance: 0.0,
+        stand_speed: 0.0,
     };
     let mut north = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0, 5.0]; q.len()]) };
     let r = drive(
@@ -261,6 +265,8 @@ fn the_residual_relaxes_at_the_time_constant() {
         rule: Rule::Free,
         profile: Profile::FLAT,
         tau_heading: None,
+        heading_tolerance: 0.0,
+        stand_speed: 0.0,
     };
     let mut zero = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0; 2]; q.len()]) };
     let r = drive(
@@ -294,6 +300,8 @@ fn stochastic_residual_has_the_stationary_spread_and_is_seeded() {
         rule: Rule::Free,
         profile: Profile::FLAT,
         tau_heading: None,
+        heading_tolerance: 0.0,
+        stand_speed: 0.0,
     };
     let mut zero = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0; 2]; q.len()]) };
     let start = vec![[0.0, 0.0]; 400];
@@ -379,6 +387,8 @@ fn heading_spread_is_along_and_across_the_field() {
         rule: Rule::Free,
         profile: Profile::FLAT,
         tau_heading: None,
+        heading_tolerance: 0.0,
+        stand_speed: 0.0,
     };
     let mut uniform =
         |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[5.0 * c, 5.0 * s]; q.len()]) };
@@ -430,4 +440,94 @@ fn heading_spread_is_along_and_across_the_field() {
             tau_across: 0.5
         }
     );
+}
+
+#[test]
+fn steering_vehicles_drive_straight_within_their_tolerance_and_stand_below_the_stand_speed() {
+    // a field heading 0.05 rad north of east at 5: within a tolerance of 0.1 a vehicle going
+    // east keeps going east exactly; a field at 0.3 rad turns it by the share of 0.2 rad
+    let motion = Motion {
+        tau: f64::INFINITY,
+        sigma: [0.5, 0.5],
+        spread: Spread::Heading {
+            min_speed: 0.1,
+            tau_across: f64::INFINITY,
+        },
+        rule: Rule::Free,
+        profile: Profile::FLAT,
+        tau_heading: Some(2.0),
+        heading_tolerance: 0.1,
+        stand_speed: 0.0,
+    };
+    let field_at = |a: f64| {
+        move |q: &[Point]| -> Result<Vec<[f64; 2]>> {
+            Ok(vec![[5.0 * a.cos(), 5.0 * a.sin()]; q.len()])
+        }
+    };
+    let r = drive(
+        &[[0.0, 0.0]],
+        Some(&[[5.0, 0.0]]),
+        &opts(0.5, 6),
+        &motion,
+        None,
+        &mut field_at(0.05),
+    )
+    .unwrap();
+    for t in 1..=6 {
+        assert_eq!(r.velocities[t], [5.0, 0.0], "{t}");
+    }
+    let r = drive(
+        &[[0.0, 0.0]],
+        Some(&[[5.0, 0.0]]),
+        &opts(0.5, 1),
+        &motion,
+        None,
+        &mut field_at(0.3),
+    )
+    .unwrap();
+    let v = r.velocities[1];
+    let want = 0.2 * (1.0 - (-0.25f64).exp());
+    assert!((v[1].atan2(v[0]) - want).abs() < 1e-12, "{v:?}");
+    // without the tolerance the same vehicle turns toward 0.05 rad
+    let m0 = Motion {
+        heading_tolerance: 0.0,
+        ..motion
+    };
+    let r = drive(
+        &[[0.0, 0.0]],
+        Some(&[[5.0, 0.0]]),
+        &opts(0.5, 1),
+        &m0,
+        None,
+        &mut field_at(0.05),
+    )
+    .unwrap();
+    assert!(r.velocities[1][1] > 0.0);
+    // a field at 0.2 (a queue's slow mean): the vehicle wishes 0.2 (τ = 0.25 s) and stands
+    // below a stand speed of 0.3, drives at it without one
+    let slow = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.2, 0.0]; q.len()]) };
+    for (stand, want) in [(0.3, 0.0), (0.0, 0.2)] {
+        let m = Motion {
+            tau: 0.25,
+            stand_speed: stand,
+            ..motion
+        };
+        let r = drive(
+            &[[0.0, 0.0]],
+            Some(&[[0.0, 0.0]]),
+            &opts(0.5, 8),
+            &m,
+            None,
+            &mut { slow },
+        )
+        .unwrap();
+        let v = r.velocities[8];
+        assert!((v[0] - want).abs() < 0.01 && v[1] == 0.0, "{stand}: {v:?}");
+    }
+    // a stand speed must be finite and >= 0
+    let m = Motion {
+        stand_speed: -1.0,
+        ..motion
+    };
+    assert!(m.validate().is_err());
 }
