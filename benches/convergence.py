@@ -28,6 +28,7 @@ RUNS = {
     "no-split-merge": {"split_merge": 0},
     "paper": {"preset": "paper"},
     "paper-no-split-merge": {"preset": "paper", "split_merge": 0},
+    "per-pattern-noise": {"noise_var": "per_pattern"},
 }
 
 
