@@ -4,7 +4,7 @@ against a single GP and a position-blind Gaussian; where raw tracks exist, rollo
 1, 2 and 4 s against constant velocity. Prints one table.
 
     python benches/evaluate.py [--iterations 20] [--only us101,peachtree,...] [--seeds 5] [--no-rollouts]
-                               [--noise auto|per_pattern] [--seed-list 0,1]
+                               [--noise auto|per_pattern|global] [--seed-list 0,1]
 
 With ``--seeds S``, each data set is fitted with seeds 0..S-1 and a summary gives, per data set,
 the margin of dpgp over position-blind (mean, least, spread = largest - least) with the
@@ -72,7 +72,11 @@ def main() -> None:
     ap.add_argument("--no-rollouts", action="store_true", help="skip the rollouts (log densities only)")
     ap.add_argument("--jsonl", help="append each fit's row to this file")
     ap.add_argument(
-        "--noise", default="auto", help="noise_var of the fits: 'auto' (the global pair sampled) or 'per_pattern'"
+        "--noise",
+        default="auto",
+        choices=("auto", "per_pattern", "global"),
+        help="noise_var of the fits: 'auto' (the default: each pattern's pair sampled), 'per_pattern' (the same) "
+        "or 'global' (one pair sampled for all patterns)",
     )
     ap.add_argument("--seed-list", help="comma-separated seeds to fit (instead of 0..SEEDS-1)")
     args = ap.parse_args()

@@ -80,7 +80,7 @@ def test_info(model_file, capsys):
     assert f"dpgp-model format {FORMAT_VERSION}" in out and "36 frames" in out
     assert f"patterns: {model.n_patterns_}" in out and "settings:" in out
     n = model.noise_var_
-    assert f"resolved: noise variance ({n[0]:.4g}, {n[1]:.4g}) (sampled in the chain, from (" in out
+    assert f"noise variance per pattern (frame-weighted median ({n[0]:.4g}, {n[1]:.4g}); sampled in the chain" in out
 
 
 def test_plot(model_file, tmp_path, capsys):

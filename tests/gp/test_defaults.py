@@ -87,10 +87,12 @@ def test_auto_values_scale_with_the_units(small):
     for (*ra, sa), (*rb, sb) in zip(a.noise_scores, b.noise_scores):
         assert rb == pytest.approx(ra, rel=1e-9) and sb == pytest.approx(sa - 2 * n_test * np.log(FT), abs=1e-6)
     assert (a.noise_var_source, a.length_scale_prior_source) == ("pilot", "auto")
-    # noise_var="auto" (sampled): the chain starts at the prior's median share of each variance
+    # noise_var="auto" (sampled per pattern) and "global": the chain starts at the prior's median
+    # share of each variance
+    assert defaults.resolve(small, **{**kw, "noise_var": "global"}).noise_var_source == "sampled"
     s = defaults.resolve(small, **{**kw, "noise_var": "auto"})
     t = defaults.resolve(scaled(small, FT), **{**kw, "noise_var": "auto"})
-    assert s.noise_var_source == "sampled" and s.noise_scores is None
+    assert s.noise_var_source == "per_pattern" and s.noise_scores is None
     assert s.noise_var == pytest.approx(tuple(np.exp(defaults.NOISE_PRIOR[0]) * small.v.var(axis=0)), rel=1e-12)
     assert t.noise_var == pytest.approx(tuple(np.array(s.noise_var) * FT**2), rel=1e-12)
 

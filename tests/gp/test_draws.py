@@ -98,7 +98,7 @@ def test_averaged_scores_match_the_oracle_with_fixed_length_scales(data):
 def test_averaged_scores_use_each_draws_own_sampled_noise(data, tmp_path):
     """With the noise sampled in the chain, each kept draw is scored with its own noise pair."""
     train, test = data
-    model = _fit(train, length_scales=WS, noise_var="auto", iterations=12)
+    model = _fit(train, length_scales=WS, noise_var="global", iterations=12)
     states = _states(model)
     assert len(states) >= 3 and len({s[3] for s in states}) >= 2  # the noise differs between draws
 

@@ -29,9 +29,9 @@ def _summary(frames: dpgp.Frames) -> FramingSummary:
 def fitted(tmp_path_factory):
     frames = dpgp.datasets.synthetic("intersection", n_frames=40, seed=11)
     frames.summary = _summary(frames)
-    model = dpgp.DPGP(iterations=3, seed=4, progress=False, store_labels=True, length_scale_prior=(8.0, 1.5)).fit(
-        frames
-    )
+    model = dpgp.DPGP(
+        iterations=3, seed=4, progress=False, store_labels=True, length_scale_prior=(8.0, 1.5), noise_var="global"
+    ).fit(frames)
     path = tmp_path_factory.mktemp("io") / "model.npz"
     model.save(path)
     return model, path

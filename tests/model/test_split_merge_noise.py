@@ -57,7 +57,7 @@ def test_split_merge_chain_matches_the_enumerated_posterior(likelihood, proposal
 @pytest.mark.parametrize("likelihood,proposal", VARIANTS)
 def test_sampled_noise_chain_matches_the_posterior_with_the_noise_summed_out(likelihood, proposal):
     frames, p, alpha = so.tiny_problem(5)
-    m = fit_tiny(p, alpha, seed=12, likelihood=likelihood, proposal=proposal, noise_var="auto", split_merge=2)
+    m = fit_tiny(p, alpha, seed=12, likelihood=likelihood, proposal=proposal, noise_var="global", split_merge=2)
     assert m.defaults_.noise_var_source == "sampled"
     parts, logp = so.partition_posterior_noise_summed(frames, target(p, m), alpha, defaults.NOISE_PRIOR)
     got = so.empirical_partition_probs(m.label_trace_[BURN_IN:], parts)
@@ -75,7 +75,7 @@ def test_sampled_noise_chain_matches_the_posterior_with_the_noise_summed_out(lik
 
 def test_history_records_moves_and_noise_and_bad_settings_are_errors():
     frames = dpgp.datasets.synthetic("intersection", n_frames=60, seed=2)
-    m = dpgp.DPGP(iterations=4, seed=1, progress=False, split_merge=5).fit(frames)
+    m = dpgp.DPGP(iterations=4, seed=1, progress=False, split_merge=5, noise_var="global").fit(frames)
     h = m.history_
     for key in ("split_proposed", "split_accepted", "merge_proposed", "merge_accepted", "noise_var_x", "noise_var_y"):
         assert len(h[key]) == 4, key

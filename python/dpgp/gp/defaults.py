@@ -17,17 +17,18 @@ vehicle on Peachtree and 0.23 on Zara and loses 0.11 on US-101 and 0.03 on ETH. 
 few multi-vehicle frames fall back to ``sqrt(area / vehicles per frame)`` of the positions'
 bounding box.
 
-**Noise variance** ``"auto"`` (the default): sampled inside the chain (``rust/core/src/noise.rs``,
-docs/inference.md). One noise variance per velocity component, shared by the patterns, is
-slice-sampled on the log scale each sweep under the weakly informative prior
+**Noise variance** ``"auto"`` (the default; also ``"per_pattern"``): sampled inside the chain
+(``rust/core/src/noise.rs``, docs/inference.md), each pattern its own pair (``noise_var_source``
+``"per_pattern"``), slice-sampled on the log scale each sweep under the weakly informative prior
 ``log(σ_n,η² / σ_η²) ~ N(log 0.1, 2²)`` (:data:`NOISE_PRIOR`), relative to the component's
-velocity variance σ_η², so the chain is the same in any units. The chain starts at the prior's
-median, ``0.1 σ_η²``. The resolved value (``noise_var_``) is then the chain's last draw.
+velocity variance σ_η², so the chain is the same in any units; a new pattern draws its pair from
+the prior. The chain starts at the prior's median, ``0.1 σ_η²``. ``pattern_noise_var_`` holds
+each pattern's pair; ``noise_var_`` (and ``history_``'s ``noise_var_x``, ``noise_var_y``) the
+frame-weighted median of the patterns' pairs, per component.
 
-**Noise variance** ``"per_pattern"``: each pattern samples its own pair under the same prior
-(``noise_var_source`` ``"per_pattern"``); a new pattern draws its pair from the prior.
-``pattern_noise_var_`` holds each pattern's; ``noise_var_`` (and ``history_``'s ``noise_var_x``,
-``noise_var_y``) the frame-weighted median of the patterns' pairs, per component.
+**Noise variance** ``"global"`` (the default before per-pattern noise was measured better held
+out, docs/inference.md): one pair shared by all patterns, sampled the same way
+(``noise_var_source`` ``"sampled"``); ``noise_var_`` is the chain's last draw.
 
 **Noise variance** ``"pilot"`` (the earlier default, kept to reproduce its figures): a noise variance per velocity component, σ_n,η² = ρ_η σ_η², a
 fraction of the component's signal variance, chosen by held-out score before sampling, the
@@ -138,18 +139,18 @@ def resolve(
     else:
         prior, prior_source = _gamma("length_scale_prior", length_scale_prior), "user"
     if isinstance(noise_var, str):
-        if noise_var not in ("auto", "per_pattern", "pilot"):
+        if noise_var not in ("auto", "per_pattern", "global", "pilot"):
             raise InvalidInputError(
-                f"noise_var must be 'auto' (sampled), 'per_pattern' (sampled per pattern), 'pilot', a positive "
-                f"number or a pair of them, got {noise_var!r}"
+                f"noise_var must be 'auto' (sampled per pattern), 'per_pattern' (the same), 'global' (one pair "
+                f"sampled for all patterns), 'pilot', a positive number or a pair of them, got {noise_var!r}"
             )
         if paper and noise_var == "auto":
             sn2, noise_source = PAPER["noise_var"], "paper"
-        elif noise_var in ("auto", "per_pattern"):
+        elif noise_var in ("auto", "per_pattern", "global"):
             sv, _ = _moments(frames, signal_var, mean)
             start = float(np.exp(NOISE_PRIOR[0]))
             sn2 = (start * sv[0], start * sv[1])
-            noise_source = "sampled" if noise_var == "auto" else "per_pattern"
+            noise_source = "sampled" if noise_var == "global" else "per_pattern"
         else:
             if pilot is None:
                 raise InvalidInputError("noise_var='pilot' needs a pilot fit (DPGP.fit provides one); pass a number")

@@ -80,10 +80,10 @@ class DPGP:
         ``length_scale_prior_``.
     length_scales : ``None`` samples ``(w_x, w_y)`` per pattern; a pair fixes them for all patterns.
     noise_var : observation noise variance σ_n² (velocity units squared), one number for both
-        velocity components or a pair ``(x, y)``, fixed; ``"auto"`` (default): sampled inside
-        the chain each sweep under a prior relative to each component's velocity variance
-        (docs/inference.md), one pair for all patterns; ``"per_pattern"``: each pattern samples
-        its own pair under the same prior (``pattern_noise_var_``, (K, 2)); ``"pilot"``: chosen
+        velocity components or a pair ``(x, y)``, fixed; ``"auto"`` (default, also
+        ``"per_pattern"``): sampled inside the chain each sweep under a prior relative to each
+        component's velocity variance (docs/inference.md), each pattern its own pair
+        (``pattern_noise_var_``, (K, 2)); ``"global"``: one pair sampled for all patterns; ``"pilot"``: chosen
         before sampling by the held-out score of short pilot fits (:mod:`dpgp.defaults`). The
         pair the fit ends at is ``noise_var_`` (per pattern: the frame-weighted median of the
         patterns' pairs, per component), each sweep's in ``history_["noise_var_x"]``,
