@@ -220,6 +220,16 @@ def log_noise_prior(log_noise: np.ndarray, signal_var: float, prior: tuple[float
     return -0.5 * z**2 - np.log(sd) - 0.5 * np.log(2 * np.pi)
 
 
+def _noise_grid(p, prior, grid: int, span: float) -> tuple[list[np.ndarray], tuple[float, float]]:
+    """Per component, ``grid`` values of log σ_n² over the prior's mean ± ``span`` sds, and the
+    reference pair (the grids' middle points) the lines of the noise-summed posteriors cross."""
+    axes = []
+    for d in range(2):
+        centre = np.log(p.signal_var[d]) + prior[0]
+        axes.append(np.linspace(centre - span * prior[1], centre + span * prior[1], grid))
+    return axes, (float(np.exp(axes[0][grid // 2])), float(np.exp(axes[1][grid // 2])))
+
+
 def partition_posterior_noise_summed(
     frames, p: Params, alpha: float, prior: tuple[float, float], grid: int = 81, span: float = 5.0
 ):
@@ -235,11 +245,7 @@ def partition_posterior_noise_summed(
 
     n = len(frames)
     parts = set_partitions(n)
-    axes = []
-    for d in range(2):
-        centre = np.log(p.signal_var[d]) + prior[0]
-        axes.append(np.linspace(centre - span * prior[1], centre + span * prior[1], grid))
-    ref = (float(np.exp(axes[0][grid // 2])), float(np.exp(axes[1][grid // 2])))
+    axes, ref = _noise_grid(p, prior, grid, span)
     # per subset (bitmask): l(a, r) over the x axis and l(r, b) over the y axis, and l(r, r)
     lines: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
     for mask in range(1, 1 << n):
@@ -286,11 +292,7 @@ def partition_posterior_noise_per_pattern(
 
     n = len(frames)
     parts = set_partitions(n)
-    axes = []
-    for d in range(2):
-        centre = np.log(p.signal_var[d]) + prior[0]
-        axes.append(np.linspace(centre - span * prior[1], centre + span * prior[1], grid))
-    ref = (float(np.exp(axes[0][grid // 2])), float(np.exp(axes[1][grid // 2])))
+    axes, ref = _noise_grid(p, prior, grid, span)
     h = [ax[1] - ax[0] for ax in axes]
     trap = [np.log(np.r_[0.5, np.ones(grid - 2), 0.5] * hd) for hd in h]
     prior_x, prior_y = (log_noise_prior(axes[d], p.signal_var[d], prior) for d in range(2))

@@ -164,15 +164,15 @@ PROBE_TOLERANCE = 0.15
 PROBE_NOISE = (0.03, 0.1, 0.3)
 
 
-def probe_points(labels: np.ndarray, frames: Any, limit: int = PROBE_POINTS) -> tuple[np.ndarray, np.ndarray]:
-    """Positions and velocities of the largest pattern's frames, about ``limit`` points: every
+def probe_points(
+    labels: np.ndarray, frames: Any, pattern: int, limit: int = PROBE_POINTS
+) -> tuple[np.ndarray, np.ndarray]:
+    """Positions and velocities of ``pattern``'s frames (the largest), about ``limit`` points: every
     ``s``-th of its frames, ``s`` the stride that keeps the total under ``limit``. Spread over the
     pattern, not its first frames: consecutive frames repeat the same vehicles a step apart, and
     near-duplicates look like fine structure that only the exact GP can interpolate."""
-    labels = np.asarray(labels, dtype=np.int64)
     sizes = np.asarray(frames.sizes, dtype=np.int64)
-    big = np.argmax(np.bincount(labels, weights=sizes))
-    members = np.flatnonzero(labels == big)
+    members = np.flatnonzero(np.asarray(labels, dtype=np.int64) == pattern)
     stride = max(1, int(np.ceil(sizes[members].sum() / limit)))
     chosen = [frames[int(i)] for i in members[::stride]]
     return np.concatenate([f.xy for f in chosen]), np.concatenate([f.v for f in chosen])

@@ -557,7 +557,7 @@ class DPGP:
         assert self.basis_ is not None  # hsgp ran the initialisation
         choice = choose(points[points > 0], frames.sizes, self.basis_.size, self.memory_budget_)
         if choice.engine == "hsgp" and choice.exact_fits:  # faster: is it accurate on these data?
-            xy, v = probe_points(labels, frames)
+            xy, v = probe_points(labels, frames, int(np.argmax(points)))
             choice = check_accuracy(choice, resolution_gap(xy, v, self.params_, self.basis_))
         self.engine_choice_ = choice.to_dict()
         if choice.engine == "exact":
