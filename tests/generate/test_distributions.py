@@ -72,6 +72,25 @@ def test_pseudocount_fills_unseen_counts_and_bins():
     assert d.log_count_pmf(0) == -np.inf  # frames are never empty
 
 
+def test_held_out_density_is_smoothed_and_normalised():
+    """Counts 1, 2, 2, 3 (4 frames) and 8 positions in 8 bins of 1 x 1, smoothed by ½: the
+    formula written out by hand, finite for an unseen count and an empty bin."""
+    d = dpgp.EmpiricalDistributions.from_frames(toy_frames(), roi=(0, 4, 0, 2), bins=(4, 2))
+    c = 0.5
+    total = 4 + 3 * c + c  # the tail beyond 3 vehicles holds c in all
+    phi = {1: (1 + c) / total, 2: (2 + c) / total, 3: (1 + c) / total, 4: c / 2 / total, 6: c / 8 / total}
+    psi_full, psi_empty = (3 + c) / (8 + 8 * c), (0 + c) / (8 + 8 * c)  # bins (0, 0) and (2, 0)
+    assert d.held_out_log_density([[0.5, 0.5], [2.5, 0.5]]) == pytest.approx(np.log(phi[2] * psi_full * psi_empty))
+    assert d.held_out_log_density([[0.5, 0.5]] * 4) == pytest.approx(np.log(phi[4] * psi_full**4))
+    assert d.held_out_log_density([[2.5, 0.5]] * 6) == pytest.approx(np.log(phi[6] * psi_empty**6))
+    assert d.held_out_log_density([[0.5, 0.5], [4.5, 0.5]]) == -np.inf  # outside the ROI
+    # φ̃ sums to 1 over every count; ψ̃ integrates to 1 over the ROI
+    logs = [d.held_out_log_density([[0.5, 0.5]] * l) - l * np.log(psi_full) for l in range(1, 80)]
+    assert np.exp(logs).sum() == pytest.approx(1.0)
+    centres = [[i + 0.5, j + 0.5] for i in range(4) for j in range(2)]
+    assert sum(np.exp(d.held_out_log_density([p]) - np.log(phi[1])) for p in centres) == pytest.approx(1.0)
+
+
 def test_storage_as_plain_arrays(tmp_path):
     d = dpgp.EmpiricalDistributions.from_frames(toy_frames(), roi=(0, 4, 0, 2), bins=(4, 2), pseudocount=0.5)
     stored = d.to_dict()

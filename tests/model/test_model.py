@@ -50,7 +50,22 @@ def test_predict_proba_and_score_samples_match_the_formulas(fitted):
     np.testing.assert_allclose(model.score_samples(test, positions=False), velocity_part, rtol=1e-9)
     full = model.score_samples(test)
     d = dpgp.generate.scenarios.distributions(model)
-    np.testing.assert_allclose(full - velocity_part, [d.log_frame_density(f.xy) for f in test], rtol=1e-9)
+    np.testing.assert_allclose(full - velocity_part, [d.held_out_log_density(f.xy) for f in test], rtol=1e-9)
+
+
+def test_score_samples_is_finite_for_a_count_never_seen(fitted):
+    """A held-out frame with more vehicles than any training frame (φ = 0 unsmoothed) scores
+    finitely, and its positions term is the smoothed φ̃ and ψ̃ of the training frames."""
+    model, train, _ = fitted
+    crowd = train[int(np.argmax(train.sizes))]
+    xy = np.vstack([crowd.xy, crowd.xy[:2] + 0.25])
+    v = np.vstack([crowd.v, crowd.v[:2]])
+    frame = dpgp.Frames.from_arrays(np.zeros(len(xy)), xy[:, 0], xy[:, 1], v[:, 0], v[:, 1])
+    d = dpgp.generate.scenarios.distributions(model)
+    assert len(xy) > d.max_count and d.log_frame_density(xy) == -np.inf
+    got = model.score_samples(frame)[0]
+    assert np.isfinite(got)
+    assert got - model.score_samples(frame, positions=False)[0] == pytest.approx(d.held_out_log_density(xy))
 
 
 def test_velocity_field_matches_the_gp_posterior(fitted):

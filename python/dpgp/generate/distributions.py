@@ -17,6 +17,8 @@ from ..exceptions import DataFormatError, InvalidInputError, ShapeError
 _FORMAT_VERSION = 1
 _MAX_BINS = 10**7  # position bins (80 MB of histogram)
 _MAX_SAMPLES = 10**8  # draws per call (0.8-1.6 GB of output)
+#: Pseudocount of :meth:`EmpiricalDistributions.held_out_log_density` (Krichevsky–Trofimov's ½).
+HELD_OUT_PSEUDOCOUNT = 0.5
 
 
 class EmpiricalDistributions:
@@ -156,6 +158,39 @@ class EmpiricalDistributions:
         """log φ(l) + Σ_j log ψ(x_j, y_j) for one frame's ``l`` positions ``xy`` (l, 2)."""
         pts = as_pairs("xy", xy)
         return float(self.log_count_pmf(len(pts))) + float(self.log_position_density(pts).sum())
+
+    def held_out_log_density(self, xy: Any) -> float:
+        """log φ̃(l) + Σ_j log ψ̃(x_j, y_j): φ and ψ smoothed for scoring frames that were not in
+        training, where a count or a bin never seen would otherwise give -inf.
+
+        Half a frame (:data:`HELD_OUT_PSEUDOCOUNT`) is added to every count from 1 to the largest
+        seen ``L``, and another half spread over the larger counts as a geometric tail
+        (``l = L + m`` gets ``½ · 2^-m``); half a vehicle is added to every position bin. Both stay
+        normalised; positions outside the ROI still have density 0 (-inf). The generator and
+        :meth:`log_frame_density` keep the unsmoothed φ and ψ.
+        """
+        pts = as_pairs("xy", xy)
+        check_finite("xy", pts)
+        c = HELD_OUT_PSEUDOCOUNT
+        seen = self.count_hist[1:]
+        largest = len(seen)
+        total = seen.sum() + c * largest + c  # counts 1..L smoothed, plus the tail's mass c
+        l = len(pts)
+        if l == 0:
+            log_count = -np.inf  # make_frames never gives an empty frame
+        elif l <= largest:
+            log_count = float(np.log((seen[l - 1] + c) / total))
+        else:
+            log_count = float(np.log(c / total) - (l - largest) * np.log(2.0))
+        nx, ny = self.bins
+        x0, x1, y0, y1 = self.roi
+        area = (x1 - x0) / nx * (y1 - y0) / ny
+        log_bin = np.log((self.position_hist + c) / (self.position_hist.sum() + c * nx * ny)) - np.log(area)
+        inside = inside_roi(pts, self.roi)
+        if not inside.all():
+            return -np.inf
+        ix, iy = _bin_index(self.roi, self.bins, pts)
+        return log_count + float(log_bin[ix, iy].sum())
 
     # --- sampling ------------------------------------------------------------------------------
     def sample_counts(self, n: int, rng: Any = None) -> np.ndarray:

@@ -699,8 +699,11 @@ class DPGP:
     def score_samples(self, frames: Frames | Any, positions: bool = True, average: bool = False) -> np.ndarray:
         """log p(frame | model) per frame, the paper's frame likelihood under the fitted mixture:
         ``log φ(l) + Σ_j log ψ(x_j, y_j) + log Σ_k π_k p(V | X, D_k)`` with π the DP's predictive
-        weights (a new pattern included). ``positions=False`` leaves out the φ and ψ terms (the
-        density of the velocities given the positions). ``average=True``: the posterior
+        weights (a new pattern included). φ and ψ are smoothed so that a frame with a count or
+        a position bin never seen in training scores finitely
+        (:meth:`~dpgp.EmpiricalDistributions.held_out_log_density`; -inf only outside the ROI).
+        ``positions=False`` leaves out the φ and ψ terms (the density of the velocities given
+        the positions). ``average=True``: the posterior
         predictive, the mixture density averaged over the kept posterior draws after burn-in and
         the final state (:mod:`dpgp.posterior`); ``False``: the final state only."""
         frames = as_frames(frames)
@@ -714,7 +717,7 @@ class DPGP:
             from ..generate.scenarios import distributions
 
             d = distributions(self._fitted())
-            out = out + np.array([d.log_frame_density(f.xy) for f in frames])
+            out = out + np.array([d.held_out_log_density(f.xy) for f in frames])
         return out
 
     def velocity_field(self, k: int, xy: object) -> tuple[np.ndarray, np.ndarray]:
