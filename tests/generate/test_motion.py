@@ -270,10 +270,10 @@ def test_model_files_keep_the_tolerance_and_the_stand_speed():
     d = m.to_dict()
     back = motion.MotionModel.from_dict(d)
     assert back.heading_tolerance == 0.08 and back.stand_speed == 0.2
-    assert list(back.record(0)[-2:]) == [0.08, 0.2]
-    assert list(back.record(0, recorded=True)[-2:]) == [0.0, 0.0]  # rollouts of recorded frames: neither
+    assert list(back.record(0)[-4:-2]) == [0.08, 0.2]
+    assert list(back.record(0, recorded=True)[-4:-2]) == [0.0, 0.0]  # rollouts of recorded frames: neither
     old = motion.MotionModel.from_dict({k: v for k, v in d.items() if k not in ("heading_tolerance", "stand_speed")})
-    assert list(old.record(0)[-2:]) == [0.0, 0.0]
+    assert list(old.record(0)[-4:-2]) == [0.0, 0.0]
     for bad in ({"heading_tolerance": -0.1}, {"heading_tolerance": 4.0}, {"stand_speed": -1.0}):
         with pytest.raises(dpgp.DataFormatError):
             motion.MotionModel.from_dict({**d, **bad})

@@ -139,6 +139,8 @@ _FORMAT_VERSION = 2
 #: learn the spread's profile over the field's speed (all agents) and steering (vehicles)
 PROFILE = True
 STEER = True
+#: learn the pedestrians' step jitter (:func:`step_jitter`)
+JITTER = True
 #: steering tolerances tried (rad, :func:`heading_tolerance`): 0, and 0.01 to 0.64
 TOLERANCE_GRID = np.r_[0.0, np.geomspace(0.01, 0.64, 13)]
 PROFILE_KNOTS = 8  # knots of the spread's profile over the field's speed (motion.rs: PROFILE_KNOTS)
@@ -177,6 +179,7 @@ class MotionModel:
     profile: np.ndarray | None = None
     heading_tolerance: float = 0.0
     stand_speed: float = 0.0
+    jitter: np.ndarray | None = None
 
     @property
     def rollout_tau(self) -> np.ndarray:
@@ -199,7 +202,9 @@ class MotionModel:
              # 1 s from 0.395 to 0.463 ft, relaxed dynamics)
              self.tau_heading if heading and not recorded and self.tau_heading > 0 else -1.0,
              *(self.profile.T.ravel() if heading and self.profile is not None else [-1.0] + [0.0] * (3 * PROFILE_KNOTS - 1)),
-             *((self.heading_tolerance, self.stand_speed) if heading and not recorded and self.tau_heading > 0 else (0.0, 0.0))],
+             *((self.heading_tolerance, self.stand_speed) if heading and not recorded and self.tau_heading > 0 else (0.0, 0.0)),
+             # the step jitter (pedestrians; stochastic rollouts only: mean rollouts draw none)
+             *(self.jitter if heading and self.jitter is not None else (0.0, 0.0))],
             dtype=np.float64,
         )  # fmt: skip
 
@@ -224,6 +229,7 @@ class MotionModel:
         out["profile"] = None if self.profile is None else np.asarray(self.profile).tolist()
         out["heading_tolerance"] = float(self.heading_tolerance)
         out["stand_speed"] = float(self.stand_speed)
+        out["jitter"] = None if self.jitter is None else [float(x) for x in self.jitter]
         return out
 
     @classmethod
@@ -258,6 +264,8 @@ class MotionModel:
                 # files written before the tolerance: none
                 heading_tolerance=float(d.get("heading_tolerance", 0.0)),
                 stand_speed=float(d.get("stand_speed", 0.0)),
+                # files written before the step jitter: none
+                jitter=None if d.get("jitter") is None else np.asarray(d["jitter"], dtype=np.float64).reshape(2),
             )
         except (KeyError, TypeError, ValueError) as e:
             raise DataFormatError(f"not a stored motion model ({type(e).__name__}: {e})") from None
@@ -269,6 +277,7 @@ class MotionModel:
             or not (np.isnan(m.tau_heading) or m.tau_heading > 0)
             or not (0.0 <= m.heading_tolerance < np.pi)
             or not (np.isfinite(m.stand_speed) and m.stand_speed >= 0)
+            or (m.jitter is not None and not (np.all(np.isfinite(m.jitter)) and np.all(m.jitter >= 0)))
             or (
                 m.profile is not None
                 and (
@@ -296,6 +305,7 @@ class MotionModel:
             + ("" if np.isnan(self.tau_heading) else f"; heading tau {self.tau_heading:.3g} s")
             + (f", tolerance {self.heading_tolerance:.3g} rad" if self.heading_tolerance > 0 else "")
             + (f", stands below {self.stand_speed:.3g}" if self.stand_speed > 0 else "")
+            + (f"; step jitter {self.jitter[0]:.3g}, {self.jitter[1]:.3g}" if self.jitter is not None else "")
             + ")"
         )
 
@@ -589,9 +599,11 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     if agents == "pedestrians":
         personal = nn_floor
         share = TAU_ACROSS_SHARE["pedestrians"]
+        jitter = step_jitter(frames, means, dt, min_speed) if JITTER else None
         return MotionModel(
-            agents, tau, sigma, pairs, spacing, max(personal, 1e-9), tau_rollout=roll, tau_across_share=share, **frame
-        )
+            agents, tau, sigma, pairs, spacing, max(personal, 1e-9), tau_rollout=roll, tau_across_share=share,
+            jitter=jitter, **frame,
+        )  # fmt: skip
     lateral = 0.25 * float(np.median(nn_all)) if len(nn_all) else 1.0
     gap, u, lead = leader_gaps(frames, lateral)
     med = float(np.median(speed[speed > 0])) if np.any(speed > 0) else 1.0
@@ -609,6 +621,42 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
         agents, tau, sigma, pairs, spacing, personal, jam, headway, accel, decel, max(lateral, 1e-9), tau_rollout=roll,
         tau_across_share=TAU_ACROSS_SHARE["vehicles"], tau_heading=tau_h, heading_tolerance=tol, stand_speed=stand, **frame,
     )  # fmt: skip
+
+
+def step_jitter(frames: Frames, means: np.ndarray, dt: float, min_speed: float) -> np.ndarray:
+    """(along, across) spreads of the pedestrians' step jitter (``motion.rs``: ``Motion::jitter``),
+    zeros without enough tracks. Over four consecutive rows of a track, the step velocities
+    ``u_i = (p_{i+1} − p_i) / dt`` (from positions, as the realism features measure them) give
+    two successive changes ``Δ₁ = u₂ − u₁``, ``Δ₂ = u₃ − u₂``, projected on the field's heading
+    at the second row and on its normal (rows where the field is faster than ``min_speed``). A
+    velocity ``s + η``, ``s`` smooth and ``η`` independent per step with variance ``j²``, has
+    ``cov(Δ₁, Δ₂) = cov(Δs₁, Δs₂) − j²``: ``j² = max(−cov(Δ₁, Δ₂), 0)`` per axis (a lower bound
+    when the smooth part's changes persist). Recorded pedestrians change velocity by 0.3 m/s
+    per 0.4 s step (ETH) and half of it is undone the next step (correlation −0.43 along the
+    heading, −0.22 across): ``j`` = 0.21, 0.15 m/s; Zara's changes persist (+0.27): 0."""
+    a, b = consecutive_pairs(frames, dt)
+    nxt = np.full(frames.n_points, -1, dtype=np.int64)
+    nxt[a] = b
+    r0 = np.arange(frames.n_points)
+    r1 = nxt
+    r2 = np.where(r1 >= 0, nxt[np.maximum(r1, 0)], -1)
+    r3 = np.where(r2 >= 0, nxt[np.maximum(r2, 0)], -1)
+    ok = r3 >= 0
+    ms = np.hypot(means[:, 0], means[:, 1])
+    ok[ok] &= (ms[r1[ok]] > min_speed) & (ms[r1[ok]] > 0)
+    if ok.sum() < MIN_PAIRS:
+        return np.zeros(2)
+    p = [frames.xy[r[ok]] for r in (r0, r1, r2, r3)]
+    u = [(p[i + 1] - p[i]) / dt for i in range(3)]
+    d1, d2 = u[1] - u[0], u[2] - u[1]
+    e = means[r1[ok]] / ms[r1[ok], None]
+    out = np.zeros(2)
+    along = [(d * e).sum(axis=1) for d in (d1, d2)]
+    across = [d[:, 1] * e[:, 0] - d[:, 0] * e[:, 1] for d in (d1, d2)]
+    for c, (x1, x2) in enumerate((along, across)):
+        cov = float(np.mean((x1 - x1.mean()) * (x2 - x2.mean())))
+        out[c] = np.sqrt(max(-cov, 0.0))
+    return out
 
 
 def _heading_pairs(
