@@ -93,7 +93,7 @@ def test_fitted_model_recovers_spreads_along_and_across_the_heading():
     assert np.all(np.abs(got / [along, across] - 1) < 0.15), m.sigma
     # the record draws the innovation in the heading frame: min_speed, τ across
     rec = m.record(0)
-    assert len(rec) == 15 + 3 * motion.PROFILE_KNOTS and rec[10] == m.min_speed
+    assert len(rec) == 17 + 3 * motion.PROFILE_KNOTS and rec[10] == m.min_speed
     assert rec[11] == m.tau[0] * m.tau_across_share
 
 
@@ -195,7 +195,7 @@ def test_model_files_keep_steering_and_the_profile():
     back = motion.MotionModel.from_dict(d)
     assert back.tau_heading == 2.5 and np.array_equal(back.profile, prof)
     rec = back.record(0)
-    assert len(rec) == 15 + 3 * motion.PROFILE_KNOTS and rec[12] == 2.5
+    assert len(rec) == 17 + 3 * motion.PROFILE_KNOTS and rec[12] == 2.5
     np.testing.assert_array_equal(rec[13:-2], prof.T.ravel())
     # rollouts of recorded frames do not steer; files written before: no steering, flat profile
     assert back.record(0, recorded=True)[12] == -1.0
