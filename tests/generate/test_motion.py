@@ -5,6 +5,7 @@ reproduces the earlier rollouts bit for bit (recorded in tests/fixtures by the e
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -92,7 +93,7 @@ def test_fitted_model_recovers_spreads_along_and_across_the_heading():
     assert np.all(np.abs(got / [along, across] - 1) < 0.15), m.sigma
     # the record draws the innovation in the heading frame: min_speed, τ across
     rec = m.record(0)
-    assert len(rec) == 15 + 3 * motion.PROFILE_KNOTS and rec[10] == m.min_speed
+    assert len(rec) == 17 + 3 * motion.PROFILE_KNOTS and rec[10] == m.min_speed
     assert rec[11] == m.tau[0] * m.tau_across_share
 
 
@@ -194,8 +195,8 @@ def test_model_files_keep_steering_and_the_profile():
     back = motion.MotionModel.from_dict(d)
     assert back.tau_heading == 2.5 and np.array_equal(back.profile, prof)
     rec = back.record(0)
-    assert len(rec) == 15 + 3 * motion.PROFILE_KNOTS and rec[12] == 2.5
-    np.testing.assert_array_equal(rec[13:-2], prof.T.ravel())
+    assert len(rec) == 17 + 3 * motion.PROFILE_KNOTS and rec[12] == 2.5
+    np.testing.assert_array_equal(rec[13:-4], prof.T.ravel())
     # rollouts of recorded frames do not steer; files written before: no steering, flat profile
     assert back.record(0, recorded=True)[12] == -1.0
     old = motion.MotionModel.from_dict({k: v for k, v in d.items() if k not in ("tau_heading", "profile")})
@@ -270,10 +271,10 @@ def test_model_files_keep_the_tolerance_and_the_stand_speed():
     d = m.to_dict()
     back = motion.MotionModel.from_dict(d)
     assert back.heading_tolerance == 0.08 and back.stand_speed == 0.2
-    assert list(back.record(0)[-2:]) == [0.08, 0.2]
-    assert list(back.record(0, recorded=True)[-2:]) == [0.0, 0.0]  # rollouts of recorded frames: neither
+    assert list(back.record(0)[-4:-2]) == [0.08, 0.2]
+    assert list(back.record(0, recorded=True)[-4:-2]) == [0.0, 0.0]  # rollouts of recorded frames: neither
     old = motion.MotionModel.from_dict({k: v for k, v in d.items() if k not in ("heading_tolerance", "stand_speed")})
-    assert list(old.record(0)[-2:]) == [0.0, 0.0]
+    assert list(old.record(0)[-4:-2]) == [0.0, 0.0]
     for bad in ({"heading_tolerance": -0.1}, {"heading_tolerance": 4.0}, {"stand_speed": -1.0}):
         with pytest.raises(dpgp.DataFormatError):
             motion.MotionModel.from_dict({**d, **bad})
@@ -538,3 +539,98 @@ def test_interaction_keeps_generated_vehicles_apart():
     field = share(model.sample_scenarios(200, steps=16, seed=1, dynamics="field"))
     interactive = share(model.sample_scenarios(200, steps=16, seed=1))
     assert interactive < 0.5 * field, (interactive, field)
+
+
+def walker_tracks(jitter: float, n_tracks: int = 40, steps: int = 30, dt: float = 0.4, seed: int = 0) -> pd.DataFrame:
+    """Pedestrians walking along x at 1.3 m/s with a slowly varying (OU, τ = 8 s, σ 0.1)
+    velocity plus an independent velocity jitter per step (spread ``jitter`` in x and y),
+    positions integrated; well apart (3 m lanes)."""
+    rng = np.random.default_rng(seed)
+    rho = np.exp(-dt / 8.0)
+    rows = []
+    for tr in range(n_tracks):
+        t0 = rng.integers(0, 20) * dt
+        r = rng.normal(0, 0.1, 2)
+        p = np.array([rng.uniform(0, 5), 3.0 * tr])
+        for s in range(steps):
+            v = np.array([1.3, 0.0]) + r + jitter * rng.normal(size=2)
+            rows.append((tr, t0 + s * dt, p[0], p[1], v[0], v[1]))
+            p = p + dt * v
+            r = rho * r + 0.1 * np.sqrt(1 - rho**2) * rng.normal(size=2)
+    return pd.DataFrame(rows, columns=["track", "t", "x", "y", "vx", "vy"])
+
+
+def test_step_jitter_recovers_a_simulated_one():
+    for jitter in (0.25, 0.0):
+        frames = dpgp.make_frames(walker_tracks(jitter), dt=0.4)
+        means = np.tile([1.3, 0.0], (frames.n_points, 1))
+        got = motion.step_jitter(frames, means, 0.4, 0.01)
+        if jitter:
+            np.testing.assert_allclose(got, jitter, rtol=0.15)
+        else:
+            assert np.all(got < 0.03), got
+    # too few tracks: none
+    few = dpgp.make_frames(walker_tracks(0.25, n_tracks=2, steps=5), dt=0.4)
+    assert np.all(motion.step_jitter(few, np.tile([1.3, 0.0], (few.n_points, 1)), 0.4, 0.01) == 0)
+
+
+def test_generated_pedestrians_jitter_and_keep_thread_determinism():
+    frames = dpgp.make_frames(walker_tracks(0.25, n_tracks=30), dt=0.4)
+    settings = dict(
+        iterations=2, seed=0, progress=False, noise_var=0.05, length_scale_prior=(10.0, 1.0), proposal="full"
+    )
+    one, two = (dpgp.DPGP(n_threads=t, **settings).fit(frames) for t in (1, 2))
+    m = motion.motion_model(one._fitted())
+    assert m.agents == "pedestrians" and np.all(m.jitter > 0.15), m
+    a = one.sample_scenarios(100, steps=10, seed=8)
+    b = two.sample_scenarios(100, steps=10, seed=8)
+    pd.testing.assert_frame_equal(a.to_pandas(), b.to_pandas(), check_exact=True)
+
+    def step_changes(scen) -> float:
+        out = []
+        for s in scen:
+            p = s.positions[:, s.in_roi.all(axis=0)]
+            u = np.diff(p, axis=0) / 0.4
+            out.append(np.diff(u, axis=0).reshape(-1, 2))
+        return float(np.sqrt(np.mean(np.concatenate(out) ** 2)))
+
+    # the jitter adds step changes (about 0.25 √2 per axis) to the OU's (0.31 here: this τ is short)
+    smooth = dataclasses.replace(m, jitter=np.zeros(2))
+    one._fitted().cache["motion"] = (one._fitted().frames, smooth)
+    calm = step_changes(one.sample_scenarios(100, steps=10, seed=8))
+    rough = step_changes(a)
+    assert rough > 0.25 and calm < 0.8 * rough, (rough, calm)
+
+
+def test_rollouts_of_recorded_pedestrians_keep_the_distance_their_tracks_keep():
+    # pedestrians walking at constant velocity past one another at 0.4 m: a personal distance
+    # of 0.6 only bends their predicted paths; tracks that keep 0.6 (simulated with the rule)
+    # choose it
+    dt, rows = 0.4, []
+    rng = np.random.default_rng(1)
+    for scene in range(30):
+        x = np.array([[0.0, 0.0], [8.0, 0.4]]) + rng.normal(0, 0.05, (2, 2)) + [0, 10.0 * scene]
+        v = np.array([[1.2, 0.0], [-1.2, 0.0]])
+        for kept, tag in ((False, 0), (True, 1)):
+            p = x.copy()
+            for s in range(25):
+                for i in range(2):
+                    rows.append((tag, f"{scene}-{i}", s * dt, p[i, 0], p[i, 1] + 1000.0 * tag))
+                p = p + dt * (motion._keep_distance(p, v, 0.6, dt) if kept else v)
+    df = pd.DataFrame(rows, columns=["kind", "track", "t", "x", "y"])
+    for tag, want in ((0, 0.0), (1, 0.6)):
+        f = dpgp.make_frames(df[df.kind == tag].drop(columns="kind"), dt=dt)
+        assert motion.rollout_personal_distance(f, dt, 0.6) == pytest.approx(want), tag
+    m = motion.MotionModel("pedestrians", np.ones(1), np.ones((1, 2)), np.zeros(1, np.int64), np.ones(1), 0.6,
+                           sigma_frame="heading", jitter=np.array([0.2, 0.1]), personal_rollout=0.0)  # fmt: skip
+    assert m.record(0)[3] == 2 and m.record(0)[4] == 0.6 and list(m.record(0)[-2:]) == [0.2, 0.1]
+    assert m.record(0, recorded=True)[3] == 0  # no rule in rollouts of recorded frames
+    back = motion.MotionModel.from_dict(m.to_dict())
+    assert back.personal_rollout == 0.0 and np.array_equal(back.jitter, [0.2, 0.1])
+    old = motion.MotionModel.from_dict(
+        {k: v for k, v in m.to_dict().items() if k not in ("jitter", "personal_rollout")}
+    )
+    assert old.jitter is None and np.isnan(old.personal_rollout)
+    assert list(old.record(0)[-2:]) == [0.0, 0.0] and old.record(0, recorded=True)[3] == 2
+    with pytest.raises(dpgp.DataFormatError):
+        motion.MotionModel.from_dict({**m.to_dict(), "jitter": [-0.1, 0.0]})

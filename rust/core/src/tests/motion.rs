@@ -116,6 +116,7 @@ fn the_profile_interpolates_and_scales_the_spread() {
         tau_heading: None,
         heading_tolerance: 0.0,
         stand_speed: 0.0,
+        jitter: [0.0; 2],
     };
     let mut slow = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[1.0, 0.0]; q.len()]) };
     let start = vec![[0.0, 0.0]; 2000];
@@ -152,6 +153,7 @@ fn steering_vehicles_turn_toward_the_field_at_their_time_constant_and_stand() {
         tau_heading: Some(2.0),
         heading_tolerance: 0.0,
         stand_speed: 0.0,
+        jitter: [0.0; 2],
     };
     let mut north = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0, 5.0]; q.len()]) };
     let r = drive(
@@ -267,6 +269,7 @@ fn the_residual_relaxes_at_the_time_constant() {
         tau_heading: None,
         heading_tolerance: 0.0,
         stand_speed: 0.0,
+        jitter: [0.0; 2],
     };
     let mut zero = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0; 2]; q.len()]) };
     let r = drive(
@@ -302,6 +305,7 @@ fn stochastic_residual_has_the_stationary_spread_and_is_seeded() {
         tau_heading: None,
         heading_tolerance: 0.0,
         stand_speed: 0.0,
+        jitter: [0.0; 2],
     };
     let mut zero = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0; 2]; q.len()]) };
     let start = vec![[0.0, 0.0]; 400];
@@ -389,6 +393,7 @@ fn heading_spread_is_along_and_across_the_field() {
         tau_heading: None,
         heading_tolerance: 0.0,
         stand_speed: 0.0,
+        jitter: [0.0; 2],
     };
     let mut uniform =
         |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[5.0 * c, 5.0 * s]; q.len()]) };
@@ -458,6 +463,7 @@ fn steering_vehicles_drive_straight_within_their_tolerance_and_stand_below_the_s
         tau_heading: Some(2.0),
         heading_tolerance: 0.1,
         stand_speed: 0.0,
+        jitter: [0.0; 2],
     };
     let field_at = |a: f64| {
         move |q: &[Point]| -> Result<Vec<[f64; 2]>> {
@@ -530,4 +536,58 @@ fn steering_vehicles_drive_straight_within_their_tolerance_and_stand_below_the_s
         ..motion
     };
     assert!(m.validate().is_err());
+}
+
+#[test]
+fn step_jitter_spreads_along_and_across_and_is_independent_per_step() {
+    // τ = ∞, σ = 0: without jitter every agent keeps its start velocity exactly; with jitter
+    // (0.3 along the field's heading, 0.1 across) the actual velocity is the held desired one
+    // plus an independent draw per step, of those spreads, in the heading frame
+    let motion = Motion {
+        tau: f64::INFINITY,
+        sigma: [0.0, 0.0],
+        spread: Spread::Heading {
+            min_speed: 0.01,
+            tau_across: f64::INFINITY,
+        },
+        rule: Rule::Free,
+        profile: Profile::FLAT,
+        tau_heading: None,
+        heading_tolerance: 0.0,
+        stand_speed: 0.0,
+        jitter: [0.0; 2],
+    };
+    let mut north = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[0.0, 1.0]; q.len()]) };
+    let n = 4000;
+    let start = vec![[0.0, 0.0]; n];
+    let v0 = vec![[0.0, 1.0]; n];
+    let still = drive(&start, Some(&v0), &opts(0.4, 3), &motion, Some(3), &mut north).unwrap();
+    assert!(still.velocities.iter().all(|v| *v == [0.0, 1.0]));
+    let m = Motion {
+        jitter: [0.3, 0.1],
+        ..motion
+    };
+    let r = drive(&start, Some(&v0), &opts(0.4, 3), &m, Some(3), &mut north).unwrap();
+    // a recorded start keeps its velocity exactly
+    assert!(r.velocities[..n].iter().all(|v| *v == [0.0, 1.0]));
+    let (mut sa, mut sc, mut lag) = (0.0, 0.0, 0.0);
+    for i in 0..n {
+        let (a, b) = (r.velocities[n + i], r.velocities[2 * n + i]);
+        sa += (a[1] - 1.0).powi(2); // along the heading (north)
+        sc += a[0].powi(2);
+        lag += (a[1] - 1.0) * (b[1] - 1.0);
+    }
+    let (sa, sc, lag) = ((sa / n as f64).sqrt(), (sc / n as f64).sqrt(), lag / n as f64);
+    assert!((sa / 0.3 - 1.0).abs() < 0.05, "{sa}");
+    assert!((sc / 0.1 - 1.0).abs() < 0.05, "{sc}");
+    assert!(lag.abs() < 0.09 * 0.1, "{lag}"); // not carried to the next step
+    // mean mode: no jitter; the same seed: the same draws
+    let mean = drive(&start, Some(&v0), &opts(0.4, 3), &m, None, &mut north).unwrap();
+    assert!(mean.velocities.iter().all(|v| *v == [0.0, 1.0]));
+    let again = drive(&start, Some(&v0), &opts(0.4, 3), &m, Some(3), &mut north).unwrap();
+    assert_eq!(again.velocities, r.velocities);
+    // a negative or non-finite jitter is an error
+    for bad in [[-0.1, 0.0], [0.0, f64::NAN]] {
+        assert!(Motion { jitter: bad, ..motion }.validate().is_err());
+    }
 }
