@@ -212,23 +212,36 @@ def resolution_gap(xy: np.ndarray, v: np.ndarray, params: Any, basis: Any) -> fl
     return (best["exact"] - best["hsgp"]) / len(xy)
 
 
-def partition_gap(labels: np.ndarray, frames: Any, params: Any, basis: Any, limit: int = PROBE_POINTS) -> float:
+def partition_gap(
+    labels: np.ndarray,
+    frames: Any,
+    params: Any,
+    basis: Any,
+    limit: int = PROBE_POINTS,
+    cache: dict[bytes, float] | None = None,
+) -> float:
     """The probe's gap on one partition: :func:`resolution_gap` of each pattern on its frames at
     the stride ``s`` that keeps the whole data under about ``limit`` points (every ``s``-th of the
     pattern's frames, from its first; a pattern of fewer than ``s`` frames keeps its first), averaged
     over the patterns weighted by their points (all of them, not the sample's): the per-point gap of
     the mixture's marginal likelihood, pattern by pattern. Every pattern counts, so a few small
     patterns that only the exact GP can fit (a queue at the scene's edge, a turn) weigh in, and
-    no single pattern decides."""
+    no single pattern decides. ``cache`` (frames sampled -> gap) lets the initialisations of
+    several seeds share the gaps of the patterns they have in common."""
     labels = np.asarray(labels, dtype=np.int64)
     sizes = np.asarray(frames.sizes, dtype=np.int64)
     points = pattern_points(labels, sizes)
     stride = max(1, int(np.ceil(sizes.sum() / limit)))
+    cache = {} if cache is None else cache
     total = 0.0
     for k in np.flatnonzero(points > 0):
-        chosen = [frames[int(i)] for i in np.flatnonzero(labels == k)[::stride]]
-        xy, v = np.concatenate([f.xy for f in chosen]), np.concatenate([f.v for f in chosen])
-        total += points[k] * resolution_gap(xy, v, params, basis)
+        rows = np.flatnonzero(labels == k)[::stride]
+        key = rows.tobytes()
+        if key not in cache:
+            chosen = [frames[int(i)] for i in rows]
+            xy, v = np.concatenate([f.xy for f in chosen]), np.concatenate([f.v for f in chosen])
+            cache[key] = resolution_gap(xy, v, params, basis)
+        total += points[k] * cache[key]
     return float(total / points.sum())
 
 

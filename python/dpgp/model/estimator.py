@@ -558,9 +558,14 @@ class DPGP:
         choice = choose(points[points > 0], frames.sizes, self.basis_.size, self.memory_budget_)
         if choice.engine == "hsgp" and choice.exact_fits:  # faster: is it accurate on these data?
             # On the initialisations of fixed seeds, not this fit's: a decision about the data.
+            cache: dict[bytes, float] = {}  # a pattern several initialisations share is probed once
             gaps = [
                 partition_gap(
-                    labels if s == self.seed else self._probe_labels(frames, s), frames, self.params_, self.basis_
+                    labels if s == self.seed else self._probe_labels(frames, s),
+                    frames,
+                    self.params_,
+                    self.basis_,
+                    cache=cache,
                 )
                 for s in PROBE_SEEDS
             ]
