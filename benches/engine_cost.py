@@ -4,6 +4,7 @@ picks the faster engine (issue 16, item 3).
     python benches/engine_cost.py calibrate [--out engine_cost.jsonl]   # time sweeps, both engines
     python benches/engine_cost.py fit engine_cost.jsonl                 # NNLS fit of the coefficients
     python benches/engine_cost.py check [--only NAME,...] [--sweeps 5]  # auto against both engines
+    python benches/engine_cost.py probe [--only NAME,...] [--seeds 5]   # auto's accuracy probe by seed
 
 ``calibrate`` fits synthetic and real scenes of several sizes with each engine (fixed noise, so
 that no pilot runs) and records, per sweep after the first, its seconds and the cost model's
@@ -14,6 +15,11 @@ prediction. ``check``: on every shared data set and the synthetic scenes at 200,
 pick, auto's predicted seconds, and the held-out log density (last 30% of the frames, nats per
 vehicle) of both engines. Exact is skipped where its predicted sweep exceeds ``--max-exact``
 seconds or its memory the budget (then its predicted seconds are shown).
+``probe``: per scene (training part) and seed, the engine ``likelihood="auto"`` picks (a fit of
+one sweep) and the probe's statistics on that seed's hsgp initialisation: the gap of its largest
+pattern alone (the probe before issue 16's seed-stability fix) and the points-weighted gap over
+all its patterns (``engine_cost.partition_gap``; auto takes the median over the seeds
+``engine_cost.PROBE_SEEDS``), whether or not the cost model lets the probe run.
 """
 
 from __future__ import annotations
@@ -163,6 +169,28 @@ def check(names: list[str] | None, sweeps: int, max_exact: float) -> None:
         print(table.to_string(float_format=lambda x: f"{x:.4g}"))
 
 
+def probe(names: list[str] | None, seeds: int) -> None:
+    for name, load in scenes(names).items():
+        train, _ = split_in_time(load())
+        hsgp = dpgp.DPGP(iterations=1, likelihood="hsgp", seed=0, progress=False).fit(train)
+        for seed in range(seeds):
+            t = time.perf_counter()
+            auto = dpgp.DPGP(iterations=1, seed=seed, progress=False).fit(train)
+            auto_s = time.perf_counter() - t
+            labels = hsgp._probe_labels(train, seed)
+            pts = engine_cost.pattern_points(labels, train.sizes)
+            largest = engine_cost.resolution_gap(
+                *engine_cost.probe_points(labels, train, int(np.argmax(pts))), hsgp.params_, hsgp.basis_
+            )
+            weighted = engine_cost.partition_gap(labels, train, hsgp.params_, hsgp.basis_)
+            ch = auto.engine_choice_
+            row = {"scene": name, "seed": seed, "pick": auto.likelihood_, "sizes_from": ch["sizes_from"],
+                   "predicted_exact_over_hsgp": ch["exact_seconds"] / ch["hsgp_seconds"],
+                   "auto_gap": ch["resolution_gap"], "largest_pattern_gap": largest, "partition_gap": weighted,
+                   "K_init": int((pts > 0).sum()), "auto_fit_s": auto_s}  # fmt: skip
+            print(json.dumps(row), flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -174,8 +202,13 @@ def main() -> None:
     k.add_argument("--only")
     k.add_argument("--sweeps", type=int, default=5)
     k.add_argument("--max-exact", type=float, default=30.0, help="skip exact where its predicted sweep is longer (s)")
+    p = sub.add_parser("probe")
+    p.add_argument("--only")
+    p.add_argument("--seeds", type=int, default=5)
     args = ap.parse_args()
-    if args.cmd == "calibrate":
+    if args.cmd == "probe":
+        probe(args.only.split(",") if args.only else None, args.seeds)
+    elif args.cmd == "calibrate":
         calibrate(args.out)
     elif args.cmd == "fit":
         fit(args.path)

@@ -143,3 +143,54 @@ def test_auto_keeps_exact_where_hsgp_would_be_faster_but_inaccurate(monkeypatch)
     _same_fit(auto, dpgp.DPGP(likelihood="exact", **kw).fit(frames))
     fine = dpgp.DPGP(**kw).fit(frames)  # the basis the sizing rule gives resolves it: hsgp stays
     assert fine.likelihood_ == "hsgp" and fine.engine_choice_["resolution_gap"] < ec.PROBE_TOLERANCE
+
+
+def test_partition_gap_is_the_points_weighted_gap_of_each_pattern():
+    """The probe's gap on a partition: each pattern's gap on its every s-th frame (s from the
+    whole data's points and the limit; a pattern shorter than s keeps its first frame), weighted by
+    the pattern's points, recomputed here frame by frame."""
+    frames = dpgp.datasets.synthetic("intersection", n_frames=30, seed=2)
+    basis = dpgp.hsgp.basis_for(frames.xy, (10.0, 1.0))
+    params = dpgp.GPParams(length_scales=(5.0, 5.0), signal_var=tuple(frames.v.var(0)), noise_var=(0.1, 0.1),
+                           mean=tuple(frames.v.mean(0)))  # fmt: skip
+    labels = np.array([0] * 14 + [1] * 14 + [2] * 2)  # pattern 2: fewer frames than the stride
+    limit = frames.n_points // 3 + 1  # stride 3
+    expected, total = 0.0, 0
+    for first, last in ((0, 14), (14, 28), (28, 30)):
+        rows = range(first, last, 3)
+        xy = np.concatenate([frames[i].xy for i in rows])
+        v = np.concatenate([frames[i].v for i in rows])
+        n_k = sum(frames[i].xy.shape[0] for i in range(first, last))
+        expected += n_k * ec.resolution_gap(xy, v, params, basis)
+        total += n_k
+    got = ec.partition_gap(labels, frames, params, basis, limit=limit)
+    assert total == frames.n_points
+    assert got == pytest.approx(expected / total, rel=1e-12, abs=1e-12)
+
+
+def test_auto_engine_is_a_decision_about_the_data_not_the_seed(monkeypatch):
+    """hsgp predicted far faster: the probe reads the initialisations of the fixed seeds
+    ec.PROBE_SEEDS, whatever the fit's seed, so every seed records the same gaps and picks the same
+    engine; the gap is the median of partition_gap over those initialisations (recomputed here).
+    The initialisations differ (with the sized basis the per-seed gaps are not all equal), so a
+    probe of the fit's own initialisation would not pass."""
+    frames = dpgp.datasets.synthetic("intersection", n_frames=40, seed=4)
+    monkeypatch.setattr(ec, "COEFFICIENTS", {"exact": (1.0, 0.0, 0.0), "hsgp": (1e-9, 0.0, 0.0, 0.0)})
+    kw = dict(iterations=1, noise_var=0.5, length_scale_prior=(10.0, 1.0), progress=False, posterior_draws=2)
+    distinct = []
+    for n_basis, engine in (((4, 4), "exact"), (None, "hsgp")):
+        fits = [dpgp.DPGP(seed=seed, n_basis=n_basis, **kw).fit(frames) for seed in (0, 3, 11)]
+        gaps = fits[0].engine_choice_["probe_gaps"]
+        assert len(gaps) == len(ec.PROBE_SEEDS)
+        distinct.append(len(set(gaps)) > 1)
+        for m in fits:
+            assert m.likelihood_ == engine
+            assert m.engine_choice_["probe_gaps"] == gaps
+            assert m.engine_choice_["resolution_gap"] == float(np.median(gaps))
+        hsgp = dpgp.DPGP(seed=0, n_basis=n_basis, likelihood="hsgp", **kw).fit(frames)
+        again = [
+            ec.partition_gap(hsgp._probe_labels(frames, s), frames, hsgp.params_, hsgp.basis_) for s in ec.PROBE_SEEDS
+        ]
+        np.testing.assert_allclose(again, gaps, rtol=1e-12)
+        assert (np.median(again) > ec.PROBE_TOLERANCE) == (engine == "exact")
+    assert distinct == [False, True]  # the coarse basis's partitions agree; the sized basis's differ

@@ -13,7 +13,7 @@ import dpgp
 # A background job may inherit SIGINT as ignored; restore Python's default (KeyboardInterrupt).
 signal.signal(signal.SIGINT, signal.default_int_handler)
 frames = dpgp.datasets.synthetic("highway", n_frames=150, seed=0)
-model = dpgp.DPGP(iterations=100000, progress=False, noise_var={noise})
+model = dpgp.DPGP(iterations=100000, progress=False, noise_var={noise}{extra})
 print("fitting", flush=True)
 model.fit(frames)
 print("sweeps", model.n_iter_, "patterns", model.n_patterns_, flush=True)
@@ -22,7 +22,9 @@ print("predict", model.predict(frames[:3]).tolist(), flush=True)
 
 
 def test_ctrl_c_keeps_the_state_reached():
-    script = SCRIPT.format(noise=0.5)  # a given noise: no pilot fits, sweeps start at once
+    # A given noise and engine: no pilot fits and no accuracy probe of likelihood="auto" (five
+    # initialisations, several seconds on a loaded machine), so sweeps start at once.
+    script = SCRIPT.format(noise=0.5, extra=', likelihood="hsgp"')
     proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stdout.readline().strip() == "fitting"
@@ -41,7 +43,7 @@ def test_ctrl_c_keeps_the_state_reached():
 def test_ctrl_c_during_the_noise_pilots_stops_the_fit():
     """noise_var="auto" runs short pilot fits first; Ctrl-C there ends the fit (there is no
     state to keep yet) instead of being taken as the end of one pilot."""
-    script = SCRIPT.format(noise=repr("pilot"))
+    script = SCRIPT.format(noise=repr("pilot"), extra="")
     proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         assert proc.stdout.readline().strip() == "fitting"

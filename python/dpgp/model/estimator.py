@@ -549,7 +549,7 @@ class DPGP:
         """Step 2 of ``likelihood="auto"`` (:mod:`dpgp.engine_cost`), once hsgp has initialised:
         predict both engines' sweeps from its pattern sizes; if exact is faster, start the exact
         sampler afresh (its own initialisation: the chain is then ``likelihood="exact"``'s)."""
-        from .engine_cost import check_accuracy, choose, pattern_points, probe_points, resolution_gap
+        from .engine_cost import PROBE_SEEDS, check_accuracy, choose, partition_gap, pattern_points
 
         self._auto_pending = False
         labels = np.asarray(self._sampler.labels(), dtype=np.int64)
@@ -557,8 +557,19 @@ class DPGP:
         assert self.basis_ is not None  # hsgp ran the initialisation
         choice = choose(points[points > 0], frames.sizes, self.basis_.size, self.memory_budget_)
         if choice.engine == "hsgp" and choice.exact_fits:  # faster: is it accurate on these data?
-            xy, v = probe_points(labels, frames, int(np.argmax(points)))
-            choice = check_accuracy(choice, resolution_gap(xy, v, self.params_, self.basis_))
+            # On the initialisations of fixed seeds, not this fit's: a decision about the data.
+            cache: dict[bytes, float] = {}  # a pattern several initialisations share is probed once
+            gaps = [
+                partition_gap(
+                    labels if s == self.seed else self._probe_labels(frames, s),
+                    frames,
+                    self.params_,
+                    self.basis_,
+                    cache=cache,
+                )
+                for s in PROBE_SEEDS
+            ]
+            choice = check_accuracy(choice, float(np.median(gaps)), gaps)
         self.engine_choice_ = choice.to_dict()
         if choice.engine == "exact":
             self.likelihood_, self.basis_ = "exact", None
@@ -566,12 +577,21 @@ class DPGP:
             self._sampler = self._new_sampler(frames)
             self._sampler.initialize()
 
-    def _new_sampler(self, frames: Frames) -> _core.Sampler:
-        """A core sampler over ``frames`` with this model's settings and ``params_``; shared by
-        ``fit`` and by loading a model file, so that both compute identically."""
+    def _probe_labels(self, frames: Frames, seed: int) -> np.ndarray:
+        """The labels of this fit's sequential initialisation (its engine, basis and settings) had
+        it been started with ``seed``: the partitions auto's accuracy probe reads."""
+        sampler = self._new_sampler(frames, seed=seed)
+        sampler.initialize()
+        return np.asarray(sampler.labels(), dtype=np.int64)
+
+    def _new_sampler(self, frames: Frames, seed: int | None = None) -> _core.Sampler:
+        """A core sampler over ``frames`` with this model's settings and ``params_`` (and the
+        given ``seed`` instead of ``self.seed``, for auto's probe); shared by ``fit`` and by
+        loading a model file, so that both compute identically."""
         a, b = self.length_scale_prior_
         settings: _core._SamplerSettings = {
             **self._sampler_settings(),
+            **({} if seed is None else {"seed": seed}),
             "assignment": self.assignment_,
             "likelihood": self.likelihood_,
             "basis": None if self.basis_ is None else self.basis_.as_tuple(),
