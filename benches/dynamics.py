@@ -75,6 +75,7 @@ def main() -> None:
     p.add_argument("--iterations", type=int, default=20)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--frames", type=int, default=None, help="fit the first N frames only")
+    p.add_argument("--dt", type=float, default=0.5, help="frame grid step, s (make_frames' default 0.5)")
     p.add_argument("--dynamics", default=None, choices=[None, "sticky"])
     p.add_argument("--threads", type=int, default=None)
     a = p.parse_args()
@@ -82,14 +83,14 @@ def main() -> None:
         model = dpgp.DPGP.load(a.out)
         print(f"loaded {a.out}")
     else:
-        frames = dpgp.make_frames(dpgp.read_tracks(a.data, preset="sumo"))
+        frames = dpgp.make_frames(dpgp.read_tracks(a.data, preset="sumo"), dt=a.dt)
         if a.frames is not None:
             frames = frames[: a.frames]
         t = time.perf_counter()
         model = dpgp.DPGP(
             iterations=a.iterations, seed=a.seed, progress=False, dynamics=a.dynamics, n_threads=a.threads
         ).fit(frames)
-        print(f"fit: {len(frames)} frames, dynamics={a.dynamics}, {time.perf_counter() - t:.1f} s total")
+        print(f"fit: {len(frames)} frames (dt {a.dt} s), dynamics={a.dynamics}, {time.perf_counter() - t:.1f} s total")
         model.save(a.out)
     h = model.history_
     sweeps = np.asarray(h["seconds"])
