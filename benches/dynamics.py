@@ -29,6 +29,21 @@ DOMINANT = 0.10  # share of frames that makes a pattern dominant
 MIN_RUN = 5.0  # s: shorter runs are flicker, not a phase, when timing the cycle
 
 
+def set_rho_prior(spec: str | None) -> None:
+    """Experiment (issue 20): ``"a,b"`` replaces the sticky prior's Beta(1, 1) on ρ; one number
+    fixes ρ (a point-mass prior). Changes the estimator module's prior for this process only."""
+    if spec is None:
+        return
+    from dpgp.model import estimator
+
+    parts = [float(x) for x in spec.split(",")]
+    if len(parts) == 2:
+        estimator.STICKINESS_PRIOR = (parts[0], parts[1])
+        return
+    orig = estimator._sticky_prior
+    estimator._sticky_prior = lambda frames: (*orig(frames)[:2], parts[0])
+
+
 def cycle_figures(model: dpgp.DPGP) -> dict:
     """Dominant patterns' mean dwell, and the cycle: the median time between the starts of
     successive runs (>= MIN_RUN) of one dominant pattern, and the lag (20-240 s) of the highest
@@ -75,21 +90,24 @@ def main() -> None:
     p.add_argument("--iterations", type=int, default=20)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--frames", type=int, default=None, help="fit the first N frames only")
+    p.add_argument("--dt", type=float, default=0.5, help="frame grid step, s (make_frames' default 0.5)")
     p.add_argument("--dynamics", default=None, choices=[None, "sticky"])
+    p.add_argument("--rho", default=None, help="sticky only: 'a,b' Beta prior of ρ, or a fixed ρ")
     p.add_argument("--threads", type=int, default=None)
     a = p.parse_args()
+    set_rho_prior(a.rho)
     if os.path.exists(a.out):
         model = dpgp.DPGP.load(a.out)
         print(f"loaded {a.out}")
     else:
-        frames = dpgp.make_frames(dpgp.read_tracks(a.data, preset="sumo"))
+        frames = dpgp.make_frames(dpgp.read_tracks(a.data, preset="sumo"), dt=a.dt)
         if a.frames is not None:
             frames = frames[: a.frames]
         t = time.perf_counter()
         model = dpgp.DPGP(
             iterations=a.iterations, seed=a.seed, progress=False, dynamics=a.dynamics, n_threads=a.threads
         ).fit(frames)
-        print(f"fit: {len(frames)} frames, dynamics={a.dynamics}, {time.perf_counter() - t:.1f} s total")
+        print(f"fit: {len(frames)} frames (dt {a.dt} s), dynamics={a.dynamics}, {time.perf_counter() - t:.1f} s total")
         model.save(a.out)
     h = model.history_
     sweeps = np.asarray(h["seconds"])
