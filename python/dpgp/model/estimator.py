@@ -589,21 +589,24 @@ class DPGP:
         given ``seed`` instead of ``self.seed``, for auto's probe); shared by ``fit`` and by
         loading a model file, so that both compute identically."""
         a, b = self.length_scale_prior_
-        settings: _core._SamplerSettings = {
-            **self._sampler_settings(),
-            **({} if seed is None else {"seed": seed}),
-            "assignment": self.assignment_,
-            "likelihood": self.likelihood_,
-            "basis": None if self.basis_ is None else self.basis_.as_tuple(),
-            "params": self.params_.as_tuple(),
-            "length_scale_prior": (a, b),
-            "memory_budget": self.memory_budget_,
-            "noise_prior": NOISE_PRIOR
-            if getattr(self.defaults_, "noise_var_source", None) in ("sampled", "per_pattern")
-            else None,
-            "noise_scope": "per_pattern" if self._per_pattern_noise() else "global",
-            "dynamics": _sticky_prior(frames) if self.dynamics == "sticky" else None,
-        }
+        settings = self._sampler_settings()
+        if seed is not None:
+            settings["seed"] = seed
+        settings.update(
+            {
+                "assignment": self.assignment_,
+                "likelihood": self.likelihood_,
+                "basis": None if self.basis_ is None else self.basis_.as_tuple(),
+                "params": self.params_.as_tuple(),
+                "length_scale_prior": (a, b),
+                "memory_budget": self.memory_budget_,
+                "noise_prior": NOISE_PRIOR
+                if getattr(self.defaults_, "noise_var_source", None) in ("sampled", "per_pattern")
+                else None,
+                "noise_scope": "per_pattern" if self._per_pattern_noise() else "global",
+                "dynamics": _sticky_prior(frames) if self.dynamics == "sticky" else None,
+            }
+        )
         return _core.Sampler(frames.xy, frames.v, frames.offsets, settings)
 
     def _sync(self) -> None:
