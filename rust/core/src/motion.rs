@@ -611,8 +611,7 @@ pub fn drive(
         seed.filter(|_| jittery)
             .map(|s| stream(s, t as u64, Phase::Simulate, JITTER_ENTITY))
     };
-    let jitter = |rng: &mut Option<rand_chacha::ChaCha8Rng>, m: [f64; 2], w: [f64; 2]| match rng
-    {
+    let jitter = |rng: &mut Option<rand_chacha::ChaCha8Rng>, m: [f64; 2], w: [f64; 2]| match rng {
         Some(rng) => {
             let z = [StandardNormal.sample(rng), StandardNormal.sample(rng)];
             let e = jitter_at(m, z, motion);

@@ -561,7 +561,15 @@ fn step_jitter_spreads_along_and_across_and_is_independent_per_step() {
     let n = 4000;
     let start = vec![[0.0, 0.0]; n];
     let v0 = vec![[0.0, 1.0]; n];
-    let still = drive(&start, Some(&v0), &opts(0.4, 3), &motion, Some(3), &mut north).unwrap();
+    let still = drive(
+        &start,
+        Some(&v0),
+        &opts(0.4, 3),
+        &motion,
+        Some(3),
+        &mut north,
+    )
+    .unwrap();
     assert!(still.velocities.iter().all(|v| *v == [0.0, 1.0]));
     let m = Motion {
         jitter: [0.3, 0.1],
@@ -577,7 +585,11 @@ fn step_jitter_spreads_along_and_across_and_is_independent_per_step() {
         sc += a[0].powi(2);
         lag += (a[1] - 1.0) * (b[1] - 1.0);
     }
-    let (sa, sc, lag) = ((sa / n as f64).sqrt(), (sc / n as f64).sqrt(), lag / n as f64);
+    let (sa, sc, lag) = (
+        (sa / n as f64).sqrt(),
+        (sc / n as f64).sqrt(),
+        lag / n as f64,
+    );
     assert!((sa / 0.3 - 1.0).abs() < 0.05, "{sa}");
     assert!((sc / 0.1 - 1.0).abs() < 0.05, "{sc}");
     assert!(lag.abs() < 0.09 * 0.1, "{lag}"); // not carried to the next step
@@ -588,6 +600,13 @@ fn step_jitter_spreads_along_and_across_and_is_independent_per_step() {
     assert_eq!(again.velocities, r.velocities);
     // a negative or non-finite jitter is an error
     for bad in [[-0.1, 0.0], [0.0, f64::NAN]] {
-        assert!(Motion { jitter: bad, ..motion }.validate().is_err());
+        assert!(
+            Motion {
+                jitter: bad,
+                ..motion
+            }
+            .validate()
+            .is_err()
+        );
     }
 }
