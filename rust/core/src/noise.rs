@@ -157,6 +157,13 @@ impl Sampler {
     }
 
     /// A new pattern's noise pair: a prior draw per pattern, else the chain's pair.
+    /// Whether a noise pair is where the chain's noise may be: at least [`MIN_RATIO`] times
+    /// each component's velocity variance, and finite.
+    pub(super) fn noise_in_support(&self, noise: [f64; 2]) -> bool {
+        let scale = self.settings.base.signal_var;
+        (0..2).all(|d| noise[d].is_finite() && noise[d] >= MIN_RATIO * scale[d])
+    }
+
     pub(super) fn new_noise(&self, rng: &mut impl rand::Rng) -> [f64; 2] {
         match self.settings.noise_prior {
             Some(prior) if self.settings.noise_scope == NoiseScope::PerPattern => {

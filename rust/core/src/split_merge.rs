@@ -17,16 +17,21 @@
 //! pattern's predictive costing `n² l` in the exact GP, one pass is already the cost of the
 //! move, and Dahl & Newcomb report SAMS mixing at least as well per unit of time.
 //!
-//! **Length scales during a move.** The pattern keeping frame `i` keeps the length scales
-//! it had (the split pattern's, or `i`'s pattern's in a merge); the other split pattern draws
-//! its length scales from their prior, as Jain & Neal do for non-conjugate parameters. Then
-//! the prior density of the drawn scales in the target cancels their proposal density, and
-//! the ratio of a split is
+//! **Hyperparameters during a move.** The pattern keeping frame `i` keeps the length scales
+//! (and, per pattern, the noise pair) it had: the split pattern's, or `i`'s pattern's in a
+//! merge. The other split pattern draws its own, `θ_b`, before the allocation, from an even
+//! mixture of their prior `p` (as Jain & Neal do for non-conjugate parameters) and a log-normal
+//! `L` around the split pattern's `θ_S` (sd [`LOCAL_LS_SD`] per log length scale,
+//! [`LOCAL_NOISE_SD`] per log noise variance). A prior draw alone is mostly useless for a
+//! pattern of many frames: the noise prior spans orders of magnitude and the length-scale prior
+//! has one mean for both axes, so almost every split was rejected for its new pattern's
+//! parameters, not its frames. With `q = ½ p + ½ L(· | θ_S)` the ratio of a split is
 //!
-//! `α Γ(n_a) Γ(n_b) / Γ(n_S) · p(D_a | w_S) p(D_b | w_b) / p(D_S | w_S) / q(allocation)`,
+//! `α Γ(n_a) Γ(n_b) / Γ(n_S) · p(D_a | θ_S) p(D_b | θ_b) / p(D_S | θ_S) · p(θ_b) / q(θ_b | θ_S) / q(allocation)`,
 //!
-//! and a merge's is its inverse with the reverse allocation's probability. The length scales
-//! are then updated by the usual slice step after the sweep.
+//! and a merge's is its inverse, with `θ_S = θ_a` and the reverse allocation's probability.
+//! With neither the length scales nor the noise sampled, `θ_b` is the fixed one and
+//! `p / q = 1`. The hyperparameters are then updated by the usual slice steps after the sweep.
 //!
 //! **Pairs.** `i` is uniform over frames; `j` is uniform over the others, or (informed) drawn
 //! from an even mixture of uniform and a kernel on the frames' mean velocities (frames that
@@ -39,7 +44,7 @@
 use std::sync::Arc;
 
 use rand::RngExt;
-use rand_distr::{Distribution, Gamma};
+use rand_distr::{Distribution, Gamma, StandardNormal};
 
 use super::{Assignment, Data, NONE, Sampler};
 use crate::error::{Error, Result, unknown_option};
@@ -48,7 +53,12 @@ use crate::frame::LengthScales;
 use crate::gp::GpParams;
 use crate::pattern_model::PatternModel;
 use crate::rng::{Phase, stream};
-use crate::special::ln_gamma;
+use crate::special::{ln_gamma, log_sum_exp};
+
+/// The local part of a split pattern's proposal: sd of each `log w` around the split
+/// pattern's, and of each `log σ_n²`.
+pub const LOCAL_LS_SD: f64 = 0.25;
+pub const LOCAL_NOISE_SD: f64 = 0.7;
 
 /// How the second frame of a move's pair is chosen.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -230,6 +240,80 @@ impl Sampler {
         Ok(self.new_params(ls, noise))
     }
 
+    /// The split pattern `b`'s parameters, drawn from `½ p + ½ L(· | parent)`, and
+    /// `log p(θ_b) − log q(θ_b | parent)` over the components the chain samples; `None` when
+    /// the local draw falls outside the noise's support (the move is then rejected).
+    fn split_params(
+        &self,
+        parent: &GpParams,
+        rng: &mut impl rand::Rng,
+    ) -> Result<Option<(GpParams, f64)>> {
+        let sample_ls = !self.settings.fixed_length_scales;
+        let sample_noise = self.per_pattern_noise();
+        if !(sample_ls || sample_noise) {
+            return Ok(Some((self.prior_params(rng)?, 0.0)));
+        }
+        let theta = if rng.random::<f64>() < 0.5 {
+            self.prior_params(rng)?
+        } else {
+            let mut jitter = |x: f64, sd: f64| {
+                let z: f64 = StandardNormal.sample(&mut *rng);
+                (x.ln() + sd * z).exp()
+            };
+            let ls = if sample_ls {
+                LengthScales {
+                    wx: jitter(parent.length_scales.wx, LOCAL_LS_SD),
+                    wy: jitter(parent.length_scales.wy, LOCAL_LS_SD),
+                }
+            } else {
+                self.settings.base.length_scales
+            };
+            let noise = if sample_noise {
+                parent.noise_var.map(|v| jitter(v, LOCAL_NOISE_SD))
+            } else {
+                self.settings.base.noise_var
+            };
+            if sample_noise && !self.noise_in_support(noise) {
+                return Ok(None);
+            }
+            self.new_params(ls, noise)
+        };
+        Ok(Some((theta, self.log_prior_over_proposal(&theta, parent))))
+    }
+
+    /// `log p(θ) − log(½ p(θ) + ½ L(θ | parent))`, densities of the sampled components on the
+    /// log scale (the same Jacobian in both).
+    fn log_prior_over_proposal(&self, theta: &GpParams, parent: &GpParams) -> f64 {
+        let normal = |x: f64, m: f64, sd: f64| {
+            let z = (x - m) / sd;
+            -0.5 * z * z - sd.ln() - 0.5 * crate::gp::LN_2PI
+        };
+        let (mut lp, mut ll) = (0.0, 0.0);
+        if !self.settings.fixed_length_scales {
+            let (a, b) = self.settings.length_scale_prior;
+            let pairs = [
+                (theta.length_scales.wx, parent.length_scales.wx),
+                (theta.length_scales.wy, parent.length_scales.wy),
+            ];
+            for (w, w0) in pairs {
+                let u = w.ln();
+                lp += a * u - w / b - ln_gamma(a) - a * b.ln();
+                ll += normal(u, w0.ln(), LOCAL_LS_SD);
+            }
+        }
+        if self.per_pattern_noise()
+            && let Some(prior) = self.settings.noise_prior
+        {
+            let scale = self.settings.base.signal_var;
+            for d in 0..2 {
+                let x = theta.noise_var[d].ln();
+                lp += prior.log_density(x, scale[d]);
+                ll += normal(x, parent.noise_var[d].ln(), LOCAL_NOISE_SD);
+            }
+        }
+        lp - (log_sum_exp(&[lp, ll]) + 0.5f64.ln())
+    }
+
     /// Grow two patterns from the seed items `i` (params of `template`) and `j` (params
     /// `params_b`) over the items `rest` in a random order. An item is a frame, or under the sticky
     /// prior a segment (frames joined by links: one CRP draw), scored by the joint predictive
@@ -322,7 +406,9 @@ impl Sampler {
             .into_iter()
             .filter(|it| it[0] != seed_i[0] && it[0] != seed_j[0])
             .collect();
-        let params_b = self.prior_params(rng)?;
+        let Some((params_b, prior_over_q)) = self.split_params(template.params(), rng)? else {
+            return Ok(());
+        };
         let alloc = self.allocate(
             &seed_i,
             &seed_j,
@@ -336,7 +422,7 @@ impl Sampler {
             + alloc.a.log_marginal()
             + alloc.b.log_marginal()
             - template.log_marginal();
-        if !self.accept(log_target, -alloc.log_q, rng) {
+        if !self.accept(log_target, prior_over_q - alloc.log_q, rng) {
             return Ok(());
         }
         self.split_merge.split_accepted += 1;
@@ -380,14 +466,16 @@ impl Sampler {
             + merged.log_marginal()
             - a.log_marginal()
             - b.log_marginal();
-        // The reverse split's log q is at most 0, so a uniform that rejects the target ratio
-        // alone rejects the move: most merges are refused before the costly reverse allocation.
+        // The reverse split's proposal of b's parameters from a's.
+        let q_over_prior = -self.log_prior_over_proposal(b.params(), a.params());
+        // The reverse split's log q is at most 0, so a uniform that rejects the ratio without it
+        // rejects the move: most merges are refused before the costly reverse allocation.
         let log_u = match self.settings.assignment {
             Assignment::Map if log_target > 0.0 => f64::NEG_INFINITY,
             Assignment::Map => return Ok(()),
             Assignment::Gibbs => rng.random::<f64>().ln(),
         };
-        if log_u >= log_target {
+        if log_u >= log_target + q_over_prior {
             return Ok(());
         }
         if self.settings.assignment == Assignment::Gibbs {
@@ -410,7 +498,7 @@ impl Sampler {
                 Some(&side),
                 rng,
             )?;
-            if log_u >= log_target + reverse.log_q {
+            if log_u >= log_target + q_over_prior + reverse.log_q {
                 return Ok(());
             }
         }
