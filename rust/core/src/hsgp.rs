@@ -499,11 +499,24 @@ impl HsgpPattern {
     }
 
     fn refactor(&mut self) -> Result<()> {
+        self.refactor_reusing(&[])
+    }
+
+    /// [`Self::refactor`], keeping each group of `reuse` whose output group and variances are
+    /// unchanged (the caller guarantees the same statistics, length scales and mean).
+    fn refactor_reusing(&mut self, reuse: &[Group]) -> Result<()> {
         let m = self.m();
         self.weights = OnceLock::new();
         self.groups.clear();
         for outs in self.params.groups() {
             let (s2, noise) = self.params.group_vars(outs);
+            if let Some(g) = reuse
+                .iter()
+                .find(|g| g.outs == *outs && g.signal_var == s2 && g.noise_var == noise)
+            {
+                self.groups.push(g.clone());
+                continue;
+            }
             let d = self.d(s2);
             let chol = Chol::factor(m, "reduced-rank", Par::Seq, || {
                 let mut b = vec![0.0; m * m];
@@ -728,7 +741,9 @@ impl HsgpPattern {
         }
     }
 
-    /// The same frames under other hyperparameters (one M x M factorisation per group).
+    /// The same frames under other hyperparameters (one M x M factorisation per group whose
+    /// variances changed: the noise step changes one output's noise at a time, and the other
+    /// group keeps its factor, the same numbers a refactor would give).
     pub fn with_params(&self, params: GpParams) -> Result<Self> {
         let mut p = Self {
             sqrt_s: self.basis.sqrt_spectral(params.length_scales),
@@ -737,7 +752,9 @@ impl HsgpPattern {
             weights: OnceLock::new(),
             ..self.clone_data()
         };
-        p.refactor()?;
+        let same =
+            params.length_scales == self.params.length_scales && params.mean == self.params.mean;
+        p.refactor_reusing(if same { &self.groups } else { &[] })?;
         Ok(p)
     }
 
