@@ -280,30 +280,9 @@ fn noise_integrated(data: &Data, st: &Settings, members: &[usize]) -> f64 {
 
 /// The partition posterior with every pattern's noise integrated out under its prior.
 fn enumerated_noise_integrated(data: &Data, st: &Settings) -> HashMap<Vec<usize>, f64> {
-    let alpha = st.alpha.unwrap();
-    let parts = crate::gibbs::split_merge::tests::partitions(data.len());
-    let mut cache: HashMap<Vec<usize>, f64> = HashMap::new();
-    let logw: Vec<f64> = parts
-        .iter()
-        .map(|z| {
-            let k = z.iter().max().unwrap() + 1;
-            (0..k)
-                .map(|c| {
-                    let members: Vec<usize> = (0..z.len()).filter(|&i| z[i] == c).collect();
-                    let lm = *cache
-                        .entry(members.clone())
-                        .or_insert_with(|| noise_integrated(data, st, &members));
-                    alpha.ln() + crate::special::ln_gamma(members.len() as f64) + lm
-                })
-                .sum()
-        })
-        .collect();
-    let z = crate::special::log_sum_exp(&logw);
-    parts
-        .into_iter()
-        .zip(logw)
-        .map(|(p, w)| (p, (w - z).exp()))
-        .collect()
+    crate::gibbs::split_merge::tests::enumerated_by(data.len(), st.alpha.unwrap(), |members| {
+        noise_integrated(data, st, members)
+    })
 }
 
 fn per_pattern_chain(

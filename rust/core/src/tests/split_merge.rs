@@ -95,20 +95,38 @@ pub(crate) fn partitions(n: usize) -> Vec<Vec<usize>> {
 
 /// `log [α^K Π Γ(n_k) p(D_k | w)]` of every partition, normalised.
 fn enumerated(data: &Data, st: &Settings) -> HashMap<Vec<usize>, f64> {
-    let alpha = st.alpha.unwrap();
-    let parts = partitions(data.len());
+    enumerated_by(data.len(), st.alpha.unwrap(), |members| {
+        let m: Vec<(usize, FrameRef)> = members.iter().map(|&i| (i, data.frame(i))).collect();
+        st.likelihood.pattern(st.base, &m).unwrap().log_marginal()
+    })
+}
+
+/// The posterior over every partition of `n` frames, normalised, with `log_pattern(members)` a
+/// pattern's log marginal likelihood (hyperparameters fixed or integrated out; computed once
+/// per subset): `∝ α^K Π Γ(n_k) exp(log_pattern(D_k))`.
+pub(crate) fn enumerated_by(
+    n: usize,
+    alpha: f64,
+    mut log_pattern: impl FnMut(&[usize]) -> f64,
+) -> HashMap<Vec<usize>, f64> {
+    let parts = partitions(n);
+    let mut cache: HashMap<Vec<usize>, f64> = HashMap::new();
     let logw: Vec<f64> = parts
         .iter()
         .map(|z| {
             let k = z.iter().max().unwrap() + 1;
             (0..k)
                 .map(|c| {
-                    let members: Vec<(usize, FrameRef)> = (0..z.len())
-                        .filter(|&i| z[i] == c)
-                        .map(|i| (i, data.frame(i)))
-                        .collect();
-                    let p = st.likelihood.pattern(st.base, &members).unwrap();
-                    alpha.ln() + ln_gamma(members.len() as f64) + p.log_marginal()
+                    let members: Vec<usize> = (0..z.len()).filter(|&i| z[i] == c).collect();
+                    let lm = match cache.get(&members) {
+                        Some(&lm) => lm,
+                        None => {
+                            let lm = log_pattern(&members);
+                            cache.insert(members.clone(), lm);
+                            lm
+                        }
+                    };
+                    alpha.ln() + ln_gamma(members.len() as f64) + lm
                 })
                 .sum()
         })
@@ -273,30 +291,9 @@ fn split_merge_with_sampled_length_scales_samples_the_enumerated_posterior() {
         st.length_scale_prior = (3.0, 1.2);
         st.split_merge.moves_per_sweep = 2;
         st.new_pattern_samples = 3;
-        let alpha = st.alpha.unwrap();
-        let parts = partitions(data.len());
-        let mut cache: HashMap<Vec<usize>, f64> = HashMap::new();
-        let logw: Vec<f64> = parts
-            .iter()
-            .map(|z| {
-                let k = z.iter().max().unwrap() + 1;
-                (0..k)
-                    .map(|c| {
-                        let members: Vec<usize> = (0..z.len()).filter(|&i| z[i] == c).collect();
-                        let lm = *cache
-                            .entry(members.clone())
-                            .or_insert_with(|| length_scales_integrated(&data, &st, &members));
-                        alpha.ln() + ln_gamma(members.len() as f64) + lm
-                    })
-                    .sum()
-            })
-            .collect();
-        let norm = crate::special::log_sum_exp(&logw);
-        let exact: HashMap<Vec<usize>, f64> = parts
-            .into_iter()
-            .zip(logw)
-            .map(|(p, w)| (p, (w - norm).exp()))
-            .collect();
+        let exact = enumerated_by(data.len(), st.alpha.unwrap(), |members| {
+            length_scales_integrated(&data, &st, members)
+        });
         let mut s = Sampler::new(tiny(), st.clone()).unwrap();
         let sweeps = 60_000;
         let mut freq: HashMap<Vec<usize>, f64> = HashMap::new();
