@@ -61,14 +61,15 @@ def load(name: str):
     raise SystemExit(f"unknown data set {name}")
 
 
-def fitted(name: str, train, models: Path | None) -> dpgp.DPGP:
+def fitted(name: str, train, models: Path | None, iterations: int | None = None) -> dpgp.DPGP:
     path = None if models is None else models / f"{name}.npz"
     if path is not None and path.exists():
         model = dpgp.DPGP.load(path)
         # the file keeps the fit; what generation learns comes from the code under test
         model.__dict__.get("_cache", {}).pop("motion", None)
         return model
-    model = dpgp.DPGP(seed=0, progress=False).fit(train)
+    extra = {} if iterations is None else {"iterations": iterations}
+    model = dpgp.DPGP(seed=0, progress=False, **extra).fit(train)
     if path is not None:
         models.mkdir(parents=True, exist_ok=True)
         model.save(path)
@@ -113,13 +114,18 @@ class _Dynamics:
         return self._model.sample_scenarios(*args, dynamics=self._dynamics, **kwargs)
 
 
-def quality(names: list[str], models: Path | None, dynamics: tuple[str, ...] = DYNAMICS) -> None:
+def quality(
+    names: list[str], models: Path | None, dynamics: tuple[str, ...] = DYNAMICS, iterations: int | None = None
+) -> None:
     rows = []
     for name in names:
         t0 = time.perf_counter()
         frames, tracks, metres, threshold = load(name)
         train, test = split_in_time(frames)
-        model = fitted(name, train, models)
+        model = fitted(name, train, models, iterations)
+        sweeps = model.history_["seconds"]
+        parts = {k: round(v, 1) for k, v in model._sampler.timings().items() if v}
+        print(f"{name}: {len(sweeps)} sweeps, median {np.median(sweeps):.2f} s; seconds by part {parts}", flush=True)
         thr = threshold / metres
         steps = int(round(4.0 / model._fitted().dt))
         recorded = overlap_share((f.xy for f in test), thr)
@@ -170,9 +176,10 @@ def main() -> None:
     ap.add_argument("--dynamics", default="interactive", choices=DYNAMICS)
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--compare", default=",".join(DYNAMICS), help="quality: the dynamics to compare")
+    ap.add_argument("--iterations", type=int, help="sweeps of each fit (default: the estimator's)")
     args = ap.parse_args()
     if args.what == "quality":
-        quality(args.only.split(","), args.models, tuple(args.compare.split(",")))
+        quality(args.only.split(","), args.models, tuple(args.compare.split(",")), args.iterations)
     else:
         throughput(args.dynamics, args.models, args.reps)
 
