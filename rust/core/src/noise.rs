@@ -10,15 +10,17 @@
 //! the noise with the data and leaves the chain unchanged. Every candidate refactors every
 //! pattern (in parallel); the factors at the accepted point become the patterns' factors.
 //!
-//! Two scopes ([`NoiseScope`]). **Global** (the default): one pair shared by all patterns,
-//! estimated from all frames. **Per pattern**: each pattern's `GpParams::noise_var` is its own,
+//! Two scopes ([`NoiseScope`]). **Global** (the core's default, `noise_var="global"` in Python):
+//! one pair shared by all patterns, estimated from all frames. **Per pattern** (Python's default,
+//! `noise_var="auto"`): each pattern's `GpParams::noise_var` is its own,
 //! under the same prior; each sweep slice-samples every pattern's `log σ_n,x²` then `log σ_n,y²`
 //! from `N(log(σ_n,d² / s_d²); m, τ²) · p(D_k | w_k, σ_n,k²)`, in parallel over patterns, each
 //! pattern on its own random stream (keyed by its stable id, as the length-scale step), so the
 //! chain does not depend on the thread count. A new pattern (Algorithm 8's auxiliaries, the
 //! new-pattern term of scores, the second pattern of a split) draws its noise pair from the prior
-//! with its length scales. Measured at the fitted partition (benches/noise_per_pattern.py), a
-//! per-pattern noise scores better held out on three of six shared data sets (docs/inference.md).
+//! with its length scales; a split's second pattern may instead draw it near the split pattern's
+//! (split_merge.rs). Per pattern scores better held out and mixes better on US-101
+//! (docs/inference.md, "The default: a noise pair per pattern").
 
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
