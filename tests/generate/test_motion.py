@@ -206,6 +206,28 @@ def test_model_files_keep_steering_and_the_profile():
             motion.MotionModel.from_dict({**d, **bad})
 
 
+def test_steering_is_learned_out_of_sample_where_the_fields_interpolate():
+    """Vehicles on a road whose across residual is OU (τ = 2 s): the heading relaxes toward the
+    road's with τ. With a noise far below the velocities' variance the fitted fields pass through
+    every training velocity, so in sample the field's heading at a vehicle is its own and the
+    learned τ_h is the grid's shortest (measured 0.25 s); out of sample (fields conditioned on
+    the first three quarters) it recovers τ (measured 1.99 s)."""
+    frames = dpgp.make_frames(ou_tracks(2.0, (0.2, 0.8), n_tracks=120, steps=30, span=240), dt=0.5)
+    model = dpgp.DPGP(
+        iterations=1, seed=0, progress=False, noise_var=1e-6, length_scale_prior=(10.0, 1.0), proposal="full",
+        likelihood="exact",
+    ).fit(frames)  # fmt: skip
+    fit = model._fitted()
+    learned = motion.learn(fit)
+    assert abs(learned.tau_heading / 2.0 - 1) < 0.2, learned
+    means = motion.field_means(fit, frames.xy, np.repeat(fit.labels, frames.sizes))
+    speed, field_speed = np.hypot(*frames.v.T), np.hypot(*means.T)
+    in_sample = motion.heading_time_constant(
+        frames, means, 0.5, motion.HEADING_SHARE * float(np.median(field_speed)), float(np.median(speed))
+    )
+    assert in_sample == motion.TAU_GRID[0]
+
+
 def test_heading_tolerance_recovers_a_simulated_one():
     """Vehicles that turn by 1 - exp(-dt / 1.5 s) of the part of their angle to a rough field
     heading beyond 0.1 rad (most steps: within it, so they drive dead straight): the learned
