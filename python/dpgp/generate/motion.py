@@ -62,8 +62,9 @@ The fitted fields are rough at
 the scale of a lane (their heading along the recorded SUMO paths changes by 0.5 rad/s at the
 90th percentile, the vehicles' by 0.11), so a vehicle that took the field's heading at every
 step turned where recorded ones drive straight. It turns only by the part of its angle to the
-field's heading beyond a tolerance (:func:`heading_tolerance`, least mean absolute error of the
-same prediction; junction 0.071 rad, Peachtree 0), and a desired speed below the recorded speed
+field's heading beyond a tolerance (:func:`heading_tolerance`, least squared error of the
+same prediction, kept where it beats none beyond noise; 0 on the current junction and Peachtree
+fits), and a desired speed below the recorded speed
 next to a stand (:func:`stand_speed`) stands: the field of a queue is slow, not at rest, and
 queued vehicles crept. A generated vehicle starts along the field's heading. Rollouts of recorded frames do not steer (they keep their own heading and relax with
 ``τ_rollout``).
