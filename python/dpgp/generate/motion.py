@@ -443,6 +443,7 @@ def time_constants(
     holdout: float | None = TAU_HOLDOUT,
     grid: np.ndarray = TAU_GRID,
     pattern_steps: int = TAU_PATTERN_STEPS,
+    held: tuple[FittedPatterns, int] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per pattern, the residual's time constant that best predicts held-out tracks, and how
     many track-steps chose it (0: the pooled choice).
@@ -471,7 +472,10 @@ def time_constants(
     nxt = np.full(frames.n_points, -1, dtype=np.int64)
     nxt[a] = b
     n = len(frames)
-    held = None if holdout is None else held_out_fields(fit, holdout)
+    if holdout is None:
+        held = None
+    elif held is None:  # else the caller's held_out_fields(fit, holdout)
+        held = held_out_fields(fit, holdout)
     if held is None:  # in sample: the fields as fitted, frames spread over the whole period
         roll, pool = fit, np.arange(n)
     else:
@@ -606,7 +610,8 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     # generated scenes: the residual's decay against the fields as fitted; rollouts of recorded
     # frames: the held-out choice, which also pays for the fields' error at an unseen vehicle
     tau, pairs = time_constants(fit, holdout=None, pattern_steps=MIN_PAIRS)
-    roll = time_constants(fit)[0]
+    held = held_out_fields(fit, TAU_HOLDOUT)  # conditioning refactors every pattern: once, for τ_rollout and steering
+    roll = time_constants(fit, held=held)[0]
     field_speed = np.hypot(means[:, 0], means[:, 1])
     min_speed = HEADING_SHARE * float(np.median(field_speed)) if len(field_speed) else 0.0
     profile = spread_profile(resid, means, min_speed) if PROFILE else None
@@ -644,7 +649,7 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     headway = float(np.clip(np.median((gap[follow] - jam) / u[follow]), 0.3, 3.0)) if follow.any() else 1.5
     accel, decel = _accelerations(frames, *consecutive_pairs(frames, dt), dt, med)
     personal = max(min(nn_floor, 0.5 * jam), 1e-9)
-    tau_h, tol = steering(fit, means, min_speed, med) if STEER else (float("nan"), 0.0)
+    tau_h, tol = steering(fit, held, means, min_speed, med) if STEER else (float("nan"), 0.0)
     stand = stand_speed(frames, dt) if STEER else 0.0
     return MotionModel(
         agents, tau, sigma, pairs, spacing, personal, jam, headway, accel, decel, max(lateral, 1e-9), tau_rollout=roll,
@@ -652,7 +657,13 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     )  # fmt: skip
 
 
-def steering(fit: FittedPatterns, means: np.ndarray, min_speed: float, typical_speed: float) -> tuple[float, float]:
+def steering(
+    fit: FittedPatterns,
+    held: tuple[FittedPatterns, int] | None,
+    means: np.ndarray,
+    min_speed: float,
+    typical_speed: float,
+) -> tuple[float, float]:
     """``(τ_h, δ)`` of steering vehicles (:func:`heading_time_constant`, :func:`heading_tolerance`),
     learned out of sample: from the last :data:`TAU_HOLDOUT` of the training frames, against the
     fields conditioned on the rest (through the pattern those fields predict for each frame), as
@@ -662,9 +673,9 @@ def steering(fit: FittedPatterns, means: np.ndarray, min_speed: float, typical_s
     the field (``τ_h`` at the grid's 0.25 s, ``δ`` 0) while a generated vehicle, which is never on
     a training point, turns with every roughness of the field (junction: realism ratio 0.754 in
     sample, 0.924 out of sample, on one fit). In sample where the fit cannot be conditioned or the
-    held-out frames hold too few track pairs."""
+    held-out frames hold too few track pairs. ``held``: :func:`held_out_fields` of ``fit`` at
+    :data:`TAU_HOLDOUT`."""
     frames, dt = fit.frames, fit.dt
-    held = held_out_fields(fit, TAU_HOLDOUT)
     if held is not None:
         late = frames[np.arange(held[1], len(frames))]
         through = np.repeat(held[0].predict(late), late.sizes)
