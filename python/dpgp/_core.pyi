@@ -91,7 +91,8 @@ def motion_rollouts(
     roi: tuple[float, float, float, float] | None = None,
     seeds: list[int] | None = None,
     low_data: float | None = None,
-) -> _RolloutArrays: ...
+    drivers: NDArray[np.float64] | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], NDArray[np.float64]]: ...
 def scene_rollouts(
     sampler: Sampler,
     slots: list[int],

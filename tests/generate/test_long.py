@@ -10,7 +10,9 @@ import pytest
 
 import dpgp
 from dpgp.exceptions import InvalidInputError
-from dpgp.generate.long import learn_entries, sample_long_scenarios
+from dpgp.generate import long as long_mod
+from dpgp.generate.long import lane_scale, learn_area, learn_entries, sample_long_scenarios
+from dpgp.generate.motion import motion_model
 
 
 def _tracks(seed: int = 0, n_tracks: int = 24, steps: int = 20, dt: float = 0.5) -> pd.DataFrame:
@@ -87,3 +89,39 @@ def test_same_seed_same_result_with_one_or_two_threads():
     assert np.array_equal(t1.counts, t2.counts) and np.array_equal(t1.runs, t2.runs)
     for a, b in zip(s1, s2):
         pd.testing.assert_frame_equal(a.table, b.table)
+
+
+def test_the_recorded_area_holds_the_tracks_and_not_what_lies_between(model):
+    fit = model._fitted()
+    area = learn_area(fit, 2.0)
+    assert area.contains(fit.frames.xy).all()
+    # the tracks cross the box along two bands (15-25 m); the corners outside them are not roads
+    assert not area.contains(np.array([[2.0, 2.0], [37.0, 38.0], [-50.0, 20.0], [1e9, 1e9]])).any()
+    # points between two recorded positions of one track are on its path
+    assert area.contains(np.array([[20.0, 19.0]])).all()
+
+
+def test_long_scenarios_keep_their_vehicles_on_the_recorded_paths(model):
+    fit = model._fitted()
+    area = learn_area(fit, lane_scale(motion_model(fit)))
+    for s in model.sample_scenarios(3, duration=60.0, seed=2, dynamics=True):
+        assert area.contains(s.table[["x", "y"]].to_numpy()).all()
+
+
+def test_blocks_do_not_change_a_mean_scenario(model, monkeypatch):
+    # the drivers' states cross the block boundaries (motion_rollouts' drivers): without new
+    # entries, 0.5 s and 2 s blocks roll the same vehicles the same way
+    k = model.n_patterns_
+    one = SimpleNamespace(
+        counts=np.zeros((k, k), int), entry_probs=np.eye(k)[0], dwell=lambda j: np.array([60.0]), dt=0.5
+    )
+    none = long_mod.Entries([np.zeros((0, 2))] * k, [np.zeros((0, 2))] * k, np.zeros(k))
+    monkeypatch.setattr(long_mod, "learn_entries", lambda fit: none)
+    fit = model._fitted()
+    vehicles = motion_model(fit, agents="vehicles")  # steering, following a leader
+    assert vehicles.steers
+    monkeypatch.setattr(long_mod, "motion_model", lambda fit: vehicles)
+    a = sample_long_scenarios(fit, one, 1, duration=10.0, seed=1, block=0.5, stochastic=False)[0]
+    b = sample_long_scenarios(fit, one, 1, duration=10.0, seed=1, block=2.0, stochastic=False)[0]
+    assert len(a.table) == len(b.table) > 0
+    np.testing.assert_allclose(a.table[["x", "y", "vx", "vy"]], b.table[["x", "y", "vx", "vy"]], atol=1e-9)

@@ -25,7 +25,7 @@ from .._validate import real_number
 from ..data.timeorder import time_order
 from ..exceptions import InvalidInputError
 from ..gp.fitted import FittedPatterns
-from .motion import motion_model
+from .motion import consecutive_pairs, motion_model
 from .rollout import motion_rollouts
 
 MAX_VEHICLES = 400  # a scene never holds more at once (entries beyond are skipped)
@@ -77,6 +77,56 @@ def learn_entries(fit: FittedPatterns) -> Entries:
     return Entries([frames.xy[first[lab == j]] for j in range(k)], [frames.v[first[lab == j]] for j in range(k)], rate)
 
 
+@dataclass(frozen=True, eq=False)
+class Area:
+    """Where the recording's agents drove: cells of side ``cell`` that a training track passed
+    through (consecutive positions joined), grown by one cell. A long scenario drops an agent that
+    leaves it, as one that leaves the ROI: the fields carry no lane geometry, and an agent that
+    drifted off every recorded path would otherwise stand or wander there for the rest of the
+    scenario."""
+
+    origin: np.ndarray
+    cell: float
+    occupied: np.ndarray
+
+    def contains(self, xy: np.ndarray) -> np.ndarray:
+        ij = np.floor((np.asarray(xy, dtype=np.float64).reshape(-1, 2) - self.origin) / self.cell).astype(np.int64)
+        n = np.array(self.occupied.shape)
+        ok = np.all((ij >= 0) & (ij < n), axis=1)
+        out = np.zeros(len(ij), dtype=bool)
+        out[ok] = self.occupied[ij[ok, 0], ij[ok, 1]]
+        return out
+
+
+def lane_scale(motion: Any) -> float:
+    """The cell of :func:`learn_area`: the width of the corridor in which vehicles follow a leader
+    (a lane), for pedestrians their personal distance."""
+    lateral = float(motion.lateral)
+    return 2 * lateral if np.isfinite(lateral) and lateral > 0 else max(float(motion.personal), 1e-9)
+
+
+def learn_area(fit: FittedPatterns, cell: float) -> Area:
+    """The :class:`Area` of the training frames' tracks (cells of side ``cell``)."""
+    frames = fit.frames
+    xy = np.asarray(frames.xy, dtype=np.float64)
+    a, b = consecutive_pairs(frames, time_order(frames).dt)
+    pts = [xy]
+    if len(a):  # points along each recorded step, half a cell apart
+        n = int(min(np.ceil(np.max(np.hypot(*(xy[b] - xy[a]).T)) / (cell / 2)), 64)) + 1
+        for f in np.linspace(0.0, 1.0, n + 1)[1:-1]:
+            pts.append(xy[a] + f * (xy[b] - xy[a]))
+    allp = np.concatenate(pts)
+    origin = allp.min(axis=0) - 2 * cell
+    ij = np.floor((allp - origin) / cell).astype(np.int64)
+    grid = np.zeros(tuple(ij.max(axis=0) + 3), dtype=bool)
+    grid[ij[:, 0], ij[:, 1]] = True
+    grown = grid.copy()  # one cell around every visited one
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            grown |= np.roll(np.roll(grid, dx, axis=0), dy, axis=1)
+    return Area(origin, float(cell), grown)
+
+
 def _next_pattern(tr: Any, k: int, weights: np.ndarray, rng: np.random.Generator) -> int:
     row = np.asarray(tr.counts[k], dtype=np.float64).copy()
     row[k] = 0.0
@@ -115,6 +165,7 @@ def sample_long_scenarios(
     box = fit.roi if roi is None else roi
     entries = learn_entries(fit)
     motion = motion_model(fit)
+    area = learn_area(fit, lane_scale(motion))
     rng = np.random.default_rng(seed)
     weights = np.asarray(fit.weights, dtype=np.float64)
     start_p = np.asarray(transitions.entry_probs, dtype=np.float64)
@@ -125,6 +176,7 @@ def sample_long_scenarios(
         f = fit.frames[int(rng.choice(np.flatnonzero(fit.labels == k)))]
         pos, vel = np.c_[f.x, f.y], np.c_[f.vx, f.vy]
         ids = np.arange(len(pos))
+        drivers = None  # each vehicle's driver state, carried from block to block
         next_id = len(pos)
         chunks = [(np.zeros(len(pos)), ids, pos, vel)]
         patterns = np.empty(steps + 1, dtype=np.int64)
@@ -137,14 +189,19 @@ def sample_long_scenarios(
                 sim = motion_rollouts(
                     fit, [k], [pos], [vel], steps=m, dt=dt, seeds=[int(rng.integers(2**63))] if stochastic else None,
                     roi=box, low_data_threshold=None, dynamics=dynamics, motion=motion,
+                    drivers=None if drivers is None else [drivers],
                 )[0]  # fmt: skip
+                on_road = np.stack([area.contains(sim.positions[j]) for j in range(m + 1)])
+                left_area = np.logical_or.accumulate(~on_road & sim.in_roi, axis=0)  # dropped from there on
                 for j in range(1, m + 1):
-                    keep = sim.in_roi[j]
+                    keep = sim.in_roi[j] & ~left_area[j]
                     chunks.append(
                         (np.full(keep.sum(), (s + j) * dt), ids[keep], sim.positions[j][keep], sim.velocities[j][keep])
                     )
-                keep = sim.in_roi[m]
+                keep = sim.in_roi[m] & ~left_area[m]
                 pos, vel, ids = sim.positions[m][keep], sim.velocities[m][keep], ids[keep]
+                assert sim.drivers is not None
+                drivers = sim.drivers[keep]
             patterns[s + 1 : s + m + 1] = k
             s += m
             left -= m
@@ -160,6 +217,8 @@ def sample_long_scenarios(
                 if len(pos) and np.min(np.hypot(*(pos - p).T)) < gap:
                     continue  # the entry is occupied
                 pos, vel = np.r_[pos, p[None]], np.r_[vel, entries.v[k][i][None]]
+                if drivers is not None:
+                    drivers = np.r_[drivers, motion.driver_states(entries.v[k][i])]
                 ids = np.r_[ids, next_id]
                 next_id += 1
         t, vid, xy, v = (np.concatenate([c[i] for c in chunks]) for i in range(4))

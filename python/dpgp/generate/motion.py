@@ -195,6 +195,17 @@ class MotionModel:
         """Per pattern, the time constant of rollouts of recorded frames."""
         return self.tau if self.tau_rollout is None else self.tau_rollout
 
+    @property
+    def steers(self) -> bool:
+        """Generated vehicles keep a heading and a desired speed (``motion.rs``: steering)."""
+        return self.sigma_frame == "heading" and self.tau_heading > 0
+
+    def driver_states(self, v: np.ndarray) -> np.ndarray:
+        """The driver states (:attr:`dpgp.generate.rollout.Simulation.drivers`) of agents that
+        start moving at ``v`` (n, 2) and want to: heading and speed if they steer, else ``v``."""
+        v = np.asarray(v, dtype=np.float64).reshape(-1, 2)
+        return np.c_[np.arctan2(v[:, 1], v[:, 0]), np.hypot(v[:, 0], v[:, 1])] if self.steers else v.copy()
+
     def record(self, k: int, interaction: bool = True, recorded: bool = False) -> np.ndarray:
         """Pattern ``k``'s flat record for the core (``motion.rs``: ``MOTION_FIELDS``);
         ``recorded``: for a rollout of a recorded frame (its time constant :attr:`rollout_tau`)."""

@@ -5,7 +5,7 @@ back."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -38,6 +38,9 @@ class Simulation:
     roi: tuple[float, float, float, float]
     #: "field" (the paper's rollout), "relaxed" or "interactive" (:data:`DYNAMICS`)
     dynamics: str = "field"
+    #: interactive rollouts: each vehicle's driver state after the last step, ``(l, 2)`` (its
+    #: desired velocity, or heading and desired speed when it steers), to continue it
+    drivers: np.ndarray | None = None
 
     @property
     def steps(self) -> int:
@@ -119,20 +122,22 @@ def split(pos: np.ndarray, vel: np.ndarray, inside: np.ndarray, low: np.ndarray,
 def motion_rollouts(
     fit: FittedPatterns, patterns: list[int], starts: list[np.ndarray], velocities: list[np.ndarray], *,
     steps: int, dt: float, seeds: list[int] | None, roi: Any, low_data_threshold: float | None, dynamics: str,
-    motion: Any, recorded: bool = False,
+    motion: Any, recorded: bool = False, drivers: list[np.ndarray] | None = None,
 ) -> list[Simulation]:  # fmt: skip
     """Rollouts by the residual model ``motion`` (a :class:`dpgp.generate.motion.MotionModel`)
     and interaction: ``starts[i]`` (l_i, 2) from their own ``velocities[i]`` through pattern
     ``patterns[i]``, run in parallel in the core. ``recorded``: the starts are a recorded frame
-    (:meth:`dpgp.generate.motion.MotionModel.record`), not a generated scene."""
+    (:meth:`dpgp.generate.motion.MotionModel.record`), not a generated scene. ``drivers[i]``
+    (l_i, 2): continue each driver from an earlier rollout's :attr:`Simulation.drivers`."""
     sizes = np.array([len(s) for s in starts], dtype=np.int64)
     offsets = np.r_[0, np.cumsum(sizes)].astype(np.int64)
     cat = lambda a: np.ascontiguousarray(np.concatenate(a) if a else np.zeros((0, 2)), dtype=np.float64)  # noqa: E731
-    pos, vel, inside, low = _core.motion_rollouts(
+    pos, vel, inside, low, states = _core.motion_rollouts(
         fit.sampler, [int(fit.slots[k]) for k in patterns], cat(starts), cat(velocities), offsets,
         motion_records(patterns, dynamics, motion, recorded), float(dt), int(steps), tuple(roi), seeds, low_data_threshold,
+        None if drivers is None else cat(drivers),
     )  # fmt: skip
-    return split(
+    sims = split(
         pos,
         vel,
         inside,
@@ -145,6 +150,7 @@ def motion_rollouts(
         roi=roi,
         dynamics=dynamics,
     )
+    return [replace(s, drivers=states[a:b]) for s, a, b in zip(sims, offsets[:-1], offsets[1:])]
 
 
 __all__ = ["Simulation", "motion_records", "motion_rollouts", "split"]

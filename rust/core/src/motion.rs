@@ -350,7 +350,10 @@ fn spread_at(m: [f64; 2], motion: &Motion) -> [f64; 2] {
 /// One step of a steering vehicle's `state`, its heading `θ` and desired speed `u`, toward the field's
 /// mean `m` ([`Motion::tau_heading`]): `u` as the along residual (`rho`, `kick`, spread at `m`,
 /// innovation `z`), `theta` by the share `turn = 1 − exp(−dt / τ_h)` of the part of its angle to
-/// the field's heading beyond [`Motion::heading_tolerance`].
+/// the field's heading beyond [`Motion::heading_tolerance`], times `moved`: the share of its
+/// desired speed the vehicle actually drove at (a vehicle turns only as it moves: one standing in
+/// a queue keeps its lane's heading, however the field turns where it stands).
+#[allow(clippy::too_many_arguments)]
 fn steer(
     state: &mut [f64; 2],
     m: [f64; 2],
@@ -358,8 +361,10 @@ fn steer(
     rho: f64,
     kick: f64,
     turn: f64,
+    moved: f64,
     motion: &Motion,
 ) {
+    let turn = turn * moved;
     let [theta, u] = state;
     let ms = m[0].hypot(m[1]);
     let s = spread_at(m, motion)[0];
@@ -580,6 +585,34 @@ pub fn drive(
     seed: Option<u64>,
     field: &mut dyn Field,
 ) -> Result<Rollout> {
+    drive_on(start, v0, None, opts, motion, seed, field)
+}
+
+/// [`drive`], continuing drivers where another rollout left them: `drivers` (with `v0`, the
+/// actual velocities then) is each agent's driver state from that rollout's
+/// [`Rollout::drivers`] — its desired velocity, or for a steering model its heading and desired
+/// speed. Without it a rollout starting from `v0` takes the actual velocity as the driver's wish,
+/// which is wrong mid-scene: a vehicle braking behind a leader (or pushed back by the personal
+/// distance) would take that as what it wants, keep the heading of a push for `τ_h`, and stand.
+pub fn drive_on(
+    start: &[Point],
+    v0: Option<&[[f64; 2]]>,
+    drivers: Option<&[[f64; 2]]>,
+    opts: &Options,
+    motion: &Motion,
+    seed: Option<u64>,
+    field: &mut dyn Field,
+) -> Result<Rollout> {
+    if let Some(d) = drivers {
+        if v0.is_none() || d.len() != start.len() {
+            return Err(Error::Shape(format!(
+                "{} driver states for {} start positions (and they need the start velocities)",
+                d.len(),
+                start.len()
+            )));
+        }
+        crate::error::check_finite("driver states", d.as_flattened())?;
+    }
     motion.validate()?;
     if opts.method != Method::Euler {
         return Err(Error::InvalidInput(
@@ -643,6 +676,18 @@ pub fn drive(
                 // a recorded start keeps its own velocities exactly
                 let mut jit = if v0.is_none() { jitter_rng(0) } else { None };
                 for (a, &j) in active.iter().enumerate() {
+                    if let (Some(v), Some(d)) = (v0, drivers) {
+                        // a continued driver: its own wish, moving at its actual velocity
+                        if motion.tau_heading.is_some() {
+                            steering[j] = d[j];
+                            let go = drive_speed(d[j][1], motion);
+                            want[j] = [go * d[j][0].cos(), go * d[j][0].sin()];
+                        } else {
+                            want[j] = d[j];
+                        }
+                        vel[j] = v[j];
+                        continue;
+                    }
                     // own velocities exactly; else the GP draw plus a stationary residual
                     want[j] = match v0 {
                         Some(v) => v[j],
@@ -687,6 +732,12 @@ pub fn drive(
                         None => [0.0; 2],
                     };
                     want[j] = if motion.tau_heading.is_some() {
+                        let go = drive_speed(steering[j][1], motion);
+                        let moved = if go > TINY {
+                            (vel[j][0].hypot(vel[j][1]) / go).min(1.0)
+                        } else {
+                            0.0
+                        };
                         steer(
                             &mut steering[j],
                             mean[a],
@@ -694,6 +745,7 @@ pub fn drive(
                             rho[0],
                             kick[0],
                             turn,
+                            moved,
                             motion,
                         );
                         let [th, u] = steering[j];
@@ -729,6 +781,11 @@ pub fn drive(
         }
         out.positions.extend_from_slice(&next);
     }
+    out.drivers = if motion.tau_heading.is_some() {
+        steering
+    } else {
+        want
+    };
     Ok(out)
 }
 

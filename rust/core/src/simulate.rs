@@ -154,6 +154,9 @@ pub struct Rollout {
     pub velocities: Vec<[f64; 2]>,
     pub in_roi: Vec<bool>,
     pub low_data: Vec<bool>,
+    /// Interactive rollouts only ([`crate::motion::drive_on`]): each vehicle's driver state after
+    /// the last step, to continue it in another rollout (empty otherwise).
+    pub drivers: Vec<[f64; 2]>,
 }
 
 impl Rollout {
@@ -170,6 +173,7 @@ impl Rollout {
             velocities: vec![[0.0; 2]; rows],
             in_roi: Vec::with_capacity(rows),
             low_data: vec![false; rows],
+            drivers: Vec::new(),
         };
         out.positions.extend_from_slice(start);
         out.in_roi

@@ -10,7 +10,7 @@ use crate::errors::{CoreError, CoreResult};
 use crate::sampler::PySampler;
 use dpgp_core::Error;
 use dpgp_core::kernel::Point;
-use dpgp_core::motion::{MOTION_FIELDS, Motion, drive};
+use dpgp_core::motion::{MOTION_FIELDS, Motion, drive, drive_on};
 use dpgp_core::pattern_model::PatternModel;
 use dpgp_core::placement::{Grid, place, thin};
 use dpgp_core::rng::{Phase, stream};
@@ -177,9 +177,11 @@ fn check_seeds(seeds: &Option<Vec<u64>>, n: usize) -> CoreResult<()> {
 /// Interactive rollouts of recorded frames (`dpgp.simulation`, `dynamics != "field"`): group `i`
 /// (rows `offsets[i]..offsets[i+1]` of `start`, with their own `velocities`) through the
 /// pattern in `slots[i]` by `motion[i]`; the residual's innovations drawn with `seeds[i]` if
-/// given. Returns what [`rollouts`] returns.
+/// given; `drivers` (one row per start) continues each driver's state from an earlier rollout
+/// (long scenarios). Returns what [`rollouts`] returns and each vehicle's driver state after the
+/// last step (rows as `start`).
 #[pyfunction]
-#[pyo3(signature = (sampler, slots, start, velocities, offsets, motion, dt, steps, roi=None, seeds=None, low_data=None))]
+#[pyo3(signature = (sampler, slots, start, velocities, offsets, motion, dt, steps, roi=None, seeds=None, low_data=None, drivers=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn motion_rollouts<'py>(
     py: Python<'py>,
@@ -194,12 +196,26 @@ pub fn motion_rollouts<'py>(
     roi: Option<(f64, f64, f64, f64)>,
     seeds: Option<Vec<u64>>,
     low_data: Option<f64>,
-) -> PyResult<Arrays<'py>> {
+    drivers: Option<PyReadonlyArray2<'py, f64>>,
+) -> PyResult<(
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray1<bool>>,
+    Bound<'py, PyArray1<bool>>,
+    Bound<'py, PyArray2<f64>>,
+)> {
     let opts = options(dt, steps, "euler", roi)?;
     let start: &[Point] = pairs("start", &start)?;
     let vel: &[[f64; 2]] = pairs("velocities", &velocities)?;
     if vel.len() != start.len() {
         return Err(CoreError(Error::Shape("one start velocity per start position".into())).into());
+    }
+    let drivers: Option<&[[f64; 2]]> = match &drivers {
+        Some(d) => Some(pairs("drivers", d)?),
+        None => None,
+    };
+    if drivers.is_some_and(|d| d.len() != start.len()) {
+        return Err(CoreError(Error::Shape("one driver state per start position".into())).into());
     }
     let offsets = offsets_of(&offsets, slots.len(), start.len())?;
     let motion = motions(&motion, slots.len())?;
@@ -208,16 +224,22 @@ pub fn motion_rollouts<'py>(
         let (a, b) = (offsets[i], offsets[i + 1]);
         let seed = seeds.as_ref().map(|v| v[i]);
         let mut field = PatternField::new(p, None, low_data)?;
-        drive(
+        drive_on(
             &start[a..b],
             Some(&vel[a..b]),
+            drivers.map(|d| &d[a..b]),
             &opts,
             &motion[i],
             seed,
             &mut field,
         )
     })?;
-    Ok(arrays(py, rollouts))
+    let states: Vec<[f64; 2]> = rollouts
+        .iter()
+        .flat_map(|r| r.drivers.iter().copied())
+        .collect();
+    let (pos, vel, inside, low) = arrays(py, rollouts);
+    Ok((pos, vel, inside, low, to_numpy(py, states)))
 }
 
 /// Generated scenes (`dpgp.scenarios`, `dynamics != "field"`): scenario `i` places up to

@@ -610,3 +610,129 @@ fn step_jitter_spreads_along_and_across_and_is_independent_per_step() {
         );
     }
 }
+
+/// A steering vehicle model with IDM interaction (mean mode in the tests below).
+fn steering_vehicles(tau_heading: f64) -> Motion {
+    Motion {
+        tau: 1.0,
+        sigma: [0.5, 0.5],
+        spread: Spread::Heading {
+            min_speed: 0.1,
+            tau_across: 1.0,
+        },
+        rule: Rule::Vehicles {
+            idm: IDM,
+            personal: 2.0,
+        },
+        profile: Profile::FLAT,
+        tau_heading: Some(tau_heading),
+        heading_tolerance: 0.0,
+        stand_speed: 0.0,
+        jitter: [0.0; 2],
+    }
+}
+
+#[test]
+fn a_rollout_continued_with_its_drivers_is_the_rollout_run_on() {
+    // a follower closing on a slow leader under a field that turns north with x: braking and
+    // turning, its actual velocity is not its wish. Six steps then six more from where the
+    // first run left its drivers must equal twelve steps at once (mean mode); restarting from
+    // the actual velocities alone (the old long-scenario blocks) must not.
+    let motion = steering_vehicles(2.0);
+    let mut field = |q: &[Point]| -> Result<Vec<[f64; 2]>> {
+        Ok(q.iter().map(|p| [10.0, 0.3 * p[0]]).collect())
+    };
+    let start = [[0.0, 0.0], [15.0, 0.3]];
+    let v0 = [[10.0, 0.0], [2.0, 0.0]];
+    let whole = drive(&start, Some(&v0), &opts(0.5, 12), &motion, None, &mut field).unwrap();
+    let first = drive(&start, Some(&v0), &opts(0.5, 6), &motion, None, &mut field).unwrap();
+    let (x6, v6) = (&first.positions[12..14], &first.velocities[12..14]);
+    let on = drive_on(
+        x6,
+        Some(v6),
+        Some(&first.drivers),
+        &opts(0.5, 6),
+        &motion,
+        None,
+        &mut field,
+    )
+    .unwrap();
+    for t in 0..=6 {
+        for j in 0..2 {
+            let (a, b) = (on.positions[2 * t + j], whole.positions[2 * (t + 6) + j]);
+            assert!(
+                (a[0] - b[0]).abs() < 1e-9 && (a[1] - b[1]).abs() < 1e-9,
+                "{t} {j}: {a:?} {b:?}"
+            );
+        }
+    }
+    let restarted = drive(x6, Some(v6), &opts(0.5, 6), &motion, None, &mut field).unwrap();
+    let gap = (0..2)
+        .map(|j| {
+            let (a, b) = (restarted.positions[12 + j], whole.positions[24 + j]);
+            (a[0] - b[0]).hypot(a[1] - b[1])
+        })
+        .fold(0.0, f64::max);
+    assert!(
+        gap > 1e-3,
+        "the restart should lose the drivers' wishes: {gap}"
+    );
+    // driver states must come with the start velocities, one per agent
+    assert!(
+        drive_on(
+            x6,
+            None,
+            Some(&first.drivers),
+            &opts(0.5, 1),
+            &motion,
+            None,
+            &mut field
+        )
+        .is_err()
+    );
+    assert!(
+        drive_on(
+            x6,
+            Some(v6),
+            Some(&first.drivers[..1]),
+            &opts(0.5, 1),
+            &motion,
+            None,
+            &mut field
+        )
+        .is_err()
+    );
+}
+
+#[test]
+fn a_vehicle_standing_in_a_queue_keeps_its_heading() {
+    // a follower heading east, blocked by a standing leader 7.5 ahead (the jam distance), under a
+    // field that points north: it stands, and does not turn while it stands (it would have
+    // turned by 1 - exp(-20 * 0.5 / 2) = 99% of the way in 20 steps at τ_h = 2 s)
+    let motion = steering_vehicles(2.0);
+    struct Stop;
+    impl Field for Stop {
+        fn velocity(&mut self, q: &[Point]) -> Result<Vec<[f64; 2]>> {
+            // the leader's own field is at rest (it stands); the follower's points north
+            Ok(q.iter()
+                .map(|p| if p[0] > 5.0 { [0.0, 0.0] } else { [0.0, 5.0] })
+                .collect())
+        }
+    }
+    let r = drive_on(
+        &[[0.0, 0.0], [7.0, 0.0]],
+        Some(&[[0.0, 0.0], [0.0, 0.0]]),
+        Some(&[[0.0, 5.0], [0.0, 0.0]]),
+        &opts(0.5, 20),
+        &motion,
+        None,
+        &mut Stop,
+    )
+    .unwrap();
+    assert_eq!(
+        r.drivers[0][0], 0.0,
+        "heading of the standing follower: {:?}",
+        r.drivers[0]
+    );
+    assert_eq!(r.positions[40], [0.0, 0.0]);
+}
