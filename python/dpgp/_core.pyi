@@ -92,6 +92,7 @@ def motion_rollouts(
     seeds: list[int] | None = None,
     low_data: float | None = None,
     drivers: NDArray[np.float64] | None = None,
+    support: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], NDArray[np.float64]]: ...
 def scene_rollouts(
     sampler: Sampler,

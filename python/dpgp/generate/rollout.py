@@ -122,20 +122,22 @@ def split(pos: np.ndarray, vel: np.ndarray, inside: np.ndarray, low: np.ndarray,
 def motion_rollouts(
     fit: FittedPatterns, patterns: list[int], starts: list[np.ndarray], velocities: list[np.ndarray], *,
     steps: int, dt: float, seeds: list[int] | None, roi: Any, low_data_threshold: float | None, dynamics: str,
-    motion: Any, recorded: bool = False, drivers: list[np.ndarray] | None = None,
+    motion: Any, recorded: bool = False, drivers: list[np.ndarray] | None = None, support: bool = False,
 ) -> list[Simulation]:  # fmt: skip
     """Rollouts by the residual model ``motion`` (a :class:`dpgp.generate.motion.MotionModel`)
     and interaction: ``starts[i]`` (l_i, 2) from their own ``velocities[i]`` through pattern
     ``patterns[i]``, run in parallel in the core. ``recorded``: the starts are a recorded frame
     (:meth:`dpgp.generate.motion.MotionModel.record`), not a generated scene. ``drivers[i]``
-    (l_i, 2): continue each driver from an earlier rollout's :attr:`Simulation.drivers`."""
+    (l_i, 2): continue each driver from an earlier rollout's :attr:`Simulation.drivers`.
+    ``support``: drivers follow the field only as far as it has data where they are (a pattern's
+    zero prior mean is no wish to stand); costs a triangular solve per vehicle and step."""
     sizes = np.array([len(s) for s in starts], dtype=np.int64)
     offsets = np.r_[0, np.cumsum(sizes)].astype(np.int64)
     cat = lambda a: np.ascontiguousarray(np.concatenate(a) if a else np.zeros((0, 2)), dtype=np.float64)  # noqa: E731
     pos, vel, inside, low, states = _core.motion_rollouts(
         fit.sampler, [int(fit.slots[k]) for k in patterns], cat(starts), cat(velocities), offsets,
         motion_records(patterns, dynamics, motion, recorded), float(dt), int(steps), tuple(roi), seeds, low_data_threshold,
-        None if drivers is None else cat(drivers),
+        None if drivers is None else cat(drivers), support,
     )  # fmt: skip
     sims = split(
         pos,

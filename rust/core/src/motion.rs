@@ -377,6 +377,19 @@ fn steer(
     }
 }
 
+/// The residual's persistence, innovation scale and turn share of one step where the field's
+/// support is `s` (0: no data, 1: known): the time constants divided by `s`, so that a driver
+/// relaxes toward a field only as far as the field knows where it is.
+fn slowed(s: f64, rho: [f64; 2], turn: f64) -> ([f64; 2], [f64; 2], f64) {
+    // ρ = exp(−dt / τ) → exp(−s dt / τ) = ρ^s; the turn share 1 − exp(−dt / τ_h) likewise
+    let r = rho.map(|r| r.powf(s));
+    (
+        r,
+        r.map(|r| (1.0 - r * r).max(0.0).sqrt()),
+        1.0 - (1.0 - turn).powf(s),
+    )
+}
+
 /// The speed at which a steering vehicle with desired speed `u` drives: `u`, or 0 (it stands)
 /// below [`Motion::stand_speed`] (a negative wish always stands: vehicles do not reverse).
 fn drive_speed(u: f64, motion: &Motion) -> f64 {
@@ -724,12 +737,19 @@ pub fn drive_on(
             } else {
                 let mut rng = seed.map(|s| stream(s, t as u64, Phase::Simulate, NOISE_ENTITY));
                 let mut jit = jitter_rng(t);
+                let known = field.support(&x)?;
                 let mut desired = Vec::with_capacity(x.len());
                 let mut current = Vec::with_capacity(x.len());
                 for (a, &j) in active.iter().enumerate() {
                     let z: [f64; 2] = match rng.as_mut() {
                         Some(rng) => [StandardNormal.sample(rng), StandardNormal.sample(rng)],
                         None => [0.0; 2],
+                    };
+                    // where the field knows less (support < 1), its driver follows it more
+                    // slowly: with no data there (the prior's zero mean), it keeps its wish
+                    let (rho, kick, turn) = match &known {
+                        Some(s) => slowed(s[a], rho, turn),
+                        None => (rho, kick, turn),
                     };
                     want[j] = if motion.tau_heading.is_some() {
                         let go = drive_speed(steering[j][1], motion);

@@ -134,6 +134,13 @@ pub trait Field {
             low_data: vec![false; q.len()],
         })
     }
+
+    /// How much the field knows at each point of `q`, from 0 (its prior: no data) to 1, or
+    /// `None`: everywhere known (the default). Drivers follow a field only as far as it knows
+    /// ([`crate::motion::drive`]).
+    fn support(&mut self, _q: &[Point]) -> Result<Option<Vec<f64>>> {
+        Ok(None)
+    }
 }
 
 /// Any closure from positions to velocities is a deterministic field.
@@ -277,6 +284,8 @@ pub struct PatternField<'a> {
     low_data: Option<f64>,
     /// Draw at step 0 only (the start velocities of a generated scene), the mean after that.
     draw_once: bool,
+    /// Answer [`Field::support`] (a triangular solve per point and step); else `None`.
+    support: bool,
 }
 
 impl<'a> PatternField<'a> {
@@ -297,7 +306,15 @@ impl<'a> PatternField<'a> {
             seed,
             low_data,
             draw_once: false,
+            support: false,
         })
+    }
+
+    /// The field answering [`Field::support`]: `1 − v / s²` of its latent posterior variance `v`
+    /// against the prior's `s²`, in the output that knows less.
+    pub fn with_support(mut self, support: bool) -> Self {
+        self.support = support;
+        self
     }
 
     /// A field that draws jointly at step 0 only (with `seed`), then gives its mean: the start
@@ -316,6 +333,19 @@ impl<'a> PatternField<'a> {
 impl Field for PatternField<'_> {
     fn velocity(&mut self, q: &[Point]) -> Result<Vec<[f64; 2]>> {
         Ok(self.pattern.predict_mean(q))
+    }
+
+    fn support(&mut self, q: &[Point]) -> Result<Option<Vec<f64>>> {
+        if !self.support {
+            return Ok(None);
+        }
+        let (_, var) = self.pattern.posterior(q);
+        let s2 = self.pattern.params().signal_var;
+        Ok(Some(
+            var.iter()
+                .map(|v| (0..2).map(|d| 1.0 - v[d] / s2[d]).fold(1.0, f64::min).clamp(0.0, 1.0))
+                .collect(),
+        ))
     }
 
     fn step_start(&mut self, step: usize, q: &[Point]) -> Result<StepInfo> {

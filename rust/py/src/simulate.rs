@@ -178,10 +178,11 @@ fn check_seeds(seeds: &Option<Vec<u64>>, n: usize) -> CoreResult<()> {
 /// (rows `offsets[i]..offsets[i+1]` of `start`, with their own `velocities`) through the
 /// pattern in `slots[i]` by `motion[i]`; the residual's innovations drawn with `seeds[i]` if
 /// given; `drivers` (one row per start) continues each driver's state from an earlier rollout
-/// (long scenarios). Returns what [`rollouts`] returns and each vehicle's driver state after the
+/// (long scenarios); `support`: drivers follow the field only as far as it knows (its posterior
+/// variance against the prior's, a triangular solve per vehicle and step). Returns what [`rollouts`] returns and each vehicle's driver state after the
 /// last step (rows as `start`).
 #[pyfunction]
-#[pyo3(signature = (sampler, slots, start, velocities, offsets, motion, dt, steps, roi=None, seeds=None, low_data=None, drivers=None))]
+#[pyo3(signature = (sampler, slots, start, velocities, offsets, motion, dt, steps, roi=None, seeds=None, low_data=None, drivers=None, support=false))]
 #[allow(clippy::too_many_arguments)]
 pub fn motion_rollouts<'py>(
     py: Python<'py>,
@@ -197,6 +198,7 @@ pub fn motion_rollouts<'py>(
     seeds: Option<Vec<u64>>,
     low_data: Option<f64>,
     drivers: Option<PyReadonlyArray2<'py, f64>>,
+    support: bool,
 ) -> PyResult<(
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray2<f64>>,
@@ -223,7 +225,7 @@ pub fn motion_rollouts<'py>(
     let rollouts = in_parallel(py, &sampler, &slots, |p, i| {
         let (a, b) = (offsets[i], offsets[i + 1]);
         let seed = seeds.as_ref().map(|v| v[i]);
-        let mut field = PatternField::new(p, None, low_data)?;
+        let mut field = PatternField::new(p, None, low_data)?.with_support(support);
         drive_on(
             &start[a..b],
             Some(&vel[a..b]),
