@@ -343,7 +343,12 @@ impl Field for PatternField<'_> {
         let s2 = self.pattern.params().signal_var;
         Ok(Some(
             var.iter()
-                .map(|v| (0..2).map(|d| 1.0 - v[d] / s2[d]).fold(1.0, f64::min).clamp(0.0, 1.0))
+                .map(|v| {
+                    (0..2)
+                        .map(|d| 1.0 - v[d] / s2[d])
+                        .fold(1.0, f64::min)
+                        .clamp(0.0, 1.0)
+                })
                 .collect(),
         ))
     }

@@ -736,3 +736,41 @@ fn a_vehicle_standing_in_a_queue_keeps_its_heading() {
     );
     assert_eq!(r.positions[40], [0.0, 0.0]);
 }
+
+#[test]
+fn a_driver_follows_a_field_only_as_far_as_it_knows() {
+    // a field at rest (its prior mean: no data): with support 0 a steering vehicle driving east
+    // at 5 keeps its wish; with support 1 (the default) it slows toward the field (τ = 1 s); with
+    // support 0.5 it relaxes at half the rate: u = 5 exp(-0.5 t / τ) after t seconds (mean mode,
+    // no interaction)
+    struct Known(Option<f64>);
+    impl Field for Known {
+        fn velocity(&mut self, q: &[Point]) -> Result<Vec<[f64; 2]>> {
+            Ok(vec![[0.0, 0.0]; q.len()])
+        }
+        fn support(&mut self, q: &[Point]) -> Result<Option<Vec<f64>>> {
+            Ok(self.0.map(|s| vec![s; q.len()]))
+        }
+    }
+    let motion = Motion {
+        rule: Rule::Free,
+        ..steering_vehicles(2.0)
+    };
+    let run = |s: Option<f64>| {
+        drive_on(
+            &[[0.0, 0.0]],
+            Some(&[[5.0, 0.0]]),
+            Some(&[[0.0, 5.0]]),
+            &opts(0.5, 4),
+            &motion,
+            None,
+            &mut Known(s),
+        )
+        .unwrap()
+    };
+    assert_eq!(run(Some(0.0)).velocities[4], [5.0, 0.0]);
+    let full = run(None).velocities[4][0];
+    assert!((full - 5.0 * (-2.0f64).exp()).abs() < 1e-12, "{full}");
+    let half = run(Some(0.5)).velocities[4][0];
+    assert!((half - 5.0 * (-1.0f64).exp()).abs() < 1e-12, "{half}");
+}
