@@ -125,3 +125,20 @@ def test_blocks_do_not_change_a_mean_scenario(model, monkeypatch):
     b = sample_long_scenarios(fit, one, 1, duration=10.0, seed=1, block=2.0, stochastic=False)[0]
     assert len(a.table) == len(b.table) > 0
     np.testing.assert_allclose(a.table[["x", "y", "vx", "vy"]], b.table[["x", "y", "vx", "vy"]], atol=1e-9)
+
+
+def test_phase_schedules_keep_each_phase_to_its_own_patterns(model):
+    ph = model.phases(2)
+    assert model.phases(2) is ph  # cached
+    (s,) = model.sample_scenarios(1, duration=60.0, seed=4, dynamics=True, phases=ph)
+    assert s.phases is not None and set(np.unique(s.phases)) <= {0, 1}
+    for p in range(2):
+        seen = set(ph.pattern_runs[p][:, 0].tolist())
+        assert set(np.unique(s.patterns[s.phases == p]).tolist()) <= seen
+    # a phase lasts at least one of its recorded runs' lengths at a time, never less than a step
+    runs = np.diff(np.flatnonzero(np.r_[True, np.diff(s.phases) != 0, True]))
+    assert len(runs) >= 1
+    (again,) = model.sample_scenarios(1, duration=60.0, seed=4, dynamics=True, phases=2)
+    pd.testing.assert_frame_equal(s.table, again.table)
+    with pytest.raises(InvalidInputError, match="long scenarios"):
+        model.sample_scenarios(1, steps=5, phases=2)

@@ -28,6 +28,7 @@ from ..gp.fitted import FittedPatterns
 from .motion import consecutive_pairs, motion_model
 from .rollout import motion_rollouts
 
+SUPPORT = True
 MAX_VEHICLES = 400  # a scene never holds more at once (entries beyond are skipped)
 
 
@@ -40,6 +41,8 @@ class LongScenario:
     t: np.ndarray
     patterns: np.ndarray
     dt: float
+    #: the phase in force at each step (-1: scheduled pattern by pattern)
+    phases: np.ndarray | None = None
 
     def switches(self) -> int:
         return int(np.count_nonzero(np.diff(self.patterns)))
@@ -127,19 +130,87 @@ def learn_area(fit: FittedPatterns, cell: float) -> Area:
     return Area(origin, float(cell), grown)
 
 
-def _next_pattern(tr: Any, k: int, weights: np.ndarray, rng: np.random.Generator) -> int:
-    row = np.asarray(tr.counts[k], dtype=np.float64).copy()
-    row[k] = 0.0
-    if row.sum() <= 0:  # never seen to change: by weight, another pattern where there is one
-        row = weights.copy()
-        if len(row) > 1:
-            row[k] = 0.0
-    return int(rng.choice(len(row), p=row / row.sum()))
+def _draw(counts: np.ndarray, rng: np.random.Generator) -> int:
+    return int(rng.choice(len(counts), p=counts / counts.sum()))
 
 
-def _dwell(tr: Any, k: int, dt: float, rng: np.random.Generator) -> int:
-    d = tr.dwell(k)
-    return max(1, int(round((d[rng.integers(len(d))] if len(d) else dt) / dt)))
+def _dwell_steps(runs_s: np.ndarray, dt: float, rng: np.random.Generator) -> int:
+    """A dwell (steps) drawn from recorded run lengths in seconds (one step without any)."""
+    return max(1, int(round((runs_s[rng.integers(len(runs_s))] if len(runs_s) else dt) / dt)))
+
+
+class PatternSchedule:
+    """Which pattern is in force: the first drawn by how recordings start (else by weight), each
+    for a dwell drawn from its recorded runs, the next by the recorded changes (self-transitions
+    excluded; by weight for a pattern never seen to change)."""
+
+    def __init__(self, transitions: Any, weights: np.ndarray) -> None:
+        self.tr, self.weights = transitions, weights
+        self.phase = -1
+
+    def first(self, rng: np.random.Generator) -> tuple[int, int]:
+        start = np.asarray(self.tr.entry_probs, dtype=np.float64)
+        self.k = _draw(self.weights if start.sum() <= 0 else start, rng)
+        return self.k, _dwell_steps(self.tr.dwell(self.k), self.tr.dt, rng)
+
+    def next(self, rng: np.random.Generator) -> tuple[int, int]:
+        row = np.asarray(self.tr.counts[self.k], dtype=np.float64).copy()
+        row[self.k] = 0.0
+        if row.sum() <= 0:  # never seen to change: by weight, another pattern where there is one
+            row = self.weights.copy()
+            if len(row) > 1:
+                row[self.k] = 0.0
+        self.k = _draw(row, rng)
+        return self.k, _dwell_steps(self.tr.dwell(self.k), self.tr.dt, rng)
+
+    def spent(self, steps: int) -> None:
+        pass
+
+
+class PhaseSchedule:
+    """Patterns by phase (:class:`dpgp.evaluate.phases.Phases`): a phase is in force for a
+    duration drawn from its recorded runs, the next phase by the recorded phase changes; within a
+    phase its patterns follow one another as inside its recorded runs (the pattern starting a
+    run of the phase, the changes and the pattern runs of its frames only), so that the fields in
+    force stay those of one regime."""
+
+    def __init__(self, phases: Any, dt: float) -> None:
+        self.ph, self.dt = phases, dt
+        self.phase_left = 0
+
+    def _enter(self, p: int, rng: np.random.Generator) -> tuple[int, int]:
+        self.phase = p
+        self.phase_left = _dwell_steps(self.ph.transitions.dwell(p), self.dt, rng)
+        runs = self.ph.pattern_runs[p]
+        self.k = int(runs[rng.integers(len(runs)), 0]) if len(runs) else _draw(self.ph.emission[p], rng)
+        return self.k, self._pattern_dwell(rng)
+
+    def _pattern_dwell(self, rng: np.random.Generator) -> int:
+        runs = self.ph.pattern_runs[self.phase]
+        mine = runs[runs[:, 0] == self.k, 1] * self.dt if len(runs) else np.zeros(0)
+        return min(_dwell_steps(mine, self.dt, rng), self.phase_left)
+
+    def first(self, rng: np.random.Generator) -> tuple[int, int]:
+        start = np.asarray(self.ph.transitions.entry_probs, dtype=np.float64)
+        return self._enter(_draw(self.ph.start if start.sum() <= 0 else start, rng), rng)
+
+    def next(self, rng: np.random.Generator) -> tuple[int, int]:
+        if self.phase_left <= 0:  # the phase is over: the next one
+            row = np.asarray(self.ph.transitions.counts[self.phase], dtype=np.float64).copy()
+            row[self.phase] = 0.0
+            if row.sum() <= 0:
+                row = np.ones(len(row))
+                if len(row) > 1:
+                    row[self.phase] = 0.0
+            return self._enter(_draw(row, rng), rng)
+        row = np.asarray(self.ph.within[self.phase, self.k], dtype=np.float64).copy()
+        row[self.k] = 0.0
+        if row.sum() > 0:
+            self.k = _draw(row, rng)
+        return self.k, self._pattern_dwell(rng)
+
+    def spent(self, steps: int) -> None:
+        self.phase_left -= steps
 
 
 def sample_long_scenarios(
@@ -153,8 +224,11 @@ def sample_long_scenarios(
     stochastic: bool = True,
     roi: tuple[float, float, float, float] | None = None,
     dynamics: str = "interactive",
+    phases: Any = None,
 ) -> list[LongScenario]:
-    """``n`` :class:`LongScenario` of ``duration`` seconds; see the module's description."""
+    """``n`` :class:`LongScenario` of ``duration`` seconds; see the module's description.
+    ``phases`` (:class:`dpgp.evaluate.phases.Phases`): switch pattern by phase
+    (:class:`PhaseSchedule`), else pattern by pattern (:class:`PatternSchedule`)."""
     for name, value in (("duration", duration), ("block", block)):
         seconds = real_number(name, value)
         if not (np.isfinite(seconds) and seconds > 0):
@@ -168,11 +242,10 @@ def sample_long_scenarios(
     area = learn_area(fit, lane_scale(motion))
     rng = np.random.default_rng(seed)
     weights = np.asarray(fit.weights, dtype=np.float64)
-    start_p = np.asarray(transitions.entry_probs, dtype=np.float64)
-    start_p = weights if start_p.sum() <= 0 else start_p
     out = []
     for _ in range(int(n)):
-        k = int(rng.choice(len(start_p), p=start_p / start_p.sum()))
+        schedule = PhaseSchedule(phases, dt) if phases is not None else PatternSchedule(transitions, weights)
+        k, left = schedule.first(rng)
         f = fit.frames[int(rng.choice(np.flatnonzero(fit.labels == k)))]
         pos, vel = np.c_[f.x, f.y], np.c_[f.vx, f.vy]
         ids = np.arange(len(pos))
@@ -180,8 +253,8 @@ def sample_long_scenarios(
         next_id = len(pos)
         chunks = [(np.zeros(len(pos)), ids, pos, vel)]
         patterns = np.empty(steps + 1, dtype=np.int64)
-        patterns[0] = k
-        left = _dwell(transitions, k, dt, rng)
+        in_phase = np.full(steps + 1, -1, dtype=np.int64)
+        patterns[0], in_phase[0] = k, schedule.phase
         s = 0
         while s < steps:
             m = min(bsteps, left, steps - s)
@@ -189,7 +262,7 @@ def sample_long_scenarios(
                 sim = motion_rollouts(
                     fit, [k], [pos], [vel], steps=m, dt=dt, seeds=[int(rng.integers(2**63))] if stochastic else None,
                     roi=box, low_data_threshold=None, dynamics=dynamics, motion=motion,
-                    drivers=None if drivers is None else [drivers], support=True,
+                    drivers=None if drivers is None else [drivers], support=SUPPORT,
                 )[0]  # fmt: skip
                 on_road = np.stack([area.contains(sim.positions[j]) for j in range(m + 1)])
                 left_area = np.logical_or.accumulate(~on_road & sim.in_roi, axis=0)  # dropped from there on
@@ -203,11 +276,12 @@ def sample_long_scenarios(
                 assert sim.drivers is not None
                 drivers = sim.drivers[keep]
             patterns[s + 1 : s + m + 1] = k
+            in_phase[s + 1 : s + m + 1] = schedule.phase
             s += m
             left -= m
+            schedule.spent(m)
             if left == 0:
-                k = _next_pattern(transitions, k, weights, rng)
-                left = _dwell(transitions, k, dt, rng)
+                k, left = schedule.next(rng)
             # new vehicles of the pattern now in force, where its vehicles entered
             arrivals = rng.poisson(entries.rate[k] * m * dt) if len(entries.xy[k]) else 0
             gap = max(motion.spacing[k] if len(motion.spacing) > k else 0.0, 1e-9)
@@ -223,7 +297,7 @@ def sample_long_scenarios(
                 next_id += 1
         t, vid, xy, v = (np.concatenate([c[i] for c in chunks]) for i in range(4))
         table = pd.DataFrame({"t": t, "vehicle": vid, "x": xy[:, 0], "y": xy[:, 1], "vx": v[:, 0], "vy": v[:, 1]})
-        out.append(LongScenario(table, np.arange(steps + 1) * dt, patterns, dt))
+        out.append(LongScenario(table, np.arange(steps + 1) * dt, patterns, dt, in_phase))
     return out
 
 

@@ -675,6 +675,26 @@ class DPGP:
             cache["transitions"] = held
         return held[1]
 
+    def phases(self, n_phases: int | str = 2, seed: int | None = 0) -> Any:
+        """Phases of the training frames: persistent regimes above the patterns, a hidden Markov
+        model over the patterns of consecutive frames with ``n_phases`` states (or ``"auto"``, by
+        BIC). Returns :class:`dpgp.evaluate.phases.Phases` (labels, each phase's patterns,
+        transitions and dwell times); ``sample_scenarios(duration=..., phases=...)`` switches
+        pattern by them. Needs frames with times."""
+        from ..evaluate.phases import fit_phases
+
+        self._check_fitted()
+        key = ("phases", n_phases, seed)
+        cache = self.__dict__.setdefault("_cache", {})
+        held = cache.get(key)
+        if held is None or held[0] is not self.labels_:
+            held = (
+                self.labels_,
+                fit_phases(self.labels_, self.frames_, n_phases, n_patterns=self.n_patterns_, seed=seed),
+            )
+            cache[key] = held
+        return held[1]
+
     def _log_joint_terms(self, frames: Frames) -> np.ndarray:
         """(N, K+1): log [prior weight × likelihood] of each pattern, then of a new pattern."""
         frames = as_frames(frames)
@@ -811,6 +831,8 @@ class DPGP:
         ``duration`` (seconds; issue 20): long scenarios that switch pattern by the learned
         :attr:`transitions_` and dwell times, vehicles entering where each pattern's enter
         (:mod:`dpgp.generate.long`); ``dynamics=True`` there means the default interactive motion.
+        ``phases``: switch pattern by phase (:meth:`phases`; a number of phases, ``"auto"``, or a
+        :class:`dpgp.evaluate.phases.Phases`), else pattern by pattern.
         Returns a list of :class:`dpgp.generate.long.LongScenario`."""
         if options.get("duration") is not None:
             from ..generate.long import sample_long_scenarios
@@ -818,10 +840,15 @@ class DPGP:
             duration = options.pop("duration")
             if options.get("dynamics") in (True, None):
                 options["dynamics"] = "interactive"
+            ph = options.get("phases")
+            if isinstance(ph, str) or (isinstance(ph, (int, np.integer)) and not isinstance(ph, bool)):
+                options["phases"] = self.phases(ph if isinstance(ph, str) else int(ph))
             return sample_long_scenarios(self._fitted(), self.transitions_, n, duration, seed, **options)
         options.pop("duration", None)
         from ..generate.scenarios import sample_scenarios
 
+        if options.pop("phases", None) is not None:
+            raise InvalidInputError("phases= applies to long scenarios (duration=...)")
         return sample_scenarios(self._fitted(), n, steps, pattern, seed, **options)
 
     def summary(self, top: int = 10) -> str:

@@ -47,6 +47,8 @@ const NOISE_ENTITY: u64 = 1;
 /// Stream entity of the pedestrians' step jitter ([`Motion::jitter`]): its own stream, so that a
 /// model without jitter draws exactly the numbers it drew before.
 const JITTER_ENTITY: u64 = 2;
+/// Cosine of the widest angle between two vehicles' headings at which one follows the other (60°).
+const CROSSING: f64 = 0.5;
 /// Speeds below this fraction of the desired one count as standing (no heading from them).
 const TINY: f64 = 1e-12;
 
@@ -494,10 +496,19 @@ pub fn idm_accel(u: f64, u0: f64, gap: Option<(f64, f64)>, p: &Idm) -> f64 {
 
 /// The nearest agent ahead of `i` (along `heading`, a unit vector) whose lateral offset is
 /// within `lateral`: (its index, gap along the heading).
-fn leader(i: usize, x: &[Point], heading: [f64; 2], lateral: f64) -> Option<(usize, f64)> {
+fn leader(
+    i: usize,
+    x: &[Point],
+    heading: [f64; 2],
+    lateral: f64,
+    heads: Option<&[[f64; 2]]>,
+) -> Option<(usize, f64)> {
     let mut best: Option<(usize, f64)> = None;
     for (j, q) in x.iter().enumerate() {
-        if j == i {
+        // with known headings, a vehicle crossing or against one's own is no leader (the
+        // personal distance keeps the two apart): two crossing vehicles that each waited for the
+        // other would lock the junction for good
+        if j == i || heads.is_some_and(|h| h[j][0] * heading[0] + h[j][1] * heading[1] < CROSSING) {
             continue;
         }
         let d = [q[0] - x[i][0], q[1] - x[i][1]];
@@ -519,6 +530,19 @@ pub fn interact(
     rule: &Rule,
     dt: f64,
 ) -> Vec<[f64; 2]> {
+    interact_headed(x, current, desired, None, rule, dt)
+}
+
+/// [`interact`] with each agent's heading (unit vectors; steering vehicles): only a vehicle
+/// heading within 60° of one's own is a leader.
+pub fn interact_headed(
+    x: &[Point],
+    current: &[[f64; 2]],
+    desired: &[[f64; 2]],
+    heads: Option<&[[f64; 2]]>,
+    rule: &Rule,
+    dt: f64,
+) -> Vec<[f64; 2]> {
     let mut v = desired.to_vec();
     let personal = match *rule {
         Rule::Free => return v,
@@ -535,7 +559,7 @@ pub fn interact(
                 } else {
                     continue;
                 };
-                let ahead = leader(i, x, e, idm.lateral);
+                let ahead = leader(i, x, e, idm.lateral, heads);
                 let gap = ahead.map(|(j, g)| (g, current[j][0] * e[0] + current[j][1] * e[1]));
                 let mut next = u + dt * idm_accel(u, u0, gap, &idm);
                 match gap {
@@ -777,7 +801,14 @@ pub fn drive_on(
                     desired.push(jitter(&mut jit, mean[a], want[j]));
                     current.push(vel[j]);
                 }
-                let actual = interact(&x, &current, &desired, &motion.rule, dt);
+                let heads: Option<Vec<[f64; 2]>> = motion.tau_heading.map(|_| {
+                    active
+                        .iter()
+                        .map(|&j| [steering[j][0].cos(), steering[j][0].sin()])
+                        .collect()
+                });
+                let actual =
+                    interact_headed(&x, &current, &desired, heads.as_deref(), &motion.rule, dt);
                 for (a, &j) in active.iter().enumerate() {
                     vel[j] = actual[a];
                 }

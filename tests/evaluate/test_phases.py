@@ -1,0 +1,96 @@
+"""Phases above the patterns (issue 20): the HMM over a fit's pattern labels, against brute force."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from dpgp.data.timeorder import TimeOrder
+from dpgp.evaluate.phases import fit_phases, hmm_log_likelihood, viterbi
+from dpgp.exceptions import InvalidInputError
+
+
+def _order(n: int, dt: float = 0.5, gaps: tuple[int, ...] = ()) -> TimeOrder:
+    """``n`` frames in time order, unbroken except before each frame index in ``gaps``."""
+    nxt = np.r_[np.arange(1, n), -1]
+    prev = np.r_[-1, np.arange(n - 1)]
+    for g in gaps:
+        nxt[g - 1], prev[g] = -1, -1
+    return TimeOrder(np.zeros(n, dtype=np.int64), np.arange(n) * dt, dt, nxt, prev)
+
+
+def _hmm(seed: int, p: int = 2, k: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return rng.dirichlet(np.ones(k), size=p), rng.dirichlet(np.ones(p), size=p), rng.dirichlet(np.ones(p))
+
+
+def _path_log_prob(z, path, emission, trans, start) -> float:
+    lp = np.log(start[path[0]]) + np.log(emission[path[0], z[0]])
+    for t in range(1, len(z)):
+        lp += np.log(trans[path[t - 1], path[t]]) + np.log(emission[path[t], z[t]])
+    return float(lp)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_forward_pass_and_viterbi_match_every_path_enumerated(seed):
+    emission, trans, start = _hmm(seed)
+    z = np.random.default_rng(10 + seed).integers(0, 3, size=6)
+    paths = list(itertools.product(range(2), repeat=len(z)))
+    lps = np.array([_path_log_prob(z, p, emission, trans, start) for p in paths])
+    total = np.log(np.exp(lps - lps.max()).sum()) + lps.max()
+    assert hmm_log_likelihood([z], emission, trans, start) == pytest.approx(total, abs=1e-10)
+    assert tuple(viterbi(z, emission, trans, start)) == paths[int(np.argmax(lps))]
+
+
+def _two_phases(cycles: int = 10, length: int = 40, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Phase A emits patterns 0 and 1, phase B patterns 1 (shared) and 2, each frame by chance:
+    labels flicker within a phase, the phases alternate every ``length`` frames."""
+    rng = np.random.default_rng(seed)
+    truth = np.tile(np.r_[np.zeros(length, int), np.ones(length, int)], cycles)
+    labels = np.where(truth == 0, rng.choice([0, 1], size=len(truth)), rng.choice([1, 2], size=len(truth)))
+    return labels, truth
+
+
+def test_two_alternating_phases_with_a_shared_pattern_are_recovered():
+    labels, truth = _two_phases()
+    order = _order(len(labels))
+    ph = fit_phases(labels, order, 2, seed=0)
+    agree = max(np.mean(ph.labels == truth), np.mean(ph.labels != truth))
+    assert agree > 0.97
+    assert ph.transitions.share_same > 0.97
+    # a phase lasts 40 frames of 0.5 s; the first and last runs are cut by the recording
+    inner = ph.transitions.runs[ph.transitions.runs[:, 3] == 0]
+    assert np.median(inner[:, 2]) * 0.5 == pytest.approx(20.0, abs=1.0)
+    # the shared pattern belongs to both phases, the others to one each
+    big = np.argmax(ph.emission[:, 0])
+    assert ph.emission[big, 0] > 0.4 and ph.emission[1 - big, 0] < 0.02
+    assert min(ph.emission[:, 1]) > 0.4
+    # inside a phase, changes only between its own patterns
+    assert ph.within[big, :, 2].sum() == 0 and ph.within[1 - big, :, 0].sum() == 0
+    # BIC: two phases, not one and not more
+    auto = fit_phases(labels, order, "auto", seed=0, max_phases=4)
+    assert auto.n_phases == 2 and min(auto.bic, key=auto.bic.get) == 2
+
+
+def test_em_does_not_lower_the_likelihood_and_gaps_split_the_sequence():
+    labels, _ = _two_phases(cycles=4, seed=1)
+    order = _order(len(labels), gaps=(100, 200))
+    short = fit_phases(labels, order, 2, seed=3, restarts=1, max_iter=1)
+    long = fit_phases(labels, order, 2, seed=3, restarts=1, max_iter=100)
+    assert long.log_likelihood >= short.log_likelihood - 1e-9
+    assert len(order.sequences()) == 3
+    assert long.transitions.entry.sum() == 3  # three unbroken recordings
+
+
+def test_bad_arguments_are_clear_errors():
+    labels, _ = _two_phases(cycles=1)
+    order = _order(len(labels))
+    for bad in (0, -1, 2.5, True, "many"):
+        with pytest.raises(InvalidInputError, match="n_phases"):
+            fit_phases(labels, order, bad)
+    with pytest.raises(InvalidInputError, match="labels"):
+        fit_phases(labels[:-1], order, 2)
+    with pytest.raises(InvalidInputError, match="restarts"):
+        fit_phases(labels, order, 2, restarts=0)
