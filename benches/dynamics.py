@@ -44,13 +44,14 @@ def set_rho_prior(spec: str | None) -> None:
     estimator._sticky_prior = lambda frames: (*orig(frames)[:2], parts[0])
 
 
-def cycle_figures(model: dpgp.DPGP) -> dict:
+def cycle_figures(model: dpgp.DPGP, phases: object = None) -> dict:
     """Dominant patterns' mean dwell, and the cycle: the median time between the starts of
     successive runs (>= MIN_RUN) of one dominant pattern, and the lag (20-240 s) of the highest
-    autocorrelation of the dominant patterns' indicators on the time grid."""
-    tr = model.transitions_
-    labels = model.labels_
-    share = np.bincount(labels, minlength=model.n_patterns_) / len(labels)
+    autocorrelation of the dominant patterns' indicators on the time grid. With ``phases``
+    (:class:`dpgp.evaluate.phases.Phases`), the same of the phases instead of the patterns."""
+    tr = model.transitions_ if phases is None else phases.transitions  # type: ignore[attr-defined]
+    labels = model.labels_ if phases is None else phases.labels  # type: ignore[attr-defined]
+    share = np.bincount(labels, minlength=tr.n_patterns) / len(labels)
     dominant = [int(k) for k in np.flatnonzero(share >= DOMINANT)]
     dwell = {k: float(tr.dwell(k).mean()) for k in dominant}
     order = time_order(model.frames_)
@@ -94,6 +95,8 @@ def main() -> None:
     p.add_argument("--dynamics", default=None, choices=[None, "sticky"])
     p.add_argument("--rho", default=None, help="sticky only: 'a,b' Beta prior of ρ, or a fixed ρ")
     p.add_argument("--threads", type=int, default=None)
+    p.add_argument("--likelihood", default="auto", help="the fit's likelihood ('auto', 'exact', 'hsgp')")
+    p.add_argument("--phases", default=None, help="also the figures of the phases: a number, or 'auto'")
     a = p.parse_args()
     set_rho_prior(a.rho)
     if os.path.exists(a.out):
@@ -105,7 +108,12 @@ def main() -> None:
             frames = frames[: a.frames]
         t = time.perf_counter()
         model = dpgp.DPGP(
-            iterations=a.iterations, seed=a.seed, progress=False, dynamics=a.dynamics, n_threads=a.threads
+            iterations=a.iterations,
+            seed=a.seed,
+            progress=False,
+            dynamics=a.dynamics,
+            n_threads=a.threads,
+            likelihood=a.likelihood,
         ).fit(frames)
         print(f"fit: {len(frames)} frames (dt {a.dt} s), dynamics={a.dynamics}, {time.perf_counter() - t:.1f} s total")
         model.save(a.out)
@@ -125,6 +133,13 @@ def main() -> None:
     }  # fmt: skip
     print(json.dumps(row))
     print(tr.summary())
+    if a.phases is not None:
+        t = time.perf_counter()
+        ph = model.phases(a.phases if a.phases == "auto" else int(a.phases))
+        seconds = time.perf_counter() - t
+        print(ph.summary())
+        print(json.dumps({"phases": ph.n_phases, "fit_s": round(seconds, 2), "share_same": round(ph.transitions.share_same, 4),
+                          **cycle_figures(model, ph)}))  # fmt: skip
 
 
 if __name__ == "__main__":

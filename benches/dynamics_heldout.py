@@ -53,14 +53,24 @@ def main() -> None:
     ap.add_argument("--rho", default=None, help="sticky only: 'a,b' Beta prior of ρ, or a fixed ρ")
     ap.add_argument("--frames", type=int, default=None, help="the first N frames only")
     ap.add_argument("--sumo-dt", type=float, default=0.5, help="SUMO junction's frame grid step, s")
+    ap.add_argument("--phases", type=int, default=None, help="also the label sequence under this many phases")
+    ap.add_argument("--models", type=Path, default=None, help="keep the fits here (<data>.npz; loaded if present)")
     a = ap.parse_args()
     set_rho_prior(a.rho)
     for name in a.only.split(","):
         frames = load(name, a.sumo_dt)
         train, test = split_in_time(frames if a.frames is None else frames[: a.frames])
         t = time.perf_counter()
-        model = dpgp.DPGP(iterations=a.iterations, seed=a.seed, progress=False, dynamics=a.dynamics).fit(train)
-        s = sequence_scores(model, test)
+        path = None if a.models is None else a.models / f"{name}.npz"
+        if path is not None and path.exists():
+            model = dpgp.DPGP.load(path)
+            print(f"loaded {path} ({len(model.history_['log_joint'])} sweeps)", flush=True)
+        else:
+            model = dpgp.DPGP(iterations=a.iterations, seed=a.seed, progress=False, dynamics=a.dynamics).fit(train)
+            if path is not None:
+                model.save(path)
+        ph = None if a.phases is None else model.phases(a.phases)
+        s = sequence_scores(model, test, phases=ph)
         row = {"data": name, "dynamics": a.dynamics, "train": len(train), "iterations": a.iterations, "K": model.n_patterns_,
                "stickiness": model.stickiness_,
                "train_share_same": round(model.transitions_.share_same, 4), **s.to_dict(),

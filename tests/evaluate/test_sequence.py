@@ -45,6 +45,18 @@ def test_sequence_scores_of_a_fit_count_the_held_out_frames():
     s = sequence_scores(m, f[40:])
     assert s.n_frames == 20 and s.n_runs == 1 and s.n_vehicles == int(np.diff(f[40:].offsets).sum())
     assert np.isfinite([s.label_markov, s.label_independent, s.density_markov, s.density_independent]).all()
+    assert np.isnan(s.label_phases)
+    # under phases: the held-out labels' log-likelihood by the sum over every phase path
+    ph = m.phases(2)
+    z = np.argmax(
+        m._fitted().log_scores(f[40:])[0] + np.log(np.r_[np.bincount(m.labels_, minlength=m.n_patterns_)]), axis=1
+    )
+    with_phases = sequence_scores(m, f[40:], phases=ph)
+    log_e = np.log(ph.emission[:, z].T)
+    want = _brute_force(log_e[:8], ph.trans, ph.start, list(range(8)))  # the first 8 frames: 2^8 paths
+    short = sequence_scores(m, f[40:48], phases=ph)
+    assert short.label_phases * 8 == pytest.approx(want, abs=1e-9)
+    assert np.isfinite(with_phases.label_phases) and with_phases.label_markov == s.label_markov
 
 
 def test_bad_smoothing_is_an_error():

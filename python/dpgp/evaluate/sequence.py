@@ -60,14 +60,20 @@ class SequenceScores:
     n_frames: int
     n_vehicles: int
     n_runs: int
+    #: the label sequence under the fit's phases (:mod:`.phases`; NaN when none were given)
+    label_phases: float = float("nan")
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
 
 
-def sequence_scores(model: Any, test_frames: Any, smoothing: float = 1.0, dt: float | None = None) -> SequenceScores:
+def sequence_scores(
+    model: Any, test_frames: Any, smoothing: float = 1.0, dt: float | None = None, phases: Any = None
+) -> SequenceScores:
     """:class:`SequenceScores` of ``test_frames`` (frames with times) under a fitted ``model``'s
-    transitions (``model.transitions_``) against its independent DP weights."""
+    transitions (``model.transitions_``) against its independent DP weights; with ``phases``
+    (:class:`dpgp.evaluate.phases.Phases` of the model) also the label sequence's log-likelihood
+    per frame under the phases' HMM (forward pass)."""
     if not (isinstance(smoothing, (int, float)) and np.isfinite(smoothing) and smoothing > 0):
         raise InvalidInputError(f"smoothing must be a positive number of pseudo-frames, got {smoothing!r}")
     order = time_order(test_frames, dt)
@@ -91,9 +97,15 @@ def sequence_scores(model: Any, test_frames: Any, smoothing: float = 1.0, dt: fl
     has_prev = order.prev >= 0
     lab_m[has_prev] = log_a[z[order.prev[has_prev]], z[has_prev]]
     sizes = np.diff(np.asarray(test_frames.offsets))
+    lab_p = float("nan")
+    if phases is not None:
+        from .phases import hmm_log_likelihood
+
+        seqs = [z[s] for s in order.sequences()]
+        lab_p = hmm_log_likelihood(seqs, phases.emission, phases.trans, phases.start) / len(order)
     return SequenceScores(
         float(lab_m.mean()), float(log_pi[z].mean()), float(markov.sum() / sizes.sum()),
-        float(indep.sum() / sizes.sum()), len(order), int(sizes.sum()), len(order.sequences()),
+        float(indep.sum() / sizes.sum()), len(order), int(sizes.sum()), len(order.sequences()), lab_p,
     )  # fmt: skip
 
 
