@@ -374,6 +374,63 @@ def transitions(model: DPGP, top: int = 12, bins: int = 30) -> Figure:
     return fig
 
 
+def phases(model: DPGP, n_phases: int | str = 2, bins: int = 30) -> Figure:
+    """Phases of a fit (issue 20, :meth:`dpgp.DPGP.phases`): each frame's pattern over time (the
+    largest patterns on the lowest rows) on bands coloured by its phase, each phase's share of the
+    patterns, and the phases' dwell-time histograms."""
+    from matplotlib.figure import Figure
+
+    from .data.timeorder import time_order
+
+    ph = model.phases(n_phases)
+    order = time_order(model.frames_)
+    t = order.time - order.time.min()
+    rank = np.empty(model.n_patterns_, dtype=np.int64)
+    rank[np.argsort(-np.bincount(model.labels_, minlength=model.n_patterns_), kind="stable")] = np.arange(
+        model.n_patterns_
+    )
+    fig = Figure(figsize=(11.0, 6.4), layout="constrained")
+    grid = fig.add_gridspec(2, 2, height_ratios=(1.2, 1.0))
+    top = fig.add_subplot(grid[0, :])
+    share, hist = fig.add_subplot(grid[1, 0]), fig.add_subplot(grid[1, 1])
+    colors = [f"C{p % 10}" for p in range(ph.n_phases)]
+    for p, first, n, _censored in ph.transitions.runs:
+        top.axvspan(t[first], t[first] + n * order.dt, color=colors[p], alpha=0.18, lw=0)
+    top.scatter(t, rank[model.labels_], s=2, c="k")
+    top.set_xlabel("time (s)")
+    top.set_ylabel("pattern (by size)")
+    top.set_title(
+        f"{ph.n_phases} phases: consecutive frames keep their phase {100 * ph.transitions.share_same:.0f}%, "
+        f"their pattern {100 * model.transitions_.share_same:.0f}%",
+        fontsize="small",
+    )
+    k = min(12, model.n_patterns_)
+    big = np.argsort(rank)[:k]
+    left = np.zeros(k)
+    for p in range(ph.n_phases):
+        share.bar(range(k), ph.emission[p, big], bottom=left, color=colors[p], label=f"phase {p}")
+        left += ph.emission[p, big]
+    share.set_xticks(range(k), [str(j) for j in big])
+    share.set_xlabel("pattern")
+    share.set_ylabel("P(pattern | phase), stacked")
+    share.legend(fontsize="small")
+    d_all = ph.transitions.dwell()
+    edges = np.linspace(0, d_all.max() if len(d_all) else 1.0, bins + 1)
+    for p in range(ph.n_phases):
+        d = ph.transitions.dwell(p)
+        hist.hist(
+            d,
+            bins=edges,
+            histtype="step",
+            color=colors[p],
+            label=f"phase {p} (mean {d.mean():.1f} s)" if len(d) else f"phase {p}",
+        )
+    hist.set_xlabel("dwell time (s)")
+    hist.set_ylabel("runs")
+    hist.legend(fontsize="small")
+    return fig
+
+
 def chain_trace(chains: Any) -> Figure:
     """Log joint, K and α per sweep, one line per chain, the burn-in shaded; the title says
     why the run stopped."""
@@ -451,5 +508,5 @@ def rhat(chains: Any, ax: Axes | None = None, points: int = 30) -> Axes:
 
 __all__ = [
     "weights", "velocity_field", "frames", "simulation", "trace", "animate", "field_grid",
-    "chain_trace", "similarity", "rhat", "write_figures", "FIGURES", "transitions",
+    "chain_trace", "similarity", "rhat", "write_figures", "FIGURES", "transitions", "phases",
 ]  # fmt: skip

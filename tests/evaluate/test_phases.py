@@ -94,3 +94,16 @@ def test_bad_arguments_are_clear_errors():
         fit_phases(labels[:-1], order, 2)
     with pytest.raises(InvalidInputError, match="restarts"):
         fit_phases(labels, order, 2, restarts=0)
+
+
+def test_a_fit_has_phases_and_a_plot_of_them():
+    import dpgp
+
+    f = dpgp.datasets.synthetic("intersection", n_frames=60, seed=4)
+    m = dpgp.DPGP(iterations=2, seed=0, progress=False).fit(f)
+    ph = m.phases(2)
+    assert ph.labels.shape == (60,) and ph.emission.shape == (2, m.n_patterns_)
+    assert np.allclose(ph.emission.sum(axis=1), 1) and np.allclose(ph.trans.sum(axis=1), 1)
+    assert "phases: 2" in ph.summary()
+    fig = dpgp.plot.phases(m, 2)
+    assert len(fig.axes) == 3
