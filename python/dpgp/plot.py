@@ -420,7 +420,7 @@ def phases(model: DPGP, n_phases: int | str = 2, bins: int = 30) -> Figure:
         d = ph.transitions.dwell(p)
         hist.hist(
             d,
-            bins=edges,
+            bins=edges.tolist(),
             histtype="step",
             color=colors[p],
             label=f"phase {p} (mean {d.mean():.1f} s)" if len(d) else f"phase {p}",
