@@ -123,6 +123,38 @@ def test_simulate(model_file, tmp_path, capsys):
     assert pd.read_csv(out2)["low_data"].dtype == bool
 
 
+def test_generate_long_scenarios(tmp_path, capsys):
+    _tracks(tmp_path / "tracks.csv")
+    model = tmp_path / "m.npz"
+    assert main(["fit", str(tmp_path / "tracks.csv"), "-o", str(model), "--dt", "0.5", "--iterations", "2",
+                 "--seed", "1", "--no-progress"]) == 0  # fmt: skip
+    out = tmp_path / "long.csv"
+    assert (
+        main(["generate", str(model), "-n", "2", "-o", str(out), "--duration", "10", "--phases", "2", "--seed", "3"])
+        == 0
+    )
+    df = pd.read_csv(out)
+    assert list(df.columns) == ["scenario", "vehicle", "t", "x", "y", "vx", "vy", "pattern", "phase"]
+    assert set(df["scenario"]) == {0, 1} and df["t"].max() <= 10.0 and set(df["phase"]) <= {0, 1}
+    assert "long scenario(s) of 10 s" in capsys.readouterr().out
+    plain = tmp_path / "plain.csv"
+    assert main(["generate", str(model), "-n", "1", "-o", str(plain), "--duration", "5", "--seed", "3"]) == 0
+    assert "phase" not in pd.read_csv(plain).columns
+    assert main(["generate", str(model), "-n", "1", "-o", str(tmp_path / "x.csv"), "--phases", "2"]) == 1
+    assert "--duration" in capsys.readouterr().err
+    assert (
+        main(["generate", str(model), "-n", "1", "-o", str(tmp_path / "x.out"), "--duration", "5", "--format", "sumo"])
+        == 1
+    )
+    assert "CSV" in capsys.readouterr().err
+    assert (
+        main(["generate", str(model), "-n", "1", "-o", str(tmp_path / "y.csv"), "--duration", "5", "--phases", "two"])
+        == 1
+    )
+    assert "--phases" in capsys.readouterr().err
+    assert not (tmp_path / "x.out").exists() and not (tmp_path / "x.csv").exists()
+
+
 def test_generate_csv_and_sumo(model_file, tmp_path):
     csv = tmp_path / "scen.csv"
     assert main(["generate", str(model_file), "-n", "3", "-o", str(csv), "--steps", "5", "--seed", "2"]) == 0

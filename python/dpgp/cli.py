@@ -156,6 +156,10 @@ def _generate(args: argparse.Namespace) -> int:
     from . import DPGP
 
     model = DPGP.load(args.model)
+    if args.duration is not None:
+        return _generate_long(model, args)
+    if args.phases is not None:
+        raise InvalidInputError("--phases applies to long scenarios: give --duration too")
     one_file = args.output.lower().endswith(".xosc")
     xosc = args.format == "xosc" or (args.format is None and (one_file or os.path.isdir(args.output)))
     if xosc:  # checked before generating: a missing extra or a wrong path is said at once
@@ -182,6 +186,40 @@ def _generate(args: argparse.Namespace) -> int:
         return 0
     scen.save(args.output, format=args.format)
     print(scen)
+    print(f"wrote {args.output}")
+    return 0
+
+
+def _generate_long(model: Any, args: argparse.Namespace) -> int:
+    """``generate --duration``: long scenarios that switch pattern (or phase) over time, as CSV."""
+    import numpy as np
+    import pandas as pd
+
+    if args.format not in (None, "csv") or not args.output.lower().endswith(".csv"):
+        raise InvalidInputError("long scenarios (--duration) are written as CSV: give an output path ending in .csv")
+    phases: Any = args.phases
+    if phases is not None and phases != "auto":
+        try:
+            phases = int(phases)
+        except ValueError:
+            raise InvalidInputError(f"--phases must be a number of phases or 'auto', got {args.phases!r}") from None
+    scen = model.sample_scenarios(
+        args.n, duration=args.duration, seed=args.seed, stochastic=not args.mean, dynamics=args.dynamics or True,
+        phases=phases,
+    )  # fmt: skip
+    tables = []
+    for i, sc in enumerate(scen):
+        t = sc.to_pandas()
+        if sc.phases is not None:
+            t["phase"] = sc.phases[np.rint(t["t"].to_numpy() / sc.dt).astype(int)]
+        tables.append(t.assign(scenario=i))
+    out = pd.concat(tables, ignore_index=True)
+    cols = ["scenario", "vehicle", "t", "x", "y", "vx", "vy", "pattern"] + (["phase"] if "phase" in out else [])
+    from .io._atomic import write_atomic
+
+    write_atomic(args.output, lambda fh: out[cols].to_csv(fh, index=False))
+    switches = sum(sc.switches() for sc in scen)
+    print(f"{len(scen)} long scenario(s) of {args.duration:g} s, {len(out)} vehicle-steps, {switches} pattern switches")
     print(f"wrote {args.output}")
     return 0
 
@@ -397,6 +435,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--mean", action="store_true", help="follow the posterior mean instead of drawing velocities")
     p.add_argument("--seed", type=int, help="random seed (default: random)")
+    p.add_argument("--duration", type=float, help="long scenarios of this many seconds that switch pattern over time "
+                   "by the learned transitions (CSV with the pattern in force; needs frames with times)")  # fmt: skip
+    p.add_argument("--phases", help="with --duration: switch by phases (a number of phases, or 'auto')")
     p.set_defaults(func=_generate)
 
     p = sub.add_parser("evaluate", help="score a model on held-out data against baselines", formatter_class=fmt,

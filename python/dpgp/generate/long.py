@@ -41,7 +41,7 @@ class LongScenario:
     t: np.ndarray
     patterns: np.ndarray
     dt: float
-    #: the phase in force at each step (-1: scheduled pattern by pattern)
+    #: the phase in force at each step (None: scheduled pattern by pattern)
     phases: np.ndarray | None = None
 
     def switches(self) -> int:
@@ -297,7 +297,7 @@ def sample_long_scenarios(
                 next_id += 1
         t, vid, xy, v = (np.concatenate([c[i] for c in chunks]) for i in range(4))
         table = pd.DataFrame({"t": t, "vehicle": vid, "x": xy[:, 0], "y": xy[:, 1], "vx": v[:, 0], "vy": v[:, 1]})
-        out.append(LongScenario(table, np.arange(steps + 1) * dt, patterns, dt, in_phase))
+        out.append(LongScenario(table, np.arange(steps + 1) * dt, patterns, dt, None if phases is None else in_phase))
     return out
 
 
