@@ -97,6 +97,7 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--likelihood", default="auto", help="the fit's likelihood ('auto', 'exact', 'hsgp')")
     p.add_argument("--phases", default=None, help="also the figures of the phases: a number, or 'auto'")
+    p.add_argument("--durations", action="store_true", help="phases by the semi-Markov model (log-normal durations)")
     a = p.parse_args()
     set_rho_prior(a.rho)
     if os.path.exists(a.out):
@@ -135,10 +136,11 @@ def main() -> None:
     print(tr.summary())
     if a.phases is not None:
         t = time.perf_counter()
-        ph = model.phases(a.phases if a.phases == "auto" else int(a.phases))
+        ph = model.phases(a.phases if a.phases == "auto" else int(a.phases), durations=a.durations)
         seconds = time.perf_counter() - t
         print(ph.summary())
-        print(json.dumps({"phases": ph.n_phases, "fit_s": round(seconds, 2), "share_same": round(ph.transitions.share_same, 4),
+        print(json.dumps({"phases": ph.n_phases, "durations": a.durations, "fit_s": round(seconds, 2),
+                          "share_same": round(ph.transitions.share_same, 4), "log_likelihood": round(ph.log_likelihood, 1),
                           **cycle_figures(model, ph)}))  # fmt: skip
 
 

@@ -107,3 +107,68 @@ def test_a_fit_has_phases_and_a_plot_of_them():
     assert "phases: 2" in ph.summary()
     fig = dpgp.plot.phases(m, 2)
     assert len(fig.axes) == 3
+
+
+def _hsmm_path_log_prob(z, path, emission, trans, start, lp) -> float:
+    """A state path's log-probability under the explicit-duration model, written out run by run:
+    the first run's duration by the residual life (cut by the recording's start), the last run's
+    by the survival (cut by its end), runs longer than the model holds impossible."""
+    d_max = lp.shape[1]
+    pmf = np.exp(lp)
+    surv = np.cumsum(pmf[:, ::-1], axis=1)[:, ::-1]
+    res = surv / (pmf * np.arange(1, d_max + 1)).sum(axis=1, keepdims=True)
+    res_surv = np.cumsum(res[:, ::-1], axis=1)[:, ::-1]
+    cut = np.flatnonzero(np.diff(path)) + 1
+    runs = list(zip(np.r_[0, cut], np.r_[cut, len(path)]))
+    if any(b - a > d_max for a, b in runs):
+        return -np.inf
+    lp_path = np.log(start[path[0]]) + sum(np.log(emission[path[t], z[t]]) for t in range(len(z)))
+    for i, (a, b) in enumerate(runs):
+        r, n = path[a], b - a
+        first, last = i == 0, i == len(runs) - 1
+        table = (res_surv if last else res) if first else (surv if last else pmf)
+        lp_path += np.log(table[r, n - 1])
+        if not last:
+            lp_path += np.log(trans[r, path[b]])
+    return float(lp_path)
+
+
+@pytest.mark.parametrize("d_max", [7, 3])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_semi_markov_pass_and_viterbi_match_every_path_enumerated(seed, d_max):
+    from dpgp.evaluate.phases import _hsmm_pass, _hsmm_viterbi, duration_log_pmf
+
+    rng = np.random.default_rng(seed)
+    emission = rng.dirichlet(np.ones(3), size=2)
+    trans = np.array([[0.0, 1.0], [1.0, 0.0]])
+    start = rng.dirichlet(np.ones(2))
+    lp = duration_log_pmf(np.log(np.array([2.0, 3.5])), np.array([0.6, 0.4]), d_max)
+    z = rng.integers(0, 3, size=7)
+    paths = [np.array(p) for p in itertools.product(range(2), repeat=len(z))]
+    lps = np.array([_hsmm_path_log_prob(z, p, emission, trans, start, lp) for p in paths])
+    total = np.log(np.exp(lps - lps.max()).sum()) + lps.max()
+    with np.errstate(divide="ignore"):
+        ll, stats = _hsmm_pass(z, np.log(emission), np.log(trans), np.log(start), lp)
+    assert ll == pytest.approx(total, abs=1e-9)
+    # each frame's phase posterior against the enumerated paths'
+    post = np.exp(lps - total)
+    want = np.array([[post[[p[t] == j for p in paths]].sum() for j in range(2)] for t in range(len(z))])
+    np.testing.assert_allclose(stats["occ"], want, atol=1e-9)
+    best = _hsmm_viterbi(z, emission, trans, start, lp)  # a most probable path (ties happen)
+    assert _hsmm_path_log_prob(z, best, emission, trans, start, lp) == pytest.approx(lps.max(), abs=1e-12)
+
+
+def test_semi_markov_phases_recover_a_fixed_time_cycle():
+    # two phases of 20 s each (40 frames) that share a pattern: durations learned near 20 s, every
+    # inner run decoded at 20 s (a fixed-time signal), the likelihood above the HMM's
+    labels, truth = _two_phases(cycles=8, seed=2)
+    order = _order(len(labels))
+    semi = fit_phases(labels, order, 2, seed=0, restarts=2, durations=True, max_duration=60.0)
+    agree = max(np.mean(semi.labels == truth), np.mean(semi.labels != truth))
+    assert agree > 0.97
+    assert semi.durations is not None and np.allclose(np.exp(semi.durations[:, 0]), 20.0, rtol=0.1)
+    inner = semi.transitions.runs[semi.transitions.runs[:, 3] == 0]
+    assert np.all(np.abs(inner[:, 2] * 0.5 - 20.0) <= 1.5)
+    hmm = fit_phases(labels, order, 2, seed=0, restarts=2)
+    assert semi.log_likelihood > hmm.log_likelihood
+    assert semi.sequence_log_likelihood([labels]) == pytest.approx(semi.log_likelihood, rel=1e-9)

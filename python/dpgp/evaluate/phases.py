@@ -30,6 +30,11 @@ from .transitions import Transitions, count_transitions
 #: Pseudo-counts of the M-step (emissions, transitions, starts): no probability reaches 0.
 SMOOTHING = 1e-3
 MAX_PHASES = 6
+#: ``durations=True``: the longest phase a model can hold (s), and the least spread of its log-normal
+MAX_DURATION = 180.0
+MIN_LOG_SD = 0.05
+#: ``durations=True``: the starting mean durations (s) of the EM runs (each with every restart)
+START_DURATIONS = (20.0, 45.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,10 +58,24 @@ class Phases:
     transitions: Transitions
     within: np.ndarray
     pattern_runs: list[np.ndarray]
+    #: ``durations=True``: each phase's duration, a log-normal ``(mu, sd)`` of log seconds
+    durations: np.ndarray | None = None
+    dt: float = float("nan")
+    d_max: int = 0
 
     @property
     def n_phases(self) -> int:
         return len(self.start)
+
+    def sequence_log_likelihood(self, seqs: list[np.ndarray]) -> float:
+        """Log-likelihood of pattern label sequences (each an unbroken run of frames) under these
+        phases: the HMM's forward pass, or the semi-Markov model's."""
+        if self.durations is None:
+            return hmm_log_likelihood(seqs, self.emission, self.trans, self.start)
+        lp = duration_log_pmf(self.durations[:, 0] - np.log(self.dt), self.durations[:, 1], self.d_max)
+        with np.errstate(divide="ignore"):
+            log_a = np.log(self.trans) if self.n_phases > 1 else np.full((1, 1), -np.inf)
+        return float(sum(_hsmm_pass(z, np.log(self.emission), log_a, np.log(self.start), lp)[0] for z in seqs))
 
     def summary(self) -> str:
         tr = self.transitions
@@ -159,7 +178,177 @@ def _em(
     return ll, emission, trans, start
 
 
-def _n_params(p: int, k: int) -> int:
+def _lse(a: np.ndarray, axis: int = 0) -> np.ndarray:
+    """log-sum-exp along ``axis``; -inf where every term is -inf."""
+    m = np.max(a, axis=axis, keepdims=True)
+    m = np.where(np.isfinite(m), m, 0.0)
+    with np.errstate(divide="ignore"):
+        return np.squeeze(m, axis) + np.log(np.sum(np.exp(a - m), axis=axis))
+
+
+def duration_log_pmf(mu: np.ndarray, sd: np.ndarray, d_max: int) -> np.ndarray:
+    """(P, d_max): a log-normal (``mu``, ``sd`` of log frames) discretised on 1..d_max frames."""
+    d = np.log(np.arange(1, d_max + 1))
+    lp = -d[None, :] - 0.5 * ((d[None, :] - mu[:, None]) / sd[:, None]) ** 2
+    return lp - _lse(lp, axis=1)[:, None]
+
+
+def _duration_tables(lp: np.ndarray) -> tuple[np.ndarray, ...]:
+    """From the duration log-pmf: the survival ``log P(d' >= d)``, and for a segment cut by the
+    start of a recording the residual life ``P(d) = P(d' >= d) / E[d']`` and its survival."""
+    with np.errstate(divide="ignore"):
+        surv = np.log(np.cumsum(np.exp(lp)[:, ::-1], axis=1)[:, ::-1])
+        res = surv - np.log((np.exp(lp) * np.arange(1, lp.shape[1] + 1)).sum(axis=1))[:, None]
+        res_surv = np.log(np.cumsum(np.exp(res)[:, ::-1], axis=1)[:, ::-1])
+    return surv, res, res_surv
+
+
+def _ending_at(tables: tuple[np.ndarray, ...], lp: np.ndarray, t: int, n: int) -> np.ndarray:
+    """(min(d_max, t), P): duration terms of the segments that end at ``t`` (exclusive) and last
+    1, 2, ... frames, in a sequence of ``n`` frames (cut by its start, s = 0, and/or its end)."""
+    surv, res, res_surv = tables
+    d = min(lp.shape[1], t)
+    out = (surv if t == n else lp)[:, :d].T.copy()
+    if d == t:  # the longest starts at the sequence's start
+        out[-1] = (res_surv if t == n else res)[:, t - 1]
+    return out
+
+
+def _starting_at(tables: tuple[np.ndarray, ...], lp: np.ndarray, s: int, n: int) -> np.ndarray:
+    """(min(d_max, n - s), P): duration terms of the segments that start at ``s`` and last 1, 2, ...
+    frames (cut by the sequence's start if s = 0, by its end for the one reaching n)."""
+    surv, res, res_surv = tables
+    d = min(lp.shape[1], n - s)
+    out = (res if s == 0 else lp)[:, :d].T.copy()
+    if d == n - s:
+        out[-1] = (res_surv if s == 0 else surv)[:, d - 1]
+    return out
+
+
+def _hsmm_pass(
+    z: np.ndarray, log_b: np.ndarray, log_a: np.ndarray, log_start: np.ndarray, lp: np.ndarray, viterbi: bool = False
+) -> tuple[float, dict[str, np.ndarray]]:
+    """Forward–backward (or, ``viterbi``, max-product) over the segments of one label sequence
+    under an explicit-duration HMM: segments of one phase last d frames (``lp``), the next phase by
+    ``log_a`` (no self-transitions), each frame's label by ``log_b``."""
+    n, p = len(z), len(log_start)
+    d_max = lp.shape[1]
+    tables = _duration_tables(lp)
+    cum = np.zeros((n + 1, p))
+    cum[1:] = np.cumsum(log_b[:, z].T, axis=0)
+    reduce = (lambda a: np.max(a, axis=0)) if viterbi else _lse
+    fwd = np.full((n + 1, p), -np.inf)  # a segment of p ends at t (covers ..t-1)
+    start = np.full((n + 1, p), -np.inf)  # a segment of p starts at s
+    start[0] = log_start
+    best_d = np.zeros((n + 1, p), dtype=np.int64)
+    best_i = np.zeros((n + 1, p), dtype=np.int64)
+    for t in range(1, n + 1):
+        s = t - np.arange(1, min(d_max, t) + 1)
+        terms = start[s] + _ending_at(tables, lp, t, n) + cum[t] - cum[s]
+        fwd[t] = reduce(terms)
+        if viterbi:
+            best_d[t] = np.argmax(terms, axis=0) + 1
+        if t < n:
+            x = fwd[t][:, None] + log_a
+            start[t] = reduce(x)
+            if viterbi:
+                best_i[t] = np.argmax(x, axis=0)
+    total = float(reduce(fwd[n][:, None]).item()) if viterbi else float(_lse(fwd[n]))
+    if viterbi:
+        return total, {"fwd": fwd, "best_d": best_d, "best_i": best_i}
+    back = np.full((n + 1, p), -np.inf)  # the frames after a segment of p that ends at t
+    gen = np.full((n + 1, p), -np.inf)  # the frames from s on, given a segment of p starts at s
+    back[n] = 0.0
+    for si in range(n - 1, -1, -1):
+        ends_at = si + np.arange(1, min(d_max, n - si) + 1)
+        gen[si] = _lse(_starting_at(tables, lp, si, n) + cum[ends_at] - cum[si] + back[ends_at])
+        if si > 0:
+            back[si] = _lse(log_a + gen[si][None, :], axis=1)
+    with np.errstate(invalid="ignore"):
+        starts = np.exp(start[:n] + gen[:n] - total)
+        ends = np.exp(fwd[1:] + back[1:] - total)
+    occ = np.cumsum(starts, axis=0) - np.r_[np.zeros((1, p)), np.cumsum(ends, axis=0)[:-1]]
+    xi = np.zeros((p, p))
+    for t in range(1, n):
+        xi += np.exp(fwd[t][:, None] + log_a + gen[t][None, :] - total)
+    dur = np.zeros((p, d_max))  # segments seen to start and end inside the sequence
+    for d in range(1, min(d_max, n - 2) + 1):
+        at = np.arange(1, n - d)
+        dur[:, d - 1] = np.exp(start[at] + lp[:, d - 1] + cum[at + d] - cum[at] + back[at + d] - total).sum(axis=0)
+    return total, {"occ": np.clip(occ, 0.0, None), "first": starts[0], "xi": xi, "dur": dur}
+
+
+def _hsmm_viterbi(
+    z: np.ndarray, emission: np.ndarray, trans: np.ndarray, start: np.ndarray, lp: np.ndarray
+) -> np.ndarray:
+    with np.errstate(divide="ignore"):
+        log_a = np.log(trans)
+    _, tab = _hsmm_pass(z, np.log(emission), log_a, np.log(start), lp, viterbi=True)
+    path = np.empty(len(z), dtype=np.int64)
+    t, j = len(z), int(np.argmax(tab["fwd"][len(z)]))
+    while t > 0:
+        d = int(tab["best_d"][t, j])
+        path[t - d : t] = j
+        t -= d
+        if t > 0:
+            j = int(tab["best_i"][t, j])
+    return path
+
+
+def _hsmm_em(
+    seqs: list[np.ndarray],
+    p: int,
+    k: int,
+    rng: np.random.Generator,
+    max_iter: int,
+    tol: float,
+    d_max: int,
+    mean0: float,
+) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    emission = rng.dirichlet(np.ones(k), size=p)
+    trans = np.ones((p, p)) - np.eye(p) if p > 1 else np.ones((1, 1))
+    trans /= trans.sum(axis=1, keepdims=True)
+    start = np.full(p, 1.0 / p)
+    mu, sd = np.full(p, np.log(mean0)), np.full(p, 0.5)
+    logd = np.log(np.arange(1, d_max + 1))
+    prev = ll = -np.inf
+    for _ in range(max_iter):
+        lp = duration_log_pmf(mu, sd, d_max)
+        with np.errstate(divide="ignore"):
+            log_a = np.log(trans) if p > 1 else np.full((1, 1), -np.inf)
+        nb, na, n0, nd = np.zeros((p, k)), np.zeros((p, p)), np.zeros(p), np.zeros((p, d_max))
+        ll = 0.0
+        for z in seqs:
+            lz, st = _hsmm_pass(z, np.log(emission), log_a, np.log(start), lp)
+            ll += lz
+            np.add.at(nb.T, z, st["occ"])
+            na += st["xi"]
+            n0 += st["first"]
+            nd += st["dur"]
+        emission = (nb + SMOOTHING) / (nb + SMOOTHING).sum(axis=1, keepdims=True)
+        if p > 1:
+            trans = na + SMOOTHING
+            np.fill_diagonal(trans, 0.0)
+            trans /= trans.sum(axis=1, keepdims=True)
+        start = (n0 + SMOOTHING) / (n0 + SMOOTHING).sum()
+        w = nd.sum(axis=1)
+        for j in np.flatnonzero(w > 1e-9):
+            mu[j] = (nd[j] * logd).sum() / w[j]
+            sd[j] = max(np.sqrt((nd[j] * (logd - mu[j]) ** 2).sum() / w[j]), MIN_LOG_SD)
+        if ll - prev < tol * abs(ll):
+            break
+        prev = ll
+    # the likelihood of the parameters returned (the loop's is of the step before)
+    lp = duration_log_pmf(mu, sd, d_max)
+    with np.errstate(divide="ignore"):
+        log_a = np.log(trans) if p > 1 else np.full((1, 1), -np.inf)
+    ll = float(sum(_hsmm_pass(z, np.log(emission), log_a, np.log(start), lp)[0] for z in seqs))
+    return ll, emission, trans, start, np.c_[mu, sd]
+
+
+def _n_params(p: int, k: int, durations: bool = False) -> int:
+    if durations:  # no self-transitions; a log-normal (2 numbers) per phase
+        return (p - 1) + p * max(p - 2, 0) + p * (k - 1) + 2 * p
     return (p - 1) + p * (p - 1) + p * (k - 1)
 
 
@@ -174,11 +363,17 @@ def fit_phases(
     max_phases: int = MAX_PHASES,
     max_iter: int = 200,
     tol: float = 1e-7,
+    durations: bool = False,
+    max_duration: float = MAX_DURATION,
 ) -> Phases:
     """The :class:`Phases` of frame ``labels`` (integers ``0..K-1``) in the time ``order`` of their
     frames (a :class:`TimeOrder`, or the frames). ``n_phases``: a positive integer, or ``"auto"``
     (lowest BIC of ``1..max_phases``). EM from ``restarts`` random emissions (``seed``), the best
-    log-likelihood kept. :class:`~dpgp.exceptions.UnorderedFramesError` for frames without times."""
+    log-likelihood kept. ``durations``: an explicit-duration (semi-Markov) model, each phase's
+    duration a log-normal up to ``max_duration`` seconds, instead of the HMM's geometric one (a
+    fixed-time signal's phases last about one duration; a geometric one breaks them up); slower,
+    O(frames × max_duration / dt) per EM step.
+    :class:`~dpgp.exceptions.UnorderedFramesError` for frames without times."""
     if not isinstance(order, TimeOrder):
         order = time_order(order)
     labels = np.asarray(labels)
@@ -197,27 +392,43 @@ def fit_phases(
     k = int(max(n_patterns or 0, labels.max() + 1))
     seqs_idx = order.sequences()
     seqs = [labels[s] for s in seqs_idx]
+    if not (isinstance(max_duration, (int, float)) and np.isfinite(max_duration) and max_duration > 0):
+        raise InvalidInputError(f"max_duration must be a positive number of seconds, got {max_duration!r}")
     counts = range(1, max_phases + 1) if auto else [int(n_phases)]
     rng = np.random.default_rng(seed)
-    fits: dict[int, tuple[float, np.ndarray, np.ndarray, np.ndarray]] = {}
+    d_max = max(1, min(max(len(q) for q in seqs), int(round(max_duration / order.dt))))
+    fits: dict[int, tuple[Any, ...]] = {}
     bic: dict[int, float] = {}
     for p in counts:
-        best = max(
-            (_em(seqs, p, k, rng, max_iter, tol) for _ in range(int(restarts) if p > 1 else 1)), key=lambda r: r[0]
-        )
-        fits[p] = best
-        bic[p] = -2.0 * best[0] + _n_params(p, k) * np.log(len(labels))
+        runs = int(restarts) if p > 1 else 1
+        tries: list[tuple[Any, ...]] = []
+        for _ in range(runs):
+            if durations:
+                tries += [
+                    _hsmm_em(seqs, p, k, rng, max_iter, tol, d_max, min(m / order.dt, d_max / 2))
+                    for m in START_DURATIONS
+                ]
+            else:
+                tries.append(_em(seqs, p, k, rng, max_iter, tol))
+        fits[p] = max(tries, key=lambda r: r[0])
+        bic[p] = -2.0 * fits[p][0] + _n_params(p, k, durations) * np.log(len(labels))
     p = min(bic, key=lambda q: bic[q]) if auto else int(n_phases)
-    ll, emission, trans, start = fits[p]
+    ll, emission, trans, start, *rest = fits[p]
+    dur = rest[0] if durations else None
     path = np.empty(len(labels), dtype=np.int64)
     for s, z in zip(seqs_idx, seqs):
-        path[s] = viterbi(z, emission, trans, start)
+        if dur is None:
+            path[s] = viterbi(z, emission, trans, start)
+        else:
+            path[s] = _hsmm_viterbi(z, emission, trans, start, duration_log_pmf(dur[:, 0], dur[:, 1], d_max))
     # number phases by size, largest first (a deterministic name for each)
     rank = np.argsort(-np.bincount(path, minlength=p), kind="stable")
     new = np.empty(p, dtype=np.int64)
     new[rank] = np.arange(p)
     path = new[path]
     emission, start, trans = emission[rank], start[rank], trans[np.ix_(rank, rank)]
+    if dur is not None:  # log-normal of the duration in log seconds
+        dur = dur[rank] + np.array([np.log(order.dt), 0.0])
     within = np.zeros((p, k, k), dtype=np.int64)
     has_next = (order.next >= 0) & (path[np.maximum(order.next, 0)] == path)
     np.add.at(within, (path[has_next], labels[has_next], labels[order.next[has_next]]), 1)
@@ -237,7 +448,10 @@ def fit_phases(
         transitions=count_transitions(path, order, p),
         within=within,
         pattern_runs=[np.asarray(r, dtype=np.int64).reshape(-1, 2) for r in pattern_runs],
+        durations=dur,
+        dt=float(order.dt),
+        d_max=d_max,
     )
 
 
-__all__ = ["Phases", "fit_phases", "hmm_log_likelihood", "viterbi", "MAX_PHASES"]
+__all__ = ["Phases", "fit_phases", "hmm_log_likelihood", "viterbi", "duration_log_pmf", "MAX_PHASES"]

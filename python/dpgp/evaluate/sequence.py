@@ -99,10 +99,7 @@ def sequence_scores(
     sizes = np.diff(np.asarray(test_frames.offsets))
     lab_p = float("nan")
     if phases is not None:
-        from .phases import hmm_log_likelihood
-
-        seqs = [z[s] for s in order.sequences()]
-        lab_p = hmm_log_likelihood(seqs, phases.emission, phases.trans, phases.start) / len(order)
+        lab_p = phases.sequence_log_likelihood([z[s] for s in order.sequences()]) / len(order)
     return SequenceScores(
         float(lab_m.mean()), float(log_pi[z].mean()), float(markov.sum() / sizes.sum()),
         float(indep.sum() / sizes.sum()), len(order), int(sizes.sum()), len(order.sequences()), lab_p,

@@ -675,23 +675,25 @@ class DPGP:
             cache["transitions"] = held
         return held[1]
 
-    def phases(self, n_phases: int | str = 2, seed: int | None = 0) -> Any:
+    def phases(self, n_phases: int | str = 2, seed: int | None = 0, durations: bool = False) -> Any:
         """Phases of the training frames: persistent regimes above the patterns, a hidden Markov
         model over the patterns of consecutive frames with ``n_phases`` states (or ``"auto"``, by
         BIC). Returns :class:`dpgp.evaluate.phases.Phases` (labels, each phase's patterns,
         transitions and dwell times); ``sample_scenarios(duration=..., phases=...)`` switches
-        pattern by them. Needs frames with times."""
+        pattern by them. ``durations``: a semi-Markov model (each phase's duration a log-normal)
+        instead of the HMM's geometric durations: cleaner phases of fixed-time signals, slower.
+        Needs frames with times."""
         from ..evaluate.phases import fit_phases
 
         self._check_fitted()
-        key = ("phases", n_phases, seed)
+        key = ("phases", n_phases, seed, bool(durations))
         cache = self.__dict__.setdefault("_cache", {})
         held = cache.get(key)
         if held is None or held[0] is not self.labels_:
-            held = (
-                self.labels_,
-                fit_phases(self.labels_, self.frames_, n_phases, n_patterns=self.n_patterns_, seed=seed),
+            ph = fit_phases(
+                self.labels_, self.frames_, n_phases, n_patterns=self.n_patterns_, seed=seed, durations=durations
             )
+            held = (self.labels_, ph)
             cache[key] = held
         return held[1]
 
