@@ -28,7 +28,6 @@ from ..gp.fitted import FittedPatterns
 from .motion import consecutive_pairs, motion_model
 from .rollout import motion_rollouts
 
-SUPPORT = True
 MAX_VEHICLES = 400  # a scene never holds more at once (entries beyond are skipped)
 
 
@@ -262,7 +261,7 @@ def sample_long_scenarios(
                 sim = motion_rollouts(
                     fit, [k], [pos], [vel], steps=m, dt=dt, seeds=[int(rng.integers(2**63))] if stochastic else None,
                     roi=box, low_data_threshold=None, dynamics=dynamics, motion=motion,
-                    drivers=None if drivers is None else [drivers], support=SUPPORT,
+                    drivers=None if drivers is None else [drivers], support=True,
                 )[0]  # fmt: skip
                 on_road = np.stack([area.contains(sim.positions[j]) for j in range(m + 1)])
                 left_area = np.logical_or.accumulate(~on_road & sim.in_roi, axis=0)  # dropped from there on
