@@ -3,15 +3,21 @@
 A scenario starts from a pattern (drawn by how recordings start, else by weight) with the vehicles
 of one of its training frames, stays for a dwell time drawn from that pattern's recorded runs, then
 moves to the next pattern by the learned transitions (the changes, self-transitions excluded),
-and so on until ``duration``. Vehicles keep moving across a switch: the rollout goes on from where
-they are with the residual dynamics and interactions of :mod:`.motion`, under the new pattern's
-field. New vehicles enter where the current pattern's vehicles entered in the recording (track
+and so on until ``duration`` (:class:`PatternSchedule`); with ``phases`` it switches phase by the
+recorded phase changes and durations, and pattern only as inside that phase's recorded runs
+(:class:`PhaseSchedule`). Vehicles keep moving across a switch: the rollout goes on from where
+they are, each driver's state carried over (its wish, not its braked or pushed velocity), with the
+residual dynamics and interactions of :mod:`.motion` under the new pattern's field, followed only
+as far as that field has data where the vehicle is (a pattern's zero prior mean is no wish to
+stand). New vehicles enter where the current pattern's vehicles entered in the recording (track
 starts inside a recording, not at its first frame), at the pattern's recorded entry rate (Poisson);
-vehicles that leave the ROI are dropped. Rollouts run in blocks of ``block`` seconds in the core
-(:func:`.rollout.motion_rollouts`), entries come at the block ends.
+vehicles that leave the ROI, or every recorded path (:class:`Area`), are dropped. Rollouts run in
+blocks of ``block`` seconds in the core (:func:`.rollout.motion_rollouts`), entries come at the
+block ends.
 
 The transitions come from :attr:`dpgp.DPGP.transitions_`, handed down as an object with ``counts``,
-``entry_probs`` and ``dwell(k)`` (this layer does not import the evaluation layer)."""
+``entry_probs`` and ``dwell(k)``, the phases as :class:`dpgp.evaluate.phases.Phases` (this layer
+does not import the evaluation layer)."""
 
 from __future__ import annotations
 
