@@ -192,7 +192,6 @@ def _generate(args: argparse.Namespace) -> int:
 
 def _generate_long(model: Any, args: argparse.Namespace) -> int:
     """``generate --duration``: long scenarios that switch pattern (or phase) over time, as CSV."""
-    import numpy as np
     import pandas as pd
 
     if args.format not in (None, "csv") or not args.output.lower().endswith(".csv"):
@@ -207,13 +206,7 @@ def _generate_long(model: Any, args: argparse.Namespace) -> int:
         args.n, duration=args.duration, seed=args.seed, stochastic=not args.mean, dynamics=args.dynamics or True,
         phases=phases,
     )  # fmt: skip
-    tables = []
-    for i, sc in enumerate(scen):
-        t = sc.to_pandas()
-        if sc.phases is not None:
-            t["phase"] = sc.phases[np.rint(t["t"].to_numpy() / sc.dt).astype(int)]
-        tables.append(t.assign(scenario=i))
-    out = pd.concat(tables, ignore_index=True)
+    out = pd.concat([sc.to_pandas().assign(scenario=i) for i, sc in enumerate(scen)], ignore_index=True)
     cols = ["scenario", "vehicle", "t", "x", "y", "vx", "vy", "pattern"] + (["phase"] if "phase" in out else [])
     from .io._atomic import write_atomic
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..data.timeorder import TimeOrder, time_order
 from ..exceptions import InvalidInputError
+from .sequence import _logsumexp
 from .transitions import Transitions, count_transitions
 
 #: Pseudo-counts of the M-step (emissions, transitions, starts): no probability reaches 0.
@@ -73,9 +74,7 @@ class Phases:
         if self.durations is None:
             return hmm_log_likelihood(seqs, self.emission, self.trans, self.start)
         lp = duration_log_pmf(self.durations[:, 0] - np.log(self.dt), self.durations[:, 1], self.d_max)
-        with np.errstate(divide="ignore"):
-            log_a = np.log(self.trans) if self.n_phases > 1 else np.full((1, 1), -np.inf)
-        return float(sum(_hsmm_pass(z, np.log(self.emission), log_a, np.log(self.start), lp)[0] for z in seqs))
+        return _hsmm_log_likelihood(seqs, self.emission, self.trans, self.start, lp)
 
     def summary(self) -> str:
         tr = self.transitions
@@ -178,19 +177,11 @@ def _em(
     return ll, emission, trans, start
 
 
-def _lse(a: np.ndarray, axis: int = 0) -> np.ndarray:
-    """log-sum-exp along ``axis``; -inf where every term is -inf."""
-    m = np.max(a, axis=axis, keepdims=True)
-    m = np.where(np.isfinite(m), m, 0.0)
-    with np.errstate(divide="ignore"):
-        return np.squeeze(m, axis) + np.log(np.sum(np.exp(a - m), axis=axis))
-
-
 def duration_log_pmf(mu: np.ndarray, sd: np.ndarray, d_max: int) -> np.ndarray:
     """(P, d_max): a log-normal (``mu``, ``sd`` of log frames) discretised on 1..d_max frames."""
     d = np.log(np.arange(1, d_max + 1))
     lp = -d[None, :] - 0.5 * ((d[None, :] - mu[:, None]) / sd[:, None]) ** 2
-    return lp - _lse(lp, axis=1)[:, None]
+    return lp - _logsumexp(lp, axis=1)[:, None]
 
 
 def _duration_tables(lp: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -236,7 +227,7 @@ def _hsmm_pass(
     tables = _duration_tables(lp)
     cum = np.zeros((n + 1, p))
     cum[1:] = np.cumsum(log_b[:, z].T, axis=0)
-    reduce = (lambda a: np.max(a, axis=0)) if viterbi else _lse
+    reduce = (lambda a: np.max(a, axis=0)) if viterbi else (lambda a: _logsumexp(a, axis=0))
     fwd = np.full((n + 1, p), -np.inf)  # a segment of p ends at t (covers ..t-1)
     start = np.full((n + 1, p), -np.inf)  # a segment of p starts at s
     start[0] = log_start
@@ -253,7 +244,7 @@ def _hsmm_pass(
             start[t] = reduce(x)
             if viterbi:
                 best_i[t] = np.argmax(x, axis=0)
-    total = float(reduce(fwd[n][:, None]).item()) if viterbi else float(_lse(fwd[n]))
+    total = float(reduce(fwd[n][:, None]).item()) if viterbi else float(_logsumexp(fwd[n]))
     if viterbi:
         return total, {"fwd": fwd, "best_d": best_d, "best_i": best_i}
     back = np.full((n + 1, p), -np.inf)  # the frames after a segment of p that ends at t
@@ -261,9 +252,9 @@ def _hsmm_pass(
     back[n] = 0.0
     for si in range(n - 1, -1, -1):
         ends_at = si + np.arange(1, min(d_max, n - si) + 1)
-        gen[si] = _lse(_starting_at(tables, lp, si, n) + cum[ends_at] - cum[si] + back[ends_at])
+        gen[si] = _logsumexp(_starting_at(tables, lp, si, n) + cum[ends_at] - cum[si] + back[ends_at], axis=0)
         if si > 0:
-            back[si] = _lse(log_a + gen[si][None, :], axis=1)
+            back[si] = _logsumexp(log_a + gen[si][None, :], axis=1)
     with np.errstate(invalid="ignore"):
         starts = np.exp(start[:n] + gen[:n] - total)
         ends = np.exp(fwd[1:] + back[1:] - total)
@@ -278,12 +269,27 @@ def _hsmm_pass(
     return total, {"occ": np.clip(occ, 0.0, None), "first": starts[0], "xi": xi, "dur": dur}
 
 
+def _log_switches(trans: np.ndarray) -> np.ndarray:
+    """Log transition probabilities between segments: none for a single phase (one segment per
+    sequence), else ``trans`` (its zero diagonal: a phase never follows itself)."""
+    if len(trans) == 1:
+        return np.full((1, 1), -np.inf)
+    with np.errstate(divide="ignore"):
+        return np.log(trans)
+
+
+def _hsmm_log_likelihood(
+    seqs: list[np.ndarray], emission: np.ndarray, trans: np.ndarray, start: np.ndarray, lp: np.ndarray
+) -> float:
+    """Log-likelihood of the label sequences ``seqs`` under the semi-Markov model (forward pass)."""
+    log_a, log_b, log_s = _log_switches(trans), np.log(emission), np.log(start)
+    return float(sum(_hsmm_pass(z, log_b, log_a, log_s, lp)[0] for z in seqs))
+
+
 def _hsmm_viterbi(
     z: np.ndarray, emission: np.ndarray, trans: np.ndarray, start: np.ndarray, lp: np.ndarray
 ) -> np.ndarray:
-    with np.errstate(divide="ignore"):
-        log_a = np.log(trans)
-    _, tab = _hsmm_pass(z, np.log(emission), log_a, np.log(start), lp, viterbi=True)
+    _, tab = _hsmm_pass(z, np.log(emission), _log_switches(trans), np.log(start), lp, viterbi=True)
     path = np.empty(len(z), dtype=np.int64)
     t, j = len(z), int(np.argmax(tab["fwd"][len(z)]))
     while t > 0:
@@ -314,8 +320,7 @@ def _hsmm_em(
     prev = ll = -np.inf
     for _ in range(max_iter):
         lp = duration_log_pmf(mu, sd, d_max)
-        with np.errstate(divide="ignore"):
-            log_a = np.log(trans) if p > 1 else np.full((1, 1), -np.inf)
+        log_a = _log_switches(trans)
         nb, na, n0, nd = np.zeros((p, k)), np.zeros((p, p)), np.zeros(p), np.zeros((p, d_max))
         ll = 0.0
         for z in seqs:
@@ -339,10 +344,7 @@ def _hsmm_em(
             break
         prev = ll
     # the likelihood of the parameters returned (the loop's is of the step before)
-    lp = duration_log_pmf(mu, sd, d_max)
-    with np.errstate(divide="ignore"):
-        log_a = np.log(trans) if p > 1 else np.full((1, 1), -np.inf)
-    ll = float(sum(_hsmm_pass(z, np.log(emission), log_a, np.log(start), lp)[0] for z in seqs))
+    ll = _hsmm_log_likelihood(seqs, emission, trans, start, duration_log_pmf(mu, sd, d_max))
     return ll, emission, trans, start, np.c_[mu, sd]
 
 

@@ -26,9 +26,11 @@ from ..exceptions import InvalidInputError
 
 
 def _logsumexp(a: np.ndarray, axis: int = -1) -> np.ndarray:
+    """log Σ exp along ``axis``; -inf where every term is -inf."""
     m = np.max(a, axis=axis, keepdims=True)
     m = np.where(np.isfinite(m), m, 0.0)
-    return np.squeeze(m, axis) + np.log(np.sum(np.exp(a - m), axis=axis))
+    with np.errstate(divide="ignore"):
+        return np.squeeze(m, axis) + np.log(np.sum(np.exp(a - m), axis=axis))
 
 
 def forward_log_likelihoods(

@@ -53,7 +53,10 @@ class LongScenario:
         return int(np.count_nonzero(np.diff(self.patterns)))
 
     def to_pandas(self) -> pd.DataFrame:
-        return self.table.assign(pattern=self.patterns[np.rint(self.table["t"].to_numpy() / self.dt).astype(int)])
+        """The table with the pattern in force at each row's step (and the phase, if scheduled by phase)."""
+        step = np.rint(self.table["t"].to_numpy() / self.dt).astype(int)
+        out = self.table.assign(pattern=self.patterns[step])
+        return out if self.phases is None else out.assign(phase=self.phases[step])
 
 
 @dataclass(frozen=True, eq=False)
