@@ -50,10 +50,26 @@ def test_rule_on_constructed_cases(monkeypatch):
         ec.sweep_seconds("exact", [n], many) <= ec.HSGP_MARGIN * ec.sweep_seconds("hsgp", [n], many, M) for n in sizes
     ]
     assert picks == ["exact" if x else "hsgp" for x in cross] and "exact" in picks and "hsgp" in picks
-    # memory: exact needs its largest pattern's factors within the budget
-    assert ec.choose([500] * 40, many, M, ec.exact_bytes(500) - 1).engine == "hsgp"
-    assert ec.choose([500] * 40, many, M, ec.exact_bytes(500)).engine == "exact"
-    assert ec.choose_upfront([10] * 30, M, ec.exact_bytes(300) - 1) is None
+    # memory: exact needs its peak (every point in one pattern, with candidate copies) within the
+    # budget, not just the largest initial pattern's factors
+    assert ec.choose([500] * 40, many, M, ec.exact_peak_bytes(20_000) - 1).engine == "hsgp"
+    assert ec.choose([500] * 40, many, M, ec.exact_peak_bytes(20_000)).engine == "exact"
+    assert ec.choose([500] * 40, many, M, 100 * ec.exact_bytes(500)).engine == "hsgp"
+    assert ec.choose_upfront([10] * 30, M, ec.exact_peak_bytes(300) - 1) is None
+
+
+def test_sumo_junction_sizes_no_longer_pick_exact():
+    """All 3,150 SUMO junction frames (23,936 points): hsgp was faster, but the accuracy probe
+    (gap 0.29 nats per point) sent the fit to exact, since its initial patterns' factors fitted a
+    12.3 GB budget; the exact chain then stopped mid-fit needing 12.5 GB."""
+    sizes = [2751, 2541, 1998, 1858, 1635, 1442] + [1000] * 11 + [711]
+    assert sum(sizes) == 23_936 and 6 * ec.exact_bytes(max(sizes)) < 12.3e9
+    c = ec.choose(sizes, [8] * 2992, 484, int(12.3e9))
+    assert c.engine == "hsgp" and not c.exact_fits
+    assert ec.check_accuracy(c, 0.29).engine == "hsgp"
+    # the same data under a budget that holds exact's peak: the probe sends it to exact
+    roomy = ec.choose(sizes, [8] * 2992, 484, ec.exact_peak_bytes(23_936))
+    assert roomy.exact_fits and ec.check_accuracy(roomy, 0.29).engine == "exact"
 
 
 def test_exact_bytes_matches_the_doubling_buffers():

@@ -25,12 +25,13 @@ switched mid-fit:
 
 1. exact's worst case, every point in one pattern, is predicted at most ``HSGP_MARGIN`` (4) times
    slower than hsgp's best case
-   (its per-frame term alone, a bound below any partition) and fits the memory budget: exact,
+   (its per-frame term alone, a bound below any partition) and its peak fits the memory budget: exact,
    without further work;
 2. otherwise the pattern sizes are predicted by the hsgp sampler's own sequential
    initialisation (cheap: ``O(l M²)`` a frame); hsgp runs if it is predicted at least
-   ``HSGP_MARGIN`` times faster on those sizes, or exact's largest pattern's factors exceed the
-   memory budget; else exact. If hsgp wins,
+   ``HSGP_MARGIN`` times faster on those sizes, or exact's peak (:func:`exact_peak_bytes`: every
+   point in one pattern, with the candidate copies of its steps) exceeds the memory budget; else
+   exact. If hsgp wins,
    the fit continues from that initialisation (so ``auto`` is then bitwise ``likelihood="hsgp"``);
    if exact wins, the exact sampler starts afresh from its own initialisation (bitwise
    ``likelihood="exact"``).
@@ -109,16 +110,29 @@ def sweep_seconds(engine: str, pattern_points: object, frame_sizes: object, basi
 
 
 def exact_bytes(largest_pattern_points: int) -> int:
-    """Memory exact needs for its largest pattern: one factor per output group, each in a buffer
-    that doubles as it grows (the budget check of the previous rule, kept)."""
+    """Memory exact needs for a pattern of this many points: one factor per output group, each in
+    a buffer that doubles as it grows."""
     return 8 * 2 * (1 << max(int(largest_pattern_points) - 1, 1).bit_length()) ** 2
+
+
+def exact_peak_bytes(n_points: int) -> int:
+    """About the most exact can come to hold on data of ``n_points`` points, whatever partition
+    the chain reaches: the factors of every point in one pattern, plus the parallel steps' two
+    candidate copies of the patterns being updated (of at most as many points in all; the core's
+    ``candidate_bytes``). Auto chooses exact only within this, so that a default fit does not stop
+    on the memory budget mid-chain: the partition an initialisation finds says little about the
+    one the chain reaches (all 3,150 frames of the SUMO junction, 23,936 points: the initial
+    patterns fitted the budget, and the exact chain stopped after about 20 minutes needing
+    12.5 GB of a 12.3 GB budget)."""
+    return 3 * exact_bytes(n_points)
 
 
 @dataclass(frozen=True)
 class Choice:
     """What :func:`choose` decided and why: ``engine``; ``basis`` (hsgp's M); ``sizes_from``
     (``"worst case"`` or ``"hsgp initialisation"``); the predicted seconds per sweep of both
-    engines on those sizes; ``exact_fits`` (exact's largest pattern within the memory budget)."""
+    engines on those sizes; ``exact_fits`` (exact's peak, :func:`exact_peak_bytes`, within the
+    memory budget)."""
 
     engine: str
     basis: int
@@ -144,7 +158,7 @@ def choose_upfront(frame_sizes: object, basis_size: int, memory_budget: int | No
     n_points = int(np.sum(np.asarray(frame_sizes)))
     exact = sweep_seconds("exact", [n_points], frame_sizes)
     hsgp = sweep_seconds("hsgp", [], frame_sizes, basis_size)
-    fits = memory_budget is None or exact_bytes(n_points) <= memory_budget
+    fits = memory_budget is None or exact_peak_bytes(n_points) <= memory_budget
     if fits and (exact <= HSGP_MARGIN * hsgp or exact <= EXACT_FAST_ENOUGH):
         return Choice("exact", basis_size, "worst case", exact, hsgp, fits)
     return None
@@ -152,12 +166,12 @@ def choose_upfront(frame_sizes: object, basis_size: int, memory_budget: int | No
 
 def choose(pattern_points: object, frame_sizes: object, basis_size: int, memory_budget: int | None) -> Choice:
     """Step 2 of the rule: hsgp if it is predicted :data:`HSGP_MARGIN` times faster on these
-    pattern sizes (points) or exact's largest pattern does not fit the memory budget; else exact."""
+    pattern sizes (points) or exact's peak (:func:`exact_peak_bytes`) does not fit the memory
+    budget; else exact."""
     n = np.asarray(pattern_points, dtype=np.float64).ravel()
     exact = sweep_seconds("exact", n, frame_sizes)
     hsgp = sweep_seconds("hsgp", n, frame_sizes, basis_size)
-    largest = int(n.max()) if len(n) else 0
-    fits = memory_budget is None or exact_bytes(largest) <= memory_budget
+    fits = memory_budget is None or exact_peak_bytes(int(n.sum())) <= memory_budget
     engine = "exact" if fits and (exact <= HSGP_MARGIN * hsgp or exact <= EXACT_FAST_ENOUGH) else "hsgp"
     return Choice(engine, basis_size, "hsgp initialisation", exact, hsgp, fits)
 
@@ -269,6 +283,7 @@ __all__ = [
     "choose",
     "choose_upfront",
     "exact_bytes",
+    "exact_peak_bytes",
     "features",
     "partition_gap",
     "pattern_points",

@@ -585,6 +585,16 @@ impl Sampler {
         Ok(())
     }
 
+    /// Bytes the parallel per-pattern steps (length scales, noise) add: each worker holds up to
+    /// two candidate copies of the pattern it updates, and at most the largest patterns are
+    /// updated at once, one per worker.
+    pub(crate) fn candidate_bytes(&self) -> usize {
+        let mut sizes: Vec<usize> = self.live().map(|(_, s)| s.pattern.bytes()).collect();
+        sizes.sort_unstable_by(|a, b| b.cmp(a));
+        let workers = rayon::current_num_threads();
+        2 * sizes.iter().take(workers).sum::<usize>()
+    }
+
     fn pattern_params(&self, ls: LengthScales) -> GpParams {
         self.settings.base.with_length_scales(ls)
     }
@@ -1391,14 +1401,7 @@ impl Sampler {
     /// at the accepted point becomes the pattern's cached factor.
     fn update_length_scales(&mut self) -> Result<()> {
         let keys: Vec<(usize, u64)> = self.patterns().iter().map(|p| (p.slot, p.id)).collect();
-        // Each worker holds up to two candidate copies of the pattern it is updating.
-        let largest = self
-            .live()
-            .map(|(_, s)| s.pattern.bytes())
-            .max()
-            .unwrap_or(0);
-        let workers = rayon::current_num_threads().min(keys.len());
-        self.check_memory(2 * workers * largest)?;
+        self.check_memory(self.candidate_bytes())?;
         let sweep = self.sweep;
         let updated: Vec<Result<Box<dyn PatternModel>>> = keys
             .par_iter()

@@ -180,14 +180,7 @@ impl Sampler {
     /// is [`width`] of the pattern's point count (fixed during the step).
     fn update_noise_per_pattern(&mut self, prior: NoisePrior) -> Result<()> {
         let keys: Vec<(usize, u64)> = self.patterns().iter().map(|p| (p.slot, p.id)).collect();
-        // Each worker holds up to two candidate copies of the pattern it is updating.
-        let largest = self
-            .live()
-            .map(|(_, s)| s.pattern.bytes())
-            .max()
-            .unwrap_or(0);
-        let workers = rayon::current_num_threads().min(keys.len());
-        self.check_memory(2 * workers * largest)?;
+        self.check_memory(self.candidate_bytes())?;
         let (seed, sweep) = (self.settings.seed, self.sweep);
         let scale = self.settings.base.signal_var;
         let updated: Vec<Result<Option<Box<dyn PatternModel>>>> = keys

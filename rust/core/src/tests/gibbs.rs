@@ -256,3 +256,23 @@ fn the_length_scale_prior_rule_refuses_what_leaves_double_precision() {
         assert!(s.validate().is_err(), "{bad:?}");
     }
 }
+
+#[test]
+fn candidate_bytes_are_two_copies_of_the_largest_patterns_one_per_worker() {
+    let mut s = Sampler::new(two_patterns(), settings(Assignment::Gibbs, 2)).unwrap();
+    s.initialize(&|| false).unwrap();
+    s.sweep(&|| false).unwrap();
+    let mut sizes: Vec<usize> = s.live().map(|(_, sl)| sl.pattern.bytes()).collect();
+    sizes.sort_unstable();
+    for threads in [1usize, 2, 8] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let got = pool.install(|| s.candidate_bytes());
+        let want: usize = sizes.iter().rev().take(threads).sum::<usize>() * 2;
+        assert_eq!(got, want, "{threads} threads, pattern bytes {sizes:?}");
+        // never more than two copies of every pattern, whatever the thread count
+        assert!(got <= 2 * sizes.iter().sum::<usize>());
+    }
+}
