@@ -26,10 +26,17 @@ def _hmm(seed: int, p: int = 2, k: int = 3) -> tuple[np.ndarray, np.ndarray, np.
     return rng.dirichlet(np.ones(k), size=p), rng.dirichlet(np.ones(p), size=p), rng.dirichlet(np.ones(p))
 
 
+def _emit(z, t: int, emission, j: int) -> float:
+    """log P(frame t | phase j): the label's probability, or for evidence rows (a (T, K) array of
+    likelihoods) the phase's mixture of them."""
+    z = np.asarray(z)
+    return float(np.log(emission[j, z[t]] if z.ndim == 1 else emission[j] @ z[t]))
+
+
 def _path_log_prob(z, path, emission, trans, start) -> float:
-    lp = np.log(start[path[0]]) + np.log(emission[path[0], z[0]])
+    lp = np.log(start[path[0]]) + _emit(z, 0, emission, path[0])
     for t in range(1, len(z)):
-        lp += np.log(trans[path[t - 1], path[t]]) + np.log(emission[path[t], z[t]])
+        lp += np.log(trans[path[t - 1], path[t]]) + _emit(z, t, emission, path[t])
     return float(lp)
 
 
@@ -122,7 +129,7 @@ def _hsmm_path_log_prob(z, path, emission, trans, start, lp) -> float:
     runs = list(zip(np.r_[0, cut], np.r_[cut, len(path)]))
     if any(b - a > d_max for a, b in runs):
         return -np.inf
-    lp_path = np.log(start[path[0]]) + sum(np.log(emission[path[t], z[t]]) for t in range(len(z)))
+    lp_path = np.log(start[path[0]]) + sum(_emit(z, t, emission, path[t]) for t in range(len(z)))
     for i, (a, b) in enumerate(runs):
         r, n = path[a], b - a
         first, last = i == 0, i == len(runs) - 1
@@ -172,3 +179,131 @@ def test_semi_markov_phases_recover_a_fixed_time_cycle():
     hmm = fit_phases(labels, order, 2, seed=0, restarts=2)
     assert semi.log_likelihood > hmm.log_likelihood
     assert semi.sequence_log_likelihood([labels]) == pytest.approx(semi.log_likelihood, rel=1e-9)
+
+
+# --- phases fitted to each frame's likelihood under every pattern (evidence) ------------------------
+def _evidence(seed: int, n: int = 6, k: int = 3) -> np.ndarray:
+    """(n, k) likelihoods, rows scaled to a maximum of 1, one entry 0 (a pattern that cannot have
+    the frame)."""
+    like = np.random.default_rng(seed).uniform(0.05, 1.0, size=(n, k))
+    like[1, 2] = 0.0
+    return like / like.max(axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_evidence_forward_pass_posteriors_and_viterbi_match_every_path_enumerated(seed):
+    from dpgp.evaluate.phases import _Evidence, _forward_backward
+
+    emission, trans, start = _hmm(seed)
+    like = _evidence(20 + seed)
+    paths = list(itertools.product(range(2), repeat=len(like)))
+    lps = np.array([_path_log_prob(like, p, emission, trans, start) for p in paths])
+    total = np.log(np.exp(lps - lps.max()).sum()) + lps.max()
+    obs = _Evidence(like)
+    assert hmm_log_likelihood([obs], emission, trans, start) == pytest.approx(total, abs=1e-10)
+    assert tuple(viterbi(obs, emission, trans, start)) == paths[int(np.argmax(lps))]
+    _, gamma, _ = _forward_backward(obs, np.log(emission), trans, start)
+    post = np.exp(lps - total)
+    want = np.array([[post[[p[t] == j for p in paths]].sum() for j in range(2)] for t in range(len(like))])
+    np.testing.assert_allclose(gamma, want, atol=1e-10)
+    # labels are the evidence of one-hot rows
+    z = np.random.default_rng(seed).integers(0, 3, size=6)
+    assert hmm_log_likelihood([_Evidence(np.eye(3)[z])], emission, trans, start) == pytest.approx(
+        hmm_log_likelihood([z], emission, trans, start), abs=1e-12
+    )
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_evidence_semi_markov_pass_matches_every_path_enumerated(seed):
+    from dpgp.evaluate.phases import _Evidence, _hsmm_pass, _hsmm_viterbi, duration_log_pmf
+
+    rng = np.random.default_rng(seed)
+    emission = rng.dirichlet(np.ones(3), size=2)
+    trans = np.array([[0.0, 1.0], [1.0, 0.0]])
+    start = rng.dirichlet(np.ones(2))
+    lp = duration_log_pmf(np.log(np.array([2.0, 3.5])), np.array([0.6, 0.4]), 5)
+    like = _evidence(30 + seed, n=7)
+    paths = [np.array(p) for p in itertools.product(range(2), repeat=len(like))]
+    lps = np.array([_hsmm_path_log_prob(like, p, emission, trans, start, lp) for p in paths])
+    total = np.log(np.exp(lps - lps.max()).sum()) + lps.max()
+    obs = _Evidence(like)
+    with np.errstate(divide="ignore"):
+        ll, stats = _hsmm_pass(obs, np.log(emission), np.log(trans), np.log(start), lp)
+    assert ll == pytest.approx(total, abs=1e-9)
+    post = np.exp(lps - total)
+    want = np.array([[post[[p[t] == j for p in paths]].sum() for j in range(2)] for t in range(len(like))])
+    np.testing.assert_allclose(stats["occ"], want, atol=1e-9)
+    best = _hsmm_viterbi(obs, emission, trans, start, lp)
+    assert _hsmm_path_log_prob(like, best, emission, trans, start, lp) == pytest.approx(lps.max(), abs=1e-12)
+
+
+def _ambiguous_labels(cycles: int = 8, length: int = 40, seed: int = 0):
+    """Frames that patterns 0 and 1 explain best, either one by chance, in both phases: the
+    labels (each frame's most likely pattern) say nothing of the phase. What does is the pattern
+    that explains every frame nearly as well: 2 in phase A, 3 in phase B."""
+    rng = np.random.default_rng(seed)
+    truth = np.tile(np.r_[np.zeros(length, int), np.ones(length, int)], cycles)
+    n = len(truth)
+    first = rng.integers(0, 2, n)
+    like = np.full((n, 4), 0.02)
+    like[np.arange(n), first] = 1.0
+    like[np.arange(n), 1 - first] = 0.3
+    like[np.arange(n), 2 + truth] = rng.uniform(0.8, 0.95, n)
+    ev = np.log(like) + rng.normal(0.0, 5.0, size=(n, 1))  # a per-frame constant: no posterior changes
+    return np.argmax(ev, axis=1), ev, truth
+
+
+def test_phases_from_evidence_see_what_labels_hide():
+    labels, ev, truth = _ambiguous_labels()
+    order = _order(len(labels))
+    by_labels = fit_phases(labels, order, 2, seed=0, n_patterns=4)
+    assert max(np.mean(by_labels.labels == truth), np.mean(by_labels.labels != truth)) < 0.6
+    ph = fit_phases(labels, order, 2, seed=0, evidence=ev)
+    assert max(np.mean(ph.labels == truth), np.mean(ph.labels != truth)) > 0.97
+    # each phase: its own pattern that explains all its frames
+    a = int(np.argmax(ph.emission[:, 2]))
+    assert ph.emission[a, 2] > 0.8 and ph.emission[1 - a, 3] > 0.8
+    # the reported likelihood is the frames' (the per-frame constants counted), EM only raises it
+    short = fit_phases(labels, order, 2, seed=0, restarts=1, max_iter=1, evidence=ev)
+    assert ph.log_likelihood >= short.log_likelihood - 1e-9
+    assert ph.log_likelihood < ev.max(axis=1).sum()
+    semi = fit_phases(labels, order, 2, seed=0, restarts=1, evidence=ev, durations=True, max_duration=60.0)
+    assert max(np.mean(semi.labels == truth), np.mean(semi.labels != truth)) > 0.97
+
+
+def test_one_hot_evidence_gives_the_labels_fit():
+    labels, _ = _two_phases(cycles=3, seed=4)
+    order = _order(len(labels))
+    a = fit_phases(labels, order, 2, seed=1, restarts=2)
+    with np.errstate(divide="ignore"):
+        b = fit_phases(labels, order, 2, seed=1, restarts=2, evidence=np.log(np.eye(3)[labels]))
+    np.testing.assert_array_equal(a.labels, b.labels)
+    np.testing.assert_allclose(b.emission, a.emission, atol=1e-9)
+    assert b.log_likelihood == pytest.approx(a.log_likelihood, abs=1e-8)
+
+
+def test_bad_evidence_is_a_clear_error():
+    labels, _ = _two_phases(cycles=1)
+    order = _order(len(labels))
+    ev = np.zeros((len(labels), 3))
+    for bad in (ev[:-1], ev[:, :2], np.where(np.arange(3) == 1, np.nan, ev), np.full_like(ev, np.inf), ev[:, 0]):
+        with pytest.raises(InvalidInputError, match="evidence"):
+            fit_phases(labels, order, 2, evidence=bad)
+    with pytest.raises(InvalidInputError, match="finite log-likelihood"):
+        fit_phases(labels, order, 2, evidence=np.where(np.arange(len(labels))[:, None] == 3, -np.inf, ev))
+
+
+def test_a_fit_has_phases_from_its_frames_likelihoods():
+    import dpgp
+
+    f = dpgp.datasets.synthetic("intersection", n_frames=60, seed=4)
+    m = dpgp.DPGP(iterations=2, seed=0, progress=False).fit(f)
+    ph = m.phases(2, evidence="likelihood")
+    assert ph.labels.shape == (60,) and ph.emission.shape == (2, m.n_patterns_)
+    want = fit_phases(m.labels_, m.frames_, 2, n_patterns=m.n_patterns_, evidence=m.training_log_likelihoods())
+    np.testing.assert_array_equal(ph.labels, want.labels)
+    assert ph.log_likelihood == pytest.approx(want.log_likelihood)
+    assert m.phases(2, evidence="likelihood") is ph  # cached, apart from the labels' fit
+    assert m.phases(2) is not ph
+    with pytest.raises(InvalidInputError, match="evidence"):
+        m.phases(2, evidence="votes")

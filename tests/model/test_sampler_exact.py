@@ -110,6 +110,31 @@ def test_conditionals_on_a_synthetic_scene_match_the_formula(signal):
     check_conditionals(m, frames, p, [0, 1, 7, 19, 39])
 
 
+def test_training_log_likelihoods_match_the_formula():
+    """Each training frame's log p(V_i | D_k) under every pattern, its own without it (the
+    evidence phases can be fitted to): the numpy GP's predictive density, -inf for a frame alone
+    in its pattern; the same with one or two threads."""
+    frames = dpgp.datasets.synthetic("intersection", n_frames=40, seed=3)
+    ws = (6.0, 8.0)
+    kw = dict(iterations=3, length_scales=ws, noise_var=1.0, seed=1, progress=False)
+    m = dpgp.DPGP(**kw).fit(frames)
+    assert m.n_patterns_ >= 2
+    p = so.default_params(frames, ws, 1.0)
+    got = m.training_log_likelihoods()
+    assert got.shape == (len(frames), m.n_patterns_)
+    for i in range(len(frames)):
+        for k in range(m.n_patterns_):
+            others = np.flatnonzero((m.labels_ == k) & (np.arange(len(frames)) != i))
+            if len(others) == 0:
+                assert got[i, k] == -np.inf
+                continue
+            xy, v = so._rows(frames, others)
+            want = so.gp_oracle.log_predictive(xy, v, frames[i].xy, frames[i].v, p)
+            assert got[i, k] == pytest.approx(want, rel=1e-9, abs=1e-8), (i, k)
+    two = dpgp.DPGP(n_threads=2, **kw).fit(frames)
+    np.testing.assert_array_equal(two.training_log_likelihoods(), got)
+
+
 # --- (c) recovery -------------------------------------------------------------------------------
 @pytest.mark.parametrize("assignment", ["gibbs", "map"])
 @pytest.mark.parametrize("kind", ["highway", "intersection"])

@@ -675,27 +675,50 @@ class DPGP:
             cache["transitions"] = held
         return held[1]
 
-    def phases(self, n_phases: int | str = 2, seed: int | None = 0, durations: bool = False) -> Any:
+    def phases(
+        self, n_phases: int | str = 2, seed: int | None = 0, durations: bool = False, evidence: str = "labels"
+    ) -> Any:
         """Phases of the training frames: persistent regimes above the patterns, a hidden Markov
         model over the patterns of consecutive frames with ``n_phases`` states (or ``"auto"``, by
         BIC). Returns :class:`dpgp.evaluate.phases.Phases` (labels, each phase's patterns,
         transitions and dwell times); ``sample_scenarios(duration=..., phases=...)`` switches
         pattern by them. ``durations``: a semi-Markov model (each phase's duration a log-normal)
         instead of the HMM's geometric durations: cleaner phases of fixed-time signals, slower.
-        Needs frames with times."""
+        ``evidence``: ``"labels"`` fits the phases to each frame's pattern label;
+        ``"likelihood"`` to each frame's likelihood under every pattern (its own without it), so
+        that a frame two patterns explain about equally well counts for both (a pass over the
+        training frames first). Needs frames with times."""
         from ..evaluate.phases import fit_phases
 
         self._check_fitted()
-        key = ("phases", n_phases, seed, bool(durations))
+        if evidence not in ("labels", "likelihood"):
+            raise InvalidInputError(f"evidence must be 'labels' or 'likelihood', got {evidence!r}")
+        key = ("phases", n_phases, seed, bool(durations), evidence)
         cache = self.__dict__.setdefault("_cache", {})
         held = cache.get(key)
         if held is None or held[0] is not self.labels_:
+            ev = self.training_log_likelihoods() if evidence == "likelihood" else None
             ph = fit_phases(
-                self.labels_, self.frames_, n_phases, n_patterns=self.n_patterns_, seed=seed, durations=durations
+                self.labels_,
+                self.frames_,
+                n_phases,
+                n_patterns=self.n_patterns_,
+                seed=seed,
+                durations=durations,
+                evidence=ev,
             )
             held = (self.labels_, ph)
             cache[key] = held
         return held[1]
+
+    def training_log_likelihoods(self) -> np.ndarray:
+        """(N, K): ``log p(V_i | X_i, D_k)`` of each training frame's velocities under each pattern
+        (``labels_`` order), its own pattern's without the frame (the sweep's leave-one-out
+        score; ``-inf`` for a frame alone in its pattern). No prior weights: what each frame
+        says about each pattern."""
+        self._check_fitted()
+        rows = np.asarray(self._sampler.training_log_likelihoods(), dtype=np.float64)
+        return rows.reshape(len(self.labels_), -1)[:, self._slot_order]
 
     def _log_joint_terms(self, frames: Frames) -> np.ndarray:
         """(N, K+1): log [prior weight × likelihood] of each pattern, then of a new pattern."""

@@ -1553,6 +1553,32 @@ impl Sampler {
         Ok(logw.iter().map(|w| w - z).collect())
     }
 
+    /// `log p(V_i | D_k)` of every training frame `i` under every live pattern (rows: frames;
+    /// columns: patterns in slot order, as [`Self::conditional_log_probs`]), its own pattern's
+    /// without the frame (the sweep's leave-one-out score; `-inf` when the frame is alone in it):
+    /// what each frame says about each pattern, without the prior. In parallel over frames; no
+    /// random numbers, so the same whatever the thread count.
+    pub fn training_log_likelihoods(&self) -> Result<Vec<Vec<f64>>> {
+        let live: Vec<(usize, &Slot)> = self.live().collect();
+        (0..self.data.len())
+            .into_par_iter()
+            .map(|i| {
+                let f = self.data.frame(i);
+                live.iter()
+                    .map(|&(k, s)| {
+                        if k != self.labels[i] {
+                            Ok(s.pattern.score(&[f])?[0])
+                        } else if s.pattern.n_frames() == 1 {
+                            Ok(f64::NEG_INFINITY)
+                        } else {
+                            Ok(s.pattern.loo_score(i)?.unwrap_or(f64::NEG_INFINITY))
+                        }
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
     /// For frames not in the training set: `log p(V_f | D_k)` for every live pattern (rows:
     /// frames; columns: patterns in slot order) and the new-pattern term `log E_w N(V_f; μ, K(w))`
     /// by `new_pattern_samples` prior draws (deterministic per frame position and seed).

@@ -301,6 +301,12 @@ impl PySampler {
         self.run(py, |s, _| s.conditional_log_probs(i))
     }
 
+    /// log p(V_i | D_k) of every training frame under every pattern (slot order), its own
+    /// pattern's without it (`-inf` if alone in it): one row per frame.
+    fn training_log_likelihoods(&self, py: Python<'_>) -> PyResult<Vec<Vec<f64>>> {
+        self.run(py, |s, _| s.training_log_likelihoods())
+    }
+
     /// For new frames: (log p(V_f | D_k) per frame and pattern in slot order, new-pattern term).
     #[allow(clippy::type_complexity)]
     fn score_frames<'py>(
