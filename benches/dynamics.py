@@ -98,6 +98,12 @@ def main() -> None:
     p.add_argument("--likelihood", default="auto", help="the fit's likelihood ('auto', 'exact', 'hsgp')")
     p.add_argument("--phases", default=None, help="also the figures of the phases: a number, or 'auto'")
     p.add_argument("--durations", action="store_true", help="phases by the semi-Markov model (log-normal durations)")
+    p.add_argument(
+        "--evidence",
+        default="labels",
+        choices=["labels", "likelihood"],
+        help="phases fitted to labels or to the frames' likelihoods",
+    )
     a = p.parse_args()
     set_rho_prior(a.rho)
     if os.path.exists(a.out):
@@ -136,10 +142,10 @@ def main() -> None:
     print(tr.summary())
     if a.phases is not None:
         t = time.perf_counter()
-        ph = model.phases(a.phases if a.phases == "auto" else int(a.phases), durations=a.durations)
+        ph = model.phases(a.phases if a.phases == "auto" else int(a.phases), durations=a.durations, evidence=a.evidence)
         seconds = time.perf_counter() - t
         print(ph.summary())
-        print(json.dumps({"phases": ph.n_phases, "durations": a.durations, "fit_s": round(seconds, 2),
+        print(json.dumps({"phases": ph.n_phases, "durations": a.durations, "evidence": a.evidence, "fit_s": round(seconds, 2),
                           "share_same": round(ph.transitions.share_same, 4), "log_likelihood": round(ph.log_likelihood, 1),
                           **cycle_figures(model, ph)}))  # fmt: skip
 

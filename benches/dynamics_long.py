@@ -74,6 +74,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--phases", default=None, help="switch pattern by phase: a number of phases, or 'auto'")
     ap.add_argument("--durations", action="store_true", help="phases by the semi-Markov model")
+    ap.add_argument(
+        "--evidence",
+        default="labels",
+        choices=["labels", "likelihood"],
+        help="phases fitted to labels or to the frames' likelihoods",
+    )
     a = ap.parse_args()
     phases = None if a.phases is None else (a.phases if a.phases == "auto" else int(a.phases))
     model = dpgp.DPGP.load(a.model)
@@ -90,7 +96,7 @@ def main() -> None:
                       "median_stay_s": round(float(life.median()), 1)}))  # fmt: skip
     if phases is not None:
         t = time.perf_counter()
-        phases = model.phases(phases, durations=a.durations)
+        phases = model.phases(phases, durations=a.durations, evidence=a.evidence)
         print(phases.summary(), f"\n(phases fitted in {time.perf_counter() - t:.1f} s)")
     t = time.perf_counter()
     by_phase = {} if phases is None else {"phases": phases}  # (runs on versions without phases too)

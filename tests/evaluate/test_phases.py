@@ -307,3 +307,41 @@ def test_a_fit_has_phases_from_its_frames_likelihoods():
     assert m.phases(2) is not ph
     with pytest.raises(InvalidInputError, match="evidence"):
         m.phases(2, evidence="votes")
+
+
+def _stages_with_returns(cycles: int = 6, length: int = 30, seed: int = 0):
+    """Three stages in a fixed cycle 0 → 1 → 2, ``length`` frames each; stage s emits patterns s
+    and s + 3 by chance. Mid-way through every stage 1, eight frames look like stage 0 (a brief
+    return, as vehicles of the phase before clear a junction)."""
+    rng = np.random.default_rng(seed)
+    truth = np.tile(np.repeat(np.arange(3), length), cycles)
+    labels = truth + 3 * rng.integers(0, 2, len(truth))
+    starts = np.flatnonzero(np.diff(np.r_[-1, truth]) != 0)
+    for a in starts[truth[starts] == 1]:
+        labels[a + length // 2 - 4 : a + length // 2 + 4] = 0
+    return labels, truth
+
+
+def test_a_cycle_of_phases_keeps_brief_returns_inside_their_stage():
+    labels, truth = _stages_with_returns()
+    order = _order(len(labels))
+    free = fit_phases(labels, order, 3, seed=0)
+    cyc = fit_phases(labels, order, 3, seed=0, cycle=True)
+    # only the next stage may follow: zeros elsewhere off the diagonal, the order 0 → 1 → 2 → 0
+    off = cyc.trans.copy()
+    np.fill_diagonal(off, 0.0)
+    assert np.all((off > 0).sum(axis=1) == 1)
+    assert all(off[j, (j + 1) % 3] > 0 for j in range(3))
+    # the free model decodes each return as a run of the stage before; the cycle cannot go back
+    assert len(free.transitions.runs) > len(cyc.transitions.runs)
+    inner = cyc.transitions.runs[cyc.transitions.runs[:, 3] == 0]
+    assert np.all(inner[:, 2] == 30)
+    # BIC counts one change per phase (to the next), not two
+    from dpgp.evaluate.phases import _n_params
+
+    assert _n_params(3, 6, cycle=True) == _n_params(3, 6) - 3
+    assert _n_params(3, 6, durations=True, cycle=True) == _n_params(3, 6, durations=True) - 3
+    # a cycle under the semi-Markov model too
+    semi = fit_phases(labels, order, 3, seed=0, cycle=True, durations=True, max_duration=40.0, restarts=1)
+    inner = semi.transitions.runs[semi.transitions.runs[:, 3] == 0]
+    assert np.all(np.abs(inner[:, 2] - 30) <= 1)

@@ -39,7 +39,8 @@ START_DURATIONS = (20.0, 45.0)
 #: Random starts of the HMM's EM by default: on labels, and on evidence (frames' likelihoods under
 #: every pattern), whose optima are more numerous (all 3,150 SUMO junction frames, 2 phases: the
 #: best of 4 starts agreed with the signal on 80% of frames, of 16 on 92%). A semi-Markov fit
-#: also starts from the best HMM of :data:`HMM_INIT_RESTARTS` (cheap) starts.
+#: (:data:`RESTARTS` random starts, each costly) also starts from the best HMM of
+#: :data:`HMM_INIT_RESTARTS` (cheap) starts.
 RESTARTS = 4
 EVIDENCE_RESTARTS = 16
 HMM_INIT_RESTARTS = 16
@@ -189,8 +190,8 @@ def hmm_log_likelihood(seqs: list[Any], emission: np.ndarray, trans: np.ndarray,
 
 def viterbi(z: Any, emission: np.ndarray, trans: np.ndarray, start: np.ndarray) -> np.ndarray:
     """The most probable state path of one label sequence ``z`` (or :class:`_Evidence`)."""
-    log_a = np.log(trans)
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore"):  # a cycle's zeros: changes it cannot make
+        log_a = np.log(trans)
         log_b = _observed(z).log_probs(np.log(emission))  # (T, P)
     n, p = len(log_b), len(start)
     back = np.zeros((n, p), dtype=np.int64)
@@ -206,12 +207,27 @@ def viterbi(z: Any, emission: np.ndarray, trans: np.ndarray, start: np.ndarray) 
     return path
 
 
+def _allowed(p: int, cycle: bool) -> np.ndarray:
+    """(P, P): the phase changes a model may have (off the diagonal): any, or with ``cycle`` only
+    to the next phase of a fixed cycle 0 → 1 → … → P−1 → 0."""
+    if not cycle or p <= 2:
+        return ~np.eye(p, dtype=bool)
+    return np.roll(np.eye(p, dtype=bool), 1, axis=1)
+
+
 def _em(
-    seqs: list[_Observed], p: int, k: int, rng: np.random.Generator, max_iter: int, tol: float
+    seqs: list[_Observed],
+    p: int,
+    k: int,
+    rng: np.random.Generator,
+    max_iter: int,
+    tol: float,
+    cycle: bool = False,
 ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     emission = rng.dirichlet(np.ones(k), size=p)
-    trans = np.full((p, p), 0.05 / max(p - 1, 1))  # persistent from the start: phases, not frames
-    np.fill_diagonal(trans, 0.95 if p > 1 else 1.0)
+    mask = _allowed(p, cycle) | np.eye(p, dtype=bool)
+    trans = np.where(mask, 0.05 / np.maximum(mask.sum(axis=1, keepdims=True) - 1, 1), 0.0)
+    np.fill_diagonal(trans, 0.95 if p > 1 else 1.0)  # persistent from the start: phases, not frames
     start = np.full(p, 1.0 / p)
     log_b = np.log(emission)
     prev = -np.inf
@@ -228,7 +244,8 @@ def _em(
             na += xi
             n0 += gamma[0]
         emission = (nb + SMOOTHING) / (nb + SMOOTHING).sum(axis=1, keepdims=True)
-        trans = (na + SMOOTHING) / (na + SMOOTHING).sum(axis=1, keepdims=True)
+        trans = np.where(mask, na + SMOOTHING, 0.0)
+        trans /= trans.sum(axis=1, keepdims=True)
         start = (n0 + SMOOTHING) / (n0 + SMOOTHING).sum()
         log_b = np.log(emission)
         if ll - prev < tol * abs(ll):
@@ -370,18 +387,19 @@ def _hsmm_em(
     d_max: int,
     mean0: float,
     init: tuple[np.ndarray, ...] | None = None,
+    cycle: bool = False,
 ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """EM of the semi-Markov model from random emissions and durations of mean ``mean0`` frames,
     or from ``init``: (emission, trans, start, (mu, sd) per phase in log frames)."""
+    mask = _allowed(p, cycle) if p > 1 else np.ones((1, 1), dtype=bool)
     if init is None:
         emission = rng.dirichlet(np.ones(k), size=p)
-        trans = np.ones((p, p)) - np.eye(p) if p > 1 else np.ones((1, 1))
+        trans = mask.astype(np.float64)
         start = np.full(p, 1.0 / p)
         mu, sd = np.full(p, np.log(mean0)), np.full(p, 0.5)
     else:
         emission, trans, start, dur = (np.array(a, dtype=np.float64) for a in init)
-        if p > 1:
-            np.fill_diagonal(trans, 0.0)
+        trans = np.where(mask, trans + SMOOTHING, 0.0)
         mu, sd = dur[:, 0].copy(), dur[:, 1].copy()
     trans /= trans.sum(axis=1, keepdims=True)
     logd = np.log(np.arange(1, d_max + 1))
@@ -400,8 +418,7 @@ def _hsmm_em(
             nd += st["dur"]
         emission = (nb + SMOOTHING) / (nb + SMOOTHING).sum(axis=1, keepdims=True)
         if p > 1:
-            trans = na + SMOOTHING
-            np.fill_diagonal(trans, 0.0)
+            trans = np.where(mask, na + SMOOTHING, 0.0)
             trans /= trans.sum(axis=1, keepdims=True)
         start = (n0 + SMOOTHING) / (n0 + SMOOTHING).sum()
         w = nd.sum(axis=1)
@@ -434,10 +451,11 @@ def _run_durations(obs: list[Any], hmm: tuple[Any, ...], d_max: int) -> np.ndarr
     return out
 
 
-def _n_params(p: int, k: int, durations: bool = False) -> int:
+def _n_params(p: int, k: int, durations: bool = False, cycle: bool = False) -> int:
+    changes = int(_allowed(p, cycle).sum(axis=1).max()) if p > 1 else 0  # places a phase may go next
     if durations:  # no self-transitions; a log-normal (2 numbers) per phase
-        return (p - 1) + p * max(p - 2, 0) + p * (k - 1) + 2 * p
-    return (p - 1) + p * (p - 1) + p * (k - 1)
+        return (p - 1) + p * max(changes - 1, 0) + p * (k - 1) + 2 * p
+    return (p - 1) + p * changes + p * (k - 1)
 
 
 def fit_phases(
@@ -454,6 +472,7 @@ def fit_phases(
     durations: bool = False,
     max_duration: float = MAX_DURATION,
     evidence: Any = None,
+    cycle: bool = False,
 ) -> Phases:
     """The :class:`Phases` of frame ``labels`` (integers ``0..K-1``) in the time ``order`` of their
     frames (a :class:`TimeOrder`, or the frames). ``n_phases``: a positive integer, or ``"auto"``
@@ -466,6 +485,10 @@ def fit_phases(
     under every pattern (``-inf`` where none); the phases are then fitted to what each frame says
     about every pattern, not only to its label (a frame that two patterns explain about equally
     well counts for both), and ``log_likelihood`` is that of the frames' velocities.
+    ``cycle``: the phases follow one another in a fixed order, 0 → 1 → … → P−1 → 0 (the stages
+    of a fixed-time signal): a phase may only give way to the next, so a brief return to the
+    phase before is not a phase of its own; phases keep their order in the cycle, numbered from
+    the largest.
     :class:`~dpgp.exceptions.UnorderedFramesError` for frames without times."""
     if not isinstance(order, TimeOrder):
         order = time_order(order)
@@ -480,7 +503,7 @@ def fit_phases(
     if not auto and (isinstance(n_phases, bool) or not isinstance(n_phases, (int, np.integer)) or n_phases < 1):
         raise InvalidInputError(f"n_phases must be a positive integer or 'auto', got {n_phases!r}")
     if restarts is None:
-        restarts = RESTARTS if evidence is None else EVIDENCE_RESTARTS
+        restarts = RESTARTS if evidence is None or durations else EVIDENCE_RESTARTS
     if isinstance(restarts, bool) or not isinstance(restarts, (int, np.integer)) or restarts < 1:
         raise InvalidInputError(f"restarts must be a positive integer, got {restarts!r}")
     labels = labels.astype(np.int64)
@@ -515,17 +538,17 @@ def fit_phases(
         for _ in range(runs):
             if durations:
                 tries += [
-                    _hsmm_em(obs, p, k, rng, max_iter, tol, d_max, min(m / order.dt, d_max / 2))
+                    _hsmm_em(obs, p, k, rng, max_iter, tol, d_max, min(m / order.dt, d_max / 2), cycle=cycle)
                     for m in START_DURATIONS
                 ]
             else:
-                tries.append(_em(obs, p, k, rng, max_iter, tol))
+                tries.append(_em(obs, p, k, rng, max_iter, tol, cycle))
         if durations and p > 1:  # one more start: the best HMM's phases, their runs as durations
-            hmm = max((_em(obs, p, k, rng, max_iter, tol) for _ in range(HMM_INIT_RESTARTS)), key=lambda r: r[0])
+            hmm = max((_em(obs, p, k, rng, max_iter, tol, cycle) for _ in range(HMM_INIT_RESTARTS)), key=lambda r: r[0])
             init = (*hmm[1:], _run_durations(obs, hmm, d_max))
-            tries.append(_hsmm_em(obs, p, k, rng, max_iter, tol, d_max, 1.0, init=init))
+            tries.append(_hsmm_em(obs, p, k, rng, max_iter, tol, d_max, 1.0, init=init, cycle=cycle))
         fits[p] = max(tries, key=lambda r: r[0])
-        bic[p] = -2.0 * (fits[p][0] + shift) + _n_params(p, k, durations) * np.log(len(labels))
+        bic[p] = -2.0 * (fits[p][0] + shift) + _n_params(p, k, durations, cycle) * np.log(len(labels))
     p = min(bic, key=lambda q: bic[q]) if auto else int(n_phases)
     ll, emission, trans, start, *rest = fits[p]
     ll += shift
@@ -536,8 +559,11 @@ def fit_phases(
             path[s] = viterbi(z, emission, trans, start)
         else:
             path[s] = _hsmm_viterbi(z, emission, trans, start, duration_log_pmf(dur[:, 0], dur[:, 1], d_max))
-    # number phases by size, largest first (a deterministic name for each)
-    rank = np.argsort(-np.bincount(path, minlength=p), kind="stable")
+    # number phases by size, largest first (a deterministic name for each); a cycle keeps its order
+    sizes = np.bincount(path, minlength=p)
+    rank = (np.roll(np.arange(p), -int(np.argmax(sizes))) if cycle else np.argsort(-sizes, kind="stable")).astype(
+        np.int64
+    )
     new = np.empty(p, dtype=np.int64)
     new[rank] = np.arange(p)
     path = new[path]

@@ -676,7 +676,12 @@ class DPGP:
         return held[1]
 
     def phases(
-        self, n_phases: int | str = 2, seed: int | None = 0, durations: bool = False, evidence: str = "labels"
+        self,
+        n_phases: int | str = 2,
+        seed: int | None = 0,
+        durations: bool = False,
+        evidence: str = "labels",
+        cycle: bool = False,
     ) -> Any:
         """Phases of the training frames: persistent regimes above the patterns, a hidden Markov
         model over the patterns of consecutive frames with ``n_phases`` states (or ``"auto"``, by
@@ -687,13 +692,15 @@ class DPGP:
         ``evidence``: ``"labels"`` fits the phases to each frame's pattern label;
         ``"likelihood"`` to each frame's likelihood under every pattern (its own without it), so
         that a frame two patterns explain about equally well counts for both (a pass over the
-        training frames first). Needs frames with times."""
+        training frames first). ``cycle``: the phases follow one another in a fixed order (the
+        stages of a fixed-time signal), so that a brief return to the phase before is not a
+        phase of its own. Needs frames with times."""
         from ..evaluate.phases import fit_phases
 
         self._check_fitted()
         if evidence not in ("labels", "likelihood"):
             raise InvalidInputError(f"evidence must be 'labels' or 'likelihood', got {evidence!r}")
-        key = ("phases", n_phases, seed, bool(durations), evidence)
+        key = ("phases", n_phases, seed, bool(durations), evidence, bool(cycle))
         cache = self.__dict__.setdefault("_cache", {})
         held = cache.get(key)
         if held is None or held[0] is not self.labels_:
@@ -706,6 +713,7 @@ class DPGP:
                 seed=seed,
                 durations=durations,
                 evidence=ev,
+                cycle=bool(cycle),
             )
             held = (self.labels_, ph)
             cache[key] = held
