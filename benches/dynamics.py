@@ -104,6 +104,7 @@ def main() -> None:
         choices=["labels", "likelihood"],
         help="phases fitted to labels or to the frames' likelihoods",
     )
+    p.add_argument("--cycle", action="store_true", help="phases in a fixed cycle (a fixed-time signal's stages)")
     a = p.parse_args()
     set_rho_prior(a.rho)
     if os.path.exists(a.out):
@@ -142,10 +143,12 @@ def main() -> None:
     print(tr.summary())
     if a.phases is not None:
         t = time.perf_counter()
-        ph = model.phases(a.phases if a.phases == "auto" else int(a.phases), durations=a.durations, evidence=a.evidence)
+        ph = model.phases(
+            a.phases if a.phases == "auto" else int(a.phases), durations=a.durations, evidence=a.evidence, cycle=a.cycle
+        )
         seconds = time.perf_counter() - t
         print(ph.summary())
-        print(json.dumps({"phases": ph.n_phases, "durations": a.durations, "evidence": a.evidence, "fit_s": round(seconds, 2),
+        print(json.dumps({"phases": ph.n_phases, "durations": a.durations, "evidence": a.evidence, "cycle": a.cycle, "fit_s": round(seconds, 2),
                           "share_same": round(ph.transitions.share_same, 4), "log_likelihood": round(ph.log_likelihood, 1),
                           **cycle_figures(model, ph)}))  # fmt: skip
 

@@ -80,6 +80,7 @@ def main() -> None:
         choices=["labels", "likelihood"],
         help="phases fitted to labels or to the frames' likelihoods",
     )
+    ap.add_argument("--cycle", action="store_true", help="phases in a fixed cycle (a fixed-time signal's stages)")
     a = ap.parse_args()
     phases = None if a.phases is None else (a.phases if a.phases == "auto" else int(a.phases))
     model = dpgp.DPGP.load(a.model)
@@ -96,7 +97,7 @@ def main() -> None:
                       "median_stay_s": round(float(life.median()), 1)}))  # fmt: skip
     if phases is not None:
         t = time.perf_counter()
-        phases = model.phases(phases, durations=a.durations, evidence=a.evidence)
+        phases = model.phases(phases, durations=a.durations, evidence=a.evidence, cycle=a.cycle)
         print(phases.summary(), f"\n(phases fitted in {time.perf_counter() - t:.1f} s)")
     t = time.perf_counter()
     by_phase = {} if phases is None else {"phases": phases}  # (runs on versions without phases too)

@@ -153,6 +153,15 @@ def test_generate_long_scenarios(tmp_path, capsys):
     )
     assert "--phases" in capsys.readouterr().err
     assert not (tmp_path / "x.out").exists() and not (tmp_path / "x.csv").exists()
+    # the stages of a fixed cycle
+    cyc = tmp_path / "cycle.csv"
+    args = ["generate", str(model), "-n", "1", "-o", str(cyc), "--duration", "10", "--phases", "2", "--cycle"]
+    assert main([*args, "--seed", "3"]) == 0
+    assert set(pd.read_csv(cyc)["phase"]) <= {0, 1}
+    for bad, said in ((["--duration", "5", "--cycle"], "--phases"), (["--cycle"], "--duration")):
+        assert main(["generate", str(model), "-n", "1", "-o", str(tmp_path / "z.csv"), *bad]) == 1
+        assert said in capsys.readouterr().err
+    assert not (tmp_path / "z.csv").exists()
 
 
 def test_generate_csv_and_sumo(model_file, tmp_path):

@@ -160,6 +160,8 @@ def _generate(args: argparse.Namespace) -> int:
         return _generate_long(model, args)
     if args.phases is not None:
         raise InvalidInputError("--phases applies to long scenarios: give --duration too")
+    if args.cycle:
+        raise InvalidInputError("--cycle applies to long scenarios by phases: give --duration and --phases too")
     one_file = args.output.lower().endswith(".xosc")
     xosc = args.format == "xosc" or (args.format is None and (one_file or os.path.isdir(args.output)))
     if xosc:  # checked before generating: a missing extra or a wrong path is said at once
@@ -202,6 +204,11 @@ def _generate_long(model: Any, args: argparse.Namespace) -> int:
             phases = int(phases)
         except ValueError:
             raise InvalidInputError(f"--phases must be a number of phases or 'auto', got {args.phases!r}") from None
+    if args.cycle:
+        if phases is None:
+            raise InvalidInputError("--cycle needs --phases: the number of stages in the cycle")
+        # a fixed-time signal's stages: in their order, with durations, from what frames say of every pattern
+        phases = model.phases(phases, durations=True, evidence="likelihood", cycle=True)
     scen = model.sample_scenarios(
         args.n, duration=args.duration, seed=args.seed, stochastic=not args.mean, dynamics=args.dynamics or True,
         phases=phases,
@@ -431,6 +438,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, help="long scenarios of this many seconds that switch pattern over time "
                    "by the learned transitions (CSV with the pattern in force; needs frames with times)")  # fmt: skip
     p.add_argument("--phases", help="with --duration: switch by phases (a number of phases, or 'auto')")
+    p.add_argument("--cycle", action="store_true", help="with --phases: the phases are the stages of a fixed cycle (a "
+                   "fixed-time signal), fitted with their durations to each frame's likelihood under every pattern")  # fmt: skip
     p.set_defaults(func=_generate)
 
     p = sub.add_parser("evaluate", help="score a model on held-out data against baselines", formatter_class=fmt,
