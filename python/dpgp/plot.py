@@ -374,15 +374,17 @@ def transitions(model: DPGP, top: int = 12, bins: int = 30) -> Figure:
     return fig
 
 
-def phases(model: DPGP, n_phases: int | str = 2, bins: int = 30) -> Figure:
+def phases(model: DPGP, n_phases: Any = 2, bins: int = 30) -> Figure:
     """Phases of a fit (issue 20, :meth:`dpgp.DPGP.phases`): each frame's pattern over time (the
     largest patterns on the lowest rows) on bands coloured by its phase, each phase's share of the
-    patterns, and the phases' dwell-time histograms."""
+    patterns, and the phases' dwell-time histograms. ``n_phases``: a number of phases,
+    ``"auto"``, or phases already fitted (``model.phases(4, cycle=True)``)."""
     from matplotlib.figure import Figure
 
     from .data.timeorder import time_order
+    from .evaluate.phases import Phases
 
-    ph = model.phases(n_phases)
+    ph = n_phases if isinstance(n_phases, Phases) else model.phases(n_phases)
     order = time_order(model.frames_)
     t = order.time - order.time.min()
     rank = np.empty(model.n_patterns_, dtype=np.int64)

@@ -307,6 +307,8 @@ def test_a_fit_has_phases_from_its_frames_likelihoods():
     assert m.phases(2) is not ph
     with pytest.raises(InvalidInputError, match="evidence"):
         m.phases(2, evidence="votes")
+    fig = dpgp.plot.phases(m, m.phases(3, evidence="likelihood", cycle=True))
+    assert len(fig.axes) == 3
 
 
 def _stages_with_returns(cycles: int = 6, length: int = 30, seed: int = 0):
