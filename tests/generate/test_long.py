@@ -130,7 +130,7 @@ def test_blocks_do_not_change_a_mean_scenario(model, monkeypatch):
 def test_phase_schedules_keep_each_phase_to_its_own_patterns(model):
     ph = model.phases(2)
     assert model.phases(2) is ph  # cached
-    (s,) = model.sample_scenarios(1, duration=60.0, seed=4, dynamics=True, phases=ph)
+    (s,) = model.sample_scenarios(1, duration=60.0, seed=4, dynamics=True, phases=ph, phase_fields="in turn")
     assert s.phases is not None and set(np.unique(s.phases)) <= {0, 1}
     for p in range(2):
         seen = set(ph.pattern_runs[p][:, 0].tolist())
@@ -138,7 +138,42 @@ def test_phase_schedules_keep_each_phase_to_its_own_patterns(model):
     # a phase lasts at least one of its recorded runs' lengths at a time, never less than a step
     runs = np.diff(np.flatnonzero(np.r_[True, np.diff(s.phases) != 0, True]))
     assert len(runs) >= 1
-    (again,) = model.sample_scenarios(1, duration=60.0, seed=4, dynamics=True, phases=2)
+    (again,) = model.sample_scenarios(1, duration=60.0, seed=4, dynamics=True, phases=2, phase_fields="in turn")
     pd.testing.assert_frame_equal(s.table, again.table)
     with pytest.raises(InvalidInputError, match="long scenarios"):
         model.sample_scenarios(1, steps=5, phases=2)
+
+
+def test_a_phase_field_is_its_patterns_together_and_vehicles_enter_where_the_phase_did(model):
+    ph = model.phases(2)
+    (s,) = model.sample_scenarios(1, duration=60.0, seed=4, dynamics=True, phases=ph)  # together
+    for p in np.unique(s.phases):
+        assert set(np.unique(s.patterns[s.phases == p]).tolist()) == {int(np.argmax(ph.emission[p]))}
+    (turn,) = model.sample_scenarios(1, duration=60.0, seed=4, dynamics=True, phases=ph, phase_fields="in turn")
+    assert not s.table.equals(turn.table)
+    (again,) = model.sample_scenarios(1, duration=60.0, seed=4, dynamics=True, phases=ph)
+    pd.testing.assert_frame_equal(s.table, again.table)
+    with pytest.raises(InvalidInputError, match="phase_fields"):
+        model.sample_scenarios(1, duration=10.0, phases=ph, phase_fields="mixed")
+    with pytest.raises(InvalidInputError, match="long scenarios"):
+        model.sample_scenarios(1, steps=5, phase_fields="together")
+    # entries by phase: with every frame in one group, the entries of all patterns pooled
+    fit = model._fitted()
+    by_pattern = learn_entries(fit)
+    pooled = learn_entries(fit, np.zeros(len(fit.labels), dtype=np.int64), 1)
+    assert len(pooled.xy[0]) == sum(len(x) for x in by_pattern.xy)
+    assert pooled.rate[0] == pytest.approx(sum(len(x) for x in by_pattern.xy) / (len(fit.labels) * 0.5))
+    np.testing.assert_array_equal(np.sort(pooled.xy[0], axis=0), np.sort(np.concatenate(by_pattern.xy), axis=0))
+
+
+def test_a_phase_mixture_keeps_the_patterns_that_count():
+    from dpgp.generate.long import MIXTURE_MAX, MIXTURE_MIN, _mixture
+
+    e = np.array([0.5, 0.3, 0.005, 0.195])
+    assert _mixture(e) == [
+        (0, pytest.approx(0.5 / 0.995)),
+        (1, pytest.approx(0.3 / 0.995)),
+        (3, pytest.approx(0.195 / 0.995)),
+    ]
+    many = np.full(20, 1 / 20)
+    assert len(_mixture(many)) == MIXTURE_MAX and MIXTURE_MIN < 1 / 20

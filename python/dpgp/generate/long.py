@@ -35,6 +35,10 @@ from .motion import consecutive_pairs, motion_model
 from .rollout import motion_rollouts
 
 MAX_VEHICLES = 400  # a scene never holds more at once (entries beyond are skipped)
+#: ``phase_fields="together"``: a phase's field is its patterns' fields together, those of at least
+#: this share of its emission (at most :data:`MIXTURE_MAX` of them, the largest), renormalised
+MIXTURE_MIN = 0.01
+MIXTURE_MAX = 8
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,8 +72,9 @@ class Entries:
     rate: np.ndarray
 
 
-def learn_entries(fit: FittedPatterns) -> Entries:
-    """Where and how often vehicles enter in each pattern, from the training frames' track starts."""
+def learn_entries(fit: FittedPatterns, labels: np.ndarray | None = None, k: int | None = None) -> Entries:
+    """Where and how often vehicles enter in each pattern (or, given the frames' ``labels`` of
+    ``k`` groups, each phase), from the training frames' track starts."""
     frames = fit.frames
     if frames.tracks is None:
         raise InvalidInputError(
@@ -81,9 +86,10 @@ def learn_entries(fit: FittedPatterns) -> Entries:
     key = np.lexsort((order.time[rows], order.scene[rows], frames.tracks))
     first = key[np.r_[True, frames.tracks[key][1:] != frames.tracks[key][:-1]]]
     first = first[order.prev[rows[first]] >= 0]  # present at a recording's start: not an entry
-    k = fit.n_patterns
-    lab = fit.labels[rows[first]]
-    n_frames = np.bincount(fit.labels, minlength=k)
+    labels = fit.labels if labels is None else np.asarray(labels)
+    k = fit.n_patterns if k is None else int(k)
+    lab = labels[rows[first]]
+    n_frames = np.bincount(labels, minlength=k)
     rate = np.bincount(lab, minlength=k) / np.maximum(n_frames * order.dt, 1e-12)
     return Entries([frames.xy[first[lab == j]] for j in range(k)], [frames.v[first[lab == j]] for j in range(k)], rate)
 
@@ -221,6 +227,21 @@ class PhaseSchedule:
         self.phase_left -= steps
 
 
+def _mixture(emission: np.ndarray) -> list[tuple[int, float]]:
+    """A phase's patterns and weights for its field (:data:`MIXTURE_MIN`, :data:`MIXTURE_MAX`)."""
+    top = np.argsort(-emission, kind="stable")[:MIXTURE_MAX]
+    top = top[emission[top] >= MIXTURE_MIN] if emission[top[0]] >= MIXTURE_MIN else top[:1]
+    w = emission[top] / emission[top].sum()
+    return [(int(k), float(x)) for k, x in zip(top, w)]
+
+
+def _largest_in_force(schedule: Any, largest: list[int]) -> tuple[int, int]:
+    """With a phase's patterns together: its largest pattern (whose motion applies) for the rest
+    of the phase."""
+    assert isinstance(schedule, PhaseSchedule)
+    return largest[schedule.phase], schedule.phase_left
+
+
 def sample_long_scenarios(
     fit: FittedPatterns,
     transitions: Any,
@@ -233,10 +254,17 @@ def sample_long_scenarios(
     roi: tuple[float, float, float, float] | None = None,
     dynamics: str = "interactive",
     phases: Any = None,
+    phase_fields: str = "together",
 ) -> list[LongScenario]:
     """``n`` :class:`LongScenario` of ``duration`` seconds; see the module's description.
-    ``phases`` (:class:`dpgp.evaluate.phases.Phases`): switch pattern by phase
-    (:class:`PhaseSchedule`), else pattern by pattern (:class:`PatternSchedule`)."""
+    ``phases`` (:class:`dpgp.evaluate.phases.Phases`): switch by phase (:class:`PhaseSchedule`),
+    else pattern by pattern (:class:`PatternSchedule`). ``phase_fields``: ``"together"``, a
+    phase's field is its patterns' fields together (each mean weighted by the pattern's share of
+    the phase and by what it knows where the vehicle is; the core's ``MixtureField``), vehicles
+    enter where the phase's did, and the pattern recorded per step is the phase's largest; ``"in
+    turn"``, its patterns follow one another as inside its recorded runs."""
+    if phase_fields not in ("together", "in turn"):
+        raise InvalidInputError(f"phase_fields must be 'together' or 'in turn', got {phase_fields!r}")
     for name, value in (("duration", duration), ("block", block)):
         seconds = real_number(name, value)
         if not (np.isfinite(seconds) and seconds > 0):
@@ -246,6 +274,11 @@ def sample_long_scenarios(
     bsteps = max(1, int(round(block / dt)))
     box = fit.roi if roi is None else roi
     entries = learn_entries(fit)
+    together = phases is not None and phase_fields == "together"
+    if together:
+        mixtures = [_mixture(phases.emission[p]) for p in range(phases.n_phases)]
+        largest = [int(np.argmax(phases.emission[p])) for p in range(phases.n_phases)]
+        entries = learn_entries(fit, phases.labels, phases.n_phases)  # by phase
     motion = motion_model(fit)
     area = learn_area(fit, lane_scale(motion))
     rng = np.random.default_rng(seed)
@@ -254,7 +287,10 @@ def sample_long_scenarios(
     for _ in range(int(n)):
         schedule = PhaseSchedule(phases, dt) if phases is not None else PatternSchedule(transitions, weights)
         k, left = schedule.first(rng)
-        f = fit.frames[int(rng.choice(np.flatnonzero(fit.labels == k)))]
+        if together:
+            k, left = _largest_in_force(schedule, largest)
+        members = phases.labels == schedule.phase if together else fit.labels == k
+        f = fit.frames[int(rng.choice(np.flatnonzero(members)))]
         pos, vel = np.c_[f.x, f.y], np.c_[f.vx, f.vy]
         ids = np.arange(len(pos))
         drivers = None  # each vehicle's driver state, carried from block to block
@@ -271,6 +307,7 @@ def sample_long_scenarios(
                     fit, [k], [pos], [vel], steps=m, dt=dt, seeds=[int(rng.integers(2**63))] if stochastic else None,
                     roi=box, low_data_threshold=None, dynamics=dynamics, motion=motion,
                     drivers=None if drivers is None else [drivers], support=True,
+                    mixtures=[mixtures[schedule.phase]] if together else None,
                 )[0]  # fmt: skip
                 on_road = np.stack([area.contains(sim.positions[j]) for j in range(m + 1)])
                 left_area = np.logical_or.accumulate(~on_road & sim.in_roi, axis=0)  # dropped from there on
@@ -290,17 +327,20 @@ def sample_long_scenarios(
             schedule.spent(m)
             if left == 0:
                 k, left = schedule.next(rng)
-            # new vehicles of the pattern now in force, where its vehicles entered
-            arrivals = rng.poisson(entries.rate[k] * m * dt) if len(entries.xy[k]) else 0
+                if together:
+                    k, left = _largest_in_force(schedule, largest)
+            # new vehicles of the pattern (or phase) now in force, where its vehicles entered
+            e = schedule.phase if together else k
+            arrivals = rng.poisson(entries.rate[e] * m * dt) if len(entries.xy[e]) else 0
             gap = max(motion.spacing[k] if len(motion.spacing) > k else 0.0, 1e-9)
             for _a in range(min(arrivals, MAX_VEHICLES - len(pos))):
-                i = int(rng.integers(len(entries.xy[k])))
-                p = entries.xy[k][i]
+                i = int(rng.integers(len(entries.xy[e])))
+                p = entries.xy[e][i]
                 if len(pos) and np.min(np.hypot(*(pos - p).T)) < gap:
                     continue  # the entry is occupied
-                pos, vel = np.r_[pos, p[None]], np.r_[vel, entries.v[k][i][None]]
+                pos, vel = np.r_[pos, p[None]], np.r_[vel, entries.v[e][i][None]]
                 if drivers is not None:
-                    drivers = np.r_[drivers, motion.driver_states(entries.v[k][i])]
+                    drivers = np.r_[drivers, motion.driver_states(entries.v[e][i])]
                 ids = np.r_[ids, next_id]
                 next_id += 1
         t, vid, xy, v = (np.concatenate([c[i] for c in chunks]) for i in range(4))

@@ -880,8 +880,9 @@ class DPGP:
         options.pop("duration", None)
         from ..generate.scenarios import sample_scenarios
 
-        if options.pop("phases", None) is not None:
-            raise InvalidInputError("phases= applies to long scenarios (duration=...)")
+        for name in ("phases", "phase_fields"):
+            if options.pop(name, None) is not None:
+                raise InvalidInputError(f"{name}= applies to long scenarios (duration=...)")
         return sample_scenarios(self._fitted(), n, steps, pattern, seed, **options)
 
     def summary(self, top: int = 10) -> str:

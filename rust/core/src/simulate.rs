@@ -340,17 +340,7 @@ impl Field for PatternField<'_> {
             return Ok(None);
         }
         let (_, var) = self.pattern.posterior(q);
-        let s2 = self.pattern.params().signal_var;
-        Ok(Some(
-            var.iter()
-                .map(|v| {
-                    (0..2)
-                        .map(|d| 1.0 - v[d] / s2[d])
-                        .fold(1.0, f64::min)
-                        .clamp(0.0, 1.0)
-                })
-                .collect(),
-        ))
+        Ok(Some(support_of(self.pattern, &var)))
     }
 
     fn step_start(&mut self, step: usize, q: &[Point]) -> Result<StepInfo> {
@@ -411,6 +401,91 @@ impl Field for PatternField<'_> {
             }
         }
         Ok(info)
+    }
+}
+
+/// The share of a pattern's prior variance its data explain at each point, `1 − v / s²` in the
+/// output that knows less, in [0, 1]: what [`Field::support`] answers for one pattern.
+fn support_of(pattern: &dyn PatternModel, var: &[[f64; 2]]) -> Vec<f64> {
+    let s2 = pattern.params().signal_var;
+    var.iter()
+        .map(|v| {
+            (0..2)
+                .map(|d| 1.0 - v[d] / s2[d])
+                .fold(1.0, f64::min)
+                .clamp(0.0, 1.0)
+        })
+        .collect()
+}
+
+/// Several patterns' fields as one (a phase of a long scenario, whose patterns each know a
+/// different part of the scene): at a point, each pattern's posterior mean counts by its weight
+/// and by its support there, `s_k` ([`PatternField::with_support`]): `Σ w_k s_k μ_k / Σ w_k s_k`,
+/// and where none knows anything, `Σ w_k μ_k / Σ w_k` (the prior's mean). Its support is the
+/// same weights' mean support, `Σ w_k s_k² / Σ w_k s_k`: the patterns that know a point speak
+/// for it, as much as they know it. One pattern of weight 1 is [`PatternField`] with support.
+pub struct MixtureField<'a> {
+    parts: Vec<(&'a dyn PatternModel, f64)>,
+    /// The last points asked about and the answers (velocity then support ask for the same).
+    last: Option<(Vec<Point>, Vec<[f64; 2]>, Vec<f64>)>,
+}
+
+impl<'a> MixtureField<'a> {
+    pub fn new(parts: Vec<(&'a dyn PatternModel, f64)>) -> Result<Self> {
+        if parts.is_empty() || parts.iter().any(|p| !(p.1.is_finite() && p.1 >= 0.0)) {
+            return Err(Error::InvalidInput(
+                "a mixture field needs at least one pattern and finite non-negative weights".into(),
+            ));
+        }
+        if parts.iter().map(|p| p.1).sum::<f64>() <= 0.0 {
+            return Err(Error::InvalidInput(
+                "a mixture field's weights sum to 0".into(),
+            ));
+        }
+        Ok(Self { parts, last: None })
+    }
+
+    fn answer(&mut self, q: &[Point]) -> &(Vec<Point>, Vec<[f64; 2]>, Vec<f64>) {
+        if self.last.as_ref().is_none_or(|l| l.0 != q) {
+            let m = q.len();
+            let (mut num, mut den, mut sq) = (vec![[0.0; 2]; m], vec![0.0; m], vec![0.0; m]);
+            let (mut prior, mut total) = (vec![[0.0; 2]; m], 0.0);
+            for &(pattern, w) in &self.parts {
+                let (mean, var) = pattern.posterior(q);
+                let s = support_of(pattern, &var);
+                total += w;
+                for j in 0..m {
+                    for d in 0..2 {
+                        num[j][d] += w * s[j] * mean[j][d];
+                        prior[j][d] += w * mean[j][d];
+                    }
+                    den[j] += w * s[j];
+                    sq[j] += w * s[j] * s[j];
+                }
+            }
+            let mut vel = vec![[0.0; 2]; m];
+            let mut sup = vec![0.0; m];
+            for j in 0..m {
+                if den[j] > 1e-12 * total {
+                    vel[j] = [num[j][0] / den[j], num[j][1] / den[j]];
+                    sup[j] = (sq[j] / den[j]).clamp(0.0, 1.0);
+                } else {
+                    vel[j] = [prior[j][0] / total, prior[j][1] / total];
+                }
+            }
+            self.last = Some((q.to_vec(), vel, sup));
+        }
+        self.last.as_ref().expect("set above")
+    }
+}
+
+impl Field for MixtureField<'_> {
+    fn velocity(&mut self, q: &[Point]) -> Result<Vec<[f64; 2]>> {
+        Ok(self.answer(q).1.clone())
+    }
+
+    fn support(&mut self, q: &[Point]) -> Result<Option<Vec<f64>>> {
+        Ok(Some(self.answer(q).2.clone()))
     }
 }
 

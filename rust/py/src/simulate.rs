@@ -9,12 +9,15 @@ use crate::convert::{pairs, to_numpy};
 use crate::errors::{CoreError, CoreResult};
 use crate::sampler::PySampler;
 use dpgp_core::Error;
+use dpgp_core::gibbs::Sampler;
 use dpgp_core::kernel::Point;
 use dpgp_core::motion::{MOTION_FIELDS, Motion, drive, drive_on};
 use dpgp_core::pattern_model::PatternModel;
 use dpgp_core::placement::{Grid, place, thin};
 use dpgp_core::rng::{Phase, stream};
-use dpgp_core::simulate::{Method, Options, PatternField, Roi, Rollout, integrate, rollout};
+use dpgp_core::simulate::{
+    Field, Method, MixtureField, Options, PatternField, Roi, Rollout, integrate, rollout,
+};
 
 /// Rollouts run in parallel in chunks of this many, with a Ctrl-C check between chunks.
 const CHUNK: usize = 64;
@@ -86,7 +89,7 @@ pub fn rollouts<'py>(
     let start: &[Point] = pairs("start", &start)?;
     let offsets = offsets_of(&offsets, slots.len(), start.len())?;
     check_seeds(&seeds, slots.len())?;
-    let rollouts = in_parallel(py, &sampler, &slots, |p, i| {
+    let rollouts = in_parallel(py, &sampler, &slots, |_, p, i| {
         let seed = seeds.as_ref().map(|v| v[i]);
         rollout(p, &start[offsets[i]..offsets[i + 1]], &opts, seed, low_data)
     })?;
@@ -99,7 +102,7 @@ fn in_parallel<T: Send>(
     py: Python<'_>,
     sampler: &PySampler,
     slots: &[usize],
-    one: impl Fn(&dyn PatternModel, usize) -> dpgp_core::Result<T> + Sync,
+    one: impl Fn(&Sampler, &dyn PatternModel, usize) -> dpgp_core::Result<T> + Sync,
 ) -> PyResult<Vec<T>> {
     sampler.run(py, |s, stop| {
         let mut out = Vec::with_capacity(slots.len());
@@ -113,7 +116,7 @@ fn in_parallel<T: Send>(
                     let p = s.pattern(slots[i]).ok_or_else(|| {
                         Error::InvalidInput(format!("no pattern in slot {}", slots[i]))
                     })?;
-                    one(p, i)
+                    one(s, p, i)
                 })
                 .collect::<dpgp_core::Result<_>>()?;
             out.extend(done);
@@ -179,10 +182,12 @@ fn check_seeds(seeds: &Option<Vec<u64>>, n: usize) -> CoreResult<()> {
 /// pattern in `slots[i]` by `motion[i]`; the residual's innovations drawn with `seeds[i]` if
 /// given; `drivers` (one row per start) continues each driver's state from an earlier rollout
 /// (long scenarios); `support`: drivers follow the field only as far as it knows (its posterior
-/// variance against the prior's, a triangular solve per vehicle and step). Returns what [`rollouts`] returns and each vehicle's driver state after the
-/// last step (rows as `start`).
+/// variance against the prior's, a triangular solve per vehicle and step); `mixtures[i]`:
+/// (slot, weight) pairs whose fields together ([`MixtureField`], with support) replace
+/// `slots[i]`'s (whose motion row still applies). Returns what [`rollouts`] returns and each
+/// vehicle's driver state after the last step (rows as `start`).
 #[pyfunction]
-#[pyo3(signature = (sampler, slots, start, velocities, offsets, motion, dt, steps, roi=None, seeds=None, low_data=None, drivers=None, support=false))]
+#[pyo3(signature = (sampler, slots, start, velocities, offsets, motion, dt, steps, roi=None, seeds=None, low_data=None, drivers=None, support=false, mixtures=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn motion_rollouts<'py>(
     py: Python<'py>,
@@ -199,6 +204,7 @@ pub fn motion_rollouts<'py>(
     low_data: Option<f64>,
     drivers: Option<PyReadonlyArray2<'py, f64>>,
     support: bool,
+    mixtures: Option<Vec<Vec<(usize, f64)>>>,
 ) -> PyResult<(
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray2<f64>>,
@@ -222,10 +228,27 @@ pub fn motion_rollouts<'py>(
     let offsets = offsets_of(&offsets, slots.len(), start.len())?;
     let motion = motions(&motion, slots.len())?;
     check_seeds(&seeds, slots.len())?;
-    let rollouts = in_parallel(py, &sampler, &slots, |p, i| {
+    if mixtures.as_ref().is_some_and(|m| m.len() != slots.len()) {
+        return Err(CoreError(Error::Shape("one mixture per rollout".into())).into());
+    }
+    let rollouts = in_parallel(py, &sampler, &slots, |s, p, i| {
         let (a, b) = (offsets[i], offsets[i + 1]);
         let seed = seeds.as_ref().map(|v| v[i]);
-        let mut field = PatternField::new(p, None, low_data)?.with_support(support);
+        // one pattern's field, or (long scenarios by phase) its phase's patterns' together
+        let mut field: Box<dyn Field> = match mixtures.as_ref().map(|m| &m[i]) {
+            Some(parts) => {
+                let parts = parts
+                    .iter()
+                    .map(|&(slot, w)| {
+                        s.pattern(slot).map(|q| (q, w)).ok_or_else(|| {
+                            Error::InvalidInput(format!("no pattern in slot {slot}"))
+                        })
+                    })
+                    .collect::<dpgp_core::Result<Vec<_>>>()?;
+                Box::new(MixtureField::new(parts)?)
+            }
+            None => Box::new(PatternField::new(p, None, low_data)?.with_support(support)),
+        };
         drive_on(
             &start[a..b],
             Some(&vel[a..b]),
@@ -233,7 +256,7 @@ pub fn motion_rollouts<'py>(
             &opts,
             &motion[i],
             seed,
-            &mut field,
+            field.as_mut(),
         )
     })?;
     let states: Vec<[f64; 2]> = rollouts
@@ -320,7 +343,7 @@ pub fn scene_rollouts<'py>(
         )))
         .into());
     }
-    let rollouts = in_parallel(py, &sampler, &slots, |p, i| {
+    let rollouts = in_parallel(py, &sampler, &slots, |_, p, i| {
         let start = match &configs {
             Some((xy, off)) => thin(&xy[off[i]..off[i + 1]], spacing[i]),
             None => {
@@ -383,7 +406,7 @@ pub fn field_means<'py>(
     let xy: &[Point] = pairs("xy", &xy)?;
     let offsets = offsets_of(&offsets, slots.len(), xy.len())?;
     dpgp_core::error::check_finite("xy", xy.as_flattened()).map_err(CoreError)?;
-    let means = in_parallel(py, &sampler, &slots, |p, i| {
+    let means = in_parallel(py, &sampler, &slots, |_, p, i| {
         Ok(p.predict_mean(&xy[offsets[i]..offsets[i + 1]]))
     })?;
     Ok(to_numpy(py, means.into_iter().flatten().collect()))

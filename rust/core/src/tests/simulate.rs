@@ -212,3 +212,98 @@ fn stochastic_rollouts_are_seeded_draws_of_the_posterior() {
     .unwrap();
     assert!(same.positions.iter().all(|p| p[0].is_finite()));
 }
+
+/// Data at `origin` + a 14 m × 8 m grid, all moving at `c`, under a zero prior mean: the
+/// posterior mean is `c` on the data and 0 far away.
+fn local_pattern(c: [f64; 2], origin: Point) -> Pattern {
+    let xy: Vec<Point> = (0..40)
+        .map(|i| {
+            [
+                origin[0] + (i % 8) as f64 * 2.0,
+                origin[1] + (i / 8) as f64 * 2.0,
+            ]
+        })
+        .collect();
+    let v = vec![c; xy.len()];
+    let p = GpParams::new((3.0, 3.0), (4.0, 4.0), (0.05, 0.05), (0.0, 0.0)).unwrap();
+    let frames: Vec<(usize, FrameRef)> = (0..5)
+        .map(|f| {
+            (
+                f,
+                FrameRef {
+                    xy: &xy[f * 8..f * 8 + 8],
+                    v: &v[f * 8..f * 8 + 8],
+                },
+            )
+        })
+        .collect();
+    Pattern::new(p, &frames).unwrap()
+}
+
+#[test]
+fn a_mixture_of_one_pattern_is_that_pattern_with_support() {
+    let pat = local_pattern([1.0, 0.5], [0.0, 0.0]);
+    let q = [[4.0, 4.0], [20.0, 3.0], [500.0, 500.0]];
+    let mut one = PatternField::new(&pat, None, None)
+        .unwrap()
+        .with_support(true);
+    let mut mix = MixtureField::new(vec![(&pat, 3.0)]).unwrap();
+    let (a, b) = (one.velocity(&q).unwrap(), mix.velocity(&q).unwrap());
+    for j in 0..3 {
+        for d in 0..2 {
+            assert!((a[j][d] - b[j][d]).abs() < 1e-12, "{a:?} {b:?}");
+        }
+    }
+    let (sa, sb) = (
+        one.support(&q).unwrap().unwrap(),
+        mix.support(&q).unwrap().unwrap(),
+    );
+    for j in 0..3 {
+        assert!((sa[j] - sb[j]).abs() < 1e-12, "{sa:?} {sb:?}");
+    }
+    assert!(sa[0] > 0.9 && sa[2] < 1e-6);
+}
+
+#[test]
+fn in_a_mixture_the_patterns_that_know_a_point_speak_for_it() {
+    let east = local_pattern([1.0, 0.0], [0.0, 0.0]);
+    let north = local_pattern([0.0, 2.0], [100.0, 0.0]);
+    // east is the rare pattern, yet on its own data it is the field
+    let mut mix = MixtureField::new(vec![(&east, 0.1), (&north, 0.9)]).unwrap();
+    let q = [[6.0, 4.0], [106.0, 4.0], [55.0, 4.0], [1e4, 1e4]];
+    let v = mix.velocity(&q).unwrap();
+    let s = mix.support(&q).unwrap().unwrap();
+    assert!(
+        (v[0][0] - 1.0).abs() < 0.05 && v[0][1].abs() < 0.05,
+        "{v:?}"
+    );
+    assert!(v[1][0].abs() < 0.05 && (v[1][1] - 2.0).abs() < 0.1, "{v:?}");
+    assert!(s[0] > 0.9 && s[1] > 0.9, "{s:?}");
+    // far from both: the prior's mean (zero) and no support
+    assert!(v[3][0].abs() < 1e-9 && v[3][1].abs() < 1e-9 && s[3] < 1e-9);
+    // anywhere: the formula, from each pattern's own posterior
+    for (j, p) in q.iter().enumerate() {
+        let (mut num, mut den, mut sq) = ([0.0; 2], 0.0, 0.0);
+        for (pat, w) in [(&east, 0.1), (&north, 0.9)] {
+            let (m, var) = pat.posterior(&[*p]);
+            let sk = (0..2)
+                .map(|d| 1.0 - var[0][d] / 4.0)
+                .fold(1.0, f64::min)
+                .clamp(0.0, 1.0);
+            for d in 0..2 {
+                num[d] += w * sk * m[0][d];
+            }
+            den += w * sk;
+            sq += w * sk * sk;
+        }
+        if den > 1e-12 {
+            for d in 0..2 {
+                assert!((v[j][d] - num[d] / den).abs() < 1e-12, "point {j}");
+            }
+            assert!((s[j] - sq / den).abs() < 1e-12, "point {j}");
+        }
+    }
+    assert!(MixtureField::new(vec![]).is_err());
+    assert!(MixtureField::new(vec![(&east, f64::NAN)]).is_err());
+    assert!(MixtureField::new(vec![(&east, 0.0)]).is_err());
+}
