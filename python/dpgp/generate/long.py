@@ -4,8 +4,12 @@ A scenario starts from a pattern (drawn by how recordings start, else by weight)
 of one of its training frames, stays for a dwell time drawn from that pattern's recorded runs, then
 moves to the next pattern by the learned transitions (the changes, self-transitions excluded),
 and so on until ``duration`` (:class:`PatternSchedule`); with ``phases`` it switches phase by the
-recorded phase changes and durations, and pattern only as inside that phase's recorded runs
-(:class:`PhaseSchedule`). Vehicles keep moving across a switch: the rollout goes on from where
+recorded phase changes and durations (:class:`PhaseSchedule`), and within a phase follows its
+patterns' fields together (``phase_fields="together"``: at each point the patterns that know it
+speak for it, as much as they know it; vehicles enter where the phase's did) or, ``"in turn"``,
+one pattern at a time as inside the phase's recorded runs. Together, a vehicle nearing a red
+light is told to stop by the one pattern of the phase that knows its queue, every step, not only
+while that pattern is in force. Vehicles keep moving across a switch: the rollout goes on from where
 they are, each driver's state carried over (its wish, not its braked or pushed velocity), with the
 residual dynamics and interactions of :mod:`.motion` under the new pattern's field, followed only
 as far as that field has data where the vehicle is (a pattern's zero prior mean is no wish to
