@@ -140,28 +140,30 @@ def _hsmm_path_log_prob(z, path, emission, trans, start, lp) -> float:
     return float(lp_path)
 
 
+@pytest.mark.parametrize("kind", ["labels", "evidence"])
 @pytest.mark.parametrize("d_max", [7, 3])
 @pytest.mark.parametrize("seed", [0, 1])
-def test_the_semi_markov_pass_and_viterbi_match_every_path_enumerated(seed, d_max):
-    from dpgp.evaluate.phases import _hsmm_pass, _hsmm_viterbi, duration_log_pmf
+def test_the_semi_markov_pass_and_viterbi_match_every_path_enumerated(seed, d_max, kind):
+    from dpgp.evaluate.phases import _Evidence, _hsmm_pass, _hsmm_viterbi, duration_log_pmf
 
     rng = np.random.default_rng(seed)
     emission = rng.dirichlet(np.ones(3), size=2)
     trans = np.array([[0.0, 1.0], [1.0, 0.0]])
     start = rng.dirichlet(np.ones(2))
     lp = duration_log_pmf(np.log(np.array([2.0, 3.5])), np.array([0.6, 0.4]), d_max)
-    z = rng.integers(0, 3, size=7)
+    z = rng.integers(0, 3, size=7) if kind == "labels" else _evidence(30 + seed, n=7)
+    obs = z if kind == "labels" else _Evidence(z)
     paths = [np.array(p) for p in itertools.product(range(2), repeat=len(z))]
     lps = np.array([_hsmm_path_log_prob(z, p, emission, trans, start, lp) for p in paths])
     total = np.log(np.exp(lps - lps.max()).sum()) + lps.max()
     with np.errstate(divide="ignore"):
-        ll, stats = _hsmm_pass(z, np.log(emission), np.log(trans), np.log(start), lp)
+        ll, stats = _hsmm_pass(obs, np.log(emission), np.log(trans), np.log(start), lp)
     assert ll == pytest.approx(total, abs=1e-9)
     # each frame's phase posterior against the enumerated paths'
     post = np.exp(lps - total)
     want = np.array([[post[[p[t] == j for p in paths]].sum() for j in range(2)] for t in range(len(z))])
     np.testing.assert_allclose(stats["occ"], want, atol=1e-9)
-    best = _hsmm_viterbi(z, emission, trans, start, lp)  # a most probable path (ties happen)
+    best = _hsmm_viterbi(obs, emission, trans, start, lp)  # a most probable path (ties happen)
     assert _hsmm_path_log_prob(z, best, emission, trans, start, lp) == pytest.approx(lps.max(), abs=1e-12)
 
 
@@ -211,30 +213,6 @@ def test_evidence_forward_pass_posteriors_and_viterbi_match_every_path_enumerate
     assert hmm_log_likelihood([_Evidence(np.eye(3)[z])], emission, trans, start) == pytest.approx(
         hmm_log_likelihood([z], emission, trans, start), abs=1e-12
     )
-
-
-@pytest.mark.parametrize("seed", [0, 1])
-def test_evidence_semi_markov_pass_matches_every_path_enumerated(seed):
-    from dpgp.evaluate.phases import _Evidence, _hsmm_pass, _hsmm_viterbi, duration_log_pmf
-
-    rng = np.random.default_rng(seed)
-    emission = rng.dirichlet(np.ones(3), size=2)
-    trans = np.array([[0.0, 1.0], [1.0, 0.0]])
-    start = rng.dirichlet(np.ones(2))
-    lp = duration_log_pmf(np.log(np.array([2.0, 3.5])), np.array([0.6, 0.4]), 5)
-    like = _evidence(30 + seed, n=7)
-    paths = [np.array(p) for p in itertools.product(range(2), repeat=len(like))]
-    lps = np.array([_hsmm_path_log_prob(like, p, emission, trans, start, lp) for p in paths])
-    total = np.log(np.exp(lps - lps.max()).sum()) + lps.max()
-    obs = _Evidence(like)
-    with np.errstate(divide="ignore"):
-        ll, stats = _hsmm_pass(obs, np.log(emission), np.log(trans), np.log(start), lp)
-    assert ll == pytest.approx(total, abs=1e-9)
-    post = np.exp(lps - total)
-    want = np.array([[post[[p[t] == j for p in paths]].sum() for j in range(2)] for t in range(len(like))])
-    np.testing.assert_allclose(stats["occ"], want, atol=1e-9)
-    best = _hsmm_viterbi(obs, emission, trans, start, lp)
-    assert _hsmm_path_log_prob(like, best, emission, trans, start, lp) == pytest.approx(lps.max(), abs=1e-12)
 
 
 def _ambiguous_labels(cycles: int = 8, length: int = 40, seed: int = 0):

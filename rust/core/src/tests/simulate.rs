@@ -135,11 +135,21 @@ fn bad_input_is_an_error() {
 /// A pattern whose data all move at `c`, with prior mean `c`: its posterior mean is exactly
 /// `c` everywhere, and its variance is small near the data and the prior's far away.
 fn constant_pattern(c: [f64; 2]) -> Pattern {
+    grid_pattern(c, [0.0, 0.0], c)
+}
+
+/// Data at `origin` + a 14 m × 8 m grid, all moving at `c`, under the prior mean `mean`.
+fn grid_pattern(c: [f64; 2], origin: Point, mean: [f64; 2]) -> Pattern {
     let xy: Vec<Point> = (0..40)
-        .map(|i| [(i % 8) as f64 * 2.0, (i / 8) as f64 * 2.0])
+        .map(|i| {
+            [
+                origin[0] + (i % 8) as f64 * 2.0,
+                origin[1] + (i / 8) as f64 * 2.0,
+            ]
+        })
         .collect();
     let v = vec![c; xy.len()];
-    let p = GpParams::new((3.0, 3.0), (4.0, 4.0), (0.05, 0.05), (c[0], c[1])).unwrap();
+    let p = GpParams::new((3.0, 3.0), (4.0, 4.0), (0.05, 0.05), (mean[0], mean[1])).unwrap();
     let frames: Vec<(usize, FrameRef)> = (0..5)
         .map(|f| {
             (
@@ -216,28 +226,7 @@ fn stochastic_rollouts_are_seeded_draws_of_the_posterior() {
 /// Data at `origin` + a 14 m × 8 m grid, all moving at `c`, under a zero prior mean: the
 /// posterior mean is `c` on the data and 0 far away.
 fn local_pattern(c: [f64; 2], origin: Point) -> Pattern {
-    let xy: Vec<Point> = (0..40)
-        .map(|i| {
-            [
-                origin[0] + (i % 8) as f64 * 2.0,
-                origin[1] + (i / 8) as f64 * 2.0,
-            ]
-        })
-        .collect();
-    let v = vec![c; xy.len()];
-    let p = GpParams::new((3.0, 3.0), (4.0, 4.0), (0.05, 0.05), (0.0, 0.0)).unwrap();
-    let frames: Vec<(usize, FrameRef)> = (0..5)
-        .map(|f| {
-            (
-                f,
-                FrameRef {
-                    xy: &xy[f * 8..f * 8 + 8],
-                    v: &v[f * 8..f * 8 + 8],
-                },
-            )
-        })
-        .collect();
-    Pattern::new(p, &frames).unwrap()
+    grid_pattern(c, origin, [0.0, 0.0])
 }
 
 #[test]
