@@ -204,7 +204,7 @@ def test_evidence_forward_pass_posteriors_and_viterbi_match_every_path_enumerate
     obs = _Evidence(like)
     assert hmm_log_likelihood([obs], emission, trans, start) == pytest.approx(total, abs=1e-10)
     assert tuple(viterbi(obs, emission, trans, start)) == paths[int(np.argmax(lps))]
-    _, gamma, _ = _forward_backward(obs, np.log(emission), trans, start)
+    _, gamma, _ = _forward_backward(obs, emission, trans, start)
     post = np.exp(lps - total)
     want = np.array([[post[[p[t] == j for p in paths]].sum() for j in range(2)] for t in range(len(like))])
     np.testing.assert_allclose(gamma, want, atol=1e-10)

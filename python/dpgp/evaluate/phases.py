@@ -133,12 +133,15 @@ class _Evidence:
 
     def __init__(self, like: np.ndarray) -> None:
         self.like = like
+        self._last: tuple[np.ndarray, np.ndarray] | None = None  # (emission, probs): EM asks twice
 
     def __len__(self) -> int:
         return len(self.like)
 
     def probs(self, emission: np.ndarray) -> np.ndarray:
-        return self.like @ emission.T
+        if self._last is None or self._last[0] is not emission:
+            self._last = (emission, self.like @ emission.T)
+        return self._last[1]
 
     def log_probs(self, log_emission: np.ndarray) -> np.ndarray:
         with np.errstate(divide="ignore"):
@@ -157,10 +160,12 @@ def _observed(seq: Any) -> _Observed:
     return seq if isinstance(seq, (_Labels, _Evidence)) else _Labels(seq)
 
 
-def _forward_backward(z: Any, log_b: np.ndarray, a: np.ndarray, pi: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+def _forward_backward(
+    z: Any, emission: np.ndarray, a: np.ndarray, pi: np.ndarray
+) -> tuple[float, np.ndarray, np.ndarray]:
     """One sequence ``z`` (labels or :class:`_Evidence`): log-likelihood, state posteriors (T, P)
     and summed pair posteriors (P, P), by the scaled forward–backward recursions."""
-    b = _observed(z).probs(np.exp(log_b))  # (T, P) emission probabilities
+    b = _observed(z).probs(emission)  # (T, P) emission probabilities
     n, p = b.shape
     alpha = np.empty((n, p))
     c = np.empty(n)
@@ -184,8 +189,7 @@ def _forward_backward(z: Any, log_b: np.ndarray, a: np.ndarray, pi: np.ndarray) 
 
 def hmm_log_likelihood(seqs: list[Any], emission: np.ndarray, trans: np.ndarray, start: np.ndarray) -> float:
     """Log-likelihood of the label sequences ``seqs`` under the HMM (forward pass)."""
-    log_b = np.log(emission)
-    return float(sum(_forward_backward(z, log_b, trans, start)[0] for z in seqs))
+    return float(sum(_forward_backward(z, emission, trans, start)[0] for z in seqs))
 
 
 def viterbi(z: Any, emission: np.ndarray, trans: np.ndarray, start: np.ndarray) -> np.ndarray:
@@ -229,7 +233,6 @@ def _em(
     trans = np.where(mask, 0.05 / np.maximum(mask.sum(axis=1, keepdims=True) - 1, 1), 0.0)
     np.fill_diagonal(trans, 0.95 if p > 1 else 1.0)  # persistent from the start: phases, not frames
     start = np.full(p, 1.0 / p)
-    log_b = np.log(emission)
     prev = -np.inf
     ll = -np.inf
     for _ in range(max_iter):
@@ -238,7 +241,7 @@ def _em(
         n0 = np.zeros(p)
         ll = 0.0
         for z in seqs:
-            lz, gamma, xi = _forward_backward(z, log_b, trans, start)
+            lz, gamma, xi = _forward_backward(z, emission, trans, start)
             ll += lz
             z.add_counts(nb, emission, gamma)
             na += xi
@@ -247,7 +250,6 @@ def _em(
         trans = np.where(mask, na + SMOOTHING, 0.0)
         trans /= trans.sum(axis=1, keepdims=True)
         start = (n0 + SMOOTHING) / (n0 + SMOOTHING).sum()
-        log_b = np.log(emission)
         if ll - prev < tol * abs(ll):
             break
         prev = ll

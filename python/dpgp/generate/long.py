@@ -152,6 +152,18 @@ def _draw(counts: np.ndarray, rng: np.random.Generator) -> int:
     return int(rng.choice(len(counts), p=counts / counts.sum()))
 
 
+def _next_of(counts: Any, current: int, fallback: np.ndarray, rng: np.random.Generator) -> int:
+    """The next of ``current`` by recorded changes ``counts`` (itself excluded); by ``fallback``
+    (another than itself where there is one) if it was never seen to change."""
+    row = np.asarray(counts, dtype=np.float64).copy()
+    row[current] = 0.0
+    if row.sum() <= 0:
+        row = np.asarray(fallback, dtype=np.float64).copy()
+        if len(row) > 1:
+            row[current] = 0.0
+    return _draw(row, rng)
+
+
 def _dwell_steps(runs_s: np.ndarray, dt: float, rng: np.random.Generator) -> int:
     """A dwell (steps) drawn from recorded run lengths in seconds (one step without any)."""
     return max(1, int(round((runs_s[rng.integers(len(runs_s))] if len(runs_s) else dt) / dt)))
@@ -172,13 +184,7 @@ class PatternSchedule:
         return self.k, _dwell_steps(self.tr.dwell(self.k), self.tr.dt, rng)
 
     def next(self, rng: np.random.Generator) -> tuple[int, int]:
-        row = np.asarray(self.tr.counts[self.k], dtype=np.float64).copy()
-        row[self.k] = 0.0
-        if row.sum() <= 0:  # never seen to change: by weight, another pattern where there is one
-            row = self.weights.copy()
-            if len(row) > 1:
-                row[self.k] = 0.0
-        self.k = _draw(row, rng)
+        self.k = _next_of(self.tr.counts[self.k], self.k, self.weights, rng)  # never changed: by weight
         return self.k, _dwell_steps(self.tr.dwell(self.k), self.tr.dt, rng)
 
     def spent(self, steps: int) -> None:
@@ -214,13 +220,8 @@ class PhaseSchedule:
 
     def next(self, rng: np.random.Generator) -> tuple[int, int]:
         if self.phase_left <= 0:  # the phase is over: the next one
-            row = np.asarray(self.ph.transitions.counts[self.phase], dtype=np.float64).copy()
-            row[self.phase] = 0.0
-            if row.sum() <= 0:
-                row = np.ones(len(row))
-                if len(row) > 1:
-                    row[self.phase] = 0.0
-            return self._enter(_draw(row, rng), rng)
+            counts = self.ph.transitions.counts[self.phase]
+            return self._enter(_next_of(counts, self.phase, np.ones(len(counts)), rng), rng)
         row = np.asarray(self.ph.within[self.phase, self.k], dtype=np.float64).copy()
         row[self.k] = 0.0
         if row.sum() > 0:
@@ -277,12 +278,12 @@ def sample_long_scenarios(
     steps = int(round(duration / dt))
     bsteps = max(1, int(round(block / dt)))
     box = fit.roi if roi is None else roi
-    entries = learn_entries(fit)
     together = phases is not None and phase_fields == "together"
+    # where vehicles enter: by pattern, or with a phase's patterns together, by phase
+    entries = learn_entries(fit, phases.labels, phases.n_phases) if together else learn_entries(fit)
     if together:
         mixtures = [_mixture(phases.emission[p]) for p in range(phases.n_phases)]
         largest = [int(np.argmax(phases.emission[p])) for p in range(phases.n_phases)]
-        entries = learn_entries(fit, phases.labels, phases.n_phases)  # by phase
     motion = motion_model(fit)
     area = learn_area(fit, lane_scale(motion))
     rng = np.random.default_rng(seed)

@@ -704,7 +704,13 @@ class DPGP:
         cache = self.__dict__.setdefault("_cache", {})
         held = cache.get(key)
         if held is None or held[0] is not self.labels_:
-            ev = self.training_log_likelihoods() if evidence == "likelihood" else None
+            ev = None
+            if evidence == "likelihood":  # one pass over the frames for every phase model of these labels
+                held_ev = cache.get("training_log_likelihoods")
+                if held_ev is None or held_ev[0] is not self.labels_:
+                    held_ev = (self.labels_, self.training_log_likelihoods())
+                    cache["training_log_likelihoods"] = held_ev
+                ev = held_ev[1]
             ph = fit_phases(
                 self.labels_,
                 self.frames_,

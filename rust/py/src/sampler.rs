@@ -332,9 +332,7 @@ impl PySampler {
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
         let q = pairs("query_xy", &query_xy)?;
         let (mean, var) = self.run(py, |s, _| {
-            let p = s
-                .pattern(slot)
-                .ok_or_else(|| Error::InvalidInput(format!("no pattern in slot {slot}")))?;
+            let p = pattern_at(s, slot)?;
             dpgp_core::error::check_finite("query_xy", q.as_flattened())?;
             Ok(p.posterior(q))
         })?;
@@ -366,4 +364,13 @@ impl PySampler {
             s.set_state_with_noise(&labels, &ls, noise.as_deref(), alpha)
         })
     }
+}
+
+/// The pattern in `slot`, or an error that says so.
+pub(crate) fn pattern_at(
+    s: &Sampler,
+    slot: usize,
+) -> dpgp_core::Result<&dyn dpgp_core::pattern_model::PatternModel> {
+    s.pattern(slot)
+        .ok_or_else(|| Error::InvalidInput(format!("no pattern in slot {slot}")))
 }

@@ -7,7 +7,7 @@ use rayon::prelude::*;
 
 use crate::convert::{pairs, to_numpy};
 use crate::errors::{CoreError, CoreResult};
-use crate::sampler::PySampler;
+use crate::sampler::{PySampler, pattern_at};
 use dpgp_core::Error;
 use dpgp_core::gibbs::Sampler;
 use dpgp_core::kernel::Point;
@@ -112,12 +112,7 @@ fn in_parallel<T: Send>(
             }
             let done: Vec<T> = chunk
                 .par_iter()
-                .map(|&i| {
-                    let p = s.pattern(slots[i]).ok_or_else(|| {
-                        Error::InvalidInput(format!("no pattern in slot {}", slots[i]))
-                    })?;
-                    one(s, p, i)
-                })
+                .map(|&i| one(s, pattern_at(s, slots[i])?, i))
                 .collect::<dpgp_core::Result<_>>()?;
             out.extend(done);
         }
@@ -239,11 +234,7 @@ pub fn motion_rollouts<'py>(
             Some(parts) => {
                 let parts = parts
                     .iter()
-                    .map(|&(slot, w)| {
-                        s.pattern(slot).map(|q| (q, w)).ok_or_else(|| {
-                            Error::InvalidInput(format!("no pattern in slot {slot}"))
-                        })
-                    })
+                    .map(|&(slot, w)| Ok((pattern_at(s, slot)?, w)))
                     .collect::<dpgp_core::Result<Vec<_>>>()?;
                 Box::new(MixtureField::new(parts)?)
             }
