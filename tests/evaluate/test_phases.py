@@ -325,3 +325,24 @@ def test_a_cycle_of_phases_keeps_brief_returns_inside_their_stage():
     semi = fit_phases(labels, order, 3, seed=0, cycle=True, durations=True, max_duration=40.0, restarts=1)
     inner = semi.transitions.runs[semi.transitions.runs[:, 3] == 0]
     assert np.all(np.abs(inner[:, 2] - 30) <= 1)
+    # the recorded cycles, from the stage numbered 0 (the largest, here the second of the truth):
+    # 5 complete, the 6th cut by the recording's end
+    assert cyc.cycle and not free.cycle and free.cycles is None
+    np.testing.assert_array_equal(cyc.cycles, np.full((5, 3), 30))
+    assert np.all(np.abs(semi.cycles - 30) <= 1) and len(semi.cycles) >= 4
+    assert "cycle: 5 complete recorded cycles, median 45.0 s" in cyc.summary()
+
+
+def test_recorded_cycles_are_the_complete_runs_of_every_stage_in_order():
+    from dpgp.evaluate.phases import recorded_cycles
+
+    #            cut by the start | cycle (2, 3, 1)     | cycle (1, 1, 2)  | cut by the end
+    path = np.array([1, 2, 2] + [0, 0, 1, 1, 1, 2] + [0, 1, 2, 2] + [0, 1])
+    seqs = [np.arange(len(path))]
+    np.testing.assert_array_equal(recorded_cycles(path, seqs, 3), [[2, 3, 1], [1, 1, 2]])
+    # two recordings: a cycle does not run across the gap between them
+    two = [np.arange(0, 6), np.arange(6, len(path))]
+    np.testing.assert_array_equal(recorded_cycles(path, two, 3), [[1, 1, 2]])
+    # a stage skipped is not a cycle
+    skipped = np.array([1, 0, 2, 0, 1, 2, 0])
+    np.testing.assert_array_equal(recorded_cycles(skipped, [np.arange(7)], 3), [[1, 1, 1]])

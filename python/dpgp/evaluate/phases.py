@@ -71,6 +71,12 @@ class Phases:
     durations: np.ndarray | None = None
     dt: float = float("nan")
     d_max: int = 0
+    #: ``cycle=True``: the phases follow one another in a fixed order, and ``cycles`` (n, P) holds
+    #: each complete recorded cycle's stage durations in frames (stage 0 first), so that
+    #: long scenarios draw a cycle's stages together: a decoded boundary that comes late shortens
+    #: the stage after it, and the cycle keeps its length.
+    cycle: bool = False
+    cycles: np.ndarray | None = None
 
     @property
     def n_phases(self) -> int:
@@ -96,6 +102,12 @@ class Phases:
             f"  consecutive frames share a phase {100 * tr.share_same:.1f}% of the time; runs: {len(d)}, "
             f"mean {d.mean():.1f} s, median {np.median(d):.1f} s",
         ]
+        if self.cycles is not None and len(self.cycles):
+            c = self.cycles.sum(axis=1) * self.dt
+            q1, q3 = np.percentile(c, [25, 75])
+            lines.append(
+                f"  cycle: {len(c)} complete recorded cycles, median {np.median(c):.1f} s (IQR {q1:.1f}-{q3:.1f} s)"
+            )
         for p in range(self.n_phases):
             top = np.argsort(-self.emission[p])[:3]
             pats = ", ".join(f"{k} ({100 * self.emission[p, k]:.0f}%)" for k in top)
@@ -460,6 +472,22 @@ def _n_params(p: int, k: int, durations: bool = False, cycle: bool = False) -> i
     return (p - 1) + p * changes + p * (k - 1)
 
 
+def recorded_cycles(path: np.ndarray, sequences: list[np.ndarray], p: int) -> np.ndarray:
+    """(n, p): the stage durations (frames) of every complete cycle of stages ``0 → 1 → … → p−1``
+    in the decoded ``path`` (runs in the frames' time order, one array of frame indices per
+    unbroken recording); a cycle cut by a recording's start or end is not complete."""
+    out = []
+    for seq in sequences:
+        lab = path[seq]
+        cut = np.flatnonzero(np.diff(lab)) + 1
+        starts, ends = np.r_[0, cut], np.r_[cut, len(lab)]
+        stage, length = lab[starts], ends - starts
+        for i in np.flatnonzero((stage == 0) & (starts > 0)):  # a recording's first run may be cut
+            if i + p <= len(stage) and ends[i + p - 1] < len(lab) and np.array_equal(stage[i : i + p], np.arange(p)):
+                out.append(length[i : i + p])
+    return np.asarray(out, dtype=np.int64).reshape(-1, p)
+
+
 def fit_phases(
     labels: Any,
     order: TimeOrder | Any,
@@ -594,7 +622,9 @@ def fit_phases(
         durations=dur,
         dt=float(order.dt),
         d_max=d_max,
+        cycle=bool(cycle and p > 1),
+        cycles=recorded_cycles(path, seqs_idx, p) if cycle and p > 1 else None,
     )
 
 
-__all__ = ["Phases", "fit_phases", "hmm_log_likelihood", "viterbi", "duration_log_pmf", "MAX_PHASES"]
+__all__ = ["Phases", "fit_phases", "recorded_cycles", "hmm_log_likelihood", "viterbi", "duration_log_pmf", "MAX_PHASES"]

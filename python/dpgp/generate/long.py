@@ -193,7 +193,8 @@ class PatternSchedule:
 
 class PhaseSchedule:
     """Patterns by phase (:class:`dpgp.evaluate.phases.Phases`): a phase is in force for a
-    duration drawn from its recorded runs, the next phase by the recorded phase changes; within a
+    duration drawn from its recorded runs (phases in a cycle: the stages of one recorded cycle
+    together), the next phase by the recorded phase changes; within a
     phase its patterns follow one another as inside its recorded runs (the pattern starting a
     run of the phase, the changes and the pattern runs of its frames only), so that the fields in
     force stay those of one regime."""
@@ -201,10 +202,22 @@ class PhaseSchedule:
     def __init__(self, phases: Any, dt: float) -> None:
         self.ph, self.dt = phases, dt
         self.phase_left = 0
+        self.cycles = phases.cycles if phases.cycles is not None and len(phases.cycles) else None
+        self.this_cycle: np.ndarray | None = None
+
+    def _stage_steps(self, p: int, rng: np.random.Generator) -> int:
+        """A phase's duration: in a cycle, its stage of one recorded cycle, drawn when the cycle
+        starts (or the scenario does), so that the stages of a cycle come from one recorded cycle;
+        else drawn on its own from the phase's recorded runs."""
+        if self.cycles is None:
+            return _dwell_steps(self.ph.transitions.dwell(p), self.dt, rng)
+        if p == 0 or self.this_cycle is None:
+            self.this_cycle = self.cycles[rng.integers(len(self.cycles))]
+        return max(1, int(round(self.this_cycle[p] * self.ph.dt / self.dt)))
 
     def _enter(self, p: int, rng: np.random.Generator) -> tuple[int, int]:
         self.phase = p
-        self.phase_left = _dwell_steps(self.ph.transitions.dwell(p), self.dt, rng)
+        self.phase_left = self._stage_steps(p, rng)
         runs = self.ph.pattern_runs[p]
         self.k = int(runs[rng.integers(len(runs)), 0]) if len(runs) else _draw(self.ph.emission[p], rng)
         return self.k, self._pattern_dwell(rng)
