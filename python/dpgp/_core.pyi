@@ -94,6 +94,7 @@ def motion_rollouts(
     drivers: NDArray[np.float64] | None = None,
     support: bool = False,
     mixtures: list[list[tuple[int, float]]] | None = None,
+    renew: bool = False,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], NDArray[np.float64]]: ...
 def scene_rollouts(
     sampler: Sampler,

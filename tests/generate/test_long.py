@@ -147,8 +147,14 @@ def test_phase_schedules_keep_each_phase_to_its_own_patterns(model):
 def test_a_phase_field_is_its_patterns_together_and_vehicles_enter_where_the_phase_did(model):
     ph = model.phases(2)
     (s,) = model.sample_scenarios(1, duration=60.0, seed=4, dynamics=True, phases=ph)  # together
+    shares = long_mod.frame_shares(ph)
     for p in np.unique(s.phases):
-        assert set(np.unique(s.patterns[s.phases == p]).tolist()) == {int(np.argmax(ph.emission[p]))}
+        assert set(np.unique(s.patterns[s.phases == p]).tolist()) == {int(np.argmax(shares[p]))}
+    # the shares are the phase's frames by pattern
+    for p in range(2):
+        np.testing.assert_allclose(
+            shares[p], np.bincount(model.labels_[ph.labels == p], minlength=shares.shape[1]) / (ph.labels == p).sum()
+        )
     (turn,) = model.sample_scenarios(1, duration=60.0, seed=4, dynamics=True, phases=ph, phase_fields="in turn")
     assert not s.table.equals(turn.table)
     (again,) = model.sample_scenarios(1, duration=60.0, seed=4, dynamics=True, phases=ph)
@@ -194,3 +200,25 @@ def test_the_stages_of_a_cycle_come_from_one_recorded_cycle(model):
     assert set(pairs) <= {(6, 10), (14, 2)} and len(set(pairs)) == 2
     if stage[0] == 1:  # a scenario that starts mid-cycle takes its stage from a recorded cycle too
         assert runs[0] in (10, 2)
+
+
+def test_drivers_take_up_the_fields_of_a_new_phase_when_it_begins(model, monkeypatch):
+    # the core's renewal (Rust test: renewed drivers take up the new field) is asked for on the
+    # first block of every new phase, and only there; "in turn" keeps the earlier schedule
+    calls = []
+    real = long_mod.motion_rollouts
+
+    def spy(*args, **kw):
+        calls.append((kw["mixtures"], kw["renew"], kw["drivers"] is not None))
+        return real(*args, **kw)
+
+    monkeypatch.setattr(long_mod, "motion_rollouts", spy)
+    ph = model.phases(2)
+    (s,) = model.sample_scenarios(1, duration=60.0, seed=4, dynamics=True, phases=ph)
+    mixtures = [c[0][0] for c in calls]
+    changed = [i > 0 and mixtures[i] != mixtures[i - 1] for i in range(len(calls))]
+    assert any(changed) and [c[1] for c in calls] == changed
+    assert all(c[2] for c, new in zip(calls, changed) if new)
+    calls.clear()
+    model.sample_scenarios(1, duration=60.0, seed=4, dynamics=True, phases=ph, phase_fields="in turn")
+    assert not any(c[1] for c in calls)

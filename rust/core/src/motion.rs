@@ -625,21 +625,46 @@ pub fn drive(
     drive_on(start, v0, None, opts, motion, seed, field)
 }
 
+/// Driver states carried from an earlier rollout ([`Rollout::drivers`]): each agent's desired
+/// velocity, or for a steering model its heading and desired speed. `renew`: the scene's regime
+/// has changed since (a long scenario's next signal stage), and each driver takes up the new
+/// field where it is, as far as the field knows the point (support `s`): its desired speed
+/// along its heading becomes `(1 − s) u + s m·e` (without steering, its desired velocity
+/// `(1 − s) w + s m`). Without that a driver meets the change only through the residual's
+/// relaxation, and where a pattern's `τ` is long (∞ where its field predicted its tracks no
+/// better than constant velocity), a queue that stood at red still wants to stand at green.
+#[derive(Clone, Copy, Debug)]
+pub struct Carried<'a> {
+    pub states: &'a [[f64; 2]],
+    pub renew: bool,
+}
+
+impl<'a> Carried<'a> {
+    /// The drivers as they were.
+    pub fn kept(states: &'a [[f64; 2]]) -> Self {
+        Self {
+            states,
+            renew: false,
+        }
+    }
+}
+
 /// [`drive`], continuing drivers where another rollout left them: `drivers` (with `v0`, the
-/// actual velocities then) is each agent's driver state from that rollout's
-/// [`Rollout::drivers`] — its desired velocity, or for a steering model its heading and desired
-/// speed. Without it a rollout starting from `v0` takes the actual velocity as the driver's wish,
-/// which is wrong mid-scene: a vehicle braking behind a leader (or pushed back by the personal
-/// distance) would take that as what it wants, keep the heading of a push for `τ_h`, and stand.
+/// actual velocities then) are their [`Carried`] states. Without them a rollout starting from
+/// `v0` takes the actual velocity as the driver's wish, which is wrong mid-scene: a vehicle
+/// braking behind a leader (or pushed back by the personal distance) would take that as what it
+/// wants, keep the heading of a push for `τ_h`, and stand.
 pub fn drive_on(
     start: &[Point],
     v0: Option<&[[f64; 2]]>,
-    drivers: Option<&[[f64; 2]]>,
+    drivers: Option<Carried>,
     opts: &Options,
     motion: &Motion,
     seed: Option<u64>,
     field: &mut dyn Field,
 ) -> Result<Rollout> {
+    let renew = drivers.is_some_and(|d| d.renew);
+    let drivers = drivers.map(|d| d.states);
     if let Some(d) = drivers {
         if v0.is_none() || d.len() != start.len() {
             return Err(Error::Shape(format!(
@@ -712,15 +737,31 @@ pub fn drive_on(
                 let mut rng = seed.map(|s| stream(s, 0, Phase::Simulate, NOISE_ENTITY));
                 // a recorded start keeps its own velocities exactly
                 let mut jit = if v0.is_none() { jitter_rng(0) } else { None };
+                // renewed drivers take up the field as far as it knows where they are
+                let known = if renew { field.support(&x)? } else { None };
+                let take = |a: usize| {
+                    if renew {
+                        known.as_ref().map_or(1.0, |s| s[a])
+                    } else {
+                        0.0
+                    }
+                };
                 for (a, &j) in active.iter().enumerate() {
                     if let (Some(v), Some(d)) = (v0, drivers) {
-                        // a continued driver: its own wish, moving at its actual velocity
+                        // a continued driver: its own wish (renewed: toward the field), moving
+                        // at its actual velocity
+                        let s = take(a);
                         if motion.tau_heading.is_some() {
-                            steering[j] = d[j];
-                            let go = drive_speed(d[j][1], motion);
-                            want[j] = [go * d[j][0].cos(), go * d[j][0].sin()];
+                            let e = [d[j][0].cos(), d[j][0].sin()];
+                            let along = mean[a][0] * e[0] + mean[a][1] * e[1];
+                            steering[j] = [d[j][0], (1.0 - s) * d[j][1] + s * along];
+                            let go = drive_speed(steering[j][1], motion);
+                            want[j] = [go * e[0], go * e[1]];
                         } else {
-                            want[j] = d[j];
+                            want[j] = [
+                                (1.0 - s) * d[j][0] + s * mean[a][0],
+                                (1.0 - s) * d[j][1] + s * mean[a][1],
+                            ];
                         }
                         vel[j] = v[j];
                         continue;

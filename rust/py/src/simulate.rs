@@ -11,7 +11,7 @@ use crate::sampler::{PySampler, pattern_at};
 use dpgp_core::Error;
 use dpgp_core::gibbs::Sampler;
 use dpgp_core::kernel::Point;
-use dpgp_core::motion::{MOTION_FIELDS, Motion, drive, drive_on};
+use dpgp_core::motion::{Carried, MOTION_FIELDS, Motion, drive, drive_on};
 use dpgp_core::pattern_model::PatternModel;
 use dpgp_core::placement::{Grid, place, thin};
 use dpgp_core::rng::{Phase, stream};
@@ -179,10 +179,11 @@ fn check_seeds(seeds: &Option<Vec<u64>>, n: usize) -> CoreResult<()> {
 /// (long scenarios); `support`: drivers follow the field only as far as it knows (its posterior
 /// variance against the prior's, a triangular solve per vehicle and step); `mixtures[i]`:
 /// (slot, weight) pairs whose fields together ([`MixtureField`], with support) replace
-/// `slots[i]`'s (whose motion row still applies). Returns what [`rollouts`] returns and each
-/// vehicle's driver state after the last step (rows as `start`).
+/// `slots[i]`'s (whose motion row still applies); `renew`: the continued drivers take up the
+/// field at the start ([`Carried`]). Returns what [`rollouts`] returns and each vehicle's driver
+/// state after the last step (rows as `start`).
 #[pyfunction]
-#[pyo3(signature = (sampler, slots, start, velocities, offsets, motion, dt, steps, roi=None, seeds=None, low_data=None, drivers=None, support=false, mixtures=None))]
+#[pyo3(signature = (sampler, slots, start, velocities, offsets, motion, dt, steps, roi=None, seeds=None, low_data=None, drivers=None, support=false, mixtures=None, renew=false))]
 #[allow(clippy::too_many_arguments)]
 pub fn motion_rollouts<'py>(
     py: Python<'py>,
@@ -200,6 +201,7 @@ pub fn motion_rollouts<'py>(
     drivers: Option<PyReadonlyArray2<'py, f64>>,
     support: bool,
     mixtures: Option<Vec<Vec<(usize, f64)>>>,
+    renew: bool,
 ) -> PyResult<(
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray2<f64>>,
@@ -243,7 +245,10 @@ pub fn motion_rollouts<'py>(
         drive_on(
             &start[a..b],
             Some(&vel[a..b]),
-            drivers.map(|d| &d[a..b]),
+            drivers.map(|d| Carried {
+                states: &d[a..b],
+                renew,
+            }),
             &opts,
             &motion[i],
             seed,

@@ -650,7 +650,7 @@ fn a_rollout_continued_with_its_drivers_is_the_rollout_run_on() {
     let on = drive_on(
         x6,
         Some(v6),
-        Some(&first.drivers),
+        Some(Carried::kept(&first.drivers)),
         &opts(0.5, 6),
         &motion,
         None,
@@ -682,7 +682,7 @@ fn a_rollout_continued_with_its_drivers_is_the_rollout_run_on() {
         drive_on(
             x6,
             None,
-            Some(&first.drivers),
+            Some(Carried::kept(&first.drivers)),
             &opts(0.5, 1),
             &motion,
             None,
@@ -694,7 +694,7 @@ fn a_rollout_continued_with_its_drivers_is_the_rollout_run_on() {
         drive_on(
             x6,
             Some(v6),
-            Some(&first.drivers[..1]),
+            Some(Carried::kept(&first.drivers[..1])),
             &opts(0.5, 1),
             &motion,
             None,
@@ -722,7 +722,7 @@ fn a_vehicle_standing_in_a_queue_keeps_its_heading() {
     let r = drive_on(
         &[[0.0, 0.0], [7.0, 0.0]],
         Some(&[[0.0, 0.0], [0.0, 0.0]]),
-        Some(&[[0.0, 5.0], [0.0, 0.0]]),
+        Some(Carried::kept(&[[0.0, 5.0], [0.0, 0.0]])),
         &opts(0.5, 20),
         &motion,
         None,
@@ -760,7 +760,7 @@ fn a_driver_follows_a_field_only_as_far_as_it_knows() {
         drive_on(
             &[[0.0, 0.0]],
             Some(&[[5.0, 0.0]]),
-            Some(&[[0.0, 5.0]]),
+            Some(Carried::kept(&[[0.0, 5.0]])),
             &opts(0.5, 4),
             &motion,
             None,
@@ -773,4 +773,66 @@ fn a_driver_follows_a_field_only_as_far_as_it_knows() {
     assert!((full - 5.0 * (-2.0f64).exp()).abs() < 1e-12, "{full}");
     let half = run(Some(0.5)).velocities[4][0];
     assert!((half - 5.0 * (-1.0f64).exp()).abs() < 1e-12, "{half}");
+}
+
+#[test]
+fn renewed_drivers_take_up_the_new_field_as_far_as_it_knows_them() {
+    // a field east at 8, known with support s; a driver heading east that stood (wish 0) and a
+    // residual that never relaxes (τ = ∞): kept, it still wants to stand; renewed, it wants
+    // s * 8 from the first step on, and holds it (mean mode, no interaction)
+    struct East(f64);
+    impl Field for East {
+        fn velocity(&mut self, q: &[Point]) -> Result<Vec<[f64; 2]>> {
+            Ok(vec![[8.0, 0.0]; q.len()])
+        }
+        fn support(&mut self, q: &[Point]) -> Result<Option<Vec<f64>>> {
+            Ok(Some(vec![self.0; q.len()]))
+        }
+    }
+    let steering = Motion {
+        tau: f64::INFINITY,
+        spread: Spread::Heading {
+            min_speed: 0.1,
+            tau_across: f64::INFINITY,
+        },
+        rule: Rule::Free,
+        ..steering_vehicles(2.0)
+    };
+    let plain = Motion {
+        tau_heading: None,
+        ..steering
+    };
+    for s in [0.0, 0.5, 1.0] {
+        let run = |motion: &Motion, state: [f64; 2], renew: bool| {
+            let states = [state];
+            drive_on(
+                &[[0.0, 0.0]],
+                Some(&[[0.0, 0.0]]),
+                Some(Carried {
+                    states: &states,
+                    renew,
+                }),
+                &opts(0.5, 3),
+                motion,
+                None,
+                &mut East(s),
+            )
+            .unwrap()
+            .drivers[0]
+        };
+        assert_eq!(run(&steering, [0.0, 0.0], false), [0.0, 0.0]);
+        assert_eq!(run(&steering, [0.0, 0.0], true), [0.0, s * 8.0]);
+        // a wish of 2 keeps (1 - s) of itself
+        assert_eq!(
+            run(&steering, [0.0, 2.0], true),
+            [0.0, (1.0 - s) * 2.0 + s * 8.0]
+        );
+        // without steering: the desired velocity itself, toward the field's
+        assert_eq!(run(&plain, [0.0, 4.0], false), [0.0, 4.0]);
+        let w = run(&plain, [0.0, 4.0], true);
+        assert!(
+            (w[0] - s * 8.0).abs() < 1e-12 && (w[1] - (1.0 - s) * 4.0).abs() < 1e-12,
+            "{s}: {w:?}"
+        );
+    }
 }
