@@ -196,7 +196,7 @@ class PatternSchedule:
 class PhaseSchedule:
     """Patterns by phase (:class:`dpgp.evaluate.phases.Phases`): a phase is in force for a
     duration drawn from its recorded runs (phases in a cycle: the stages of one recorded cycle
-    together), the next phase by the recorded phase changes; within a
+    together, stretched to the recorded cycles' mean length), the next phase by the recorded phase changes; within a
     phase its patterns follow one another as inside its recorded runs (the pattern starting a
     run of the phase, the changes and the pattern runs of its frames only), so that the fields in
     force stay those of one regime."""
@@ -209,13 +209,18 @@ class PhaseSchedule:
 
     def _stage_steps(self, p: int, rng: np.random.Generator) -> int:
         """A phase's duration: in a cycle, its stage of one recorded cycle, drawn when the cycle
-        starts (or the scenario does), so that the stages of a cycle come from one recorded cycle;
-        else drawn on its own from the phase's recorded runs."""
+        starts (or the scenario does), so that the stages of a cycle come from one recorded cycle,
+        which is stretched to the recorded cycles' mean length (a fixed-time signal's cycle has
+        one length; its decoded cycles vary where the traffic places their boundaries); else
+        drawn on its own from the phase's recorded runs."""
         if self.cycles is None:
             return _dwell_steps(self.ph.transitions.dwell(p), self.dt, rng)
         if p == 0 or self.this_cycle is None:
-            self.this_cycle = self.cycles[rng.integers(len(self.cycles))]
-        return max(1, int(round(self.this_cycle[p] * self.ph.dt / self.dt)))
+            row = self.cycles[rng.integers(len(self.cycles))].astype(np.float64)
+            length = self.cycles.sum(axis=1).mean() * self.ph.dt / self.dt  # steps
+            ends = np.rint(np.cumsum(row) * length / row.sum()).astype(np.int64)  # rounded once
+            self.this_cycle = np.diff(np.r_[0, ends])
+        return max(1, int(self.this_cycle[p]))
 
     def _enter(self, p: int, rng: np.random.Generator) -> tuple[int, int]:
         self.phase = p
