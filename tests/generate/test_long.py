@@ -147,7 +147,7 @@ def test_phase_schedules_keep_each_phase_to_its_own_patterns(model):
 def test_a_phase_field_is_its_patterns_together_and_vehicles_enter_where_the_phase_did(model):
     ph = model.phases(2)
     (s,) = model.sample_scenarios(1, duration=60.0, seed=4, dynamics=True, phases=ph)  # together
-    shares = long_mod.frame_shares(ph)
+    shares = ph.frame_shares
     for p in np.unique(s.phases):
         assert set(np.unique(s.patterns[s.phases == p]).tolist()) == {int(np.argmax(shares[p]))}
     # the shares are the phase's frames by pattern

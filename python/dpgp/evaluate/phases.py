@@ -82,6 +82,17 @@ class Phases:
     def n_phases(self) -> int:
         return len(self.start)
 
+    @property
+    def frame_shares(self) -> np.ndarray:
+        """(P, K): each phase's frames' shares by pattern (the pattern runs inside its runs; the
+        emission for a phase without frames). Long scenarios weight a phase's fields by these, not
+        by its emission: fitted to the frames' likelihoods, that can give a pattern of two frames,
+        whose broad posterior explains many frames moderately, a fifth of a phase (SUMO junction)."""
+        k = self.emission.shape[1]
+        counts = np.stack([np.bincount(r[:, 0], weights=r[:, 1], minlength=k) for r in self.pattern_runs])
+        total = counts.sum(axis=1, keepdims=True)
+        return np.where(total > 0, counts / np.maximum(total, 1), self.emission)
+
     def sequence_log_likelihood(self, seqs: list[np.ndarray]) -> float:
         """Log-likelihood of pattern label sequences (each an unbroken run of frames) under these
         phases: the HMM's forward pass, or the semi-Markov model's."""
@@ -108,10 +119,13 @@ class Phases:
             lines.append(
                 f"  cycle: {len(c)} complete recorded cycles, median {np.median(c):.1f} s (IQR {q1:.1f}-{q3:.1f} s)"
             )
+        frames = self.frame_shares
         for p in range(self.n_phases):
-            top = np.argsort(-self.emission[p])[:3]
-            pats = ", ".join(f"{k} ({100 * self.emission[p, k]:.0f}%)" for k in top)
-            lines.append(f"  phase {p}: {100 * share[p]:.1f}% of frames, mean dwell {md[p]:.1f} s; patterns {pats}")
+            top = np.argsort(-frames[p], kind="stable")[:3]
+            pats = ", ".join(f"{k} ({100 * frames[p, k]:.0f}%)" for k in top)
+            lines.append(
+                f"  phase {p}: {100 * share[p]:.1f}% of frames, mean dwell {md[p]:.1f} s; its frames' patterns {pats}"
+            )
         return "\n".join(lines)
 
 

@@ -252,17 +252,6 @@ class PhaseSchedule:
         self.phase_left -= steps
 
 
-def frame_shares(phases: Any) -> np.ndarray:
-    """(P, K): each phase's frames' shares by pattern (the pattern runs inside its runs). Not its
-    emission: fitted to the frames' likelihoods, that can give a pattern of two frames, whose
-    broad posterior explains many frames moderately, a fifth of a phase (SUMO junction)."""
-    k = phases.emission.shape[1]
-    counts = np.stack([np.bincount(r[:, 0], weights=r[:, 1], minlength=k) for r in phases.pattern_runs])
-    return np.where(
-        counts.sum(1, keepdims=True) > 0, counts / np.maximum(counts.sum(1, keepdims=True), 1), phases.emission
-    )
-
-
 def _mixture(shares: np.ndarray) -> list[tuple[int, float]]:
     """A phase's patterns and weights for its field (:data:`MIXTURE_MIN`, :data:`MIXTURE_MAX`)."""
     top = np.argsort(-shares, kind="stable")[:MIXTURE_MAX]
@@ -313,7 +302,7 @@ def sample_long_scenarios(
     # where vehicles enter: by pattern, or with a phase's patterns together, by phase
     entries = learn_entries(fit, phases.labels, phases.n_phases) if together else learn_entries(fit)
     if together:
-        shares = frame_shares(phases)
+        shares = phases.frame_shares
         mixtures = [_mixture(shares[p]) for p in range(phases.n_phases)]
         largest = [int(np.argmax(shares[p])) for p in range(phases.n_phases)]
     motion = motion_model(fit)
@@ -391,4 +380,4 @@ def sample_long_scenarios(
     return out
 
 
-__all__ = ["LongScenario", "Entries", "learn_entries", "frame_shares", "sample_long_scenarios"]
+__all__ = ["LongScenario", "Entries", "learn_entries", "sample_long_scenarios"]
