@@ -72,9 +72,9 @@ class Phases:
     dt: float = float("nan")
     d_max: int = 0
     #: ``cycle=True``: the phases follow one another in a fixed order, and ``cycles`` (n, P) holds
-    #: each complete recorded cycle's stage durations in frames (stage 0 first), so that
-    #: long scenarios draw a cycle's stages together: a decoded boundary that comes late shortens
-    #: the stage after it, and the cycle keeps its length.
+    #: each complete recorded cycle's stage durations in frames (stage 0 first), so that long
+    #: scenarios draw a cycle's stages together (a decoded boundary that comes late shortens the
+    #: stage after it), each cycle stretched to the recorded cycles' mean length.
     cycle: bool = False
     cycles: np.ndarray | None = None
 

@@ -11,11 +11,11 @@ one pattern at a time as inside the phase's recorded runs. Together, a vehicle n
 light is told to stop by the one pattern of the phase that knows its queue, every step, not only
 while that pattern is in force; at a change of phase each driver takes up the new phase's fields
 where it is, as far as they know the point (a queue that stood at red wants to go at green,
-whatever the time constant of the residual). Vehicles keep moving across a switch: the rollout goes on from where
-they are, each driver's state carried over (its wish, not its braked or pushed velocity), with the
-residual dynamics and interactions of :mod:`.motion` under the new pattern's field, followed only
-as far as that field has data where the vehicle is (a pattern's zero prior mean is no wish to
-stand). New vehicles enter where the current pattern's vehicles entered in the recording (track
+whatever the time constant of the residual). Vehicles keep moving across a switch: the rollout
+goes on from where they are, each driver's state carried over (its wish, not its braked or
+pushed velocity), with the residual dynamics and interactions of :mod:`.motion` under the new
+pattern's field, followed only as far as that field has data where the vehicle is (a pattern's
+zero prior mean is no wish to stand). New vehicles enter where the current pattern's vehicles entered in the recording (track
 starts inside a recording, not at its first frame), at the pattern's recorded entry rate (Poisson);
 vehicles that leave the ROI, or every recorded path (:class:`Area`), are dropped. Rollouts run in
 blocks of ``block`` seconds in the core (:func:`.rollout.motion_rollouts`), entries come at the
@@ -196,10 +196,10 @@ class PatternSchedule:
 class PhaseSchedule:
     """Patterns by phase (:class:`dpgp.evaluate.phases.Phases`): a phase is in force for a
     duration drawn from its recorded runs (phases in a cycle: the stages of one recorded cycle
-    together, stretched to the recorded cycles' mean length), the next phase by the recorded phase changes; within a
-    phase its patterns follow one another as inside its recorded runs (the pattern starting a
-    run of the phase, the changes and the pattern runs of its frames only), so that the fields in
-    force stay those of one regime."""
+    together, stretched to the recorded cycles' mean length), the next phase by the recorded
+    phase changes; within a phase its patterns follow one another as inside its recorded runs
+    (the pattern starting a run of the phase, the changes and the pattern runs of its frames
+    only), so that the fields in force stay those of one regime."""
 
     def __init__(self, phases: Any, dt: float) -> None:
         self.ph, self.dt = phases, dt
