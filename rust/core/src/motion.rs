@@ -629,8 +629,9 @@ pub fn drive(
 /// velocity, or for a steering model its heading and desired speed. `renew`: the scene's regime
 /// has changed since (a long scenario's next signal stage), and each driver takes up the new
 /// field where it is, as far as the field knows the point (support `s`): its desired speed
-/// along its heading becomes `(1 − s) u + s m·e` (without steering, its desired velocity
-/// `(1 − s) w + s m`). Without that a driver meets the change only through the residual's
+/// becomes `(1 − s) u + s |m|`, the speed toward which steering relaxes it (the heading then
+/// turns as the vehicle moves; a standing vehicle's heading may be no lane's), and without
+/// steering its desired velocity `(1 − s) w + s m`. Without that a driver meets the change only through the residual's
 /// relaxation, and where a pattern's `τ` is long (∞ where its field predicted its tracks no
 /// better than constant velocity), a queue that stood at red still wants to stand at green.
 #[derive(Clone, Copy, Debug)]
@@ -752,11 +753,10 @@ pub fn drive_on(
                         // at its actual velocity
                         let s = take(a);
                         if motion.tau_heading.is_some() {
-                            let e = [d[j][0].cos(), d[j][0].sin()];
-                            let along = mean[a][0] * e[0] + mean[a][1] * e[1];
-                            steering[j] = [d[j][0], (1.0 - s) * d[j][1] + s * along];
+                            let speed = mean[a][0].hypot(mean[a][1]);
+                            steering[j] = [d[j][0], (1.0 - s) * d[j][1] + s * speed];
                             let go = drive_speed(steering[j][1], motion);
-                            want[j] = [go * e[0], go * e[1]];
+                            want[j] = [go * d[j][0].cos(), go * d[j][0].sin()];
                         } else {
                             want[j] = [
                                 (1.0 - s) * d[j][0] + s * mean[a][0],

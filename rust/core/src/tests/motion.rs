@@ -780,6 +780,7 @@ fn renewed_drivers_take_up_the_new_field_as_far_as_it_knows_them() {
     // a field east at 8, known with support s; a driver heading east that stood (wish 0) and a
     // residual that never relaxes (τ = ∞): kept, it still wants to stand; renewed, it wants
     // s * 8 from the first step on, and holds it (mean mode, no interaction)
+    use std::f64::consts::FRAC_PI_2;
     struct East(f64);
     impl Field for East {
         fn velocity(&mut self, q: &[Point]) -> Result<Vec<[f64; 2]>> {
@@ -827,6 +828,10 @@ fn renewed_drivers_take_up_the_new_field_as_far_as_it_knows_them() {
             run(&steering, [0.0, 2.0], true),
             [0.0, (1.0 - s) * 2.0 + s * 8.0]
         );
+        // a heading across the field (a vehicle that stood since it entered): the field's speed,
+        // toward which steering relaxes the wish; the heading is kept at the start
+        let across = run(&steering, [FRAC_PI_2, 0.0], true);
+        assert_eq!(across[1], s * 8.0, "{s}: {across:?}");
         // without steering: the desired velocity itself, toward the field's
         assert_eq!(run(&plain, [0.0, 4.0], false), [0.0, 4.0]);
         let w = run(&plain, [0.0, 4.0], true);
