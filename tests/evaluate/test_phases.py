@@ -335,14 +335,16 @@ def test_a_cycle_of_phases_keeps_brief_returns_inside_their_stage():
 
 def test_recorded_cycles_are_the_complete_runs_of_every_stage_in_order():
     from dpgp.evaluate.phases import recorded_cycles
+    from dpgp.evaluate.transitions import count_transitions
+
+    def cycles(path, order):
+        return recorded_cycles(count_transitions(path, order).runs, 3)
 
     #            cut by the start | cycle (2, 3, 1)     | cycle (1, 1, 2)  | cut by the end
     path = np.array([1, 2, 2] + [0, 0, 1, 1, 1, 2] + [0, 1, 2, 2] + [0, 1])
-    seqs = [np.arange(len(path))]
-    np.testing.assert_array_equal(recorded_cycles(path, seqs, 3), [[2, 3, 1], [1, 1, 2]])
+    np.testing.assert_array_equal(cycles(path, _order(len(path))), [[2, 3, 1], [1, 1, 2]])
     # two recordings: a cycle does not run across the gap between them
-    two = [np.arange(0, 6), np.arange(6, len(path))]
-    np.testing.assert_array_equal(recorded_cycles(path, two, 3), [[1, 1, 2]])
+    np.testing.assert_array_equal(cycles(path, _order(len(path), gaps=(6,))), [[1, 1, 2]])
     # a stage skipped is not a cycle
     skipped = np.array([1, 0, 2, 0, 1, 2, 0])
-    np.testing.assert_array_equal(recorded_cycles(skipped, [np.arange(7)], 3), [[1, 1, 1]])
+    np.testing.assert_array_equal(cycles(skipped, _order(7)), [[1, 1, 1]])

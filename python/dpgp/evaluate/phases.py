@@ -486,19 +486,17 @@ def _n_params(p: int, k: int, durations: bool = False, cycle: bool = False) -> i
     return (p - 1) + p * changes + p * (k - 1)
 
 
-def recorded_cycles(path: np.ndarray, sequences: list[np.ndarray], p: int) -> np.ndarray:
+def recorded_cycles(runs: np.ndarray, p: int) -> np.ndarray:
     """(n, p): the stage durations (frames) of every complete cycle of stages ``0 → 1 → … → p−1``
-    in the decoded ``path`` (runs in the frames' time order, one array of frame indices per
-    unbroken recording); a cycle cut by a recording's start or end is not complete."""
-    out = []
-    for seq in sequences:
-        lab = path[seq]
-        cut = np.flatnonzero(np.diff(lab)) + 1
-        starts, ends = np.r_[0, cut], np.r_[cut, len(lab)]
-        stage, length = lab[starts], ends - starts
-        for i in np.flatnonzero((stage == 0) & (starts > 0)):  # a recording's first run may be cut
-            if i + p <= len(stage) and ends[i + p - 1] < len(lab) and np.array_equal(stage[i : i + p], np.arange(p)):
-                out.append(length[i : i + p])
+    among a decoded path's ``runs`` (:attr:`Transitions.runs`: stage, first frame, frames,
+    censored; in time order); a cycle with a run cut by a recording's start or end is not
+    complete (and no cycle runs across two recordings: their boundary runs are cut)."""
+    stage, length, cut = runs[:, 0], runs[:, 2], runs[:, 3].astype(bool)
+    out = [
+        length[i : i + p]
+        for i in np.flatnonzero(stage == 0)
+        if i + p <= len(runs) and not cut[i : i + p].any() and np.array_equal(stage[i : i + p], np.arange(p))
+    ]
     return np.asarray(out, dtype=np.int64).reshape(-1, p)
 
 
@@ -623,6 +621,7 @@ def fit_phases(
         cut = np.flatnonzero((np.diff(lab) != 0) | (np.diff(ph) != 0)) + 1
         for a, b in zip(np.r_[0, cut], np.r_[cut, len(s)]):
             pattern_runs[int(ph[a])].append((int(lab[a]), int(b - a)))
+    transitions = count_transitions(path, order, p)
     return Phases(
         labels=path,
         emission=emission,
@@ -630,14 +629,14 @@ def fit_phases(
         start=start,
         log_likelihood=float(ll),
         bic=bic,
-        transitions=count_transitions(path, order, p),
+        transitions=transitions,
         within=within,
         pattern_runs=[np.asarray(r, dtype=np.int64).reshape(-1, 2) for r in pattern_runs],
         durations=dur,
         dt=float(order.dt),
         d_max=d_max,
         cycle=bool(cycle and p > 1),
-        cycles=recorded_cycles(path, seqs_idx, p) if cycle and p > 1 else None,
+        cycles=recorded_cycles(transitions.runs, p) if cycle and p > 1 else None,
     )
 
 

@@ -15,8 +15,9 @@ whatever the time constant of the residual). Vehicles keep moving across a switc
 goes on from where they are, each driver's state carried over (its wish, not its braked or
 pushed velocity), with the residual dynamics and interactions of :mod:`.motion` under the new
 pattern's field, followed only as far as that field has data where the vehicle is (a pattern's
-zero prior mean is no wish to stand). New vehicles enter where the current pattern's vehicles entered in the recording (track
-starts inside a recording, not at its first frame), at the pattern's recorded entry rate (Poisson);
+zero prior mean is no wish to stand). New vehicles enter where the current pattern's vehicles
+entered in the recording (track starts inside a recording, not at its first frame), at the
+pattern's recorded entry rate (Poisson);
 vehicles that leave the ROI, or every recorded path (:class:`Area`), are dropped. Rollouts run in
 blocks of ``block`` seconds in the core (:func:`.rollout.motion_rollouts`), entries come at the
 block ends.
@@ -205,6 +206,8 @@ class PhaseSchedule:
         self.ph, self.dt = phases, dt
         self.phase_left = 0
         self.cycles = phases.cycles if phases.cycles is not None and len(phases.cycles) else None
+        if self.cycles is not None:  # the recorded cycles' mean length, in steps
+            self.cycle_steps = self.cycles.sum(axis=1).mean() * phases.dt / dt
         self.this_cycle: np.ndarray | None = None
 
     def _stage_steps(self, p: int, rng: np.random.Generator) -> int:
@@ -217,8 +220,7 @@ class PhaseSchedule:
             return _dwell_steps(self.ph.transitions.dwell(p), self.dt, rng)
         if p == 0 or self.this_cycle is None:
             row = self.cycles[rng.integers(len(self.cycles))].astype(np.float64)
-            length = self.cycles.sum(axis=1).mean() * self.ph.dt / self.dt  # steps
-            ends = np.rint(np.cumsum(row) * length / row.sum()).astype(np.int64)  # rounded once
+            ends = np.rint(np.cumsum(row) * self.cycle_steps / row.sum()).astype(np.int64)  # rounded once
             self.this_cycle = np.diff(np.r_[0, ends])
         return max(1, int(self.this_cycle[p]))
 
