@@ -11,7 +11,9 @@ one pattern at a time as inside the phase's recorded runs. Together, a vehicle n
 light is told to stop by the one pattern of the phase that knows its queue, every step, not only
 while that pattern is in force; at a change of phase each driver takes up the new phase's fields
 where it is, as far as they know the point (a queue that stood at red wants to go at green,
-whatever the time constant of the residual). Vehicles keep moving across a switch: the rollout
+whatever the time constant of the residual), and by phase, a red signal's stop line
+(:mod:`.stop_lines`, learned from where the recorded queues' fronts stood) stops the vehicles of
+its approach. Vehicles keep moving across a switch: the rollout
 goes on from where they are, each driver's state carried over (its wish, not its braked or
 pushed velocity), with the residual dynamics and interactions of :mod:`.motion` under the new
 pattern's field, followed only as far as that field has data where the vehicle is (a pattern's
@@ -40,6 +42,7 @@ from ..exceptions import InvalidInputError
 from ..gp.fitted import FittedPatterns
 from .motion import consecutive_pairs, motion_model
 from .rollout import motion_rollouts
+from .stop_lines import learn_stop_lines
 
 MAX_VEHICLES = 400  # a scene never holds more at once (entries beyond are skipped)
 #: ``phase_fields="together"``: a phase's field is its patterns' fields together, those of at least
@@ -282,6 +285,7 @@ def sample_long_scenarios(
     dynamics: str = "interactive",
     phases: Any = None,
     phase_fields: str = "together",
+    stop_lines: bool = True,
 ) -> list[LongScenario]:
     """``n`` :class:`LongScenario` of ``duration`` seconds; see the module's description.
     ``phases`` (:class:`dpgp.evaluate.phases.Phases`): switch by phase (:class:`PhaseSchedule`),
@@ -289,7 +293,8 @@ def sample_long_scenarios(
     phase's field is its patterns' fields together (each mean weighted by the pattern's share of
     the phase and by what it knows where the vehicle is; the core's ``MixtureField``), vehicles
     enter where the phase's did, and the pattern recorded per step is the phase's largest; ``"in
-    turn"``, its patterns follow one another as inside its recorded runs."""
+    turn"``, its patterns follow one another as inside its recorded runs. ``stop_lines``: by phase,
+    vehicles stop at the red signals' stop lines (:func:`.stop_lines.learn_stop_lines`)."""
     if phase_fields not in ("together", "in turn"):
         raise InvalidInputError(f"phase_fields must be 'together' or 'in turn', got {phase_fields!r}")
     for name, value in (("duration", duration), ("block", block)):
@@ -309,6 +314,7 @@ def sample_long_scenarios(
         largest = [int(np.argmax(shares[p])) for p in range(phases.n_phases)]
     motion = motion_model(fit)
     area = learn_area(fit, lane_scale(motion))
+    lines = learn_stop_lines(fit, phases.labels, phases.n_phases, motion) if phases is not None and stop_lines else None
     rng = np.random.default_rng(seed)
     weights = np.asarray(fit.weights, dtype=np.float64)
     out = []
@@ -337,6 +343,7 @@ def sample_long_scenarios(
                     roi=box, low_data_threshold=None, dynamics=dynamics, motion=motion,
                     drivers=None if drivers is None else [drivers], support=True,
                     mixtures=[mixtures[schedule.phase]] if together else None, renew=renew,
+                    stops=None if lines is None else [lines.in_force(schedule.phase)],
                 )[0]  # fmt: skip
                 on_road = np.stack([area.contains(sim.positions[j]) for j in range(m + 1)])
                 left_area = np.logical_or.accumulate(~on_road & sim.in_roi, axis=0)  # dropped from there on

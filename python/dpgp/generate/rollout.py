@@ -124,6 +124,7 @@ def motion_rollouts(
     steps: int, dt: float, seeds: list[int] | None, roi: Any, low_data_threshold: float | None, dynamics: str,
     motion: Any, recorded: bool = False, drivers: list[np.ndarray] | None = None, support: bool = False,
     mixtures: list[list[tuple[int, float]]] | None = None, renew: bool = False,
+    stops: list[list[tuple[float, float, float, float]]] | None = None,
 ) -> list[Simulation]:  # fmt: skip
     """Rollouts by the residual model ``motion`` (a :class:`dpgp.generate.motion.MotionModel`)
     and interaction: ``starts[i]`` (l_i, 2) from their own ``velocities[i]`` through pattern
@@ -136,7 +137,9 @@ def motion_rollouts(
     ``patterns[i]``'s (its motion still applies): each pattern's mean counts by its weight and by
     what it knows where the vehicle is (the core's ``MixtureField``; with support). ``renew``:
     the scene's regime changed since ``drivers`` were carried (a signal's next stage), and each
-    driver takes up the field where it is, as far as the field knows it (the core's ``Carried``)."""
+    driver takes up the field where it is, as far as the field knows it (the core's ``Carried``).
+    ``stops[i]``: the red stop lines ``(x, y, heading x, heading y)`` in force in rollout ``i``
+    (:mod:`.stop_lines`; the core's ``Stop``)."""
     sizes = np.array([len(s) for s in starts], dtype=np.int64)
     offsets = np.r_[0, np.cumsum(sizes)].astype(np.int64)
     cat = lambda a: np.ascontiguousarray(np.concatenate(a) if a else np.zeros((0, 2)), dtype=np.float64)  # noqa: E731
@@ -144,7 +147,7 @@ def motion_rollouts(
         fit.sampler, [int(fit.slots[k]) for k in patterns], cat(starts), cat(velocities), offsets,
         motion_records(patterns, dynamics, motion, recorded), float(dt), int(steps), tuple(roi), seeds, low_data_threshold,
         None if drivers is None else cat(drivers), support,
-        None if mixtures is None else [[(int(fit.slots[k]), float(w)) for k, w in m] for m in mixtures], renew,
+        None if mixtures is None else [[(int(fit.slots[k]), float(w)) for k, w in m] for m in mixtures], renew, stops,
     )  # fmt: skip
     sims = split(
         pos,

@@ -886,7 +886,7 @@ class DPGP:
         options.pop("duration", None)
         from ..generate.scenarios import sample_scenarios
 
-        for name in ("phases", "phase_fields"):
+        for name in ("phases", "phase_fields", "stop_lines"):
             if options.pop(name, None) is not None:
                 raise InvalidInputError(f"{name}= applies to long scenarios (duration=...)")
         return sample_scenarios(self._fitted(), n, steps, pattern, seed, **options)

@@ -27,7 +27,8 @@
 //!    desired speed being `|w|`, and change speed by its free-road term without a leader
 //!    (toward `|w|`, not past it); every agent then keeps a personal distance from its
 //!    neighbours (the part of a pair's approach that would bring it closer than the distance is
-//!    removed, half from each).
+//!    removed, half from each). A red signal's stop line ([`Stop`]) is, to the vehicles of its
+//!    approach, one more standing leader.
 //!
 //! The desired velocity is the driver's own; braking behind a leader does not change it, so a
 //! vehicle resumes its preferred speed (at IDM's acceleration) once free.
@@ -494,6 +495,59 @@ pub fn idm_accel(u: f64, u0: f64, gap: Option<(f64, f64)>, p: &Idm) -> f64 {
     p.accel * (free - inter)
 }
 
+/// A red signal's stop line as the front of its queue sees it (long scenarios by signal stage):
+/// a vehicle heading within 60° of `heading` (a unit vector) whose corridor ahead (the IDM
+/// `lateral`) holds `at` stops with its centre there, as behind a standing vehicle one jam
+/// distance beyond, unless it is too close to stop braking at twice the comfortable
+/// deceleration: it clears the amber, as drivers do. The fitted fields cannot say "stand" where
+/// a queue stands: at a red light's queue their means mix the standing vehicles with those that
+/// discharge there at green, and a generated vehicle crept through.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Stop {
+    pub at: Point,
+    pub heading: [f64; 2],
+}
+
+impl Stop {
+    /// A stop line at `at` for traffic heading along `heading` (any length but zero).
+    pub fn new(at: Point, heading: [f64; 2]) -> Result<Self> {
+        let n = heading[0].hypot(heading[1]);
+        if !(at.iter().all(|v| v.is_finite()) && n.is_finite() && n > TINY) {
+            return Err(Error::InvalidInput(format!(
+                "a stop line needs a finite position and a nonzero finite heading, got {at:?} heading {heading:?}"
+            )));
+        }
+        Ok(Self {
+            at,
+            heading: [heading[0] / n, heading[1] / n],
+        })
+    }
+}
+
+/// The gap (centre to centre, to the standing vehicle a stop line stands for) to the nearest
+/// [`Stop`] ahead of a vehicle at `x` heading along `e` at speed `u` that it can still stop at.
+fn stop_gap(x: Point, e: [f64; 2], u: f64, stops: &[Stop], p: &Idm) -> Option<f64> {
+    let mut best: Option<f64> = None;
+    for s in stops {
+        if s.heading[0] * e[0] + s.heading[1] * e[1] < CROSSING {
+            continue;
+        }
+        let d = [s.at[0] - x[0], s.at[1] - x[1]];
+        let along = d[0] * e[0] + d[1] * e[1];
+        let side = (d[0] * e[1] - d[1] * e[0]).abs();
+        // the Euler guard lets a stopping vehicle pass the line by up to half the jam distance
+        let room = along + 0.5 * p.jam;
+        if side > p.lateral || room <= 0.0 || u * u / (4.0 * p.decel) > room {
+            continue;
+        }
+        let gap = along + p.jam;
+        if best.is_none_or(|g| gap < g) {
+            best = Some(gap);
+        }
+    }
+    best
+}
+
 /// The nearest agent ahead of `i` (along `heading`, a unit vector) whose lateral offset is
 /// within `lateral`: (its index, gap along the heading).
 fn leader(
@@ -530,16 +584,17 @@ pub fn interact(
     rule: &Rule,
     dt: f64,
 ) -> Vec<[f64; 2]> {
-    interact_headed(x, current, desired, None, rule, dt)
+    interact_headed(x, current, desired, None, &[], rule, dt)
 }
 
 /// [`interact`] with each agent's heading (unit vectors; steering vehicles): only a vehicle
-/// heading within 60° of one's own is a leader.
+/// heading within 60° of one's own is a leader; and red stop lines `stops`.
 pub fn interact_headed(
     x: &[Point],
     current: &[[f64; 2]],
     desired: &[[f64; 2]],
     heads: Option<&[[f64; 2]]>,
+    stops: &[Stop],
     rule: &Rule,
     dt: f64,
 ) -> Vec<[f64; 2]> {
@@ -561,6 +616,12 @@ pub fn interact_headed(
                 };
                 let ahead = leader(i, x, e, idm.lateral, heads);
                 let gap = ahead.map(|(j, g)| (g, current[j][0] * e[0] + current[j][1] * e[1]));
+                // a red stop line nearer than the leader is the leader, standing
+                let gap = match (gap, stop_gap(x[i], e, u, stops, &idm)) {
+                    (Some((g, _)), Some(s)) if s < g => Some((s, 0.0)),
+                    (None, Some(s)) => Some((s, 0.0)),
+                    (gap, _) => gap,
+                };
                 let mut next = u + dt * idm_accel(u, u0, gap, &idm);
                 match gap {
                     // free road: toward the desired speed, not past it
@@ -622,7 +683,7 @@ pub fn drive(
     seed: Option<u64>,
     field: &mut dyn Field,
 ) -> Result<Rollout> {
-    drive_on(start, v0, None, opts, motion, seed, field)
+    drive_on(start, v0, None, &[], opts, motion, seed, field)
 }
 
 /// Driver states carried from an earlier rollout ([`Rollout::drivers`]): each agent's desired
@@ -654,11 +715,14 @@ impl<'a> Carried<'a> {
 /// actual velocities then) are their [`Carried`] states. Without them a rollout starting from
 /// `v0` takes the actual velocity as the driver's wish, which is wrong mid-scene: a vehicle
 /// braking behind a leader (or pushed back by the personal distance) would take that as what it
-/// wants, keep the heading of a push for `τ_h`, and stand.
+/// wants, keep the heading of a push for `τ_h`, and stand. `stops`: the red stop lines in force
+/// (vehicles only).
+#[allow(clippy::too_many_arguments)]
 pub fn drive_on(
     start: &[Point],
     v0: Option<&[[f64; 2]]>,
     drivers: Option<Carried>,
+    stops: &[Stop],
     opts: &Options,
     motion: &Motion,
     seed: Option<u64>,
@@ -848,8 +912,15 @@ pub fn drive_on(
                         .map(|&j| [steering[j][0].cos(), steering[j][0].sin()])
                         .collect()
                 });
-                let actual =
-                    interact_headed(&x, &current, &desired, heads.as_deref(), &motion.rule, dt);
+                let actual = interact_headed(
+                    &x,
+                    &current,
+                    &desired,
+                    heads.as_deref(),
+                    stops,
+                    &motion.rule,
+                    dt,
+                );
                 for (a, &j) in active.iter().enumerate() {
                     vel[j] = actual[a];
                 }

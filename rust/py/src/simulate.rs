@@ -11,7 +11,7 @@ use crate::sampler::{PySampler, pattern_at};
 use dpgp_core::Error;
 use dpgp_core::gibbs::Sampler;
 use dpgp_core::kernel::Point;
-use dpgp_core::motion::{Carried, MOTION_FIELDS, Motion, drive, drive_on};
+use dpgp_core::motion::{Carried, MOTION_FIELDS, Motion, Stop, drive, drive_on};
 use dpgp_core::pattern_model::PatternModel;
 use dpgp_core::placement::{Grid, place, thin};
 use dpgp_core::rng::{Phase, stream};
@@ -180,10 +180,11 @@ fn check_seeds(seeds: &Option<Vec<u64>>, n: usize) -> CoreResult<()> {
 /// variance against the prior's, a triangular solve per vehicle and step); `mixtures[i]`:
 /// (slot, weight) pairs whose fields together ([`MixtureField`], with support) replace
 /// `slots[i]`'s (whose motion row still applies); `renew`: the continued drivers take up the
-/// field at the start ([`Carried`]). Returns what [`rollouts`] returns and each vehicle's driver
+/// field at the start ([`Carried`]); `stops[i]`: the red stop lines `(x, y, heading x, heading y)`
+/// in force in rollout `i` ([`Stop`]). Returns what [`rollouts`] returns and each vehicle's driver
 /// state after the last step (rows as `start`).
 #[pyfunction]
-#[pyo3(signature = (sampler, slots, start, velocities, offsets, motion, dt, steps, roi=None, seeds=None, low_data=None, drivers=None, support=false, mixtures=None, renew=false))]
+#[pyo3(signature = (sampler, slots, start, velocities, offsets, motion, dt, steps, roi=None, seeds=None, low_data=None, drivers=None, support=false, mixtures=None, renew=false, stops=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn motion_rollouts<'py>(
     py: Python<'py>,
@@ -202,6 +203,7 @@ pub fn motion_rollouts<'py>(
     support: bool,
     mixtures: Option<Vec<Vec<(usize, f64)>>>,
     renew: bool,
+    stops: Option<Vec<Vec<(f64, f64, f64, f64)>>>,
 ) -> PyResult<(
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray2<f64>>,
@@ -228,6 +230,22 @@ pub fn motion_rollouts<'py>(
     if mixtures.as_ref().is_some_and(|m| m.len() != slots.len()) {
         return Err(CoreError(Error::Shape("one mixture per rollout".into())).into());
     }
+    if stops.as_ref().is_some_and(|s| s.len() != slots.len()) {
+        return Err(CoreError(Error::Shape("one list of stop lines per rollout".into())).into());
+    }
+    let stops: Vec<Vec<Stop>> = match stops {
+        Some(all) => all
+            .iter()
+            .map(|lines| {
+                lines
+                    .iter()
+                    .map(|&(x, y, hx, hy)| Stop::new([x, y], [hx, hy]))
+                    .collect()
+            })
+            .collect::<dpgp_core::Result<_>>()
+            .map_err(CoreError)?,
+        None => vec![Vec::new(); slots.len()],
+    };
     let rollouts = in_parallel(py, &sampler, &slots, |s, p, i| {
         let (a, b) = (offsets[i], offsets[i + 1]);
         let seed = seeds.as_ref().map(|v| v[i]);
@@ -249,6 +267,7 @@ pub fn motion_rollouts<'py>(
                 states: &d[a..b],
                 renew,
             }),
+            &stops[i],
             &opts,
             &motion[i],
             seed,

@@ -651,6 +651,7 @@ fn a_rollout_continued_with_its_drivers_is_the_rollout_run_on() {
         x6,
         Some(v6),
         Some(Carried::kept(&first.drivers)),
+        &[],
         &opts(0.5, 6),
         &motion,
         None,
@@ -683,6 +684,7 @@ fn a_rollout_continued_with_its_drivers_is_the_rollout_run_on() {
             x6,
             None,
             Some(Carried::kept(&first.drivers)),
+            &[],
             &opts(0.5, 1),
             &motion,
             None,
@@ -695,6 +697,7 @@ fn a_rollout_continued_with_its_drivers_is_the_rollout_run_on() {
             x6,
             Some(v6),
             Some(Carried::kept(&first.drivers[..1])),
+            &[],
             &opts(0.5, 1),
             &motion,
             None,
@@ -723,6 +726,7 @@ fn a_vehicle_standing_in_a_queue_keeps_its_heading() {
         &[[0.0, 0.0], [7.0, 0.0]],
         Some(&[[0.0, 0.0], [0.0, 0.0]]),
         Some(Carried::kept(&[[0.0, 5.0], [0.0, 0.0]])),
+        &[],
         &opts(0.5, 20),
         &motion,
         None,
@@ -761,6 +765,7 @@ fn a_driver_follows_a_field_only_as_far_as_it_knows() {
             &[[0.0, 0.0]],
             Some(&[[5.0, 0.0]]),
             Some(Carried::kept(&[[0.0, 5.0]])),
+            &[],
             &opts(0.5, 4),
             &motion,
             None,
@@ -813,6 +818,7 @@ fn renewed_drivers_take_up_the_new_field_as_far_as_it_knows_them() {
                     states: &states,
                     renew,
                 }),
+                &[],
                 &opts(0.5, 3),
                 motion,
                 None,
@@ -840,4 +846,107 @@ fn renewed_drivers_take_up_the_new_field_as_far_as_it_knows_them() {
             "{s}: {w:?}"
         );
     }
+}
+
+#[test]
+fn a_red_stop_line_is_a_standing_leader_for_its_approach_only() {
+    // a vehicle at 8 heading east, wishing 10, 40 behind a line for eastbound traffic: IDM behind
+    // a standing vehicle one jam distance beyond the line (gap 47). By hand: s* = 7 + 8 * 1.5 +
+    // 8 * 8 / (2 √2) = 41.627417, a = 1 - 0.8^4 - (s* / 47)^2 = -0.1940463
+    let rule = Rule::Vehicles {
+        idm: IDM,
+        personal: 2.0,
+    };
+    let step = |line: &[Stop]| {
+        interact_headed(
+            &[[0.0, 0.0]],
+            &[[8.0, 0.0]],
+            &[[10.0, 0.0]],
+            None,
+            line,
+            &rule,
+            0.5,
+        )[0]
+    };
+    let line = Stop::new([40.0, 0.5], [2.0, 0.0]).unwrap();
+    assert_eq!(line.heading, [1.0, 0.0]);
+    let want = 8.0 + 0.5 * idm_accel(8.0, 10.0, Some((47.0, 0.0)), &IDM);
+    assert!((want - (8.0 - 0.5 * 0.194_046_3)).abs() < 1e-6, "{want}");
+    let got = step(&[line]);
+    assert!((got[0] - want).abs() < 1e-12 && got[1] == 0.0, "{got:?}");
+    // free road for a line of westbound traffic, beside the corridor, or behind the vehicle
+    let free = step(&[]);
+    assert!(free[0] > 8.0);
+    for other in [
+        ([40.0, 0.5], [-1.0, 0.0]),
+        ([40.0, 1.6], [1.0, 0.0]),
+        ([-4.0, 0.0], [1.0, 0.0]),
+    ] {
+        let s = Stop::new(other.0, other.1).unwrap();
+        assert_eq!(step(&[s]), free, "{s:?}");
+    }
+    // it stops for a line it can reach braking at 2b (8² / (4 * 2) = 8 m within 5 + 3.5), and
+    // clears one nearer (4 + 3.5 < 8); a nearer leader stays the leader
+    assert!(step(&[Stop::new([5.0, 0.0], [1.0, 0.0]).unwrap()])[0] < 8.0);
+    assert_eq!(step(&[Stop::new([4.0, 0.0], [1.0, 0.0]).unwrap()]), free);
+    let x = [[0.0, 0.0], [20.0, 0.0]];
+    let with_leader = |line: &[Stop]| {
+        interact_headed(
+            &x,
+            &[[8.0, 0.0], [0.0, 0.0]],
+            &[[10.0, 0.0], [0.0, 0.0]],
+            None,
+            line,
+            &rule,
+            0.5,
+        )[0]
+    };
+    assert_eq!(with_leader(&[line]), with_leader(&[]));
+    // a stop line needs a place and a direction
+    assert!(Stop::new([0.0, 0.0], [0.0, 0.0]).is_err());
+    assert!(Stop::new([f64::NAN, 0.0], [1.0, 0.0]).is_err());
+}
+
+#[test]
+fn vehicles_queue_at_a_red_line_and_the_crossing_traffic_passes() {
+    // two vehicles heading east at 8 under a field east at 8, a red line at x = 50 for them; a
+    // third heading north at x = 70 under a field north (mean mode, steering, IDM)
+    let motion = steering_vehicles(2.0);
+    let mut field = |q: &[Point]| -> Result<Vec<[f64; 2]>> {
+        Ok(q.iter()
+            .map(|p| if p[0] > 65.0 { [0.0, 8.0] } else { [8.0, 0.0] })
+            .collect())
+    };
+    let start = [[0.0, 0.0], [-20.0, 0.0], [70.0, -30.0]];
+    let v0 = [[8.0, 0.0], [8.0, 0.0], [0.0, 8.0]];
+    let red = [Stop::new([50.0, 0.0], [1.0, 0.0]).unwrap()];
+    let run = |stops: &[Stop], field: &mut dyn Field| {
+        drive_on(
+            &start,
+            Some(&v0),
+            None,
+            stops,
+            &opts(0.5, 60),
+            &motion,
+            None,
+            field,
+        )
+        .unwrap()
+    };
+    let r = run(&red, &mut field);
+    let (last, vel) = (&r.positions[180..183], &r.velocities[180..183]);
+    // the first stands at the line (centre at most half a jam distance past it), the second
+    // behind it at about the jam distance (Euler's guard lets it close to half), and the crossing
+    // vehicle drove on at its speed
+    assert!(last[0][0] > 48.0 && last[0][0] <= 53.5, "{:?}", last[0]);
+    let gap = last[0][0] - last[1][0];
+    assert!(gap > 0.75 * IDM.jam && gap < IDM.jam + 0.5, "{last:?}");
+    assert!(
+        vel[0][0].hypot(vel[0][1]) < 0.05 && vel[1][0].hypot(vel[1][1]) < 0.05,
+        "{vel:?}"
+    );
+    assert!((last[2][1] - 210.0).abs() < 1.0, "{:?}", last[2]);
+    // without the line the first drives through (and turns north with the field past x = 65)
+    let green = run(&[], &mut field);
+    assert!(green.positions[180][0] > 65.0, "{:?}", green.positions[180]);
 }
