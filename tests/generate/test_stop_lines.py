@@ -163,7 +163,10 @@ def test_long_scenarios_pass_each_phase_its_red_lines(signal_model, monkeypatch)
 
     monkeypatch.setattr(long_mod, "motion_rollouts", spy)
     ph = signal_model.phases(2)
-    lines = learn_stop_lines(signal_model._fitted(), ph.labels, 2, long_mod.motion_model(signal_model._fitted()))
+    lines = signal_model.stop_lines(ph)  # what the estimator shows is what generation uses
+    again = learn_stop_lines(signal_model._fitted(), ph.labels, 2, long_mod.motion_model(signal_model._fitted()))
+    np.testing.assert_array_equal(lines.at, again.at)
+    np.testing.assert_array_equal(signal_model.stop_lines(2).red, lines.red)
     assert len(lines) == 2 and lines.red.sum(axis=0).tolist() == [1, 1]
     (s,) = signal_model.sample_scenarios(1, duration=60.0, seed=3, dynamics=True, phases=ph)
     mixture_of = {tuple(long_mod._mixture(ph.frame_shares[p])): p for p in range(2)}

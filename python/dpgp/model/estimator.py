@@ -725,6 +725,20 @@ class DPGP:
             cache[key] = held
         return held[1]
 
+    def stop_lines(self, phases: Any = 2) -> Any:
+        """The red signals' stop lines that long scenarios by ``phases`` (a
+        :class:`dpgp.evaluate.phases.Phases`, or what :meth:`phases` takes) stop vehicles at:
+        where the recorded queues' front vehicles stood, and in which phases vehicles reaching
+        each line mostly stopped there. Returns
+        :class:`dpgp.generate.stop_lines.StopLines` (``at``, ``heading``, ``red`` by phase, the
+        evidence; ``summary()``); none for pedestrians. Needs frames made from tracks."""
+        from ..generate.motion import motion_model
+        from ..generate.stop_lines import learn_stop_lines
+
+        ph = self.phases(phases) if isinstance(phases, (str, int, np.integer)) else phases
+        fit = self._fitted()
+        return learn_stop_lines(fit, ph.labels, ph.n_phases, motion_model(fit))
+
     def training_log_likelihoods(self) -> np.ndarray:
         """(N, K): ``log p(V_i | X_i, D_k)`` of each training frame's velocities under each pattern
         (``labels_`` order), its own pattern's without the frame (the sweep's leave-one-out
@@ -871,7 +885,8 @@ class DPGP:
         :attr:`transitions_` and dwell times, vehicles entering where each pattern's enter
         (:mod:`dpgp.generate.long`); ``dynamics=True`` there means the default interactive motion.
         ``phases``: switch pattern by phase (:meth:`phases`; a number of phases, ``"auto"``, or a
-        :class:`dpgp.evaluate.phases.Phases`), else pattern by pattern.
+        :class:`dpgp.evaluate.phases.Phases`), else pattern by pattern; by phase, vehicles stop at
+        the red signals' stop lines (:meth:`stop_lines`; ``stop_lines=False``: not).
         Returns a list of :class:`dpgp.generate.long.LongScenario`."""
         if options.get("duration") is not None:
             from ..generate.long import sample_long_scenarios
