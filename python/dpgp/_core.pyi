@@ -96,6 +96,7 @@ def motion_rollouts(
     mixtures: list[list[tuple[int, float]]] | None = None,
     renew: bool = False,
     stops: list[list[tuple[float, float, float, float]]] | None = None,
+    free_speeds: tuple[float, float, float, NDArray[np.float64]] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], NDArray[np.float64]]: ...
 def scene_rollouts(
     sampler: Sampler,

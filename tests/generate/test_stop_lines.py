@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 
 import dpgp
+from dpgp.generate.free_speeds import learn_free_speeds
 from dpgp.generate.stop_lines import learn_stop_lines
 
 DT, CYCLE, SPEED, JAM = 0.5, 40.0, 8.0, 7.5
@@ -149,16 +150,51 @@ def test_a_red_line_stops_a_vehicle_through_the_binding_and_others_do_not(signal
         assert x[0] == pytest.approx(10.0 + 40 * DT * 8.0) and v[0] == pytest.approx(8.0)
     with pytest.raises(dpgp.InvalidInputError, match="stop line"):
         end([[(40.0, 0.0, 0.0, 0.0)]])
+    with pytest.raises(dpgp.exceptions.ShapeError, match="one list of stop lines per rollout"):
+        end([[], []])
+
+
+def test_fields_are_raised_to_the_free_speeds_through_the_binding(signal_model):
+    # a vehicle heading east at 8 from x = 10 following the fields (mean mode): a map without
+    # any free speed changes nothing; one of 15 m/s eastbound everywhere takes it further, and
+    # eastbound only: heading north, the same map changes nothing
+    from dpgp.generate.motion import motion_model
+    from dpgp.generate.rollout import motion_rollouts
+
+    fit = signal_model._fitted()
+    mixture = [[(k, float(w)) for k, w in enumerate(fit.weights)]]
+
+    def run(free, start=(10.0, 0.0), v=(8.0, 0.0)):
+        (sim,) = motion_rollouts(
+            fit, [0], [np.array([start])], [np.array([v])], steps=20, dt=DT, seeds=None,
+            roi=(-1e3, 1e3, -1e3, 1e3), low_data_threshold=None, dynamics="interactive", motion=motion_model(fit),
+            support=True, mixtures=mixture, free_speeds=free,
+        )  # fmt: skip
+        return sim.positions
+
+    none = np.full((40, 40, 8), np.nan)
+    east = none.copy()
+    east[:, :, 0] = 15.0
+    plain = run(None)
+    np.testing.assert_array_equal(run((-100.0, -100.0, 5.0, none)), plain)
+    assert run((-100.0, -100.0, 5.0, east))[-1, 0, 0] > plain[-1, 0, 0] + 5.0
+    north = run(None, (45.0, -40.0), (0.0, 8.0))
+    np.testing.assert_array_equal(run((-100.0, -100.0, 5.0, east), (45.0, -40.0), (0.0, 8.0)), north)
+    with pytest.raises(dpgp.exceptions.ShapeError, match="8 heading sectors"):
+        run((0.0, 0.0, 5.0, np.ones((2, 2, 4))))
+    with pytest.raises(dpgp.InvalidInputError, match="positive cell"):
+        run((0.0, 0.0, 0.0, none))
 
 
 def test_long_scenarios_pass_each_phase_its_red_lines(signal_model, monkeypatch):
     from dpgp.generate import long as long_mod
 
-    calls = []
+    calls, free = [], []
     real = long_mod.motion_rollouts
 
     def spy(*args, **kw):
         calls.append((kw["mixtures"][0], kw["stops"]))
+        free.append(kw["free_speeds"])
         return real(*args, **kw)
 
     monkeypatch.setattr(long_mod, "motion_rollouts", spy)
@@ -174,8 +210,19 @@ def test_long_scenarios_pass_each_phase_its_red_lines(signal_model, monkeypatch)
     assert seen == {0, 1}  # both phases came
     for m, stops in calls:
         assert stops == [lines.in_force(mixture_of[tuple(m)])]
+    # the fields are raised to the recorded free speeds (the map of the training frames)
+    fit = signal_model._fitted()
+    want = learn_free_speeds(fit, long_mod.lane_scale(long_mod.motion_model(fit)), long_mod.motion_model(fit))
+    assert want is not None and all(f is not None for f in free)
+    for f in free:
+        assert f[:3] == want.core()[:3]
+        np.testing.assert_array_equal(f[3], want.speeds)
     calls.clear()
+    free.clear()
     (off,) = signal_model.sample_scenarios(1, duration=60.0, seed=3, dynamics=True, phases=ph, stop_lines=False)
-    assert calls and all(stops is None for _, stops in calls)
+    assert calls and all(stops is None for _, stops in calls) and all(f is None for f in free)
+    free.clear()
+    signal_model.sample_scenarios(1, duration=20.0, seed=3, dynamics=True, phases=ph, free_speeds=False)
+    assert free and all(f is None for f in free)
     with pytest.raises(dpgp.InvalidInputError, match="long scenarios"):
         signal_model.sample_scenarios(1, steps=5, stop_lines=True)

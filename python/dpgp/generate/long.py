@@ -13,7 +13,8 @@ while that pattern is in force; at a change of phase each driver takes up the ne
 where it is, as far as they know the point (a queue that stood at red wants to go at green,
 whatever the time constant of the residual), and by phase, a red signal's stop line
 (:mod:`.stop_lines`, learned from where the recorded queues' fronts stood) stops the vehicles of
-its approach. Vehicles keep moving across a switch: the rollout
+its approach, and the fields' means are raised to the recorded free speeds (:mod:`.free_speeds`):
+queues come from the stop lines and car-following, not from a slow mean. Vehicles keep moving across a switch: the rollout
 goes on from where they are, each driver's state carried over (its wish, not its braked or
 pushed velocity), with the residual dynamics and interactions of :mod:`.motion` under the new
 pattern's field, followed only as far as that field has data where the vehicle is (a pattern's
@@ -40,6 +41,7 @@ from .._validate import real_number
 from ..data.timeorder import time_order
 from ..exceptions import InvalidInputError
 from ..gp.fitted import FittedPatterns
+from .free_speeds import learn_free_speeds
 from .motion import consecutive_pairs, motion_model
 from .rollout import motion_rollouts
 from .stop_lines import learn_stop_lines
@@ -286,6 +288,7 @@ def sample_long_scenarios(
     phases: Any = None,
     phase_fields: str = "together",
     stop_lines: bool = True,
+    free_speeds: bool = True,
 ) -> list[LongScenario]:
     """``n`` :class:`LongScenario` of ``duration`` seconds; see the module's description.
     ``phases`` (:class:`dpgp.evaluate.phases.Phases`): switch by phase (:class:`PhaseSchedule`),
@@ -294,7 +297,9 @@ def sample_long_scenarios(
     the phase and by what it knows where the vehicle is; the core's ``MixtureField``), vehicles
     enter where the phase's did, and the pattern recorded per step is the phase's largest; ``"in
     turn"``, its patterns follow one another as inside its recorded runs. ``stop_lines``: by phase,
-    vehicles stop at the red signals' stop lines (:func:`.stop_lines.learn_stop_lines`)."""
+    vehicles stop at the red signals' stop lines (:func:`.stop_lines.learn_stop_lines`);
+    ``free_speeds``: with them, each field is raised to the recorded free speeds where it is
+    slower (:func:`.free_speeds.learn_free_speeds`)."""
     if phase_fields not in ("together", "in turn"):
         raise InvalidInputError(f"phase_fields must be 'together' or 'in turn', got {phase_fields!r}")
     for name, value in (("duration", duration), ("block", block)):
@@ -315,6 +320,7 @@ def sample_long_scenarios(
     motion = motion_model(fit)
     area = learn_area(fit, lane_scale(motion))
     lines = learn_stop_lines(fit, phases.labels, phases.n_phases, motion) if phases is not None and stop_lines else None
+    free = learn_free_speeds(fit, lane_scale(motion), motion) if lines is not None and free_speeds else None
     rng = np.random.default_rng(seed)
     weights = np.asarray(fit.weights, dtype=np.float64)
     out = []
@@ -344,6 +350,7 @@ def sample_long_scenarios(
                     drivers=None if drivers is None else [drivers], support=True,
                     mixtures=[mixtures[schedule.phase]] if together else None, renew=renew,
                     stops=None if lines is None else [lines.in_force(schedule.phase)],
+                    free_speeds=None if free is None else free.core(),
                 )[0]  # fmt: skip
                 on_road = np.stack([area.contains(sim.positions[j]) for j in range(m + 1)])
                 left_area = np.logical_or.accumulate(~on_road & sim.in_roi, axis=0)  # dropped from there on

@@ -735,7 +735,11 @@ class DPGP:
         from ..generate.motion import motion_model
         from ..generate.stop_lines import learn_stop_lines
 
-        ph = self.phases(phases) if isinstance(phases, (str, int, np.integer)) else phases
+        ph = (
+            self.phases(phases if isinstance(phases, str) else int(phases))
+            if isinstance(phases, (str, int, np.integer))
+            else phases
+        )
         fit = self._fitted()
         return learn_stop_lines(fit, ph.labels, ph.n_phases, motion_model(fit))
 
@@ -886,7 +890,9 @@ class DPGP:
         (:mod:`dpgp.generate.long`); ``dynamics=True`` there means the default interactive motion.
         ``phases``: switch pattern by phase (:meth:`phases`; a number of phases, ``"auto"``, or a
         :class:`dpgp.evaluate.phases.Phases`), else pattern by pattern; by phase, vehicles stop at
-        the red signals' stop lines (:meth:`stop_lines`; ``stop_lines=False``: not).
+        the red signals' stop lines (:meth:`stop_lines`; ``stop_lines=False``: not) and drive at
+        the recorded free speeds where the fields are slower (``free_speeds=False``: not;
+        :mod:`dpgp.generate.free_speeds`).
         Returns a list of :class:`dpgp.generate.long.LongScenario`."""
         if options.get("duration") is not None:
             from ..generate.long import sample_long_scenarios
@@ -901,7 +907,7 @@ class DPGP:
         options.pop("duration", None)
         from ..generate.scenarios import sample_scenarios
 
-        for name in ("phases", "phase_fields", "stop_lines"):
+        for name in ("phases", "phase_fields", "stop_lines", "free_speeds"):
             if options.pop(name, None) is not None:
                 raise InvalidInputError(f"{name}= applies to long scenarios (duration=...)")
         return sample_scenarios(self._fitted(), n, steps, pattern, seed, **options)

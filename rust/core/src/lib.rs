@@ -20,10 +20,11 @@
 //   6. correlation                             (exact or reduced: the choice of the two)
 //   7. pattern, pattern_model, proposal        (a pattern's sufficient state; the model types)
 //   8. gibbs (+ noise, split_merge), simulate  (the sampler; rollouts)
-//   9. placement, motion                       (scene generation over simulate)
+//   9. placement, motion, free_speed           (scene generation over simulate)
 pub mod correlation;
 pub mod error;
 pub mod frame;
+pub mod free_speed;
 pub mod gp;
 pub mod kernel;
 pub mod linalg;

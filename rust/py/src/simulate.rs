@@ -1,7 +1,9 @@
 //! Rollouts of vehicles through a fitted pattern (`dpgp.simulation` wraps these), and through an
 //! affine field with a known solution (for checking the integrator from Python).
 
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3,
+};
 use pyo3::prelude::*;
 use rayon::prelude::*;
 
@@ -9,6 +11,7 @@ use crate::convert::{pairs, to_numpy};
 use crate::errors::{CoreError, CoreResult};
 use crate::sampler::{PySampler, pattern_at};
 use dpgp_core::Error;
+use dpgp_core::free_speed::{AtFreeSpeed, FreeSpeeds, SECTORS};
 use dpgp_core::gibbs::Sampler;
 use dpgp_core::kernel::Point;
 use dpgp_core::motion::{Carried, MOTION_FIELDS, Motion, Stop, drive, drive_on};
@@ -181,10 +184,12 @@ fn check_seeds(seeds: &Option<Vec<u64>>, n: usize) -> CoreResult<()> {
 /// (slot, weight) pairs whose fields together ([`MixtureField`], with support) replace
 /// `slots[i]`'s (whose motion row still applies); `renew`: the continued drivers take up the
 /// field at the start ([`Carried`]); `stops[i]`: the red stop lines `(x, y, heading x, heading y)`
-/// in force in rollout `i` ([`Stop`]). Returns what [`rollouts`] returns and each vehicle's driver
+/// in force in rollout `i` ([`Stop`]); `free_speeds`: `(origin x, origin y, cell, speeds)`, the
+/// speeds `(nx, ny, 8)` by cell and heading sector (NaN: none), to which each field is raised
+/// ([`AtFreeSpeed`]). Returns what [`rollouts`] returns and each vehicle's driver
 /// state after the last step (rows as `start`).
 #[pyfunction]
-#[pyo3(signature = (sampler, slots, start, velocities, offsets, motion, dt, steps, roi=None, seeds=None, low_data=None, drivers=None, support=false, mixtures=None, renew=false, stops=None))]
+#[pyo3(signature = (sampler, slots, start, velocities, offsets, motion, dt, steps, roi=None, seeds=None, low_data=None, drivers=None, support=false, mixtures=None, renew=false, stops=None, free_speeds=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn motion_rollouts<'py>(
     py: Python<'py>,
@@ -204,6 +209,7 @@ pub fn motion_rollouts<'py>(
     mixtures: Option<Vec<Vec<(usize, f64)>>>,
     renew: bool,
     stops: Option<Vec<Vec<(f64, f64, f64, f64)>>>,
+    free_speeds: Option<(f64, f64, f64, PyReadonlyArray3<'py, f64>)>,
 ) -> PyResult<(
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray2<f64>>,
@@ -246,6 +252,21 @@ pub fn motion_rollouts<'py>(
             .map_err(CoreError)?,
         None => vec![Vec::new(); slots.len()],
     };
+    let free = match &free_speeds {
+        Some((x, y, cell, speeds)) => {
+            let view = speeds.as_array();
+            let (nx, ny, sectors) = view.dim();
+            if sectors != SECTORS {
+                return Err(CoreError(Error::Shape(format!(
+                    "free speeds need {SECTORS} heading sectors, got {sectors}"
+                )))
+                .into());
+            }
+            let values = view.iter().copied().collect();
+            Some(FreeSpeeds::new([*x, *y], *cell, nx, ny, values).map_err(CoreError)?)
+        }
+        None => None,
+    };
     let rollouts = in_parallel(py, &sampler, &slots, |s, p, i| {
         let (a, b) = (offsets[i], offsets[i + 1]);
         let seed = seeds.as_ref().map(|v| v[i]);
@@ -260,6 +281,12 @@ pub fn motion_rollouts<'py>(
             }
             None => Box::new(PatternField::new(p, None, low_data)?.with_support(support)),
         };
+        if let Some(speeds) = free.as_ref() {
+            field = Box::new(AtFreeSpeed {
+                inner: field,
+                speeds,
+            });
+        }
         drive_on(
             &start[a..b],
             Some(&vel[a..b]),
