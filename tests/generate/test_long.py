@@ -185,22 +185,33 @@ def test_a_phase_mixture_keeps_the_patterns_that_count():
     assert len(_mixture(many)) == MIXTURE_MAX and MIXTURE_MIN < 1 / 20
 
 
-def test_the_stages_of_a_cycle_come_from_one_recorded_cycle_stretched_to_the_mean_cycle(model):
+def test_a_cycle_splits_as_the_mean_cycle_or_as_one_recorded_cycle_stretched_to_the_mean(model):
     from dataclasses import replace
 
     # frames: cycles of 16 and 12, each stretched to their mean, 14, as its stages split it
     recorded = np.array([[6, 10], [10, 2]])
     ph = replace(model.phases(2), cycle=True, cycles=recorded)
-    (s,) = model.sample_scenarios(1, duration=90.0, seed=5, dynamics=True, phases=ph)
-    runs_at = np.flatnonzero(np.r_[True, np.diff(s.phases) != 0])
-    runs = np.diff(np.r_[runs_at, len(s.phases)])
-    runs[0] -= 1  # the first step is t = 0
-    stage = s.phases[runs_at]
-    pairs = [(runs[i], runs[i + 1]) for i in range(len(runs) - 2) if stage[i] == 0]  # the last is cut
+    (s,) = model.sample_scenarios(1, duration=90.0, seed=5, dynamics=True, phases=ph, cycle_splits="recorded")
+    pairs, runs, stage = _stage_pairs(s)
     assert len(pairs) >= 4
     assert set(pairs) <= {(5, 9), (12, 2)} and len(set(pairs)) == 2  # 6 * 14 / 16 = 5.25 -> 5, ...
     if stage[0] == 1:  # a scenario that starts mid-cycle takes its stage from a recorded cycle too
         assert runs[0] in (9, 2)
+    # by default every cycle splits as the recorded cycles do on average (a fixed-time signal)
+    (s,) = model.sample_scenarios(1, duration=90.0, seed=5, dynamics=True, phases=ph)
+    pairs, runs, stage = _stage_pairs(s)
+    assert len(pairs) >= 4 and set(pairs) == {(8, 6)}
+    with pytest.raises(InvalidInputError, match="cycle_splits"):
+        model.sample_scenarios(1, duration=10.0, phases=ph, cycle_splits="drawn")
+
+
+def _stage_pairs(s):
+    """The complete cycles' (stage 0, stage 1) durations in steps, every run's length, each run's stage."""
+    runs_at = np.flatnonzero(np.r_[True, np.diff(s.phases) != 0])
+    runs = np.diff(np.r_[runs_at, len(s.phases)])
+    runs[0] -= 1  # the first step is t = 0
+    stage = s.phases[runs_at]
+    return [(runs[i], runs[i + 1]) for i in range(len(runs) - 2) if stage[i] == 0], runs, stage  # the last is cut
 
 
 def test_drivers_take_up_the_fields_of_a_new_phase_when_it_begins(model, monkeypatch):

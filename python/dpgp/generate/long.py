@@ -201,26 +201,32 @@ class PatternSchedule:
 
 class PhaseSchedule:
     """Patterns by phase (:class:`dpgp.evaluate.phases.Phases`): a phase is in force for a
-    duration drawn from its recorded runs (phases in a cycle: the stages of one recorded cycle
-    together, stretched to the recorded cycles' mean length), the next phase by the recorded
+    duration drawn from its recorded runs (phases in a cycle: ``splits="mean"``, every cycle's
+    stages last the recorded cycles' mean stage durations, a fixed-time signal's one split; the
+    decoded cycles' splits vary where traffic places the stage boundaries, by 5-6 s a stage on the
+    SUMO junction; ``"recorded"``, the stages of one recorded cycle together, stretched to the
+    recorded cycles' mean length), the next phase by the recorded
     phase changes; within a phase its patterns follow one another as inside its recorded runs
     (the pattern starting a run of the phase, the changes and the pattern runs of its frames
     only), so that the fields in force stay those of one regime."""
 
-    def __init__(self, phases: Any, dt: float) -> None:
+    def __init__(self, phases: Any, dt: float, splits: str = "mean") -> None:
         self.ph, self.dt = phases, dt
         self.phase_left = 0
         self.cycles = phases.cycles if phases.cycles is not None and len(phases.cycles) else None
-        if self.cycles is not None:  # the recorded cycles' mean length, in steps
+        if self.cycles is not None:
+            if splits == "mean":  # a fixed-time signal: one cycle, one split
+                self.cycles = self.cycles.mean(axis=0, keepdims=True)
+            # the recorded cycles' mean length, in steps
             self.cycle_steps = self.cycles.sum(axis=1).mean() * phases.dt / dt
         self.this_cycle: np.ndarray | None = None
 
     def _stage_steps(self, p: int, rng: np.random.Generator) -> int:
-        """A phase's duration: in a cycle, its stage of one recorded cycle, drawn when the cycle
-        starts (or the scenario does), so that the stages of a cycle come from one recorded cycle,
-        which is stretched to the recorded cycles' mean length (a fixed-time signal's cycle has
-        one length; its decoded cycles vary where the traffic places their boundaries); else
-        drawn on its own from the phase's recorded runs."""
+        """A phase's duration: in a cycle, its stage of the mean cycle, or of one recorded cycle
+        drawn when the cycle starts (or the scenario does), so that the stages of a cycle come
+        from one recorded cycle, which is stretched to the recorded cycles' mean length (a
+        fixed-time signal's cycle has one length; its decoded cycles vary where the traffic
+        places their boundaries); else drawn on its own from the phase's recorded runs."""
         if self.cycles is None:
             return _dwell_steps(self.ph.transitions.dwell(p), self.dt, rng)
         if p == 0 or self.this_cycle is None:
@@ -287,6 +293,7 @@ def sample_long_scenarios(
     dynamics: str = "interactive",
     phases: Any = None,
     phase_fields: str = "together",
+    cycle_splits: str = "mean",
     stop_lines: bool = True,
     free_speeds: bool = True,
 ) -> list[LongScenario]:
@@ -296,12 +303,16 @@ def sample_long_scenarios(
     phase's field is its patterns' fields together (each mean weighted by the pattern's share of
     the phase and by what it knows where the vehicle is; the core's ``MixtureField``), vehicles
     enter where the phase's did, and the pattern recorded per step is the phase's largest; ``"in
-    turn"``, its patterns follow one another as inside its recorded runs. ``stop_lines``: by phase,
+    turn"``, its patterns follow one another as inside its recorded runs. ``cycle_splits``: phases
+    in a cycle last the recorded cycles' mean stage durations (``"mean"``) or, cycle by cycle, one
+    recorded cycle's (``"recorded"``; :class:`PhaseSchedule`). ``stop_lines``: by phase,
     vehicles stop at the red signals' stop lines (:func:`.stop_lines.learn_stop_lines`);
     ``free_speeds``: with them, each field is raised to the recorded free speeds where it is
     slower (:func:`.free_speeds.learn_free_speeds`)."""
     if phase_fields not in ("together", "in turn"):
         raise InvalidInputError(f"phase_fields must be 'together' or 'in turn', got {phase_fields!r}")
+    if cycle_splits not in ("mean", "recorded"):
+        raise InvalidInputError(f"cycle_splits must be 'mean' or 'recorded', got {cycle_splits!r}")
     for name, value in (("duration", duration), ("block", block)):
         seconds = real_number(name, value)
         if not (np.isfinite(seconds) and seconds > 0):
@@ -325,7 +336,9 @@ def sample_long_scenarios(
     weights = np.asarray(fit.weights, dtype=np.float64)
     out = []
     for _ in range(int(n)):
-        schedule = PhaseSchedule(phases, dt) if phases is not None else PatternSchedule(transitions, weights)
+        schedule = (
+            PhaseSchedule(phases, dt, cycle_splits) if phases is not None else PatternSchedule(transitions, weights)
+        )
         k, left = schedule.first(rng)
         if together:
             k, left = _largest_in_force(schedule, largest)

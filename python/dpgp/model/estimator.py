@@ -907,7 +907,7 @@ class DPGP:
         options.pop("duration", None)
         from ..generate.scenarios import sample_scenarios
 
-        for name in ("phases", "phase_fields", "stop_lines", "free_speeds"):
+        for name in ("phases", "phase_fields", "cycle_splits", "stop_lines", "free_speeds"):
             if options.pop(name, None) is not None:
                 raise InvalidInputError(f"{name}= applies to long scenarios (duration=...)")
         return sample_scenarios(self._fitted(), n, steps, pattern, seed, **options)
