@@ -11,7 +11,7 @@ import pytest
 
 import dpgp
 from dpgp.generate.free_speeds import learn_free_speeds
-from dpgp.generate.stop_lines import learn_stop_lines
+from dpgp.generate.stop_lines import learn_stop_lines, red_in
 
 DT, CYCLE, SPEED, JAM = 0.5, 40.0, 8.0, 7.5
 VEHICLES = SimpleNamespace(agents="vehicles", jam=JAM, lateral=1.8)
@@ -93,6 +93,14 @@ def test_the_lines_stand_where_the_queue_fronts_stood_and_are_red_where_vehicles
     assert lines.in_force(0) == [(45.0, -5.0, 0.0, 1.0)]
     assert lines.in_force(1) == [(40.0, 0.0, 1.0, 0.0)]
     assert "red in phases [1]" in lines.summary()
+
+
+def test_a_line_is_red_where_enough_vehicles_stopped_and_fewer_than_half_passed():
+    passes = np.array([0, 0, 2, 3, 10, 0])
+    stops = np.array([1, 2, 4, 3, 9, 3])
+    # (0, 1) and (0, 2): too few stopped; (2, 4): 3/8; (3, 3): 4/8, not fewer than half;
+    # (10, 9): 11/21; (0, 3): 1/5
+    np.testing.assert_array_equal(red_in(passes, stops), [False, False, True, False, False, True])
 
 
 def test_without_evidence_of_stopping_a_line_is_green_and_pedestrians_have_none(frames):

@@ -16,8 +16,8 @@ the recording shows it:
    median position, heading their mean heading;
 3. a line is *red* in a phase where the vehicles that reach it mostly stop there: of the track
    steps that cross it (passes) and the vehicles that become its queue's front (arrivals that
-   stop), in that phase's frames, fewer than half pass (counted with one of each added, so a
-   phase without evidence is green).
+   stop), in that phase's frames, at least :data:`MIN_STOPS` stop and fewer than half pass
+   (counted with one of each added).
 
 The core treats a red line as a standing vehicle for the vehicles of its approach (``motion.rs``:
 ``Stop``); a vehicle too close to stop clears it."""
@@ -34,6 +34,9 @@ from ..gp.fitted import FittedPatterns
 
 #: a stop line needs at least this many queue-front vehicle-frames (and 1/20 of the largest line's)
 MIN_FRONTS = 10
+#: a line is red in a phase only where at least this many vehicles stopped at it (on Peachtree's
+#: small window, one vehicle that stopped and none that passed made a line red for a phase)
+MIN_STOPS = 3
 _SHARE_OF_LARGEST = 0.05
 _STAND = 0.05  # standing: slower than this share of the 90th percentile speed
 _SECTORS = 8
@@ -189,8 +192,14 @@ def learn_stop_lines(fit: FittedPatterns, labels: np.ndarray, n_phases: int, mot
         crossed &= np.nan_to_num(head[a] @ e) >= _SAME_WAY
         passes[:, i] = np.bincount(phase[a[crossed]], minlength=n_phases)
         stops[:, i] = np.bincount(phase[g[arrived[g]]], minlength=n_phases)
-    red = (passes + 1) / (passes + stops + 2) < 0.5
-    return StopLines(at, heading, red, passes, stops)
+    return StopLines(at, heading, red_in(passes, stops), passes, stops)
 
 
-__all__ = ["StopLines", "learn_stop_lines", "MIN_FRONTS"]
+def red_in(passes: np.ndarray, stops: np.ndarray) -> np.ndarray:
+    """Where a line is red: at least :data:`MIN_STOPS` vehicles stopped there, and fewer than half
+    of those that reached it passed (counted with one of each added)."""
+    passes, stops = np.asarray(passes), np.asarray(stops)
+    return (stops >= MIN_STOPS) & ((passes + 1) / (passes + stops + 2) < 0.5)
+
+
+__all__ = ["StopLines", "learn_stop_lines", "red_in", "MIN_FRONTS", "MIN_STOPS"]
