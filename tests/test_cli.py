@@ -136,7 +136,18 @@ def test_generate_long_scenarios(tmp_path, capsys):
     df = pd.read_csv(out)
     assert list(df.columns) == ["scenario", "vehicle", "t", "x", "y", "vx", "vy", "pattern", "phase"]
     assert set(df["scenario"]) == {0, 1} and df["t"].max() <= 10.0 and set(df["phase"]) <= {0, 1}
-    assert "long scenario(s) of 10 s" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "long scenario(s) of 10 s" in said and "stop line(s) learned from the recorded queues" in said
+    # without the stop lines and free speeds nothing is said of them; they need phases
+    free = tmp_path / "free.csv"
+    args = ["generate", str(model), "-n", "2", "-o", str(free), "--duration", "10", "--phases", "2", "--seed", "3"]
+    assert main([*args, "--no-stop-lines"]) == 0
+    assert "stop line" not in capsys.readouterr().out
+    assert (
+        main(["generate", str(model), "-n", "1", "-o", str(tmp_path / "n.csv"), "--duration", "5", "--no-stop-lines"])
+        == 1
+    )
+    assert "--phases" in capsys.readouterr().err
     plain = tmp_path / "plain.csv"
     assert main(["generate", str(model), "-n", "1", "-o", str(plain), "--duration", "5", "--seed", "3"]) == 0
     assert "phase" not in pd.read_csv(plain).columns

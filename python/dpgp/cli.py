@@ -209,10 +209,17 @@ def _generate_long(model: Any, args: argparse.Namespace) -> int:
             raise InvalidInputError("--cycle needs --phases: the number of stages in the cycle")
         # a fixed-time signal's stages: in their order, with durations, from what frames say of every pattern
         phases = model.phases(phases, durations=True, evidence="likelihood", cycle=True)
+    if args.no_stop_lines and phases is None:
+        raise InvalidInputError("--no-stop-lines applies to long scenarios by phases: give --phases too")
     scen = model.sample_scenarios(
         args.n, duration=args.duration, seed=args.seed, stochastic=not args.mean, dynamics=args.dynamics or True,
-        phases=phases,
+        phases=phases, stop_lines=not args.no_stop_lines, free_speeds=not args.no_stop_lines,
     )  # fmt: skip
+    if phases is not None and not args.no_stop_lines:
+        lines = model.stop_lines(phases)
+        print(
+            f"{len(lines)} stop line(s) learned from the recorded queues, {int(lines.red.any(axis=0).sum())} red in some phase"
+        )
     out = pd.concat([sc.to_pandas().assign(scenario=i) for i, sc in enumerate(scen)], ignore_index=True)
     cols = ["scenario", "vehicle", "t", "x", "y", "vx", "vy", "pattern"] + (["phase"] if "phase" in out else [])
     from .io._atomic import write_atomic
@@ -440,6 +447,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--phases", help="with --duration: switch by phases (a number of phases, or 'auto')")
     p.add_argument("--cycle", action="store_true", help="with --phases: the phases are the stages of a fixed cycle (a "
                    "fixed-time signal), fitted with their durations to each frame's likelihood under every pattern")  # fmt: skip
+    p.add_argument("--no-stop-lines", action="store_true", help="with --phases: vehicles neither stop at the stop "
+                   "lines learned from the recorded queues nor drive at the recorded free speeds (the fields' "
+                   "speeds instead)")  # fmt: skip
     p.set_defaults(func=_generate)
 
     p = sub.add_parser("evaluate", help="score a model on held-out data against baselines", formatter_class=fmt,
