@@ -11,7 +11,7 @@ import pytest
 
 import dpgp
 from dpgp.generate.free_speeds import learn_free_speeds
-from dpgp.generate.stop_lines import learn_stop_lines, red_in
+from dpgp.generate.stop_lines import StopLines, learn_stop_lines, red_in
 
 DT, CYCLE, SPEED, JAM = 0.5, 40.0, 8.0, 7.5
 VEHICLES = SimpleNamespace(agents="vehicles", jam=JAM, lateral=1.8)
@@ -93,6 +93,25 @@ def test_the_lines_stand_where_the_queue_fronts_stood_and_are_red_where_vehicles
     assert lines.in_force(0) == [(45.0, -5.0, 0.0, 1.0)]
     assert lines.in_force(1) == [(40.0, 0.0, 1.0, 0.0)]
     assert "red in phases [1]" in lines.summary()
+
+
+def test_phases_with_the_same_red_lines_are_one_signal_phase(signal_model):
+    z = np.zeros((4, 3), dtype=np.int64)
+    four = StopLines(
+        np.zeros((3, 2)),
+        np.tile([1.0, 0.0], (3, 1)),
+        np.array([[1, 0, 1], [0, 1, 0], [0, 1, 0], [1, 0, 1]], bool),
+        z,
+        z,
+    )
+    np.testing.assert_array_equal(four.signal_groups(), [0, 1, 1, 0])
+    assert "signal phases by their red lines: [0, 1, 1, 0]" in four.summary()
+    # on the synthetic signal (40 s cycle, 20 s each way): two signal phases of about 20 s
+    signal = signal_model.signal_phases(2)
+    assert signal.counts.shape == (2, 2)
+    for k in range(2):
+        dwell = signal.dwell(k, censored=False)
+        assert len(dwell) >= 5 and 15.0 <= np.mean(dwell) <= 25.0, dwell
 
 
 def test_a_line_is_red_where_enough_vehicles_stopped_and_fewer_than_half_passed():

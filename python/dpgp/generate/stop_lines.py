@@ -64,8 +64,15 @@ class StopLines:
         at, e = self.at.astype(float), self.heading.astype(float)
         return [(float(at[i, 0]), float(at[i, 1]), float(e[i, 0]), float(e[i, 1])) for i in on]
 
+    def signal_groups(self) -> np.ndarray:
+        """Each phase's signal phase: phases with the same red lines share one (numbered in order
+        of first appearance). On the SUMO junction its 4 stages pair into the signal's 2 phases."""
+        keys = [tuple(np.flatnonzero(row)) for row in self.red]
+        ids = {k: i for i, k in enumerate(dict.fromkeys(keys))}
+        return np.array([ids[k] for k in keys], dtype=np.int64)
+
     def summary(self) -> str:
-        lines = [f"{len(self)} stop lines"]
+        lines = [f"{len(self)} stop lines; signal phases by their red lines: {self.signal_groups().tolist()}"]
         for i in range(len(self)):
             red = np.flatnonzero(self.red[:, i]).tolist()
             lines.append(

@@ -743,6 +743,22 @@ class DPGP:
         fit = self._fitted()
         return learn_stop_lines(fit, ph.labels, ph.n_phases, motion_model(fit))
 
+    def signal_phases(self, phases: Any = 2) -> Any:
+        """The signal phases of ``phases`` (as :meth:`stop_lines` takes them): the phases with the
+        same red stop lines merged into one (:meth:`dpgp.generate.stop_lines.StopLines.signal_groups`),
+        and their transitions and dwell times over the training frames, as
+        :func:`dpgp.evaluate.transitions.count_transitions` returns them (``mean_dwell()``,
+        ``dwell(k)``). Where no line is red, every phase is one signal phase."""
+        from ..evaluate.transitions import count_transitions
+
+        ph = (
+            self.phases(phases if isinstance(phases, str) else int(phases))
+            if isinstance(phases, (str, int, np.integer))
+            else phases
+        )
+        groups = self.stop_lines(ph).signal_groups()
+        return count_transitions(groups[ph.labels], self.frames_, int(groups.max()) + 1)
+
     def training_log_likelihoods(self) -> np.ndarray:
         """(N, K): ``log p(V_i | X_i, D_k)`` of each training frame's velocities under each pattern
         (``labels_`` order), its own pattern's without the frame (the sweep's leave-one-out
