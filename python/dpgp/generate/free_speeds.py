@@ -16,11 +16,10 @@ from typing import Any
 import numpy as np
 
 from ..gp.fitted import FittedPatterns
+from .stop_lines import SECTORS, STAND_SHARE, heading_sector
 
 MIN_MOVING = 10  # moving vehicle-frames a cell and heading need for a free speed
 QUANTILE = 0.85
-SECTORS = 8  # the core's free_speed::SECTORS
-_STAND = 0.05  # moving: at least this share of the 90th percentile speed (as stop_lines)
 
 
 @dataclass(frozen=True, eq=False)
@@ -41,16 +40,12 @@ class FreeSpeeds:
         NaN where none was recorded."""
         xy, direction = np.atleast_2d(xy), np.atleast_2d(direction)
         ij = np.floor((xy - self.origin) / self.cell).astype(np.int64)
-        sector = _sector(direction)
+        sector = heading_sector(direction)
         n = np.array(self.speeds.shape[:2])
         ok = np.all((ij >= 0) & (ij < n), axis=1)
         out = np.full(len(xy), np.nan)
         out[ok] = self.speeds[ij[ok, 0], ij[ok, 1], sector[ok]]
         return out
-
-
-def _sector(direction: np.ndarray) -> np.ndarray:
-    return np.rint(np.arctan2(direction[:, 1], direction[:, 0]) / (2 * np.pi / SECTORS)).astype(np.int64) % SECTORS
 
 
 def learn_free_speeds(fit: FittedPatterns, cell: float, motion: Any) -> FreeSpeeds | None:
@@ -60,11 +55,11 @@ def learn_free_speeds(fit: FittedPatterns, cell: float, motion: Any) -> FreeSpee
         return None
     xy, v = np.asarray(fit.frames.xy, dtype=np.float64), np.asarray(fit.frames.v, dtype=np.float64)
     speed = np.hypot(*v.T)
-    moving = speed >= _STAND * np.quantile(speed, 0.9)
+    moving = speed >= STAND_SHARE * np.quantile(speed, 0.9)
     origin = xy.min(axis=0) - cell
     ij = np.floor((xy[moving] - origin) / cell).astype(np.int64)
     shape = (*(ij.max(axis=0) + 2), SECTORS) if len(ij) else (1, 1, SECTORS)
-    flat = np.ravel_multi_index((ij[:, 0], ij[:, 1], _sector(v[moving])), shape)
+    flat = np.ravel_multi_index((ij[:, 0], ij[:, 1], heading_sector(v[moving])), shape)
     speeds = np.full(int(np.prod(shape)), np.nan)
     order = np.argsort(flat, kind="stable")
     keys, starts, counts = np.unique(flat[order], return_index=True, return_counts=True)

@@ -38,8 +38,8 @@ MIN_FRONTS = 10
 #: small window, one vehicle that stopped and none that passed made a line red for a phase)
 MIN_STOPS = 3
 _SHARE_OF_LARGEST = 0.05
-_STAND = 0.05  # standing: slower than this share of the 90th percentile speed
-_SECTORS = 8
+STAND_SHARE = 0.05  # standing: slower than this share of the 90th percentile speed
+SECTORS = 8  # heading sectors (the core's free_speed::SECTORS)
 _SAME_WAY = 0.5  # cos 60°: the heading within which a vehicle belongs to a line's approach
 
 
@@ -81,6 +81,12 @@ class StopLines:
                 f"stopped {self.stops[:, i].tolist()}"
             )
         return "\n".join(lines)
+
+
+def heading_sector(direction: np.ndarray) -> np.ndarray:
+    """The heading sector (of :data:`SECTORS`; sector ``i`` centred on the angle ``i · 2π / 8``)
+    of each direction (n, 2)."""
+    return np.rint(np.arctan2(direction[:, 1], direction[:, 0]) / (2 * np.pi / SECTORS)).astype(np.int64) % SECTORS
 
 
 def _empty(n_phases: int) -> StopLines:
@@ -133,7 +139,7 @@ def _cluster(xy: np.ndarray, head: np.ndarray, fronts: np.ndarray, spacing: floa
     """The fronts grouped by lane cell and heading sector, cells merged (largest first) into a line
     within the queues' ``spacing`` along and a corridor across."""
     f = np.flatnonzero(fronts)
-    sector = np.rint(np.arctan2(head[f, 1], head[f, 0]) / (2 * np.pi / _SECTORS)).astype(np.int64) % _SECTORS
+    sector = heading_sector(head[f])
     cell = np.floor(xy[f] / (2 * lateral)).astype(np.int64)
     keys, inverse = np.unique(np.c_[cell, sector], axis=0, return_inverse=True)
     inverse = inverse.ravel()
@@ -142,7 +148,7 @@ def _cluster(xy: np.ndarray, head: np.ndarray, fronts: np.ndarray, spacing: floa
         members = f[inverse == c]
         centre = xy[members].mean(axis=0)
         s = int(keys[c, 2])
-        e = np.array([np.cos(s * 2 * np.pi / _SECTORS), np.sin(s * 2 * np.pi / _SECTORS)])
+        e = np.array([np.cos(s * 2 * np.pi / SECTORS), np.sin(s * 2 * np.pi / SECTORS)])
         for sec, at, parts in groups:
             d = at - centre
             if sec == s and abs(d @ e) < spacing and abs(d[0] * e[1] - d[1] * e[0]) < lateral:
@@ -165,7 +171,7 @@ def learn_stop_lines(fit: FittedPatterns, labels: np.ndarray, n_phases: int, mot
     rows = np.asarray(frames.frame_of_row)
     order = time_order(frames)
     speed = np.hypot(*v.T)
-    standing = speed < _STAND * np.quantile(speed, 0.9)
+    standing = speed < STAND_SHARE * np.quantile(speed, 0.9)
     key = np.lexsort((order.time[rows], frames.tracks))
     tracks = np.asarray(frames.tracks)[key]
     new_track = np.r_[True, tracks[1:] != tracks[:-1]]
