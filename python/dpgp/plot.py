@@ -433,6 +433,44 @@ def phases(model: DPGP, n_phases: Any = 2, bins: int = 30) -> Figure:
     return fig
 
 
+def stop_lines(model: DPGP, phases: Any = 2, ax: Axes | None = None, max_points: int = 20000) -> Axes:
+    """The red signals' stop lines that long scenarios by ``phases`` stop vehicles at
+    (:meth:`dpgp.DPGP.stop_lines`; a number of phases, ``"auto"``, or phases already fitted) over
+    the recorded positions (grey; standing vehicles darker): each line a bar across its lane with a
+    tick in its traffic's direction, coloured by the signal phase in which it is red (the stages
+    with the same red lines, :meth:`dpgp.DPGP.signal_phases`); never red: dashed grey."""
+    lines = model.stop_lines(phases)
+    roi = default_roi(model)
+    ax = _spatial_axes(ax, roi)
+    xy, v = np.asarray(model.frames_.xy), np.asarray(model.frames_.v)
+    keep = np.random.default_rng(0).permutation(len(xy))[:max_points]
+    standing = np.hypot(*v[keep].T) < 0.05 * np.quantile(np.hypot(*v.T), 0.9) if len(v) else np.zeros(0, bool)
+    for mask, grey in ((~standing, "#d0d0d0"), (standing, "#808080")):
+        pts = xy[keep][mask]
+        ax.scatter(pts[:, 0], pts[:, 1], s=1, c=grey, lw=0)
+    groups = lines.signal_groups()
+    from .generate.motion import motion_model
+
+    lateral = float(motion_model(model._fitted()).lateral)
+    half = lateral if np.isfinite(lateral) and lateral > 0 else 0.02 * (roi[1] - roi[0])
+    seen: set[str] = set()
+    for i in range(len(lines)):
+        e = lines.heading[i]
+        n = np.array([-e[1], e[0]])
+        red = np.flatnonzero(lines.red[:, i])
+        colour, style = (f"C{int(groups[red[0]]) % 10}", "-") if len(red) else ("#808080", "--")
+        label = f"red in phases {red.tolist()}" if len(red) else "never red"
+        bar = np.array([lines.at[i] - half * n, lines.at[i] + half * n])
+        ax.plot(*bar.T, style, color=colour, lw=2.5, gid="stop line", label=None if label in seen else label)
+        ax.plot(*np.array([lines.at[i], lines.at[i] + half * e]).T, "-", color=colour, lw=1.2)
+        seen.add(label)
+    _frame_roi(ax, roi)
+    ax.set_title(f"{len(lines)} stop lines; signal phases by their red lines: {groups.tolist()}", fontsize="small")
+    if len(lines):
+        ax.legend(fontsize="small", loc="upper right")
+    return ax
+
+
 def chain_trace(chains: Any) -> Figure:
     """Log joint, K and α per sweep, one line per chain, the burn-in shaded; the title says
     why the run stopped."""
@@ -510,5 +548,5 @@ def rhat(chains: Any, ax: Axes | None = None, points: int = 30) -> Axes:
 
 __all__ = [
     "weights", "velocity_field", "frames", "simulation", "trace", "animate", "field_grid",
-    "chain_trace", "similarity", "rhat", "write_figures", "FIGURES", "transitions", "phases",
+    "chain_trace", "similarity", "rhat", "write_figures", "FIGURES", "transitions", "phases", "stop_lines",
 ]  # fmt: skip

@@ -114,6 +114,19 @@ def test_phases_with_the_same_red_lines_are_one_signal_phase(signal_model):
         assert len(dwell) >= 5 and 15.0 <= np.mean(dwell) <= 25.0, dwell
 
 
+def test_the_plot_draws_every_line_in_its_signal_phases_colour(signal_model):
+    ax = dpgp.plot.stop_lines(signal_model, 2)
+    lines = signal_model.stop_lines(2)
+    bars = [a for a in ax.lines if a.get_gid() == "stop line"]
+    assert len(bars) == len(lines) == 2
+    groups = lines.signal_groups()
+    for bar, i in zip(bars, range(len(lines))):
+        (red,) = np.flatnonzero(lines.red[:, i])
+        assert bar.get_color() == f"C{groups[red]}"
+        np.testing.assert_allclose(np.mean(bar.get_xydata(), axis=0), lines.at[i])  # centred on the line
+    assert "2 stop lines" in ax.get_title()
+
+
 def test_a_line_is_red_where_enough_vehicles_stopped_and_fewer_than_half_passed():
     passes = np.array([0, 0, 2, 3, 10, 0])
     stops = np.array([1, 2, 4, 3, 9, 3])
