@@ -439,17 +439,19 @@ def stop_lines(model: DPGP, phases: Any = 2, ax: Axes | None = None, max_points:
     the recorded positions (grey; standing vehicles darker): each line a bar across its lane with a
     tick in its traffic's direction, coloured by the signal phase in which it is red (the stages
     with the same red lines, :meth:`dpgp.DPGP.signal_phases`); never red: dashed grey."""
+    from .generate.motion import motion_model
+    from .generate.stop_lines import STAND_SHARE
+
     lines = model.stop_lines(phases)
     roi = default_roi(model)
     ax = _spatial_axes(ax, roi)
     xy, v = np.asarray(model.frames_.xy), np.asarray(model.frames_.v)
     keep = np.random.default_rng(0).permutation(len(xy))[:max_points]
-    standing = np.hypot(*v[keep].T) < 0.05 * np.quantile(np.hypot(*v.T), 0.9) if len(v) else np.zeros(0, bool)
+    standing = np.hypot(*v[keep].T) < STAND_SHARE * np.quantile(np.hypot(*v.T), 0.9) if len(v) else np.zeros(0, bool)
     for mask, grey in ((~standing, "#d0d0d0"), (standing, "#808080")):
         pts = xy[keep][mask]
         ax.scatter(pts[:, 0], pts[:, 1], s=1, c=grey, lw=0)
     groups = lines.signal_groups()
-    from .generate.motion import motion_model
 
     lateral = float(motion_model(model._fitted()).lateral)
     half = lateral if np.isfinite(lateral) and lateral > 0 else 0.02 * (roi[1] - roi[0])

@@ -332,6 +332,9 @@ def sample_long_scenarios(
     area = learn_area(fit, lane_scale(motion))
     lines = learn_stop_lines(fit, phases.labels, phases.n_phases, motion) if phases is not None and stop_lines else None
     free = learn_free_speeds(fit, lane_scale(motion), motion) if lines is not None and free_speeds else None
+    # what the core takes, once: each phase's red lines, the free-speed map
+    red_lines = None if lines is None else [lines.in_force(p) for p in range(phases.n_phases)]
+    free_map = None if free is None else free.core()
     rng = np.random.default_rng(seed)
     weights = np.asarray(fit.weights, dtype=np.float64)
     out = []
@@ -362,8 +365,7 @@ def sample_long_scenarios(
                     roi=box, low_data_threshold=None, dynamics=dynamics, motion=motion,
                     drivers=None if drivers is None else [drivers], support=True,
                     mixtures=[mixtures[schedule.phase]] if together else None, renew=renew,
-                    stops=None if lines is None else [lines.in_force(schedule.phase)],
-                    free_speeds=None if free is None else free.core(),
+                    stops=None if red_lines is None else [red_lines[schedule.phase]], free_speeds=free_map,
                 )[0]  # fmt: skip
                 on_road = np.stack([area.contains(sim.positions[j]) for j in range(m + 1)])
                 left_area = np.logical_or.accumulate(~on_road & sim.in_roi, axis=0)  # dropped from there on

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..data.timeorder import time_order
 from ..gp.fitted import FittedPatterns
+from .motion import consecutive_pairs
 
 #: a stop line needs at least this many queue-front vehicle-frames (and 1/20 of the largest line's)
 MIN_FRONTS = 10
@@ -172,9 +173,10 @@ def learn_stop_lines(fit: FittedPatterns, labels: np.ndarray, n_phases: int, mot
     order = time_order(frames)
     speed = np.hypot(*v.T)
     standing = speed < STAND_SHARE * np.quantile(speed, 0.9)
-    key = np.lexsort((order.time[rows], frames.tracks))
-    tracks = np.asarray(frames.tracks)[key]
-    new_track = np.r_[True, tracks[1:] != tracks[:-1]]
+    # rows by recording and track, in time order (a track id may recur in another recording)
+    key = np.lexsort((order.time[rows], frames.tracks, order.scene[rows]))
+    tracks, scenes = np.asarray(frames.tracks)[key], order.scene[rows][key]
+    new_track = np.r_[True, (tracks[1:] != tracks[:-1]) | (scenes[1:] != scenes[:-1])]
     head = _last_heading(v, ~standing, key, new_track)
     near, near_stands = _ahead(xy, head, standing, rows, lateral)
     # the recorded queues' spacing (centre to centre, standing behind standing): the fitted jam
@@ -189,8 +191,8 @@ def learn_stop_lines(fit: FittedPatterns, labels: np.ndarray, n_phases: int, mot
     if not groups:
         return _empty(n_phases)
     phase = np.asarray(labels)[rows]
-    # consecutive rows of one track (a step), and the rows where a vehicle became its queue's front
-    a, b = key[:-1][~new_track[1:]], key[1:][~new_track[1:]]
+    # the track steps, and the rows where a vehicle became its queue's front
+    a, b = consecutive_pairs(frames, order.dt)
     arrived = front.copy()
     arrived[b] &= ~front[a]
     at = np.array([np.median(xy[g], axis=0) for g in groups])

@@ -735,11 +735,7 @@ class DPGP:
         from ..generate.motion import motion_model
         from ..generate.stop_lines import learn_stop_lines
 
-        ph = (
-            self.phases(phases if isinstance(phases, str) else int(phases))
-            if isinstance(phases, (str, int, np.integer))
-            else phases
-        )
+        ph = self._phases_of(phases)
         fit = self._fitted()
         return learn_stop_lines(fit, ph.labels, ph.n_phases, motion_model(fit))
 
@@ -751,13 +747,15 @@ class DPGP:
         ``dwell(k)``). Where no line is red, every phase is one signal phase."""
         from ..evaluate.transitions import count_transitions
 
-        ph = (
-            self.phases(phases if isinstance(phases, str) else int(phases))
-            if isinstance(phases, (str, int, np.integer))
-            else phases
-        )
+        ph = self._phases_of(phases)
         groups = self.stop_lines(ph).signal_groups()
         return count_transitions(groups[ph.labels], self.frames_, int(groups.max()) + 1)
+
+    def _phases_of(self, phases: Any) -> Any:
+        """Phases given as fitted, or as :meth:`phases` takes them (a number, or ``"auto"``)."""
+        if isinstance(phases, str):
+            return self.phases(phases)
+        return self.phases(int(phases)) if isinstance(phases, (int, np.integer)) else phases
 
     def training_log_likelihoods(self) -> np.ndarray:
         """(N, K): ``log p(V_i | X_i, D_k)`` of each training frame's velocities under each pattern
