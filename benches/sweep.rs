@@ -99,6 +99,7 @@ fn bench(c: &mut Criterion) {
         noise_prior: None,
         noise_scope: Default::default(),
         dynamics: None,
+        sampler: Default::default(),
     };
     let mut sampler = Sampler::new(data, settings).unwrap();
     sampler.sweep(&|| false).unwrap();

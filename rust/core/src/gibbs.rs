@@ -28,13 +28,33 @@ use crate::rng::{Phase, stream};
 use crate::slice::slice_step;
 use crate::special::{ln_gamma, ln_gamma_pdf, log_sum_exp};
 
+impl hyper::Refit for Box<dyn PatternModel> {
+    fn params(&self) -> &GpParams {
+        PatternModel::params(self.as_ref())
+    }
+    fn log_marginal(&self) -> f64 {
+        PatternModel::log_marginal(self.as_ref())
+    }
+    fn n_points(&self) -> usize {
+        PatternModel::n_points(self.as_ref())
+    }
+    fn refit(&self, params: GpParams) -> Result<Self> {
+        self.with_params(params)
+    }
+}
+
+#[path = "hyper.rs"]
+mod hyper;
 #[path = "noise.rs"]
 mod noise;
 #[path = "split_merge.rs"]
 mod split_merge;
 #[path = "sticky.rs"]
 mod sticky;
+pub(crate) use hyper::{Refit, length_scale_step, noise_step};
+pub(crate) use noise::{MIN_RATIO as MIN_NOISE_RATIO, width as noise_width};
 pub use noise::{NoisePrior, NoiseScope};
+pub(crate) use split_merge::frame_means;
 pub use split_merge::{PairChoice, SplitMerge, SplitMergeStats};
 pub use sticky::StickyPrior;
 
@@ -124,6 +144,28 @@ impl std::str::FromStr for Assignment {
     }
 }
 
+/// Which sampler runs the chain.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum SamplerKind {
+    /// Collapsed Gibbs, one frame at a time (the paper's; this module).
+    #[default]
+    Collapsed,
+    /// Every frame in parallel given drawn fields, with sub-pattern split–merge moves
+    /// (`subcluster`; the reduced-rank likelihood only).
+    Subcluster,
+}
+
+impl std::str::FromStr for SamplerKind {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "collapsed" => Ok(Self::Collapsed),
+            "subcluster" => Ok(Self::Subcluster),
+            _ => Err(unknown_option("sampler", &["collapsed", "subcluster"], s)),
+        }
+    }
+}
+
 /// Everything that configures a run.
 #[derive(Clone, Debug)]
 pub struct Settings {
@@ -161,6 +203,8 @@ pub struct Settings {
     pub noise_scope: NoiseScope,
     /// The sticky prior on consecutive frames' labels (sticky.rs); `None`: the independent DP.
     pub dynamics: Option<StickyPrior>,
+    /// The sampler that runs the chain.
+    pub sampler: SamplerKind,
 }
 
 /// A number as Python's `{:g}` writes one far from 1 (`1e+100`, not 100 digits).
@@ -202,6 +246,7 @@ impl Default for Settings {
             noise_prior: None,
             noise_scope: NoiseScope::Global,
             dynamics: None,
+            sampler: SamplerKind::Collapsed,
         }
     }
 }
@@ -238,6 +283,19 @@ pub fn check_length_scale_prior((a, b): (f64, f64)) -> Result<()> {
 }
 
 impl Settings {
+    /// `base` with length scales `ls`.
+    pub(crate) fn pattern_params(&self, ls: LengthScales) -> GpParams {
+        self.base.with_length_scales(ls)
+    }
+
+    /// A new pattern's parameters: `base` with length scales `ls` and noise pair `noise`.
+    pub(crate) fn new_params(&self, ls: LengthScales, noise: [f64; 2]) -> GpParams {
+        GpParams {
+            noise_var: noise,
+            ..self.pattern_params(ls)
+        }
+    }
+
     /// Every rule a setting must keep; [`Sampler::new`] calls it, and callers may call it early
     /// (before work that depends on the settings) with placeholders for what they resolve later.
     pub fn validate(&self) -> Result<()> {
@@ -277,6 +335,22 @@ impl Settings {
                 "new_pattern_samples must be an integer in [1, {MAX_NEW_PATTERN_SAMPLES}], got {}",
                 self.new_pattern_samples
             )));
+        }
+        if self.sampler == SamplerKind::Subcluster {
+            let why = if matches!(self.likelihood, Likelihood::Exact) {
+                Some("needs likelihood='hsgp' (the exact GP has no finite weights to draw)")
+            } else if self.pattern_moments {
+                Some("cannot refit patterns to their own moments (pattern_moments)")
+            } else if self.dynamics.is_some() {
+                Some("does not run the sticky prior (dynamics='sticky') yet")
+            } else {
+                None
+            };
+            if let Some(why) = why {
+                return Err(Error::InvalidInput(format!(
+                    "sampler='subcluster' {why}; use sampler='collapsed'"
+                )));
+            }
         }
         if self.split_merge.moves_per_sweep > MAX_SPLIT_MERGE_MOVES {
             return Err(Error::InvalidInput(format!(
@@ -326,6 +400,16 @@ impl Data {
 
     pub fn is_empty(&self) -> bool {
         self.len() == 0
+    }
+
+    /// Every frame's points and velocities, frames one after another.
+    pub fn points(&self) -> (&[Point], &[[f64; 2]]) {
+        (&self.xy, &self.v)
+    }
+
+    /// Where each frame's points start (and, last, their number).
+    pub fn offsets(&self) -> &[usize] {
+        &self.offsets
     }
 
     pub fn frame(&self, i: usize) -> FrameRef<'_> {
@@ -416,18 +500,14 @@ pub struct Sampler {
 impl Sampler {
     /// A sampler with every frame unassigned; call [`Sampler::initialize`] next.
     pub fn new(data: Data, settings: Settings) -> Result<Self> {
+        Self::new_with_data(Arc::new(data), settings)
+    }
+
+    /// [`Sampler::new`] over frames shared with others (the sub-cluster sampler's, say).
+    pub fn new_with_data(data: Arc<Data>, settings: Settings) -> Result<Self> {
         settings.validate()?;
         let n = data.len();
-        let alpha = match settings.alpha {
-            Some(a) => a,
-            // A draw from the prior p(α) ∝ α^{-3/2} e^{-1/(2α)} (α = 1/χ²₁), kept in [0.1, 10]:
-            // only a starting point, α is sampled from then on.
-            None => {
-                let g = Gamma::new(0.5, 2.0).map_err(|e| Error::InvalidInput(e.to_string()))?;
-                let draw: f64 = g.sample(&mut stream(settings.seed, 0, Phase::Alpha, 0));
-                (1.0 / draw).clamp(0.1, 10.0)
-            }
-        };
+        let alpha = initial_alpha(&settings)?;
         let grid = (settings.proposal == Proposal::Informed).then(|| {
             // Cells of half a typical length scale: the prior mean, or the fixed scales.
             let (a, b) = settings.length_scale_prior;
@@ -448,7 +528,7 @@ impl Sampler {
             grid,
             proposals: ProposalStats::default(),
             settings,
-            data: Arc::new(data),
+            data,
             slots: Vec::new(),
             generations: Vec::new(),
             labels: vec![NONE; n],
@@ -595,18 +675,6 @@ impl Sampler {
         2 * sizes.iter().take(workers).sum::<usize>()
     }
 
-    fn pattern_params(&self, ls: LengthScales) -> GpParams {
-        self.settings.base.with_length_scales(ls)
-    }
-
-    /// A new pattern's parameters: `base` with length scales `ls` and noise pair `noise`.
-    fn new_params(&self, ls: LengthScales, noise: [f64; 2]) -> GpParams {
-        GpParams {
-            noise_var: noise,
-            ..self.pattern_params(ls)
-        }
-    }
-
     /// Sequential initialisation: frames join one at a time by the same conditional, seeing only
     /// the frames placed before them.
     ///
@@ -725,38 +793,7 @@ impl Sampler {
         noise_var: Option<&[[f64; 2]]>,
         alpha: f64,
     ) -> Result<()> {
-        if let Some(nv) = noise_var {
-            if nv.len() != length_scales.len() {
-                return Err(Error::Shape(format!(
-                    "{} noise pairs for {} groups",
-                    nv.len(),
-                    length_scales.len()
-                )));
-            }
-            if !nv.as_flattened().iter().all(|v| v.is_finite() && *v > 0.0) {
-                return Err(Error::InvalidInput(
-                    "every pattern's noise_var must be two positive variances".into(),
-                ));
-            }
-        }
-        if labels.len() != self.data.len() {
-            return Err(Error::Shape(format!(
-                "{} labels for {} frames",
-                labels.len(),
-                self.data.len()
-            )));
-        }
-        if let Some(&bad) = labels.iter().find(|&&l| l >= length_scales.len()) {
-            return Err(Error::Shape(format!(
-                "label {bad} has no length scales ({} given)",
-                length_scales.len()
-            )));
-        }
-        if !(alpha.is_finite() && alpha > 0.0) {
-            return Err(Error::InvalidInput(format!(
-                "alpha must be positive, got {alpha}"
-            )));
-        }
+        check_state(self.data.len(), labels, length_scales, noise_var, alpha)?;
         self.slots.clear();
         self.generations.clear();
         self.cache = vec![Vec::new(); self.data.len()];
@@ -786,7 +823,7 @@ impl Sampler {
             .map(|&g| {
                 let frames: Vec<(usize, FrameRef)> =
                     members[g].iter().map(|&i| (i, data.frame(i))).collect();
-                let mut params = self.pattern_params(length_scales[g]);
+                let mut params = self.settings.pattern_params(length_scales[g]);
                 if let Some(nv) = noise_var {
                     params.noise_var = nv[g];
                 }
@@ -965,7 +1002,7 @@ impl Sampler {
         own: Option<GpParams>,
         rng: &mut impl rand::Rng,
     ) -> Result<Vec<(GpParams, f64)>> {
-        let per_pattern = self.per_pattern_noise();
+        let per_pattern = self.settings.per_pattern_noise();
         if self.settings.fixed_length_scales && !per_pattern {
             return Ok(vec![(
                 self.settings.base,
@@ -992,8 +1029,8 @@ impl Sampler {
                             wy: gamma.sample(rng).max(1e-12),
                         }
                     };
-                    let noise = self.new_noise(rng);
-                    self.new_params(ls, noise)
+                    let noise = self.settings.new_noise(rng);
+                    self.settings.new_params(ls, noise)
                 }
             })
             .collect();
@@ -1206,7 +1243,10 @@ impl Sampler {
             .get(k)
             .and_then(|s| s.as_ref())
             .filter(|s| s.pattern.n_frames() == 1)
-            .map(|s| self.new_params(s.pattern.length_scales(), s.pattern.params().noise_var))
+            .map(|s| {
+                self.settings
+                    .new_params(s.pattern.length_scales(), s.pattern.params().noise_var)
+            })
     }
 
     /// `log [(n_k − 1) p(V_i | D_k \ i)]` for frame `i` in its own (non-singleton) pattern `k`.
@@ -1386,70 +1426,25 @@ impl Sampler {
         Ok(())
     }
 
-    /// Log density of one pattern's length scales (with the log-scale Jacobian) and data.
-    fn ls_log_target(&self, p: &dyn PatternModel) -> f64 {
-        let (a, b) = self.settings.length_scale_prior;
-        let ls = p.length_scales();
-        ln_gamma_pdf(ls.wx, a, b)
-            + ln_gamma_pdf(ls.wy, a, b)
-            + ls.wx.ln()
-            + ls.wy.ln()
-            + p.log_marginal()
-    }
-
     /// Slice-sample (log w_x, log w_y) of every pattern, in parallel over patterns; the factor
     /// at the accepted point becomes the pattern's cached factor.
     fn update_length_scales(&mut self) -> Result<()> {
         let keys: Vec<(usize, u64)> = self.patterns().iter().map(|p| (p.slot, p.id)).collect();
         self.check_memory(self.candidate_bytes())?;
         let sweep = self.sweep;
-        let updated: Vec<Result<Box<dyn PatternModel>>> = keys
+        let (prior, fraction) = (
+            self.settings.length_scale_prior,
+            self.settings.length_scale_fraction,
+        );
+        let updated: Vec<Box<dyn PatternModel>> = keys
             .par_iter()
             .map(|&(k, id)| {
                 let mut rng = stream(self.settings.seed, sweep, Phase::LengthScales, id);
-                let mut current = self.live_slot(k).pattern.clone();
-                if self.settings.length_scale_fraction < 1.0
-                    && rng.random::<f64>() >= self.settings.length_scale_fraction
-                {
-                    return Ok(current);
-                }
-                let mut f0 = self.ls_log_target(current.as_ref());
-                for axis in 0..2 {
-                    let ls = current.length_scales();
-                    let x0 = if axis == 0 { ls.wx.ln() } else { ls.wy.ln() };
-                    let mut last: Option<(f64, Box<dyn PatternModel>)> = None;
-                    let (x, fx) = slice_step(x0, f0, 0.5, &mut rng, |x| {
-                        let w = x.exp();
-                        let cand = if axis == 0 {
-                            LengthScales { wx: w, ..ls }
-                        } else {
-                            LengthScales { wy: w, ..ls }
-                        };
-                        if !(w.is_finite() && w > 0.0) {
-                            return f64::NEG_INFINITY;
-                        }
-                        match current.with_length_scales(cand) {
-                            Ok(p) => {
-                                let f = self.ls_log_target(p.as_ref());
-                                last = Some((x, p));
-                                f
-                            }
-                            Err(_) => f64::NEG_INFINITY,
-                        }
-                    });
-                    if let Some((lx, p)) = last
-                        && lx == x
-                        && x != x0
-                    {
-                        current = p;
-                        f0 = fx;
-                    }
-                }
-                Ok(current)
+                let current = self.live_slot(k).pattern.clone();
+                hyper::length_scale_step(current, prior, fraction, &mut rng)
             })
             .collect();
         for ((k, _), p) in keys.iter().zip(updated) {
-            let p = p?;
             let changed = p.length_scales() != self.live_slot(*k).pattern.length_scales();
             let v = if changed {
                 self.fresh_version()
@@ -1464,7 +1459,7 @@ impl Sampler {
     }
 
     /// `log p(α | K, N)` up to a constant, on the log scale (Jacobian included).
-    fn alpha_log_target(log_alpha: f64, k: usize, n: usize) -> f64 {
+    pub(crate) fn alpha_log_target(log_alpha: f64, k: usize, n: usize) -> f64 {
         let a = log_alpha.exp();
         if !(a.is_finite() && a > 0.0) {
             return f64::NEG_INFINITY;
@@ -1477,13 +1472,7 @@ impl Sampler {
         let n = self.fresh_counts().map_or(self.data.len(), |c| c.1);
         let k = self.live().count();
         let mut rng = stream(self.settings.seed, self.sweep, Phase::Alpha, 0);
-        // Each step costs O(1): take several so that α tracks K closely from the first sweeps.
-        let mut x = self.alpha.ln();
-        let mut fx = Self::alpha_log_target(x, k, n);
-        for _ in 0..ALPHA_STEPS {
-            (x, fx) = slice_step(x, fx, 1.0, &mut rng, |y| Self::alpha_log_target(y, k, n));
-        }
-        self.alpha = x.exp();
+        self.alpha = alpha_step(self.alpha, k, n, &mut rng);
     }
 
     /// `log p(z, w, α, V)`: CRP prior, length-scale priors, α's prior (when sampled) and the GP
@@ -1605,6 +1594,75 @@ impl Sampler {
     }
 }
 
+/// A chain's starting α: the fixed one, or a draw from its prior
+/// `p(α) ∝ α^{-3/2} e^{-1/(2α)}` (α = 1/χ²₁) kept in [0.1, 10]: only a starting point, α is
+/// sampled from then on.
+pub(crate) fn initial_alpha(settings: &Settings) -> Result<f64> {
+    match settings.alpha {
+        Some(a) => Ok(a),
+        None => {
+            let g = Gamma::new(0.5, 2.0).map_err(|e| Error::InvalidInput(e.to_string()))?;
+            let draw: f64 = g.sample(&mut stream(settings.seed, 0, Phase::Alpha, 0));
+            Ok((1.0 / draw).clamp(0.1, 10.0))
+        }
+    }
+}
+
+/// [`ALPHA_STEPS`] slice steps of `log α` given `k` patterns over `n` draws from the DP.
+pub(crate) fn alpha_step(alpha: f64, k: usize, n: usize, rng: &mut impl rand::Rng) -> f64 {
+    // Each step costs O(1): take several so that α tracks K closely from the first sweeps.
+    let mut x = alpha.ln();
+    let mut fx = Sampler::alpha_log_target(x, k, n);
+    for _ in 0..ALPHA_STEPS {
+        (x, fx) = slice_step(x, fx, 1.0, rng, |y| Sampler::alpha_log_target(y, k, n));
+    }
+    x.exp()
+}
+
+/// The rules of a state given by hand: a label per frame, length scales (and, given, a noise
+/// pair) for every label, and a positive α.
+pub(crate) fn check_state(
+    n: usize,
+    labels: &[usize],
+    length_scales: &[LengthScales],
+    noise_var: Option<&[[f64; 2]]>,
+    alpha: f64,
+) -> Result<()> {
+    if let Some(nv) = noise_var {
+        if nv.len() != length_scales.len() {
+            return Err(Error::Shape(format!(
+                "{} noise pairs for {} groups",
+                nv.len(),
+                length_scales.len()
+            )));
+        }
+        if !nv.as_flattened().iter().all(|v| v.is_finite() && *v > 0.0) {
+            return Err(Error::InvalidInput(
+                "every pattern's noise_var must be two positive variances".into(),
+            ));
+        }
+    }
+    if labels.len() != n {
+        return Err(Error::Shape(format!(
+            "{} labels for {} frames",
+            labels.len(),
+            n
+        )));
+    }
+    if let Some(&bad) = labels.iter().find(|&&l| l >= length_scales.len()) {
+        return Err(Error::Shape(format!(
+            "label {bad} has no length scales ({} given)",
+            length_scales.len()
+        )));
+    }
+    if !(alpha.is_finite() && alpha > 0.0) {
+        return Err(Error::InvalidInput(format!(
+            "alpha must be positive, got {alpha}"
+        )));
+    }
+    Ok(())
+}
+
 /// `log` of pattern `k`'s prior weight in a frame's conditional: `n` (its other frames) under
 /// the DP, the sticky weight with a block.
 fn prior_log(block: Option<&sticky::Block>, k: usize, n: usize) -> f64 {
@@ -1640,6 +1698,15 @@ fn sample_log(logw: &[f64], rng: &mut impl rand::Rng) -> usize {
 #[cfg(test)]
 #[path = "tests/gibbs.rs"]
 mod tests;
+
+/// The enumeration harness every sampler's exactness tests share.
+#[cfg(test)]
+pub(crate) mod enumeration {
+    pub(crate) use super::noise::tests::{PRIOR as NOISE_PRIOR, enumerated_noise_integrated};
+    pub(crate) use super::split_merge::tests::{
+        canonical, enumerated_by, tiny, tiny_hsgp, tiny_settings,
+    };
+}
 
 #[cfg(test)]
 #[path = "tests/gibbs_alpha_tests.rs"]

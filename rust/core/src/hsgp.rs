@@ -15,303 +15,21 @@
 //! rank-l update of `R` and a length-scale evaluation one M x M Cholesky, whatever the pattern
 //! size. Points outside the box have no basis support: the model's field there is its mean.
 
-use std::f64::consts::PI;
 use std::sync::{Arc, OnceLock};
 
 use faer::diag::Diag;
 use faer::linalg::cholesky::llt::update::rank_r_update_clobber;
 use faer::linalg::matmul::matmul;
-use faer::linalg::triangular_solve::{
-    solve_lower_triangular_in_place, solve_upper_triangular_in_place,
-};
+use faer::linalg::triangular_solve::solve_lower_triangular_in_place;
 use faer::{Accum, MatMut, MatRef, Par};
 
-use crate::error::{Error, Result};
+pub use crate::basis::{AxisFeatures, Basis, MAX_BASIS};
+use crate::error::Result;
 use crate::frame::FrameRef;
-use crate::frame::{LengthScales, Point};
+use crate::frame::Point;
 use crate::gp::{GpParams, LN_2PI};
-use crate::linalg::Chol;
+use crate::hsgp_sums::{Group, Sums, VecSums, log_marginal, scaled_sqrt_spectrum};
 use crate::small;
-
-/// Most basis functions a fit may use (M x M matrices of 8 bytes: 128 MiB each at the cap).
-pub const MAX_BASIS: usize = 4096;
-/// Frames whose features enter the Gram matrix in one product when a pattern is built.
-const STATS_BLOCK: usize = 64;
-
-/// The basis: a box per axis and the number of eigenfunctions along each.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Basis {
-    center: [f64; 2],
-    half: [f64; 2],
-    m: [usize; 2],
-}
-
-impl Basis {
-    pub fn new(center: [f64; 2], half: [f64; 2], m: [usize; 2]) -> Result<Self> {
-        if !(center.iter().all(|c| c.is_finite()) && half.iter().all(|h| h.is_finite() && *h > 0.0))
-        {
-            return Err(Error::InvalidInput(format!(
-                "the basis box needs a finite centre and positive half-widths, got {center:?}, {half:?}"
-            )));
-        }
-        if m[0] == 0 || m[1] == 0 || m[0].saturating_mul(m[1]) > MAX_BASIS {
-            return Err(Error::InvalidInput(format!(
-                "n_basis must be two positive counts with a product of at most {MAX_BASIS}, got {m:?}"
-            )));
-        }
-        Ok(Self { center, half, m })
-    }
-
-    /// The documented sizing rule for training positions `xy`. Per axis, with `S` the data's
-    /// half-range, `w_lo` a low and `w_mid` a typical length scale: the box half-width is
-    /// `L = max(1.2 S, S + 2 w_mid)` (the boundary distorts `k̃` within about two length scales
-    /// of it) and `m = ceil(2 L / w_lo)`, which puts the highest frequency at `π / w_lo`, where
-    /// the spectral density has fallen to `e^{−π²/2} ≈ 0.7%` of its peak for `w = w_lo` and to
-    /// far less for the typical `w`. `m` given by the caller overrides the count.
-    pub fn for_data(
-        xy: &[Point],
-        w_lo: [f64; 2],
-        w_mid: [f64; 2],
-        m: Option<[usize; 2]>,
-    ) -> Result<Self> {
-        if xy.is_empty() {
-            return Err(Error::Shape("no positions to size the basis from".into()));
-        }
-        let mut center = [0.0; 2];
-        let mut half = [0.0; 2];
-        let mut count = [0; 2];
-        for d in 0..2 {
-            let lo = xy.iter().map(|p| p[d]).fold(f64::INFINITY, f64::min);
-            let hi = xy.iter().map(|p| p[d]).fold(f64::NEG_INFINITY, f64::max);
-            if !(w_lo[d] > 0.0 && w_mid[d] > 0.0 && w_lo[d].is_finite() && w_mid[d].is_finite()) {
-                return Err(Error::InvalidInput(format!(
-                    "length scales for sizing the basis must be positive, got {w_lo:?}, {w_mid:?}"
-                )));
-            }
-            let s = (0.5 * (hi - lo)).max(w_lo[d]);
-            center[d] = 0.5 * (lo + hi);
-            half[d] = (1.2 * s).max(s + 2.0 * w_mid[d]);
-            count[d] = ((2.0 * half[d] / w_lo[d]).ceil() as usize).max(4);
-        }
-        let count = match m {
-            Some(m) => m,
-            None => {
-                // Past the cap, shrink both counts in proportion.
-                let total = count[0] * count[1];
-                if total > MAX_BASIS {
-                    let f = (MAX_BASIS as f64 / total as f64).sqrt();
-                    [0, 1].map(|d| ((count[d] as f64 * f).floor() as usize).max(1))
-                } else {
-                    count
-                }
-            }
-        };
-        Self::new(center, half, count)
-    }
-
-    /// [`Basis::for_data`] with the low and typical length scales of the fit: the 5% quantile
-    /// and the median of the Gamma(shape, scale) prior, or the fixed length scales.
-    pub fn for_prior(
-        xy: &[Point],
-        prior: (f64, f64),
-        fixed: Option<LengthScales>,
-        m: Option<[usize; 2]>,
-    ) -> Result<Self> {
-        let (lo, mid) = match fixed {
-            Some(ls) => ([ls.wx, ls.wy], [ls.wx, ls.wy]),
-            None => {
-                let (a, b) = prior;
-                if !(a > 0.0 && b > 0.0 && a.is_finite() && b.is_finite()) {
-                    return Err(Error::InvalidInput(format!(
-                        "length_scale_prior must be (shape, scale) with both positive, got {prior:?}"
-                    )));
-                }
-                let lo = crate::special::gamma_quantile(0.05, a, b);
-                let mid = crate::special::gamma_quantile(0.5, a, b);
-                ([lo; 2], [mid; 2])
-            }
-        };
-        Self::for_data(xy, lo, mid, m)
-    }
-
-    pub fn len(&self) -> usize {
-        self.m[0] * self.m[1]
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
-    pub fn center(&self) -> [f64; 2] {
-        self.center
-    }
-
-    pub fn half_widths(&self) -> [f64; 2] {
-        self.half
-    }
-
-    pub fn counts(&self) -> [usize; 2] {
-        self.m
-    }
-
-    fn sqrt_eig(&self, d: usize, j: usize) -> f64 {
-        PI * (j + 1) as f64 / (2.0 * self.half[d])
-    }
-
-    /// `φ_j(u)` along axis `d` for every `j`, zero outside the box.
-    fn eval_axis(&self, d: usize, u: f64, out: &mut [f64]) {
-        let t = u - self.center[d] + self.half[d];
-        if !(0.0..=2.0 * self.half[d]).contains(&t) {
-            out.fill(0.0);
-            return;
-        }
-        let norm = 1.0 / self.half[d].sqrt();
-        let theta = PI * t / (2.0 * self.half[d]);
-        for (j, o) in out.iter_mut().enumerate() {
-            *o = norm * ((j + 1) as f64 * theta).sin();
-        }
-    }
-
-    /// Whether `p` lies in the box (where the basis has support).
-    pub fn contains(&self, p: Point) -> bool {
-        (0..2).all(|d| (p[d] - self.center[d]).abs() <= self.half[d])
-    }
-
-    /// `Φᵀ` of the points: column-major `M x n`, one column of basis values per point
-    /// (index `j + m_x k` for `φ_j(x) φ_k(y)`).
-    pub fn features(&self, xy: &[Point]) -> Vec<f64> {
-        let (mx, my) = (self.m[0], self.m[1]);
-        let mm = mx * my;
-        let mut out = vec![0.0; mm * xy.len()];
-        let mut fx = vec![0.0; mx];
-        let mut fy = vec![0.0; my];
-        for (col, p) in out.chunks_mut(mm).zip(xy) {
-            self.eval_axis(0, p[0], &mut fx);
-            self.eval_axis(1, p[1], &mut fy);
-            for (k, &y) in fy.iter().enumerate() {
-                for (c, &x) in col[k * mx..(k + 1) * mx].iter_mut().zip(&fx) {
-                    *c = x * y;
-                }
-            }
-        }
-        out
-    }
-
-    /// Per-axis unit spectral densities `S_d(√λ_j)` at length scales `ls`.
-    fn axis_spectra(&self, ls: LengthScales) -> [Vec<f64>; 2] {
-        let w = [ls.wx, ls.wy];
-        [0, 1].map(|d| {
-            (0..self.m[d])
-                .map(|j| {
-                    let o = self.sqrt_eig(d, j);
-                    (2.0 * PI).sqrt() * w[d] * (-0.5 * w[d] * w[d] * o * o).exp()
-                })
-                .collect()
-        })
-    }
-
-    /// `√s_jk` for every basis function, in feature order.
-    pub fn sqrt_spectral(&self, ls: LengthScales) -> Vec<f64> {
-        let [sx, sy] = self.axis_spectra(ls);
-        sy.iter()
-            .flat_map(|&y| sx.iter().map(move |&x| (x * y).sqrt()))
-            .collect()
-    }
-
-    /// The eigenfunctions along each axis at the points (points x m_d, column-major): what
-    /// [`Basis::correlation_between`] needs, independent of the length scales.
-    pub fn axis_features(&self, pts: &[Point]) -> AxisFeatures {
-        let n = pts.len();
-        let f = [0, 1].map(|d| {
-            let m = self.m[d];
-            let mut f = vec![0.0; n * m];
-            let mut col = vec![0.0; m];
-            for (i, p) in pts.iter().enumerate() {
-                self.eval_axis(d, p[d], &mut col);
-                for (j, c) in col.iter().enumerate() {
-                    f[j * n + i] = *c;
-                }
-            }
-            f
-        });
-        AxisFeatures { n, f }
-    }
-
-    /// `scale · k̃(a, b) / σ²`, i.e. `scale Σ s φ(a) φ(b)`, column-major `|a| x |b|`. Separable:
-    /// the product of two one-axis sums, `|a| |b| (m_x + m_y)` work.
-    pub fn correlation_between(
-        &self,
-        a: &AxisFeatures,
-        b: &AxisFeatures,
-        ls: LengthScales,
-        scale: f64,
-    ) -> Vec<f64> {
-        let spectra = self.axis_spectra(ls);
-        let mut out = vec![scale; a.n * b.n];
-        if out.is_empty() {
-            return out;
-        }
-        let mut k = vec![0.0; a.n * b.n];
-        for d in 0..2 {
-            let m = self.m[d];
-            // a's eigenfunctions weighted by the spectrum, times b's.
-            let mut fa = a.f[d].clone();
-            for (j, s) in spectra[d].iter().enumerate() {
-                for x in &mut fa[j * a.n..(j + 1) * a.n] {
-                    *x *= s;
-                }
-            }
-            matmul(
-                MatMut::from_column_major_slice_mut(&mut k, a.n, b.n),
-                Accum::Replace,
-                MatRef::from_column_major_slice(&fa, a.n, m),
-                MatRef::from_column_major_slice(&b.f[d], b.n, m).transpose(),
-                1.0,
-                Par::Seq,
-            );
-            for (o, x) in out.iter_mut().zip(&k) {
-                *o *= x;
-            }
-        }
-        out
-    }
-
-    /// [`Basis::correlation_between`] of two point sets.
-    pub fn correlation(&self, a: &[Point], b: &[Point], ls: LengthScales, scale: f64) -> Vec<f64> {
-        let fa = self.axis_features(a);
-        if std::ptr::eq(a, b) {
-            return self.correlation_between(&fa, &fa, ls, scale);
-        }
-        self.correlation_between(&fa, &self.axis_features(b), ls, scale)
-    }
-}
-
-/// Eigenfunction values of a set of points along each axis.
-#[derive(Clone, Debug)]
-pub struct AxisFeatures {
-    n: usize,
-    f: [Vec<f64>; 2],
-}
-
-/// Per output group: `R = chol(σ_n² I + D G D)` and `z = R⁻¹ D b` (M x outputs).
-#[derive(Clone, Debug)]
-struct Group {
-    outs: &'static [usize],
-    signal_var: f64,
-    noise_var: f64,
-    chol: Vec<f64>,
-    z: Vec<f64>,
-}
-
-impl Group {
-    fn r(&self, m: usize) -> MatRef<'_, f64> {
-        MatRef::from_column_major_slice(&self.chol, m, m)
-    }
-
-    fn log_det(&self, m: usize) -> f64 {
-        2.0 * (0..m).map(|i| self.chol[i * m + i].ln()).sum::<f64>()
-    }
-}
 
 /// A motion pattern under the reduced-rank GP: its frames, the additive statistics and the
 /// factors of each output group.
@@ -325,11 +43,8 @@ pub struct HsgpPattern {
     v: Vec<[f64; 2]>,
     /// `G = Σ ΦᵀΦ`, M x M (both triangles).
     gram: Vec<f64>,
-    /// `Φᵀ1` (M) and `Φᵀ v_d` (M x 2).
-    phi_sum: Vec<f64>,
-    phi_v: Vec<f64>,
-    v_sum: [f64; 2],
-    v_sq: [f64; 2],
+    /// `Φᵀ1`, `Φᵀ v_d` and the scalar sums.
+    vecs: VecSums,
     /// `√s` at the current length scales.
     sqrt_s: Vec<f64>,
     groups: Vec<Group>,
@@ -343,7 +58,6 @@ impl HsgpPattern {
         params: GpParams,
         members: &[(usize, FrameRef<'_>)],
     ) -> Result<Self> {
-        let m = basis.len();
         let mut p = Self {
             sqrt_s: basis.sqrt_spectral(params.length_scales),
             basis,
@@ -352,35 +66,18 @@ impl HsgpPattern {
             sizes: Vec::new(),
             xy: Vec::new(),
             v: Vec::new(),
-            gram: vec![0.0; m * m],
-            phi_sum: vec![0.0; m],
-            phi_v: vec![0.0; 2 * m],
-            v_sum: [0.0; 2],
-            v_sq: [0.0; 2],
+            gram: Vec::new(),
+            vecs: VecSums::zeros(0),
             groups: Vec::new(),
             weights: OnceLock::new(),
         };
-        // The Gram matrix in blocks of frames (one level-3 product each), the rest per frame.
-        for block in members.chunks(STATS_BLOCK) {
-            let pts: Vec<Point> = block.iter().flat_map(|m| m.1.xy.iter().copied()).collect();
-            let phi_t = p.basis.features(&pts);
-            let pt = MatRef::from_column_major_slice(&phi_t, m, pts.len());
-            matmul(
-                MatMut::from_column_major_slice_mut(&mut p.gram, m, m),
-                Accum::Add,
-                pt,
-                pt.transpose(),
-                1.0,
-                Par::Seq,
-            );
-            let mut col = 0;
-            for &(id, f) in block {
-                let l = f.xy.len();
-                p.add_vectors(&phi_t[col * m..(col + l) * m], f, 1.0);
-                col += l;
-                p.record(id, f);
-            }
+        for &(id, f) in members {
+            p.record(id, f);
         }
+        // The sums in O(M) per point (hsgp_sums: the Gram matrix from its moments).
+        let sums = Sums::of_points(&p.basis, &p.xy, &p.v, members.len());
+        p.gram = sums.gram(&p.basis);
+        p.vecs = sums.vecs;
         p.refactor()?;
         Ok(p)
     }
@@ -444,58 +141,34 @@ impl HsgpPattern {
     /// The vector and scalar statistics of one frame, given its `Φᵀ` (M x l).
     fn add_vectors(&mut self, phi_t: &[f64], f: FrameRef<'_>, sign: f64) {
         let m = self.m();
+        let vs = &mut self.vecs;
         for (j, col) in phi_t.chunks(m).enumerate() {
             for (d, vd) in f.v[j].iter().enumerate() {
-                self.v_sum[d] += sign * vd;
-                self.v_sq[d] += sign * vd * vd;
-                for (t, c) in self.phi_v[d * m..(d + 1) * m].iter_mut().zip(col) {
+                vs.v_sum[d] += sign * vd;
+                vs.v_sq[d] += sign * vd * vd;
+                for (t, c) in vs.phi_v[d * m..(d + 1) * m].iter_mut().zip(col) {
                     *t += sign * vd * c;
                 }
             }
-            for (t, c) in self.phi_sum.iter_mut().zip(col) {
+            for (t, c) in vs.phi_sum.iter_mut().zip(col) {
                 *t += sign * c;
             }
         }
-    }
-
-    /// `b_d = Φᵀ (v_d − μ_d)`.
-    fn b(&self, d: usize) -> Vec<f64> {
-        let m = self.m();
-        let mu = self.params.mean[d];
-        self.phi_v[d * m..(d + 1) * m]
-            .iter()
-            .zip(&self.phi_sum)
-            .map(|(a, s)| a - mu * s)
-            .collect()
-    }
-
-    /// `Σ (v_d − μ_d)²`.
-    fn yy(&self, d: usize) -> f64 {
-        let mu = self.params.mean[d];
-        let n = self.xy.len() as f64;
-        self.v_sq[d] - 2.0 * mu * self.v_sum[d] + n * mu * mu
+        if sign > 0.0 {
+            vs.n_points += f.xy.len();
+        } else {
+            vs.n_points -= f.xy.len();
+        }
     }
 
     /// `D = σ √s` for a group's signal variance.
     fn d(&self, signal_var: f64) -> Vec<f64> {
-        let s = signal_var.sqrt();
-        self.sqrt_s.iter().map(|x| s * x).collect()
+        scaled_sqrt_spectrum(&self.sqrt_s, signal_var)
     }
 
     /// `z = R⁻¹ D b` for every output of group `g`.
     fn whiten(&self, g: &Group) -> Vec<f64> {
-        let m = self.m();
-        let d = self.d(g.signal_var);
-        let mut z = Vec::with_capacity(m * g.outs.len());
-        for &o in g.outs {
-            z.extend(self.b(o).iter().zip(&d).map(|(b, d)| b * d));
-        }
-        solve_lower_triangular_in_place(
-            g.r(m),
-            MatMut::from_column_major_slice_mut(&mut z, m, g.outs.len()),
-            Par::Seq,
-        );
-        z
+        g.whiten(&self.d(g.signal_var), &self.vecs, self.params.mean)
     }
 
     fn refactor(&mut self) -> Result<()> {
@@ -505,7 +178,6 @@ impl HsgpPattern {
     /// [`Self::refactor`], keeping each group of `reuse` whose output group and variances are
     /// unchanged (the caller guarantees the same statistics, length scales and mean).
     fn refactor_reusing(&mut self, reuse: &[Group]) -> Result<()> {
-        let m = self.m();
         self.weights = OnceLock::new();
         self.groups.clear();
         for outs in self.params.groups() {
@@ -518,24 +190,14 @@ impl HsgpPattern {
                 continue;
             }
             let d = self.d(s2);
-            let chol = Chol::factor(m, "reduced-rank", Par::Seq, || {
-                let mut b = vec![0.0; m * m];
-                for j in 0..m {
-                    for i in 0..m {
-                        b[j * m + i] = d[i] * self.gram[j * m + i] * d[j];
-                    }
-                    b[j * m + j] += noise;
-                }
-                b
-            })?;
-            let mut g = Group {
+            let g = Group::new(
                 outs,
-                signal_var: s2,
-                noise_var: noise,
-                chol: chol.l,
-                z: Vec::new(),
-            };
-            g.z = self.whiten(&g);
+                (s2, noise),
+                &self.gram,
+                &d,
+                &self.vecs,
+                self.params.mean,
+            )?;
             self.groups.push(g);
         }
         Ok(())
@@ -543,17 +205,7 @@ impl HsgpPattern {
 
     /// `log p(D_k)` under the reduced-rank GP.
     pub fn log_marginal(&self) -> f64 {
-        let (m, n) = (self.m(), self.xy.len());
-        let mut total = -(n as f64) * LN_2PI;
-        for g in &self.groups {
-            let s2n = g.noise_var;
-            let k = g.outs.len() as f64;
-            let zz: f64 = g.z.iter().map(|x| x * x).sum();
-            let yy: f64 = g.outs.iter().map(|&d| self.yy(d)).sum();
-            let log_det = (n as f64 - m as f64) * s2n.ln() + g.log_det(m);
-            total -= 0.5 * (yy - zz) / s2n + 0.5 * k * log_det;
-        }
-        total
+        log_marginal(&self.groups, &self.vecs, self.params.mean, self.m())
     }
 
     /// `D Φᵀ` for a group's signal variance (M x n, column-major like `phi_t`).
@@ -767,10 +419,7 @@ impl HsgpPattern {
             xy: self.xy.clone(),
             v: self.v.clone(),
             gram: self.gram.clone(),
-            phi_sum: self.phi_sum.clone(),
-            phi_v: self.phi_v.clone(),
-            v_sum: self.v_sum,
-            v_sq: self.v_sq,
+            vecs: self.vecs.clone(),
             sqrt_s: self.sqrt_s.clone(),
             groups: Vec::new(),
             weights: OnceLock::new(),
@@ -779,25 +428,10 @@ impl HsgpPattern {
 
     /// Per group, the posterior mean weights `a = D R⁻ᵀ z` (field mean `μ + Φ a`).
     fn weights(&self) -> &Vec<Vec<f64>> {
-        let m = self.m();
         self.weights.get_or_init(|| {
             self.groups
                 .iter()
-                .map(|g| {
-                    let mut a = g.z.clone();
-                    solve_upper_triangular_in_place(
-                        g.r(m).transpose(),
-                        MatMut::from_column_major_slice_mut(&mut a, m, g.outs.len()),
-                        Par::Seq,
-                    );
-                    let d = self.d(g.signal_var);
-                    for col in a.chunks_mut(m) {
-                        for (x, d) in col.iter_mut().zip(&d) {
-                            *x *= d;
-                        }
-                    }
-                    a
-                })
+                .map(|g| g.weights(&self.d(g.signal_var), None))
                 .collect()
         })
     }

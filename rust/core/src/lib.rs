@@ -16,11 +16,13 @@
 //   2. frame                                   (Point, LengthScales, FrameRef)
 //   3. linalg, small, factor, kernel           (dense algebra, the squared-exponential kernel)
 //   4. gp                                      (a pattern's GP parameters)
-//   5. hsgp                                    (the reduced-rank basis and its patterns)
+//   5. basis, hsgp_sums, hsgp                  (the reduced-rank basis, its sums, its patterns)
 //   6. correlation                             (exact or reduced: the choice of the two)
 //   7. pattern, pattern_model, proposal        (a pattern's sufficient state; the model types)
-//   8. gibbs (+ noise, split_merge), simulate  (the sampler; rollouts)
+//   8. gibbs (+ hyper, noise, split_merge, sticky), subcluster (+ its pass and moves), simulate
+//                                              (the samplers; rollouts)
 //   9. placement, motion, free_speed           (scene generation over simulate)
+pub mod basis;
 pub mod correlation;
 pub mod error;
 pub mod frame;
@@ -38,6 +40,7 @@ pub use gp::GpParams;
 pub mod factor;
 pub mod gibbs;
 pub mod hsgp;
+pub mod hsgp_sums;
 pub mod pattern;
 pub mod pattern_model;
 pub mod proposal;
@@ -46,6 +49,7 @@ pub mod simulate;
 pub mod slice;
 pub mod small;
 pub mod special;
+pub mod subcluster;
 
 #[cfg(test)]
 #[path = "tests/util.rs"]

@@ -25,7 +25,7 @@
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
-use super::Sampler;
+use super::{Sampler, Settings};
 use crate::error::{Error, Result, unknown_option};
 use crate::gp::GpParams;
 use crate::pattern_model::PatternModel;
@@ -68,6 +68,31 @@ impl NoisePrior {
     }
 }
 
+/// The noise of new patterns, from the settings alone.
+impl Settings {
+    /// Whether each pattern samples its own noise pair.
+    pub(crate) fn per_pattern_noise(&self) -> bool {
+        self.noise_scope == NoiseScope::PerPattern && self.noise_prior.is_some()
+    }
+
+    /// Whether a noise pair is where the chain's noise may be: at least [`MIN_RATIO`] times
+    /// each component's velocity variance, and finite.
+    pub(crate) fn noise_in_support(&self, noise: [f64; 2]) -> bool {
+        let scale = self.base.signal_var;
+        (0..2).all(|d| noise[d].is_finite() && noise[d] >= MIN_RATIO * scale[d])
+    }
+
+    /// A new pattern's noise pair: a prior draw per pattern, else the chain's pair.
+    pub(crate) fn new_noise(&self, rng: &mut impl rand::Rng) -> [f64; 2] {
+        match self.noise_prior {
+            Some(prior) if self.noise_scope == NoiseScope::PerPattern => {
+                prior.sample(self.base.signal_var, rng)
+            }
+            _ => self.base.noise_var,
+        }
+    }
+}
+
 /// Whether the noise pair is one for all patterns or each pattern's own.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum NoiseScope {
@@ -91,10 +116,10 @@ impl std::str::FromStr for NoiseScope {
 
 /// Least noise, as a share of the velocity variance, a candidate may take: below it the
 /// factors of repeated positions fail in double precision (model.py's MIN_NOISE_RATIO).
-const MIN_RATIO: f64 = 1e-10;
+pub(crate) const MIN_RATIO: f64 = 1e-10;
 /// Slice width on the log scale: about four posterior sds of `log σ_n²`, which shrinks like
 /// `sqrt(2 / points)`; set by the data's size only, so the update stays a valid slice step.
-fn width(points: usize) -> f64 {
+pub(crate) fn width(points: usize) -> f64 {
     (4.0 * (2.0 / points.max(1) as f64).sqrt()).clamp(0.05, 1.0)
 }
 
@@ -153,28 +178,6 @@ impl Sampler {
         }
     }
 
-    /// Whether each pattern samples its own noise pair.
-    pub(super) fn per_pattern_noise(&self) -> bool {
-        self.settings.noise_scope == NoiseScope::PerPattern && self.settings.noise_prior.is_some()
-    }
-
-    /// A new pattern's noise pair: a prior draw per pattern, else the chain's pair.
-    /// Whether a noise pair is where the chain's noise may be: at least [`MIN_RATIO`] times
-    /// each component's velocity variance, and finite.
-    pub(super) fn noise_in_support(&self, noise: [f64; 2]) -> bool {
-        let scale = self.settings.base.signal_var;
-        (0..2).all(|d| noise[d].is_finite() && noise[d] >= MIN_RATIO * scale[d])
-    }
-
-    pub(super) fn new_noise(&self, rng: &mut impl rand::Rng) -> [f64; 2] {
-        match self.settings.noise_prior {
-            Some(prior) if self.settings.noise_scope == NoiseScope::PerPattern => {
-                prior.sample(self.settings.base.signal_var, rng)
-            }
-            _ => self.settings.base.noise_var,
-        }
-    }
-
     /// Slice-sample each pattern's `log σ_n,x²` then `log σ_n,y²` (per-pattern noise), in
     /// parallel over patterns, each on its own stream keyed by the pattern's stable id. The width
     /// is [`width`] of the pattern's point count (fixed during the step).
@@ -187,47 +190,7 @@ impl Sampler {
             .par_iter()
             .map(|&(k, id)| {
                 let mut rng = stream(seed, sweep, Phase::Noise, id);
-                let p0 = &self.live_slot(k).pattern;
-                let w = width(p0.n_points());
-                let mut current: Option<Box<dyn PatternModel>> = None;
-                for d in 0..2 {
-                    let cur: &dyn PatternModel = current.as_deref().unwrap_or(p0.as_ref());
-                    let params = *cur.params();
-                    let x0 = params.noise_var[d].ln();
-                    let f0 = prior.log_density(x0, scale[d]) + cur.log_marginal();
-                    let at = |x: f64| {
-                        let mut noise_var = params.noise_var;
-                        noise_var[d] = x.exp();
-                        GpParams {
-                            noise_var,
-                            ..params
-                        }
-                    };
-                    let mut last: Option<(f64, Box<dyn PatternModel>)> = None;
-                    let (x, _) = slice_step(x0, f0, w, &mut rng, |x| {
-                        let v = x.exp();
-                        if !(v.is_finite() && v >= MIN_RATIO * scale[d]) {
-                            return f64::NEG_INFINITY;
-                        }
-                        match cur.with_params(at(x)) {
-                            Ok(p) => {
-                                let lm = p.log_marginal();
-                                last = Some((x, p));
-                                prior.log_density(x, scale[d]) + lm
-                            }
-                            Err(_) => f64::NEG_INFINITY,
-                        }
-                    });
-                    if x == x0 {
-                        continue;
-                    }
-                    let p = match last {
-                        Some((lx, p)) if lx == x => p,
-                        _ => cur.with_params(at(x))?,
-                    };
-                    current = Some(p);
-                }
-                Ok(current)
+                super::hyper::noise_step(&self.live_slot(k).pattern, prior, scale, &mut rng)
             })
             .collect();
         for ((k, _), p) in keys.iter().zip(updated) {
@@ -314,4 +277,4 @@ impl Sampler {
 
 #[cfg(test)]
 #[path = "tests/noise.rs"]
-mod tests;
+pub(crate) mod tests;

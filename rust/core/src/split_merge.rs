@@ -46,7 +46,7 @@ use std::sync::Arc;
 use rand::RngExt;
 use rand_distr::{Distribution, Gamma, StandardNormal};
 
-use super::{Assignment, Data, NONE, Sampler};
+use super::{Assignment, Data, NONE, Sampler, Settings};
 use crate::error::{Error, Result, unknown_option};
 use crate::frame::FrameRef;
 use crate::frame::LengthScales;
@@ -108,6 +108,163 @@ pub struct SplitMergeStats {
     pub merge_accepted: u64,
 }
 
+/// Each frame's mean velocity, for informed pairs.
+pub(crate) fn frame_means(data: &Data) -> Vec<[f64; 2]> {
+    (0..data.len())
+        .map(|i| {
+            let f = data.frame(i);
+            let n = f.v.len() as f64;
+            let s =
+                f.v.iter()
+                    .fold([0.0, 0.0], |acc, r| [acc[0] + r[0], acc[1] + r[1]]);
+            [s[0] / n, s[1] / n]
+        })
+        .collect()
+}
+
+/// How a move's pair and its new pattern's parameters are drawn: functions of the settings and
+/// the data only, shared by every sampler's split–merge moves.
+impl Settings {
+    /// The second frame of a pair: uniform over the others, or by the informed mixture.
+    pub(crate) fn pair_partner(
+        &self,
+        i: usize,
+        means: &[[f64; 2]],
+        rng: &mut impl rand::Rng,
+    ) -> usize {
+        let n = means.len();
+        let uniform = |rng: &mut dyn FnMut() -> f64| {
+            let j = ((rng() * (n - 1) as f64) as usize).min(n - 2);
+            if j >= i { j + 1 } else { j }
+        };
+        let mut u = || rng.random::<f64>();
+        if self.split_merge.pairs == PairChoice::Uniform || u() < 0.5 {
+            return uniform(&mut u);
+        }
+        let w = self.similarity_weights(i, means);
+        let total: f64 = w.iter().sum();
+        let mut t = u() * total;
+        for (j, wj) in w.iter().enumerate() {
+            t -= wj;
+            if t < 0.0 {
+                return j;
+            }
+        }
+        uniform(&mut u)
+    }
+
+    /// `exp(-½ Σ_d (v̄_i,d − v̄_j,d)² / (h² σ_d²))` for every frame `j` (0 for `j = i`): frames
+    /// of similar mean velocity, on the scale of the signal variances (so in any units).
+    fn similarity_weights(&self, i: usize, means: &[[f64; 2]]) -> Vec<f64> {
+        let sv = self.base.signal_var;
+        // Bandwidth: a quarter of the velocity spread; wide enough that every frame keeps weight.
+        const H2: f64 = 0.0625;
+        let mi = means[i];
+        means
+            .iter()
+            .enumerate()
+            .map(|(j, m)| {
+                if j == i {
+                    return 0.0;
+                }
+                let d2 = (0..2).map(|d| (m[d] - mi[d]).powi(2) / sv[d]).sum::<f64>();
+                (-0.5 * d2 / H2).exp()
+            })
+            .collect()
+    }
+
+    /// Parameters of the new split pattern: length scales drawn from their prior (the fixed
+    /// ones when fixed), then, per-pattern noise, the noise pair from its prior.
+    pub(crate) fn prior_params(&self, rng: &mut impl rand::Rng) -> Result<GpParams> {
+        let ls = if self.fixed_length_scales {
+            self.base.length_scales
+        } else {
+            let (a, b) = self.length_scale_prior;
+            let g = Gamma::new(a, b).map_err(|e| Error::InvalidInput(e.to_string()))?;
+            LengthScales {
+                wx: g.sample(rng).max(1e-12),
+                wy: g.sample(rng).max(1e-12),
+            }
+        };
+        let noise = self.new_noise(rng);
+        Ok(self.new_params(ls, noise))
+    }
+
+    /// The split pattern `b`'s parameters, drawn from `½ p + ½ L(· | parent)`, and
+    /// `log p(θ_b) − log q(θ_b | parent)` over the components the chain samples; `None` when
+    /// the local draw falls outside the noise's support (the move is then rejected).
+    pub(crate) fn split_params(
+        &self,
+        parent: &GpParams,
+        rng: &mut impl rand::Rng,
+    ) -> Result<Option<(GpParams, f64)>> {
+        let sample_ls = !self.fixed_length_scales;
+        let sample_noise = self.per_pattern_noise();
+        if !(sample_ls || sample_noise) {
+            return Ok(Some((self.prior_params(rng)?, 0.0)));
+        }
+        let theta = if rng.random::<f64>() < 0.5 {
+            self.prior_params(rng)?
+        } else {
+            let mut jitter = |x: f64, sd: f64| {
+                let z: f64 = StandardNormal.sample(&mut *rng);
+                (x.ln() + sd * z).exp()
+            };
+            let ls = if sample_ls {
+                LengthScales {
+                    wx: jitter(parent.length_scales.wx, LOCAL_LS_SD),
+                    wy: jitter(parent.length_scales.wy, LOCAL_LS_SD),
+                }
+            } else {
+                self.base.length_scales
+            };
+            let noise = if sample_noise {
+                parent.noise_var.map(|v| jitter(v, LOCAL_NOISE_SD))
+            } else {
+                self.base.noise_var
+            };
+            if sample_noise && !self.noise_in_support(noise) {
+                return Ok(None);
+            }
+            self.new_params(ls, noise)
+        };
+        Ok(Some((theta, self.log_prior_over_proposal(&theta, parent))))
+    }
+
+    /// `log p(θ) − log(½ p(θ) + ½ L(θ | parent))`, densities of the sampled components on the
+    /// log scale (the same Jacobian in both).
+    pub(crate) fn log_prior_over_proposal(&self, theta: &GpParams, parent: &GpParams) -> f64 {
+        let normal = |x: f64, m: f64, sd: f64| {
+            let z = (x - m) / sd;
+            -0.5 * z * z - sd.ln() - 0.5 * crate::gp::LN_2PI
+        };
+        let (mut lp, mut ll) = (0.0, 0.0);
+        if !self.fixed_length_scales {
+            let (a, b) = self.length_scale_prior;
+            let pairs = [
+                (theta.length_scales.wx, parent.length_scales.wx),
+                (theta.length_scales.wy, parent.length_scales.wy),
+            ];
+            for (w, w0) in pairs {
+                let u = w.ln();
+                lp += a * u - w / b - ln_gamma(a) - a * b.ln();
+                ll += normal(u, w0.ln(), LOCAL_LS_SD);
+            }
+        }
+        if self.per_pattern_noise()
+            && let Some(prior) = self.noise_prior
+        {
+            let scale = self.base.signal_var;
+            for d in 0..2 {
+                let x = theta.noise_var[d].ln();
+                lp += prior.log_density(x, scale[d]);
+                ll += normal(x, parent.noise_var[d].ln(), LOCAL_NOISE_SD);
+            }
+        }
+        lp - (log_sum_exp(&[lp, ll]) + 0.5f64.ln())
+    }
+}
+
 /// A split allocation: the two patterns grown from the seeds, their numbers of items, and
 /// `log q` of the allocation.
 struct Allocation {
@@ -146,72 +303,18 @@ impl Sampler {
         Ok(())
     }
 
-    /// The second frame of a pair: uniform over the others, or by the informed mixture.
-    fn pair_partner(&self, i: usize, rng: &mut impl rand::Rng) -> usize {
-        let n = self.data.len();
-        let uniform = |rng: &mut dyn FnMut() -> f64| {
-            let j = ((rng() * (n - 1) as f64) as usize).min(n - 2);
-            if j >= i { j + 1 } else { j }
-        };
-        let mut u = || rng.random::<f64>();
-        if self.settings.split_merge.pairs == PairChoice::Uniform || u() < 0.5 {
-            return uniform(&mut u);
-        }
-        let w = self.similarity_weights(i);
-        let total: f64 = w.iter().sum();
-        let mut t = u() * total;
-        for (j, wj) in w.iter().enumerate() {
-            t -= wj;
-            if t < 0.0 {
-                return j;
-            }
-        }
-        uniform(&mut u)
-    }
-
-    /// `exp(-½ Σ_d (v̄_i,d − v̄_j,d)² / (h² σ_d²))` for every frame `j` (0 for `j = i`): frames
-    /// of similar mean velocity, on the scale of the signal variances (so in any units).
-    fn similarity_weights(&self, i: usize) -> Vec<f64> {
-        let means = self.frame_means();
-        let sv = self.settings.base.signal_var;
-        // Bandwidth: a quarter of the velocity spread; wide enough that every frame keeps weight.
-        const H2: f64 = 0.0625;
-        let mi = means[i];
-        means
-            .iter()
-            .enumerate()
-            .map(|(j, m)| {
-                if j == i {
-                    return 0.0;
-                }
-                let d2 = (0..2).map(|d| (m[d] - mi[d]).powi(2) / sv[d]).sum::<f64>();
-                (-0.5 * d2 / H2).exp()
-            })
-            .collect()
-    }
-
     fn frame_means(&self) -> Arc<Vec<[f64; 2]>> {
-        if let Some(m) = self.frame_means.get() {
-            return Arc::clone(m);
-        }
-        let means: Vec<[f64; 2]> = (0..self.data.len())
-            .map(|i| {
-                let f = self.data.frame(i);
-                let n = f.v.len() as f64;
-                let s =
-                    f.v.iter()
-                        .fold([0.0, 0.0], |acc, r| [acc[0] + r[0], acc[1] + r[1]]);
-                [s[0] / n, s[1] / n]
-            })
-            .collect();
-        Arc::clone(self.frame_means.get_or_init(|| Arc::new(means)))
+        Arc::clone(
+            self.frame_means
+                .get_or_init(|| Arc::new(frame_means(&self.data))),
+        )
     }
 
     /// One split or merge proposal, by the pair drawn from `rng`.
     pub(super) fn split_merge_step(&mut self, rng: &mut impl rand::Rng) -> Result<()> {
         let n = self.data.len();
         let i = ((rng.random::<f64>() * n as f64) as usize).min(n - 1);
-        let j = self.pair_partner(i, rng);
+        let j = self.settings.pair_partner(i, &self.frame_means(), rng);
         let (ki, kj) = (self.labels[i], self.labels[j]);
         if ki == NONE || kj == NONE {
             return Ok(());
@@ -221,97 +324,6 @@ impl Sampler {
         } else {
             self.try_merge(i, j, ki, kj, rng)
         }
-    }
-
-    /// Parameters of the new split pattern: length scales drawn from their prior (the fixed
-    /// ones when fixed), then, per-pattern noise, the noise pair from its prior.
-    fn prior_params(&self, rng: &mut impl rand::Rng) -> Result<GpParams> {
-        let ls = if self.settings.fixed_length_scales {
-            self.settings.base.length_scales
-        } else {
-            let (a, b) = self.settings.length_scale_prior;
-            let g = Gamma::new(a, b).map_err(|e| Error::InvalidInput(e.to_string()))?;
-            LengthScales {
-                wx: g.sample(rng).max(1e-12),
-                wy: g.sample(rng).max(1e-12),
-            }
-        };
-        let noise = self.new_noise(rng);
-        Ok(self.new_params(ls, noise))
-    }
-
-    /// The split pattern `b`'s parameters, drawn from `½ p + ½ L(· | parent)`, and
-    /// `log p(θ_b) − log q(θ_b | parent)` over the components the chain samples; `None` when
-    /// the local draw falls outside the noise's support (the move is then rejected).
-    fn split_params(
-        &self,
-        parent: &GpParams,
-        rng: &mut impl rand::Rng,
-    ) -> Result<Option<(GpParams, f64)>> {
-        let sample_ls = !self.settings.fixed_length_scales;
-        let sample_noise = self.per_pattern_noise();
-        if !(sample_ls || sample_noise) {
-            return Ok(Some((self.prior_params(rng)?, 0.0)));
-        }
-        let theta = if rng.random::<f64>() < 0.5 {
-            self.prior_params(rng)?
-        } else {
-            let mut jitter = |x: f64, sd: f64| {
-                let z: f64 = StandardNormal.sample(&mut *rng);
-                (x.ln() + sd * z).exp()
-            };
-            let ls = if sample_ls {
-                LengthScales {
-                    wx: jitter(parent.length_scales.wx, LOCAL_LS_SD),
-                    wy: jitter(parent.length_scales.wy, LOCAL_LS_SD),
-                }
-            } else {
-                self.settings.base.length_scales
-            };
-            let noise = if sample_noise {
-                parent.noise_var.map(|v| jitter(v, LOCAL_NOISE_SD))
-            } else {
-                self.settings.base.noise_var
-            };
-            if sample_noise && !self.noise_in_support(noise) {
-                return Ok(None);
-            }
-            self.new_params(ls, noise)
-        };
-        Ok(Some((theta, self.log_prior_over_proposal(&theta, parent))))
-    }
-
-    /// `log p(θ) − log(½ p(θ) + ½ L(θ | parent))`, densities of the sampled components on the
-    /// log scale (the same Jacobian in both).
-    fn log_prior_over_proposal(&self, theta: &GpParams, parent: &GpParams) -> f64 {
-        let normal = |x: f64, m: f64, sd: f64| {
-            let z = (x - m) / sd;
-            -0.5 * z * z - sd.ln() - 0.5 * crate::gp::LN_2PI
-        };
-        let (mut lp, mut ll) = (0.0, 0.0);
-        if !self.settings.fixed_length_scales {
-            let (a, b) = self.settings.length_scale_prior;
-            let pairs = [
-                (theta.length_scales.wx, parent.length_scales.wx),
-                (theta.length_scales.wy, parent.length_scales.wy),
-            ];
-            for (w, w0) in pairs {
-                let u = w.ln();
-                lp += a * u - w / b - ln_gamma(a) - a * b.ln();
-                ll += normal(u, w0.ln(), LOCAL_LS_SD);
-            }
-        }
-        if self.per_pattern_noise()
-            && let Some(prior) = self.settings.noise_prior
-        {
-            let scale = self.settings.base.signal_var;
-            for d in 0..2 {
-                let x = theta.noise_var[d].ln();
-                lp += prior.log_density(x, scale[d]);
-                ll += normal(x, parent.noise_var[d].ln(), LOCAL_NOISE_SD);
-            }
-        }
-        lp - (log_sum_exp(&[lp, ll]) + 0.5f64.ln())
     }
 
     /// Grow two patterns from the seed items `i` (params of `template`) and `j` (params
@@ -406,7 +418,8 @@ impl Sampler {
             .into_iter()
             .filter(|it| it[0] != seed_i[0] && it[0] != seed_j[0])
             .collect();
-        let Some((params_b, prior_over_q)) = self.split_params(template.params(), rng)? else {
+        let Some((params_b, prior_over_q)) = self.settings.split_params(template.params(), rng)?
+        else {
             return Ok(());
         };
         let alloc = self.allocate(
@@ -467,7 +480,9 @@ impl Sampler {
             - a.log_marginal()
             - b.log_marginal();
         // The reverse split's proposal of b's parameters from a's.
-        let q_over_prior = -self.log_prior_over_proposal(b.params(), a.params());
+        let q_over_prior = -self
+            .settings
+            .log_prior_over_proposal(b.params(), a.params());
         // The reverse split's log q is at most 0, so a uniform that rejects the ratio without it
         // rejects the move: most merges are refused before the costly reverse allocation.
         let log_u = match self.settings.assignment {
@@ -488,7 +503,9 @@ impl Sampler {
                 .collect();
             let labels = &self.labels;
             let side = |f: usize| labels[f] == ki;
-            let params_b = self.new_params(b.length_scales(), b.params().noise_var);
+            let params_b = self
+                .settings
+                .new_params(b.length_scales(), b.params().noise_var);
             let reverse = self.allocate(
                 &seed_i,
                 &seed_j,

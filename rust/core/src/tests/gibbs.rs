@@ -38,6 +38,7 @@ fn settings(assignment: Assignment, seed: u64) -> Settings {
         noise_prior: None,
         noise_scope: crate::gibbs::NoiseScope::Global,
         dynamics: None,
+        sampler: crate::gibbs::SamplerKind::Collapsed,
     }
 }
 

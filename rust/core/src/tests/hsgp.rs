@@ -1,5 +1,6 @@
 use super::*;
 use crate::correlation::Correlation;
+use crate::frame::LengthScales;
 use crate::kernel;
 use crate::pattern::Pattern;
 use crate::pattern_model::{PatternModel, ReducedPattern};

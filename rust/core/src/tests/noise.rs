@@ -9,7 +9,7 @@ use crate::pattern::FrameRef;
 use crate::pattern_model::Likelihood;
 use std::collections::HashMap;
 
-const PRIOR: NoisePrior = NoisePrior {
+pub(crate) const PRIOR: NoisePrior = NoisePrior {
     log_mean: -std::f64::consts::LN_10, // ln 0.1
     sd: 2.0,
 };
@@ -279,7 +279,7 @@ fn noise_integrated(data: &Data, st: &Settings, members: &[usize]) -> f64 {
 }
 
 /// The partition posterior with every pattern's noise integrated out under its prior.
-fn enumerated_noise_integrated(data: &Data, st: &Settings) -> HashMap<Vec<usize>, f64> {
+pub(crate) fn enumerated_noise_integrated(data: &Data, st: &Settings) -> HashMap<Vec<usize>, f64> {
     crate::gibbs::split_merge::tests::enumerated_by(data.len(), st.alpha.unwrap(), |members| {
         noise_integrated(data, st, members)
     })

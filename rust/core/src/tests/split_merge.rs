@@ -54,6 +54,7 @@ pub(crate) fn tiny_settings(likelihood: Likelihood, seed: u64) -> Settings {
         noise_prior: None,
         noise_scope: crate::gibbs::NoiseScope::Global,
         dynamics: None,
+        sampler: crate::gibbs::SamplerKind::Collapsed,
     }
 }
 

@@ -1,0 +1,363 @@
+//! The Hilbert-space basis of the reduced-rank GP (Solin & Särkkä 2020; Riutort-Mayol et al. 2023).
+//!
+//! On a box `[c − L, c + L]` per axis, the Laplacian's Dirichlet eigenfunctions
+//! `φ_j(u) = sin(π j (u − c + L) / (2L)) / √L` with `√λ_j = π j / (2L)` give the separable basis
+//! `φ_jk(x, y) = φ_j(x) φ_k(y)`, and the squared-exponential kernel becomes
+//! `k̃(p, q) = σ² Σ_jk s_jk φ_jk(p) φ_jk(q)` with `s_jk = S_x(√λ_j) S_y(√λ_k)` the kernel's
+//! (unit-variance) spectral density. The basis does not depend on the length scales: what a
+//! pattern's frames contribute are sums over them (`hsgp_sums`).
+
+use std::f64::consts::PI;
+
+use faer::linalg::matmul::matmul;
+use faer::{Accum, MatMut, MatRef, Par};
+
+use crate::error::{Error, Result};
+use crate::frame::{LengthScales, Point};
+
+/// Most basis functions a fit may use (M x M matrices of 8 bytes: 128 MiB each at the cap).
+pub const MAX_BASIS: usize = 4096;
+
+/// The basis: a box per axis and the number of eigenfunctions along each.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Basis {
+    center: [f64; 2],
+    half: [f64; 2],
+    m: [usize; 2],
+}
+
+impl Basis {
+    pub fn new(center: [f64; 2], half: [f64; 2], m: [usize; 2]) -> Result<Self> {
+        if !(center.iter().all(|c| c.is_finite()) && half.iter().all(|h| h.is_finite() && *h > 0.0))
+        {
+            return Err(Error::InvalidInput(format!(
+                "the basis box needs a finite centre and positive half-widths, got {center:?}, {half:?}"
+            )));
+        }
+        if m[0] == 0 || m[1] == 0 || m[0].saturating_mul(m[1]) > MAX_BASIS {
+            return Err(Error::InvalidInput(format!(
+                "n_basis must be two positive counts with a product of at most {MAX_BASIS}, got {m:?}"
+            )));
+        }
+        Ok(Self { center, half, m })
+    }
+
+    /// The documented sizing rule for training positions `xy`. Per axis, with `S` the data's
+    /// half-range, `w_lo` a low and `w_mid` a typical length scale: the box half-width is
+    /// `L = max(1.2 S, S + 2 w_mid)` (the boundary distorts `k̃` within about two length scales
+    /// of it) and `m = ceil(2 L / w_lo)`, which puts the highest frequency at `π / w_lo`, where
+    /// the spectral density has fallen to `e^{−π²/2} ≈ 0.7%` of its peak for `w = w_lo` and to
+    /// far less for the typical `w`. `m` given by the caller overrides the count.
+    pub fn for_data(
+        xy: &[Point],
+        w_lo: [f64; 2],
+        w_mid: [f64; 2],
+        m: Option<[usize; 2]>,
+    ) -> Result<Self> {
+        if xy.is_empty() {
+            return Err(Error::Shape("no positions to size the basis from".into()));
+        }
+        let mut center = [0.0; 2];
+        let mut half = [0.0; 2];
+        let mut count = [0; 2];
+        for d in 0..2 {
+            let lo = xy.iter().map(|p| p[d]).fold(f64::INFINITY, f64::min);
+            let hi = xy.iter().map(|p| p[d]).fold(f64::NEG_INFINITY, f64::max);
+            if !(w_lo[d] > 0.0 && w_mid[d] > 0.0 && w_lo[d].is_finite() && w_mid[d].is_finite()) {
+                return Err(Error::InvalidInput(format!(
+                    "length scales for sizing the basis must be positive, got {w_lo:?}, {w_mid:?}"
+                )));
+            }
+            let s = (0.5 * (hi - lo)).max(w_lo[d]);
+            center[d] = 0.5 * (lo + hi);
+            half[d] = (1.2 * s).max(s + 2.0 * w_mid[d]);
+            count[d] = ((2.0 * half[d] / w_lo[d]).ceil() as usize).max(4);
+        }
+        let count = match m {
+            Some(m) => m,
+            None => {
+                // Past the cap, shrink both counts in proportion.
+                let total = count[0] * count[1];
+                if total > MAX_BASIS {
+                    let f = (MAX_BASIS as f64 / total as f64).sqrt();
+                    [0, 1].map(|d| ((count[d] as f64 * f).floor() as usize).max(1))
+                } else {
+                    count
+                }
+            }
+        };
+        Self::new(center, half, count)
+    }
+
+    /// [`Basis::for_data`] with the low and typical length scales of the fit: the 5% quantile
+    /// and the median of the Gamma(shape, scale) prior, or the fixed length scales.
+    pub fn for_prior(
+        xy: &[Point],
+        prior: (f64, f64),
+        fixed: Option<LengthScales>,
+        m: Option<[usize; 2]>,
+    ) -> Result<Self> {
+        let (lo, mid) = match fixed {
+            Some(ls) => ([ls.wx, ls.wy], [ls.wx, ls.wy]),
+            None => {
+                let (a, b) = prior;
+                if !(a > 0.0 && b > 0.0 && a.is_finite() && b.is_finite()) {
+                    return Err(Error::InvalidInput(format!(
+                        "length_scale_prior must be (shape, scale) with both positive, got {prior:?}"
+                    )));
+                }
+                let lo = crate::special::gamma_quantile(0.05, a, b);
+                let mid = crate::special::gamma_quantile(0.5, a, b);
+                ([lo; 2], [mid; 2])
+            }
+        };
+        Self::for_data(xy, lo, mid, m)
+    }
+
+    pub fn len(&self) -> usize {
+        self.m[0] * self.m[1]
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    pub fn center(&self) -> [f64; 2] {
+        self.center
+    }
+
+    pub fn half_widths(&self) -> [f64; 2] {
+        self.half
+    }
+
+    pub fn counts(&self) -> [usize; 2] {
+        self.m
+    }
+
+    fn sqrt_eig(&self, d: usize, j: usize) -> f64 {
+        PI * (j + 1) as f64 / (2.0 * self.half[d])
+    }
+
+    /// `φ_j(u)` along axis `d` for every `j`, zero outside the box.
+    fn eval_axis(&self, d: usize, u: f64, out: &mut [f64]) {
+        let t = u - self.center[d] + self.half[d];
+        if !(0.0..=2.0 * self.half[d]).contains(&t) {
+            out.fill(0.0);
+            return;
+        }
+        let norm = 1.0 / self.half[d].sqrt();
+        let theta = PI * t / (2.0 * self.half[d]);
+        for (j, o) in out.iter_mut().enumerate() {
+            *o = norm * ((j + 1) as f64 * theta).sin();
+        }
+    }
+
+    /// Whether `p` lies in the box (where the basis has support).
+    pub fn contains(&self, p: Point) -> bool {
+        (0..2).all(|d| (p[d] - self.center[d]).abs() <= self.half[d])
+    }
+
+    /// `Φᵀ` of the points: column-major `M x n`, one column of basis values per point
+    /// (index `j + m_x k` for `φ_j(x) φ_k(y)`).
+    pub fn features(&self, xy: &[Point]) -> Vec<f64> {
+        let (mx, my) = (self.m[0], self.m[1]);
+        let mm = mx * my;
+        let mut out = vec![0.0; mm * xy.len()];
+        let mut fx = vec![0.0; mx];
+        let mut fy = vec![0.0; my];
+        for (col, p) in out.chunks_mut(mm).zip(xy) {
+            self.eval_axis(0, p[0], &mut fx);
+            self.eval_axis(1, p[1], &mut fy);
+            for (k, &y) in fy.iter().enumerate() {
+                for (c, &x) in col[k * mx..(k + 1) * mx].iter_mut().zip(&fx) {
+                    *c = x * y;
+                }
+            }
+        }
+        out
+    }
+
+    /// Per-axis unit spectral densities `S_d(√λ_j)` at length scales `ls`.
+    fn axis_spectra(&self, ls: LengthScales) -> [Vec<f64>; 2] {
+        let w = [ls.wx, ls.wy];
+        [0, 1].map(|d| {
+            (0..self.m[d])
+                .map(|j| {
+                    let o = self.sqrt_eig(d, j);
+                    (2.0 * PI).sqrt() * w[d] * (-0.5 * w[d] * w[d] * o * o).exp()
+                })
+                .collect()
+        })
+    }
+
+    /// `√s_jk` for every basis function, in feature order.
+    pub fn sqrt_spectral(&self, ls: LengthScales) -> Vec<f64> {
+        let [sx, sy] = self.axis_spectra(ls);
+        sy.iter()
+            .flat_map(|&y| sx.iter().map(move |&x| (x * y).sqrt()))
+            .collect()
+    }
+
+    /// The eigenfunctions along each axis at the points (points x m_d, column-major): what
+    /// [`Basis::correlation_between`] needs, independent of the length scales.
+    pub fn axis_features(&self, pts: &[Point]) -> AxisFeatures {
+        let n = pts.len();
+        let f = [0, 1].map(|d| {
+            let m = self.m[d];
+            let mut f = vec![0.0; n * m];
+            let mut col = vec![0.0; m];
+            for (i, p) in pts.iter().enumerate() {
+                self.eval_axis(d, p[d], &mut col);
+                for (j, c) in col.iter().enumerate() {
+                    f[j * n + i] = *c;
+                }
+            }
+            f
+        });
+        AxisFeatures { n, f }
+    }
+
+    /// `scale · k̃(a, b) / σ²`, i.e. `scale Σ s φ(a) φ(b)`, column-major `|a| x |b|`. Separable:
+    /// the product of two one-axis sums, `|a| |b| (m_x + m_y)` work.
+    pub fn correlation_between(
+        &self,
+        a: &AxisFeatures,
+        b: &AxisFeatures,
+        ls: LengthScales,
+        scale: f64,
+    ) -> Vec<f64> {
+        let spectra = self.axis_spectra(ls);
+        let mut out = vec![scale; a.n * b.n];
+        if out.is_empty() {
+            return out;
+        }
+        let mut k = vec![0.0; a.n * b.n];
+        for d in 0..2 {
+            let m = self.m[d];
+            // a's eigenfunctions weighted by the spectrum, times b's.
+            let mut fa = a.f[d].clone();
+            for (j, s) in spectra[d].iter().enumerate() {
+                for x in &mut fa[j * a.n..(j + 1) * a.n] {
+                    *x *= s;
+                }
+            }
+            matmul(
+                MatMut::from_column_major_slice_mut(&mut k, a.n, b.n),
+                Accum::Replace,
+                MatRef::from_column_major_slice(&fa, a.n, m),
+                MatRef::from_column_major_slice(&b.f[d], b.n, m).transpose(),
+                1.0,
+                Par::Seq,
+            );
+            for (o, x) in out.iter_mut().zip(&k) {
+                *o *= x;
+            }
+        }
+        out
+    }
+
+    /// [`Basis::correlation_between`] of two point sets.
+    pub fn correlation(&self, a: &[Point], b: &[Point], ls: LengthScales, scale: f64) -> Vec<f64> {
+        let fa = self.axis_features(a);
+        if std::ptr::eq(a, b) {
+            return self.correlation_between(&fa, &fa, ls, scale);
+        }
+        self.correlation_between(&fa, &self.axis_features(b), ls, scale)
+    }
+}
+
+/// Eigenfunction values of a set of points along each axis.
+#[derive(Clone, Debug)]
+pub struct AxisFeatures {
+    n: usize,
+    f: [Vec<f64>; 2],
+}
+
+/// The basis's per-axis values at a chunk of points, by the Chebyshev recurrences
+/// `sin((j+1)θ) = 2 cos θ sin(jθ) − sin((j−1)θ)` (and the same for `cos`), a few flops per value
+/// instead of a transcendental call: what the sub-cluster sampler evaluates for every point of
+/// every sweep. Each is column-major `n x m` (a column per basis index, contiguous over the
+/// points), so that products with the points as the inner dimension are matrix products.
+///
+/// - `sx`, `sy`: `φ_j(x) = sin((j+1) θ_x) / √L_x` (and `y`), zero outside the box, so that a
+///   point's features are `φ_j(x) φ_k(y)` as [`Basis::features`] gives them (to round-off).
+/// - `cx`, `cy` (with [`AxisValues::with_cosines`]): `cos(a θ)` for `a = 0..=2m`, with a point's
+///   `cx` row zero unless it lies in the box: the moments from which a Gram matrix is assembled
+///   (`hsgp_sums`).
+#[derive(Clone, Debug, Default)]
+pub struct AxisValues {
+    pub n: usize,
+    pub sx: Vec<f64>,
+    pub sy: Vec<f64>,
+    pub cx: Vec<f64>,
+    pub cy: Vec<f64>,
+}
+
+impl AxisValues {
+    /// The sine values of `pts`.
+    pub fn new(basis: &Basis, pts: &[Point]) -> Self {
+        Self::build(basis, pts, false)
+    }
+
+    /// The sine and cosine values of `pts`.
+    pub fn with_cosines(basis: &Basis, pts: &[Point]) -> Self {
+        Self::build(basis, pts, true)
+    }
+
+    fn build(basis: &Basis, pts: &[Point], cosines: bool) -> Self {
+        let n = pts.len();
+        let [mx, my] = basis.m;
+        let mut out = Self {
+            n,
+            sx: vec![0.0; n * mx],
+            sy: vec![0.0; n * my],
+            ..Self::default()
+        };
+        if cosines {
+            out.cx = vec![0.0; n * (2 * mx + 1)];
+            out.cy = vec![0.0; n * (2 * my + 1)];
+        }
+        for (i, p) in pts.iter().enumerate() {
+            let theta = [0, 1].map(|d| {
+                let t = p[d] - basis.center[d] + basis.half[d];
+                (0.0..=2.0 * basis.half[d])
+                    .contains(&t)
+                    .then(|| PI * t / (2.0 * basis.half[d]))
+            });
+            for d in 0..2 {
+                let Some(th) = theta[d] else { continue };
+                let s = if d == 0 { &mut out.sx } else { &mut out.sy };
+                sines(th, basis.half[d].sqrt().recip(), n, i, &mut s[..]);
+            }
+            if cosines && theta.iter().all(Option::is_some) {
+                for d in 0..2 {
+                    let c = if d == 0 { &mut out.cx } else { &mut out.cy };
+                    cosines_at(theta[d].unwrap_or(0.0), n, i, &mut c[..]);
+                }
+            }
+        }
+        out
+    }
+}
+
+/// `scale · sin((j+1) θ)` into `out[j n + i]` for every column `j`.
+fn sines(theta: f64, scale: f64, n: usize, i: usize, out: &mut [f64]) {
+    let m = out.len() / n;
+    let two_c = 2.0 * theta.cos();
+    let (mut prev, mut cur) = (0.0, theta.sin());
+    for j in 0..m {
+        out[j * n + i] = scale * cur;
+        (prev, cur) = (cur, two_c * cur - prev);
+    }
+}
+
+/// `cos(a θ)` into `out[a n + i]` for every column `a`.
+fn cosines_at(theta: f64, n: usize, i: usize, out: &mut [f64]) {
+    let m = out.len() / n;
+    let c1 = theta.cos();
+    let (mut prev, mut cur) = (c1, 1.0); // cos(−θ), cos(0)
+    for a in 0..m {
+        out[a * n + i] = cur;
+        (prev, cur) = (cur, 2.0 * c1 * cur - prev);
+    }
+}

@@ -1,0 +1,387 @@
+//! What a set of frames contributes to a pattern under the HSGP basis: sums over its points that
+//! do not depend on the length scales or the noise, the marginal likelihood they give under any
+//! hyperparameters, and the Gaussian posterior of the pattern's basis weights.
+//!
+//! **The Gram matrix in O(M) per point.** `G = Σ_p φ(p) φ(p)ᵀ` has `M²` entries, but with
+//! `φ_jk(x, y) = sin(α θ_x) sin(γ θ_y) / √(L_x L_y)` (`α = j + 1`, `γ = k + 1`) and
+//! `sin a sin b = ½ (cos(a − b) − cos(a + b))`, every entry is a signed sum of four entries of
+//! the moment matrix `H[a, b] = Σ_p cos(a θ_x) cos(b θ_y)` (`a ≤ 2 m_x`, `b ≤ 2 m_y`):
+//!
+//! `G[(j,k), (j',k')] = (H[|α−β|, |γ−δ|] − H[|α−β|, γ+δ] − H[α+β, |γ−δ|] + H[α+β, γ+δ]) / (4 L_x L_y)`.
+//!
+//! `H` has about `4M` entries and a point adds its outer product `c_x c_yᵀ`; so the sums of any set
+//! of frames cost `O(M)` per point (matrix products over the points), and `G` is assembled
+//! (`M²`) only when a pattern is factored. This is exact algebra; the two ways differ by
+//! round-off.
+//!
+//! **The posterior of the weights.** A pattern's field is `μ_d + φ(x)ᵀ a_d` per output, with
+//! `a_d ~ N(0, σ_d² diag(s))`. With `D = σ diag(√s)` and `B = σ_n² I + D G D = R Rᵀ`, the weights
+//! given the data are `a_d = D u`, `u ~ N(R⁻ᵀ z_d, σ_n² R⁻ᵀ R⁻¹)`, `z_d = R⁻¹ D b_d`,
+//! `b_d = Φᵀ (v_d − μ_d)`; a draw is `D R⁻ᵀ (z_d + σ_n ε)`, one triangular solve.
+
+use faer::linalg::matmul::matmul;
+use faer::linalg::triangular_solve::{
+    solve_lower_triangular_in_place, solve_upper_triangular_in_place,
+};
+use faer::{Accum, MatMut, MatRef, Par};
+use rand_distr::{Distribution, StandardNormal};
+
+use crate::basis::{AxisValues, Basis};
+use crate::error::Result;
+use crate::frame::Point;
+use crate::gp::{GpParams, LN_2PI};
+use crate::linalg::Chol;
+
+/// Points whose values are computed and summed in one block.
+const BLOCK: usize = 1024;
+
+/// `buf` as a column-major `n x m` matrix.
+fn col(buf: &[f64], n: usize, m: usize) -> MatRef<'_, f64> {
+    MatRef::from_column_major_slice(buf, n, m)
+}
+
+/// The vector and scalar sums of a set of points: `Φᵀ1` (M), `Φᵀ v_d` (M per output, output `d`
+/// at `d M`), `Σ v_d`, `Σ v_d²` and the number of points.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VecSums {
+    pub phi_sum: Vec<f64>,
+    pub phi_v: Vec<f64>,
+    pub v_sum: [f64; 2],
+    pub v_sq: [f64; 2],
+    pub n_points: usize,
+}
+
+impl VecSums {
+    pub fn zeros(m: usize) -> Self {
+        Self {
+            phi_sum: vec![0.0; m],
+            phi_v: vec![0.0; 2 * m],
+            v_sum: [0.0; 2],
+            v_sq: [0.0; 2],
+            n_points: 0,
+        }
+    }
+
+    /// `b_d = Φᵀ (v_d − μ_d)`.
+    pub fn b(&self, d: usize, mu: f64) -> Vec<f64> {
+        let m = self.phi_sum.len();
+        self.phi_v[d * m..(d + 1) * m]
+            .iter()
+            .zip(&self.phi_sum)
+            .map(|(a, s)| a - mu * s)
+            .collect()
+    }
+
+    /// `Σ (v_d − μ_d)²`.
+    pub fn yy(&self, d: usize, mu: f64) -> f64 {
+        self.v_sq[d] - 2.0 * mu * self.v_sum[d] + self.n_points as f64 * mu * mu
+    }
+
+    fn add_scaled(&mut self, other: &Self, sign: f64) {
+        for (a, b) in self.phi_sum.iter_mut().zip(&other.phi_sum) {
+            *a += sign * b;
+        }
+        for (a, b) in self.phi_v.iter_mut().zip(&other.phi_v) {
+            *a += sign * b;
+        }
+        for d in 0..2 {
+            self.v_sum[d] += sign * other.v_sum[d];
+            self.v_sq[d] += sign * other.v_sq[d];
+        }
+    }
+}
+
+/// The sums of a set of frames: the moments `H` from which the Gram matrix is assembled, the
+/// vector sums, and the number of frames.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Sums {
+    /// `H[a, b] = Σ cos(a θ_x) cos(b θ_y)` over the points in the box, column-major
+    /// `(2 m_x + 1) x (2 m_y + 1)`.
+    pub h: Vec<f64>,
+    pub vecs: VecSums,
+    pub n_frames: usize,
+}
+
+impl Sums {
+    pub fn zeros(basis: &Basis) -> Self {
+        let [mx, my] = basis.counts();
+        Self {
+            h: vec![0.0; (2 * mx + 1) * (2 * my + 1)],
+            vecs: VecSums::zeros(basis.len()),
+            n_frames: 0,
+        }
+    }
+
+    /// The sums of the points `xy`, `v` of `n_frames` frames.
+    pub fn of_points(basis: &Basis, xy: &[Point], v: &[[f64; 2]], n_frames: usize) -> Self {
+        let mut s = Self::zeros(basis);
+        for (pts, vel) in xy.chunks(BLOCK).zip(v.chunks(BLOCK)) {
+            s.add_values(basis, &AxisValues::with_cosines(basis, pts), vel);
+        }
+        s.n_frames = n_frames;
+        s
+    }
+
+    /// Add the points whose values (with cosines) are `vals` and velocities `v`.
+    pub fn add_values(&mut self, basis: &Basis, vals: &AxisValues, v: &[[f64; 2]]) {
+        let [mx, my] = basis.counts();
+        let n = vals.n;
+        debug_assert_eq!(v.len(), n);
+        let (hx, hy) = (2 * mx + 1, 2 * my + 1);
+        matmul(
+            MatMut::from_column_major_slice_mut(&mut self.h, hx, hy),
+            Accum::Add,
+            col(&vals.cx, n, hx).transpose(),
+            col(&vals.cy, n, hy),
+            1.0,
+            Par::Seq,
+        );
+        let m = mx * my;
+        let vs = &mut self.vecs;
+        let sx = col(&vals.sx, n, mx);
+        matmul(
+            MatMut::from_column_major_slice_mut(&mut vs.phi_sum, mx, my),
+            Accum::Add,
+            sx.transpose(),
+            col(&vals.sy, n, my),
+            1.0,
+            Par::Seq,
+        );
+        let mut weighted = vec![0.0; n * my];
+        for d in 0..2 {
+            for (k, w) in weighted.chunks_mut(n).enumerate() {
+                for ((o, s), vel) in w.iter_mut().zip(&vals.sy[k * n..(k + 1) * n]).zip(v) {
+                    *o = s * vel[d];
+                }
+            }
+            matmul(
+                MatMut::from_column_major_slice_mut(&mut vs.phi_v[d * m..(d + 1) * m], mx, my),
+                Accum::Add,
+                sx.transpose(),
+                col(&weighted, n, my),
+                1.0,
+                Par::Seq,
+            );
+        }
+        for vel in v {
+            for d in 0..2 {
+                vs.v_sum[d] += vel[d];
+                vs.v_sq[d] += vel[d] * vel[d];
+            }
+        }
+        vs.n_points += n;
+    }
+
+    /// `self += other`.
+    pub fn add(&mut self, other: &Self) {
+        self.add_scaled(other, 1.0);
+        self.vecs.n_points += other.vecs.n_points;
+        self.n_frames += other.n_frames;
+    }
+
+    /// `self −= other` (`other` a subset of the frames summed here).
+    pub fn sub(&mut self, other: &Self) {
+        self.add_scaled(other, -1.0);
+        self.vecs.n_points -= other.vecs.n_points;
+        self.n_frames -= other.n_frames;
+    }
+
+    fn add_scaled(&mut self, other: &Self, sign: f64) {
+        for (a, b) in self.h.iter_mut().zip(&other.h) {
+            *a += sign * b;
+        }
+        self.vecs.add_scaled(&other.vecs, sign);
+    }
+
+    /// `G = Σ φ φᵀ` (M x M, both triangles) from the moments.
+    pub fn gram(&self, basis: &Basis) -> Vec<f64> {
+        let [mx, my] = basis.counts();
+        let [lx, ly] = basis.half_widths();
+        let (m, hx) = (mx * my, 2 * mx + 1);
+        let scale = 1.0 / (4.0 * lx * ly);
+        let h = |a: usize, b: usize| self.h[a + hx * b];
+        let mut g = vec![0.0; m * m];
+        for k2 in 0..my {
+            for j2 in 0..mx {
+                let col = &mut g[(j2 + mx * k2) * m..(j2 + mx * k2 + 1) * m];
+                for k in 0..my {
+                    let (em, ep) = (k.abs_diff(k2), k + k2 + 2);
+                    for j in 0..mx {
+                        let (dm, dp) = (j.abs_diff(j2), j + j2 + 2);
+                        col[j + mx * k] = scale * (h(dm, em) - h(dm, ep) - h(dp, em) + h(dp, ep));
+                    }
+                }
+            }
+        }
+        g
+    }
+}
+
+/// One output group's factor: `R = chol(σ_n² I + D G D)` and `z = R⁻¹ D b` (M x outputs).
+#[derive(Clone, Debug)]
+pub struct Group {
+    pub outs: &'static [usize],
+    pub signal_var: f64,
+    pub noise_var: f64,
+    pub chol: Vec<f64>,
+    pub z: Vec<f64>,
+}
+
+impl Group {
+    /// Factor the group of outputs `outs` (signal variance `s2`, noise `noise`) with `d = σ √s`.
+    pub fn new(
+        outs: &'static [usize],
+        (s2, noise): (f64, f64),
+        gram: &[f64],
+        d: &[f64],
+        vecs: &VecSums,
+        mean: [f64; 2],
+    ) -> Result<Self> {
+        let m = d.len();
+        let chol = Chol::factor(m, "reduced-rank", Par::Seq, || {
+            let mut b = vec![0.0; m * m];
+            for j in 0..m {
+                for i in 0..m {
+                    b[j * m + i] = d[i] * gram[j * m + i] * d[j];
+                }
+                b[j * m + j] += noise;
+            }
+            b
+        })?;
+        let mut g = Self {
+            outs,
+            signal_var: s2,
+            noise_var: noise,
+            chol: chol.l,
+            z: Vec::new(),
+        };
+        g.z = g.whiten(d, vecs, mean);
+        Ok(g)
+    }
+
+    pub fn r(&self, m: usize) -> MatRef<'_, f64> {
+        MatRef::from_column_major_slice(&self.chol, m, m)
+    }
+
+    pub fn log_det(&self, m: usize) -> f64 {
+        2.0 * (0..m).map(|i| self.chol[i * m + i].ln()).sum::<f64>()
+    }
+
+    /// `z = R⁻¹ D b` for every output of the group.
+    pub fn whiten(&self, d: &[f64], vecs: &VecSums, mean: [f64; 2]) -> Vec<f64> {
+        let m = d.len();
+        let mut z = Vec::with_capacity(m * self.outs.len());
+        for &o in self.outs {
+            z.extend(vecs.b(o, mean[o]).iter().zip(d).map(|(b, d)| b * d));
+        }
+        solve_lower_triangular_in_place(
+            self.r(m),
+            MatMut::from_column_major_slice_mut(&mut z, m, self.outs.len()),
+            Par::Seq,
+        );
+        z
+    }
+
+    /// `D R⁻ᵀ (z + σ_n ε)` per output of the group (M x outputs): the posterior mean weights with
+    /// `noise = None`, a draw with standard normals `noise`.
+    pub fn weights(&self, d: &[f64], noise: Option<&mut dyn FnMut() -> f64>) -> Vec<f64> {
+        let m = d.len();
+        let mut a = self.z.clone();
+        if let Some(eps) = noise {
+            let s = self.noise_var.sqrt();
+            for x in a.iter_mut() {
+                *x += s * eps();
+            }
+        }
+        solve_upper_triangular_in_place(
+            self.r(m).transpose(),
+            MatMut::from_column_major_slice_mut(&mut a, m, self.outs.len()),
+            Par::Seq,
+        );
+        for col in a.chunks_mut(m) {
+            for (x, d) in col.iter_mut().zip(d) {
+                *x *= d;
+            }
+        }
+        a
+    }
+}
+
+/// `D = σ √s` for a group's signal variance.
+pub fn scaled_sqrt_spectrum(sqrt_s: &[f64], signal_var: f64) -> Vec<f64> {
+    let s = signal_var.sqrt();
+    sqrt_s.iter().map(|x| s * x).collect()
+}
+
+/// `log p(D)` under the reduced-rank GP from the factors of every output group.
+pub fn log_marginal(groups: &[Group], vecs: &VecSums, mean: [f64; 2], m: usize) -> f64 {
+    let n = vecs.n_points as f64;
+    let mut total = -n * LN_2PI;
+    for g in groups {
+        let s2n = g.noise_var;
+        let k = g.outs.len() as f64;
+        let zz: f64 = g.z.iter().map(|x| x * x).sum();
+        let yy: f64 = g.outs.iter().map(|&d| vecs.yy(d, mean[d])).sum();
+        let log_det = (n - m as f64) * s2n.ln() + g.log_det(m);
+        total -= 0.5 * (yy - zz) / s2n + 0.5 * k * log_det;
+    }
+    total
+}
+
+/// A pattern's sums factored under hyperparameters: its log marginal likelihood and the posterior
+/// of its weights.
+#[derive(Clone, Debug)]
+pub struct Posterior {
+    pub params: GpParams,
+    groups: Vec<Group>,
+    /// `D` of each group, in group order.
+    d: Vec<Vec<f64>>,
+    pub log_marginal: f64,
+}
+
+impl Posterior {
+    /// Factor `sums` (whose Gram matrix is `gram`) under `params`: one M x M Cholesky per output
+    /// group.
+    pub fn new(basis: &Basis, sums: &Sums, gram: &[f64], params: GpParams) -> Result<Self> {
+        let sqrt_s = basis.sqrt_spectral(params.length_scales);
+        let mut groups = Vec::new();
+        let mut ds = Vec::new();
+        for outs in params.groups() {
+            let vars = params.group_vars(outs);
+            let d = scaled_sqrt_spectrum(&sqrt_s, vars.0);
+            groups.push(Group::new(outs, vars, gram, &d, &sums.vecs, params.mean)?);
+            ds.push(d);
+        }
+        let log_marginal = log_marginal(&groups, &sums.vecs, params.mean, basis.len());
+        Ok(Self {
+            params,
+            groups,
+            d: ds,
+            log_marginal,
+        })
+    }
+
+    /// The weights `[a_x, a_y]` (M each, feature order): the posterior mean with `rng = None`, a
+    /// posterior draw otherwise.
+    pub fn weights(&self, mut rng: Option<&mut dyn rand::Rng>) -> [Vec<f64>; 2] {
+        let mut out = [Vec::new(), Vec::new()];
+        for (g, d) in self.groups.iter().zip(&self.d) {
+            let a = match rng.as_deref_mut() {
+                Some(r) => {
+                    let mut eps = || -> f64 { StandardNormal.sample(&mut *r) };
+                    g.weights(d, Some(&mut eps))
+                }
+                None => g.weights(d, None),
+            };
+            let m = d.len();
+            for (c, &o) in g.outs.iter().enumerate() {
+                out[o] = a[c * m..(c + 1) * m].to_vec();
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+#[path = "tests/hsgp_sums.rs"]
+mod tests;

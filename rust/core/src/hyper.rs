@@ -1,0 +1,131 @@
+//! One pattern's hyperparameter steps, written once for every sampler: slice sampling of its
+//! `(log w_x, log w_y)` and of its own noise pair, given whatever the pattern holds of its frames
+//! (the collapsed sampler's factor, the sub-cluster sampler's sums). Each candidate is a refitted
+//! copy of the pattern; the copy at the accepted point becomes the pattern.
+
+use rand::RngExt;
+
+use super::noise::{MIN_RATIO, NoisePrior, width};
+use crate::error::Result;
+use crate::frame::LengthScales;
+use crate::gp::GpParams;
+use crate::slice::slice_step;
+use crate::special::ln_gamma_pdf;
+
+/// A pattern that can be scored under other hyperparameters: what the slice steps need.
+pub(crate) trait Refit: Sized {
+    fn params(&self) -> &GpParams;
+    /// `log p(D_k | θ)`.
+    fn log_marginal(&self) -> f64;
+    fn n_points(&self) -> usize;
+    /// The same frames under `params`.
+    fn refit(&self, params: GpParams) -> Result<Self>;
+}
+
+/// Log density of a pattern's length scales (with the log-scale Jacobian) and data.
+pub(crate) fn ls_log_target<P: Refit>(p: &P, prior: (f64, f64)) -> f64 {
+    let (a, b) = prior;
+    let ls = p.params().length_scales;
+    ln_gamma_pdf(ls.wx, a, b)
+        + ln_gamma_pdf(ls.wy, a, b)
+        + ls.wx.ln()
+        + ls.wy.ln()
+        + p.log_marginal()
+}
+
+/// Slice-sample `log w_x` then `log w_y` of `current` under the Gamma `prior`; with `fraction`
+/// below 1, only that share of calls updates (a uniform drawn first decides).
+pub(crate) fn length_scale_step<P: Refit>(
+    mut current: P,
+    prior: (f64, f64),
+    fraction: f64,
+    rng: &mut impl rand::Rng,
+) -> P {
+    if fraction < 1.0 && rng.random::<f64>() >= fraction {
+        return current;
+    }
+    let mut f0 = ls_log_target(&current, prior);
+    for axis in 0..2 {
+        let params = *current.params();
+        let ls = params.length_scales;
+        let x0 = if axis == 0 { ls.wx.ln() } else { ls.wy.ln() };
+        let mut last: Option<(f64, P)> = None;
+        let (x, fx) = slice_step(x0, f0, 0.5, rng, |x| {
+            let w = x.exp();
+            if !(w.is_finite() && w > 0.0) {
+                return f64::NEG_INFINITY;
+            }
+            let cand = if axis == 0 {
+                LengthScales { wx: w, ..ls }
+            } else {
+                LengthScales { wy: w, ..ls }
+            };
+            match current.refit(params.with_length_scales(cand)) {
+                Ok(p) => {
+                    let f = ls_log_target(&p, prior);
+                    last = Some((x, p));
+                    f
+                }
+                Err(_) => f64::NEG_INFINITY,
+            }
+        });
+        if let Some((lx, p)) = last
+            && lx == x
+            && x != x0
+        {
+            current = p;
+            f0 = fx;
+        }
+    }
+    current
+}
+
+/// Slice-sample the pattern's own `log σ_n,x²` then `log σ_n,y²` under `prior` (relative to the
+/// velocity variances `scale`); `None` if neither moved.
+pub(crate) fn noise_step<P: Refit>(
+    p0: &P,
+    prior: NoisePrior,
+    scale: [f64; 2],
+    rng: &mut impl rand::Rng,
+) -> Result<Option<P>> {
+    let w = width(p0.n_points());
+    let mut current: Option<P> = None;
+    for d in 0..2 {
+        let cur: &P = current.as_ref().unwrap_or(p0);
+        let params = *cur.params();
+        let x0 = params.noise_var[d].ln();
+        let f0 = prior.log_density(x0, scale[d]) + cur.log_marginal();
+        let at = |x: f64| {
+            let mut noise_var = params.noise_var;
+            noise_var[d] = x.exp();
+            GpParams {
+                noise_var,
+                ..params
+            }
+        };
+        let mut last: Option<(f64, P)> = None;
+        let (x, _) = slice_step(x0, f0, w, rng, |x| {
+            let v = x.exp();
+            if !(v.is_finite() && v >= MIN_RATIO * scale[d]) {
+                return f64::NEG_INFINITY;
+            }
+            match cur.refit(at(x)) {
+                Ok(p) => {
+                    let lm = p.log_marginal();
+                    last = Some((x, p));
+                    prior.log_density(x, scale[d]) + lm
+                }
+                Err(_) => f64::NEG_INFINITY,
+            }
+        });
+        if x == x0 {
+            continue;
+        }
+        let p = match last {
+            Some((lx, p)) if lx == x => p,
+            _ => cur.refit(at(x))?,
+        };
+        current = Some(p);
+    }
+    Ok(current)
+}

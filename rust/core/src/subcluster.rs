@@ -1,0 +1,678 @@
+//! The parallel sampler of the DP mixture of reduced-rank GP fields: each pattern reduced to the
+//! sums of its frames (`hsgp_sums`), every frame assigned in parallel given drawn fields, and
+//! whole patterns split and merged by Metropolis–Hastings moves built from sub-patterns
+//! (docs/inference.md, "The sub-cluster sampler").
+//!
+//! **One sweep.**
+//! 1. *Instantiate* (`subcluster_pass.rs`): given the labels, draw the mixture weights of the `K`
+//!    patterns, `(π_1..π_K, π_rest) ~ Dir(n_1..n_K, α)`, and each pattern's basis weights from
+//!    their Gaussian posterior given its sums (one `M x M` factor per output group).
+//! 2. *Assign*, in parallel over frames: `p(z_i = k) ∝ π_k Π_j N(v_j; μ + φ(x_j)ᵀ a_k, σ_n,k²)`,
+//!    `O(l M)` per frame and pattern as one matrix product per chunk of points, a counter-based
+//!    uniform per frame (the same labels for any thread count).
+//! 3. *Sum* the statistics of the frames that moved into and out of each pattern.
+//! 4. *Split and merge* (`subcluster_moves.rs`), then slice-sample each pattern's length scales
+//!    and noise from its sums (`O(M³)`, no pass over the data), then α.
+//!
+//! **Exact.** Steps 1–2 are a blocked Gibbs step of the augmented target
+//! `p(z, θ | V) p(π, a | z, θ, V)`: for labels that keep all `K` patterns (the patterns are the
+//! weights' labels), `p(z | π, a) ∝ Π_i π_{z_i} f(V_i | a_{z_i})`, and zero where a pattern would
+//! be left empty. So frames are drawn from that product one at a time in frame order, a frame that
+//! is the last of its pattern staying where it is: its exact conditional. The draws need no
+//! state of other frames, so they are made in parallel beforehand and only the "last frame"
+//! bookkeeping runs in order (`O(N)`, integers only). This pass never creates nor empties a
+//! pattern; the split–merge moves do, and make the chain ergodic. (The restricted step of Chang &
+//! Fisher 2013 lets a pattern empty; it then merges and never splits, which does not keep the
+//! posterior: with two frames, `{1}{2} → {12}` has positive probability and its reverse none.)
+//! The hyperparameters and α are Gibbs steps of the collapsed target given the partition; the
+//! moves are Metropolis–Hastings on it. The instantiated weights live for one pass only.
+//!
+//! Every random number comes from a stream or a counter-based uniform keyed by (seed, sweep,
+//! phase, entity), and every parallel result is reduced in a fixed order, so a run does not depend
+//! on the thread count.
+
+use std::sync::{Arc, OnceLock};
+use std::time::Instant;
+
+use rand_distr::{Distribution, Gamma};
+use rayon::prelude::*;
+
+use crate::basis::Basis;
+use crate::error::{Error, Result};
+use crate::frame::{LengthScales, Point};
+use crate::gibbs::{
+    Assignment, Data, NoiseScope, PatternInfo, Sampler, SamplerKind, Settings, SplitMergeStats,
+    SweepStats,
+};
+use crate::gp::GpParams;
+use crate::hsgp_sums::{Posterior, Sums};
+use crate::pattern_model::Likelihood;
+use crate::rng::{Phase, stream};
+use crate::slice::slice_step;
+use crate::special::{ln_gamma, ln_gamma_pdf};
+
+#[path = "subcluster_moves.rs"]
+mod moves;
+#[path = "subcluster_pass.rs"]
+mod pass;
+
+/// Where a chain starts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Start {
+    /// The collapsed sampler's sequential initialisation (Python's default).
+    Sequential,
+    /// Every frame in one pattern.
+    One,
+    /// Many patterns: every frame its own up to [`MANY_PATTERNS`] frames, else that many
+    /// contiguous blocks of frames.
+    Many,
+}
+
+/// Patterns of a [`Start::Many`] start.
+pub const MANY_PATTERNS: usize = 256;
+
+impl std::str::FromStr for Start {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "sequential" => Ok(Self::Sequential),
+            "one" => Ok(Self::One),
+            "many" => Ok(Self::Many),
+            _ => Err(crate::error::unknown_option(
+                "init",
+                &["sequential", "one", "many"],
+                s,
+            )),
+        }
+    }
+}
+
+/// Group numbers of a [`Start::One`] or [`Start::Many`] start for `n` frames.
+pub fn start_groups(start: Start, n: usize) -> Vec<usize> {
+    match start {
+        Start::One | Start::Sequential => vec![0; n],
+        Start::Many => {
+            let k = n.clamp(1, MANY_PATTERNS);
+            (0..n).map(|i| i * k / n).collect()
+        }
+    }
+}
+
+/// Seconds spent per part of the sweep, accumulated over the run.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Timings {
+    /// Drawing the mixture weights and every pattern's basis weights.
+    pub fields: f64,
+    /// Every frame's label given them (the parallel pass).
+    pub assign: f64,
+    /// The sums of the frames that moved.
+    pub sums: f64,
+    pub split_merge: f64,
+    pub length_scales: f64,
+    pub noise: f64,
+    pub alpha: f64,
+}
+
+/// A pattern: the sums of its frames, its hyperparameters, and its factor at them (on demand).
+#[derive(Clone, Debug)]
+struct Part {
+    sums: Sums,
+    params: GpParams,
+    generation: u32,
+    fit: Option<Fit>,
+}
+
+/// A pattern's Gram matrix and its posterior at the pattern's hyperparameters.
+#[derive(Clone, Debug)]
+struct Fit {
+    gram: Arc<Vec<f64>>,
+    post: Posterior,
+}
+
+/// A pattern's sums factored under some hyperparameters: what the hyperparameter steps refit.
+struct Candidate<'a> {
+    basis: &'a Basis,
+    sums: &'a Sums,
+    fit: Fit,
+}
+
+impl crate::gibbs::Refit for Candidate<'_> {
+    fn params(&self) -> &GpParams {
+        &self.fit.post.params
+    }
+    fn log_marginal(&self) -> f64 {
+        self.fit.post.log_marginal
+    }
+    fn n_points(&self) -> usize {
+        self.sums.vecs.n_points
+    }
+    fn refit(&self, params: GpParams) -> Result<Self> {
+        let post = Posterior::new(self.basis, self.sums, &self.fit.gram, params)?;
+        Ok(Self {
+            fit: Fit {
+                gram: Arc::clone(&self.fit.gram),
+                post,
+            },
+            ..*self
+        })
+    }
+}
+
+/// The sub-cluster sampler's state.
+#[derive(Clone, Debug)]
+pub struct SubclusterSampler {
+    settings: Settings,
+    data: Arc<Data>,
+    basis: Arc<Basis>,
+    slots: Vec<Option<Part>>,
+    generations: Vec<u32>,
+    labels: Vec<usize>,
+    alpha: f64,
+    sweep: u64,
+    pub timings: Timings,
+    pub split_merge: SplitMergeStats,
+    /// Each frame's mean velocity, for informed split–merge pairs (computed once, on demand).
+    frame_means: OnceLock<Arc<Vec<[f64; 2]>>>,
+    /// Tests: leave the proposal probability out of the split–merge ratio (a wrong chain).
+    #[cfg(test)]
+    pub(crate) wrong_ratio: bool,
+}
+
+const NONE: usize = usize::MAX;
+
+impl SubclusterSampler {
+    /// A sampler with every frame unassigned; call [`SubclusterSampler::initialize`] next.
+    pub fn new(data: Arc<Data>, settings: Settings) -> Result<Self> {
+        settings.validate()?;
+        let Likelihood::Hsgp(basis) = &settings.likelihood else {
+            unreachable!("validate() refuses the sub-cluster sampler without a basis");
+        };
+        let basis = Arc::clone(basis);
+        // The same starting α as the collapsed sampler (the same stream).
+        let alpha = crate::gibbs::initial_alpha(&settings)?;
+        let n = data.len();
+        Ok(Self {
+            settings,
+            data,
+            basis,
+            slots: Vec::new(),
+            generations: Vec::new(),
+            labels: vec![NONE; n],
+            alpha,
+            sweep: 0,
+            timings: Timings::default(),
+            split_merge: SplitMergeStats::default(),
+            frame_means: OnceLock::new(),
+            #[cfg(test)]
+            wrong_ratio: false,
+        })
+    }
+
+    pub fn settings(&self) -> &Settings {
+        &self.settings
+    }
+
+    pub fn data(&self) -> &Arc<Data> {
+        &self.data
+    }
+
+    pub fn alpha(&self) -> f64 {
+        self.alpha
+    }
+
+    pub fn sweeps_done(&self) -> u64 {
+        self.sweep
+    }
+
+    pub fn set_sweeps_done(&mut self, sweeps: u64) {
+        self.sweep = sweeps;
+    }
+
+    /// The slot of each frame's pattern.
+    pub fn labels(&self) -> &[usize] {
+        &self.labels
+    }
+
+    fn live(&self) -> impl Iterator<Item = (usize, &Part)> {
+        self.slots
+            .iter()
+            .enumerate()
+            .filter_map(|(k, s)| s.as_ref().map(|s| (k, s)))
+    }
+
+    fn part(&self, k: usize) -> &Part {
+        self.slots[k].as_ref().expect("a live pattern slot")
+    }
+
+    fn part_mut(&mut self, k: usize) -> &mut Part {
+        self.slots[k].as_mut().expect("a live pattern slot")
+    }
+
+    fn id(&self, k: usize) -> u64 {
+        (u64::from(self.part(k).generation) << 32) | k as u64
+    }
+
+    /// Patterns in slot order.
+    pub fn patterns(&self) -> Vec<PatternInfo> {
+        self.live()
+            .map(|(k, p)| PatternInfo {
+                slot: k,
+                id: (u64::from(p.generation) << 32) | k as u64,
+                n_frames: p.sums.n_frames,
+                length_scales: p.params.length_scales,
+                noise_var: p.params.noise_var,
+            })
+            .collect()
+    }
+
+    /// The noise pair the chain is at (per pattern: the pair it started at).
+    pub fn noise_var(&self) -> [f64; 2] {
+        self.settings.base.noise_var
+    }
+
+    /// Bytes held by the patterns' sums and cached factors.
+    pub fn memory_bytes(&self) -> usize {
+        let m = self.basis.len();
+        let sums = 8 * (self.live().next().map_or(0, |(_, p)| p.sums.h.len()) + 3 * m);
+        let factor = 8 * m * m * (1 + self.settings.base.groups().len());
+        self.live().count() * (sums + factor) + 8 * self.labels.len()
+    }
+
+    fn check_memory(&self, extra: usize) -> Result<()> {
+        let Some(budget) = self.settings.memory_budget else {
+            return Ok(());
+        };
+        let needed = self.memory_bytes() + extra;
+        if needed > budget {
+            return Err(Error::MemoryBudget {
+                needed,
+                budget,
+                likelihood: "hsgp",
+            });
+        }
+        Ok(())
+    }
+
+    fn add_part(&mut self, sums: Sums, params: GpParams, fit: Option<Fit>) -> usize {
+        let k = match self.slots.iter().position(Option::is_none) {
+            Some(k) => k,
+            None => {
+                self.slots.push(None);
+                self.generations.push(0);
+                self.slots.len() - 1
+            }
+        };
+        self.generations[k] += 1;
+        self.slots[k] = Some(Part {
+            sums,
+            params,
+            generation: self.generations[k],
+            fit,
+        });
+        k
+    }
+
+    /// Pattern `k`'s Gram matrix and posterior at its hyperparameters, computed if stale.
+    fn fit_of(&self, k: usize) -> Result<Fit> {
+        let p = self.part(k);
+        if let Some(f) = &p.fit {
+            return Ok(f.clone());
+        }
+        let gram = Arc::new(p.sums.gram(&self.basis));
+        let post = Posterior::new(&self.basis, &p.sums, &gram, p.params)?;
+        Ok(Fit { gram, post })
+    }
+
+    /// Factor every pattern whose cached fit is stale (in parallel).
+    fn refresh_fits(&mut self) -> Result<()> {
+        let stale: Vec<usize> = self
+            .live()
+            .filter(|(_, p)| p.fit.is_none())
+            .map(|(k, _)| k)
+            .collect();
+        let fits: Vec<Result<Fit>> = stale.par_iter().map(|&k| self.fit_of(k)).collect();
+        for (&k, f) in stale.iter().zip(fits) {
+            self.part_mut(k).fit = Some(f?);
+        }
+        Ok(())
+    }
+
+    /// Where a chain starts: the collapsed sampler's sequential initialisation, or one or many
+    /// patterns ([`Start`]). Frames already assigned (a state that was set) keep their labels.
+    pub fn initialize(&mut self, start: Start, stop: &dyn Fn() -> bool) -> Result<()> {
+        if !self.labels.contains(&NONE) {
+            return Ok(());
+        }
+        let n = self.data.len();
+        match start {
+            Start::Sequential => {
+                let settings = Settings {
+                    sampler: SamplerKind::Collapsed,
+                    ..self.settings.clone()
+                };
+                let mut s = Sampler::new_with_data(Arc::clone(&self.data), settings)?;
+                s.initialize(stop)?;
+                let infos = s.patterns();
+                let slot_to_group: std::collections::HashMap<usize, usize> =
+                    infos.iter().enumerate().map(|(g, p)| (p.slot, g)).collect();
+                let labels: Vec<usize> = s.labels().iter().map(|l| slot_to_group[l]).collect();
+                let ls: Vec<LengthScales> = infos.iter().map(|p| p.length_scales).collect();
+                let noise: Vec<[f64; 2]> = infos.iter().map(|p| p.noise_var).collect();
+                drop(s);
+                self.set_state(&labels, &ls, Some(&noise), self.alpha)
+            }
+            Start::One | Start::Many => {
+                let groups = start_groups(start, n);
+                let k = groups.iter().max().map_or(0, |g| g + 1);
+                let ls = vec![self.settings.base.length_scales; k];
+                self.set_state(&groups, &ls, None, self.alpha)
+            }
+        }
+    }
+
+    /// Set a state directly: `labels` as group numbers (equal numbers share a pattern), each
+    /// group's length scales and (per-pattern noise) noise pair, and α. The sums are built from
+    /// the frames, in parallel.
+    pub fn set_state(
+        &mut self,
+        labels: &[usize],
+        length_scales: &[LengthScales],
+        noise_var: Option<&[[f64; 2]]>,
+        alpha: f64,
+    ) -> Result<()> {
+        crate::gibbs::check_state(self.data.len(), labels, length_scales, noise_var, alpha)?;
+        let mut members: Vec<Vec<usize>> = vec![Vec::new(); length_scales.len()];
+        for (i, &g) in labels.iter().enumerate() {
+            members[g].push(i);
+        }
+        let groups: Vec<usize> = (0..members.len())
+            .filter(|&g| !members[g].is_empty())
+            .collect();
+        let m = self.basis.len();
+        self.slots.clear();
+        self.generations.clear();
+        self.check_memory(groups.len() * 8 * (m * m * 3 + 8 * m))?;
+        let sums = self.sums_of_sets(&groups.iter().map(|&g| &members[g][..]).collect::<Vec<_>>());
+        self.alpha = alpha;
+        self.labels = vec![NONE; self.data.len()];
+        for (&g, s) in groups.iter().zip(sums) {
+            let mut params = self.settings.pattern_params(length_scales[g]);
+            if let Some(nv) = noise_var {
+                params.noise_var = nv[g];
+            }
+            let k = self.add_part(s, params, None);
+            for &i in &members[g] {
+                self.labels[i] = k;
+            }
+        }
+        self.refresh_fits()
+    }
+
+    /// The sums of each set of frames (each in frame order), in parallel over fixed chunks of
+    /// frames and added in chunk order: the same numbers for any thread count.
+    fn sums_of_sets(&self, sets: &[&[usize]]) -> Vec<Sums> {
+        const CHUNK: usize = 64;
+        let jobs: Vec<(usize, &[usize])> = sets
+            .iter()
+            .enumerate()
+            .flat_map(|(s, frames)| frames.chunks(CHUNK).map(move |c| (s, c)))
+            .collect();
+        let parts: Vec<Sums> = jobs
+            .par_iter()
+            .map(|(_, frames)| {
+                let (mut xy, mut v): (Vec<Point>, Vec<[f64; 2]>) = (Vec::new(), Vec::new());
+                for &f in *frames {
+                    let fr = self.data.frame(f);
+                    xy.extend_from_slice(fr.xy);
+                    v.extend_from_slice(fr.v);
+                }
+                Sums::of_points(&self.basis, &xy, &v, frames.len())
+            })
+            .collect();
+        let mut out: Vec<Sums> = sets.iter().map(|_| Sums::zeros(&self.basis)).collect();
+        for ((s, _), p) in jobs.iter().zip(&parts) {
+            out[*s].add(p);
+        }
+        out
+    }
+
+    /// One sweep: the parallel assignment pass, split–merge moves, the noise, the length scales
+    /// and α.
+    pub fn sweep(&mut self, stop: &dyn Fn() -> bool) -> Result<SweepStats> {
+        if self.labels.contains(&NONE) {
+            self.initialize(Start::Sequential, stop)?;
+        }
+        if stop() {
+            return Err(Error::Interrupted);
+        }
+        self.sweep += 1;
+        let moved = self.assignment_pass(stop)?;
+        if self.settings.split_merge.moves_per_sweep > 0 {
+            let t = Instant::now();
+            self.split_merge_moves(stop)?;
+            self.timings.split_merge += t.elapsed().as_secs_f64();
+        }
+        if self.settings.noise_prior.is_some() {
+            let t = Instant::now();
+            self.update_noise()?;
+            self.timings.noise += t.elapsed().as_secs_f64();
+        }
+        if !self.settings.fixed_length_scales {
+            let t = Instant::now();
+            self.update_length_scales()?;
+            self.timings.length_scales += t.elapsed().as_secs_f64();
+        }
+        if self.settings.alpha.is_none() {
+            let t = Instant::now();
+            self.update_alpha();
+            self.timings.alpha += t.elapsed().as_secs_f64();
+        }
+        self.refresh_fits()?;
+        Ok(SweepStats {
+            moves: moved,
+            n_patterns: self.live().count(),
+            alpha: self.alpha,
+            log_joint: self.log_joint(),
+        })
+    }
+
+    /// Slice-sample every pattern's (log w_x, log w_y) from its sums, in parallel over patterns,
+    /// each on the stream of its stable id (as the collapsed sampler does).
+    fn update_length_scales(&mut self) -> Result<()> {
+        self.refresh_fits()?;
+        let keys: Vec<(usize, u64)> = self.live().map(|(k, _)| (k, self.id(k))).collect();
+        let (prior, fraction) = (
+            self.settings.length_scale_prior,
+            self.settings.length_scale_fraction,
+        );
+        let updated: Vec<Fit> = keys
+            .par_iter()
+            .map(|&(k, id)| {
+                let mut rng = stream(self.settings.seed, self.sweep, Phase::LengthScales, id);
+                let c = self.candidate(k);
+                crate::gibbs::length_scale_step(c, prior, fraction, &mut rng).fit
+            })
+            .collect();
+        for ((k, _), fit) in keys.iter().zip(updated) {
+            self.install_fit(*k, fit);
+        }
+        Ok(())
+    }
+
+    fn candidate(&self, k: usize) -> Candidate<'_> {
+        let p = self.part(k);
+        Candidate {
+            basis: &self.basis,
+            sums: &p.sums,
+            fit: p
+                .fit
+                .clone()
+                .expect("fits refreshed before a hyperparameter step"),
+        }
+    }
+
+    fn install_fit(&mut self, k: usize, fit: Fit) {
+        let p = self.part_mut(k);
+        p.params = fit.post.params;
+        p.fit = Some(fit);
+    }
+
+    /// Slice-sample the noise: each pattern's pair from its sums (per pattern), or the chain's
+    /// pair (global), every pattern refactored per candidate.
+    fn update_noise(&mut self) -> Result<()> {
+        let Some(prior) = self.settings.noise_prior else {
+            return Ok(());
+        };
+        self.refresh_fits()?;
+        let scale = self.settings.base.signal_var;
+        if self.settings.noise_scope == NoiseScope::PerPattern {
+            let keys: Vec<(usize, u64)> = self.live().map(|(k, _)| (k, self.id(k))).collect();
+            let updated: Vec<Result<Option<Fit>>> = keys
+                .par_iter()
+                .map(|&(k, id)| {
+                    let mut rng = stream(self.settings.seed, self.sweep, Phase::Noise, id);
+                    let c = self.candidate(k);
+                    Ok(crate::gibbs::noise_step(&c, prior, scale, &mut rng)?.map(|c| c.fit))
+                })
+                .collect();
+            for ((k, _), fit) in keys.iter().zip(updated) {
+                if let Some(fit) = fit? {
+                    self.install_fit(*k, fit);
+                }
+            }
+            return Ok(());
+        }
+        self.update_global_noise(prior, scale)
+    }
+
+    /// One noise pair for every pattern: slice-sample `log σ_n,x²` then `log σ_n,y²`, each
+    /// candidate refactoring every pattern (in parallel).
+    fn update_global_noise(
+        &mut self,
+        prior: crate::gibbs::NoisePrior,
+        scale: [f64; 2],
+    ) -> Result<()> {
+        let slots: Vec<usize> = self.live().map(|(k, _)| k).collect();
+        let mut rng = stream(self.settings.seed, self.sweep, Phase::Noise, 0);
+        let points: usize = self.live().map(|(_, p)| p.sums.vecs.n_points).sum();
+        for d in 0..2 {
+            let noise0 = self.settings.base.noise_var;
+            let x0 = noise0[d].ln();
+            let data_term: f64 = slots.iter().map(|&k| self.log_marginal_of(k)).sum();
+            let f0 = prior.log_density(x0, scale[d]) + data_term;
+            let refit = |x: f64| -> Result<Vec<Fit>> {
+                slots
+                    .par_iter()
+                    .map(|&k| {
+                        let p = self.part(k);
+                        let mut params = p.params;
+                        params.noise_var[d] = x.exp();
+                        let fit = p.fit.as_ref().expect("fits refreshed");
+                        let post = Posterior::new(&self.basis, &p.sums, &fit.gram, params)?;
+                        Ok(Fit {
+                            gram: Arc::clone(&fit.gram),
+                            post,
+                        })
+                    })
+                    .collect()
+            };
+            let mut last: Option<(f64, Vec<Fit>)> = None;
+            let (x, _) = slice_step(x0, f0, crate::gibbs::noise_width(points), &mut rng, |x| {
+                let v = x.exp();
+                if !(v.is_finite() && v >= crate::gibbs::MIN_NOISE_RATIO * scale[d]) {
+                    return f64::NEG_INFINITY;
+                }
+                match refit(x) {
+                    Ok(fits) => {
+                        let lm: f64 = fits.iter().map(|f| f.post.log_marginal).sum();
+                        last = Some((x, fits));
+                        prior.log_density(x, scale[d]) + lm
+                    }
+                    Err(_) => f64::NEG_INFINITY,
+                }
+            });
+            if x == x0 {
+                continue;
+            }
+            let fits = match last {
+                Some((lx, fits)) if lx == x => fits,
+                _ => refit(x)?,
+            };
+            self.settings.base.noise_var[d] = x.exp();
+            for (&k, fit) in slots.iter().zip(fits) {
+                self.install_fit(k, fit);
+            }
+        }
+        Ok(())
+    }
+
+    fn log_marginal_of(&self, k: usize) -> f64 {
+        match &self.part(k).fit {
+            Some(f) => f.post.log_marginal,
+            None => self
+                .fit_of(k)
+                .map_or(f64::NEG_INFINITY, |f| f.post.log_marginal),
+        }
+    }
+
+    fn update_alpha(&mut self) {
+        let n = self.data.len();
+        let k = self.live().count();
+        let mut rng = stream(self.settings.seed, self.sweep, Phase::Alpha, 0);
+        self.alpha = crate::gibbs::alpha_step(self.alpha, k, n, &mut rng);
+    }
+
+    /// `log p(z, w, α, V)`: the collapsed sampler's log joint (CRP, priors of the length scales,
+    /// of α and of the noise, and every pattern's marginal likelihood), from the sums.
+    pub fn log_joint(&self) -> f64 {
+        let n = self.data.len() as f64;
+        let a = self.alpha;
+        let mut total = ln_gamma(a) - ln_gamma(n + a);
+        if self.settings.alpha.is_none() {
+            total += -0.5 * (2.0 * std::f64::consts::PI).ln() - 1.5 * a.ln() - 0.5 / a;
+        }
+        if let Some(prior) = self.settings.noise_prior {
+            let scale = self.settings.base.signal_var;
+            let pair = |nv: [f64; 2]| -> f64 {
+                (0..2)
+                    .map(|d| prior.log_density(nv[d].ln(), scale[d]))
+                    .sum()
+            };
+            total += match self.settings.noise_scope {
+                NoiseScope::Global => pair(self.settings.base.noise_var),
+                NoiseScope::PerPattern => self.live().map(|(_, p)| pair(p.params.noise_var)).sum(),
+            };
+        }
+        let (pa, pb) = self.settings.length_scale_prior;
+        for (k, p) in self.live() {
+            total += a.ln() + ln_gamma(p.sums.n_frames as f64) + self.log_marginal_of(k);
+            if !self.settings.fixed_length_scales {
+                let ls = p.params.length_scales;
+                total += ln_gamma_pdf(ls.wx, pa, pb) + ln_gamma_pdf(ls.wy, pa, pb);
+            }
+        }
+        total
+    }
+
+    fn frame_means(&self) -> Arc<Vec<[f64; 2]>> {
+        Arc::clone(
+            self.frame_means
+                .get_or_init(|| Arc::new(crate::gibbs::frame_means(&self.data))),
+        )
+    }
+
+    /// Whether labels are drawn (Gibbs) or taken at the mode (map).
+    fn map(&self) -> bool {
+        self.settings.assignment == Assignment::Map
+    }
+}
+
+/// A Gamma(shape, 1) draw.
+fn gamma(shape: f64, rng: &mut impl rand::Rng) -> Result<f64> {
+    let g = Gamma::new(shape, 1.0).map_err(|e| Error::InvalidInput(e.to_string()))?;
+    Ok(g.sample(rng))
+}
+
+#[cfg(test)]
+#[path = "tests/subcluster.rs"]
+mod tests;

@@ -1,0 +1,422 @@
+//! Split–merge moves of the sub-cluster sampler, proposed from two sub-patterns and accepted by
+//! the exact Metropolis–Hastings ratio of the collapsed posterior.
+//!
+//! A move draws a pair of frames `(i, j)` as the collapsed sampler's moves do (uniform, or half
+//! by similar mean velocity: a distribution of the data only, the same for a move and its
+//! reverse). If they share a pattern `S`, a split of `S` is proposed; else the merge of their two
+//! patterns `A ∋ i`, `B ∋ j`. The pattern holding `i` keeps its hyperparameters `θ_i`; the other
+//! side's `θ_j` is drawn from `½ prior + ½ log-normal around θ_i` for a split, and is `B`'s for
+//! a merge (its proposal density enters the ratio), exactly as in `split_merge.rs`.
+//!
+//! **Sub-patterns (the launch).** `S`'s frames are divided between two sub-patterns grown from the
+//! anchors: each sub-pattern's field is drawn from its posterior given the anchor alone (`θ_i`,
+//! `θ_j`), a sample of `S` (at most [`LAUNCH_FRAMES`] frames) is given sub-labels by those fields,
+//! the fields are redrawn from the sub-labels' sums, [`LAUNCH_SCANS`] times. Then, over *every*
+//! frame of `S` but the anchors, in parallel, the final sub-fields `a_l`, `a_r` and sub-weights
+//! give each frame `r_f(l) = π̄_l f(V_f | a_l) / Σ_h π̄_h f(V_f | a_h)`. A split draws each frame's
+//! side from `r_f`; its proposal probability is `q = Π_f r_f(side_f)`. The launch depends only on
+//! `(S, i, j, θ_i, θ_j)` and fresh randomness, never on how `S` is split now, so a merge's reverse
+//! split is scored by running the same launch on `A ∪ B` and evaluating `q` at `A`'s and `B`'s
+//! frames (restricted Gibbs launches, Jain & Neal 2004, with instantiated sub-fields).
+//!
+//! **Ratio** (split; a merge's is its inverse):
+//! `α Γ(n_l) Γ(n_r) / Γ(n_S) · p(D_l | θ_i) p(D_r | θ_j) / p(D_S | θ_i) · p(θ_j) / q(θ_j | θ_i) / q`,
+//! every marginal likelihood from sums (`O(M³)`, no pass over the data); the sums of a proposed
+//! split are gathered in the same parallel pass that draws it. Any pattern may be proposed for a
+//! split at any sweep (no "burn-out" age, which would make the move depend on the chain's path).
+//!
+//! The moves per sweep are a setting of the data's size only, never of the state.
+
+use rand::RngExt;
+use rayon::prelude::*;
+
+use super::pass::{FieldBank, TILE};
+use super::{Fit, SubclusterSampler};
+use crate::basis::Basis;
+use crate::error::{Error, Result};
+use crate::frame::Point;
+use crate::gibbs::Assignment;
+use crate::gp::GpParams;
+use crate::hsgp_sums::{Posterior, Sums};
+use crate::rng::{Phase, key, stream, uniform};
+use crate::special::ln_gamma;
+
+/// Most frames of `S` the launch scans (a uniform sample of them); the final step covers all.
+pub const LAUNCH_FRAMES: usize = 256;
+/// Restricted scans of the launch before the final step.
+pub const LAUNCH_SCANS: usize = 2;
+
+/// A proposed division of `S`: each frame's side (`true`: with `i`), the sums of both sides,
+/// and `log q` of the division.
+struct Division {
+    left: Vec<bool>,
+    sums: [Sums; 2],
+    log_q: f64,
+}
+
+impl SubclusterSampler {
+    /// Run the configured number of moves.
+    pub(super) fn split_merge_moves(&mut self, stop: &dyn Fn() -> bool) -> Result<()> {
+        if self.data.len() < 2 {
+            return Ok(());
+        }
+        self.refresh_fits()?;
+        for m in 0..self.settings.split_merge.moves_per_sweep {
+            if stop() {
+                return Err(Error::Interrupted);
+            }
+            let mut rng = stream(self.settings.seed, self.sweep, Phase::Launch, m as u64);
+            let n = self.data.len();
+            let i = ((rng.random::<f64>() * n as f64) as usize).min(n - 1);
+            let j = self.settings.pair_partner(i, &self.frame_means(), &mut rng);
+            let move_key = key(&[self.sweep, m as u64]);
+            let (ki, kj) = (self.labels[i], self.labels[j]);
+            if ki == kj {
+                self.try_split(i, j, ki, move_key, &mut rng)?;
+            } else {
+                self.try_merge(i, j, ki, kj, move_key, &mut rng)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// `log [α Γ(n_a) Γ(n_b) / Γ(n_a + n_b)]`.
+    fn crp_split_ratio(&self, na: usize, nb: usize) -> f64 {
+        self.alpha.ln() + ln_gamma(na as f64) + ln_gamma(nb as f64) - ln_gamma((na + nb) as f64)
+    }
+
+    fn members(&self, k: usize) -> Vec<usize> {
+        (0..self.labels.len())
+            .filter(|&f| self.labels[f] == k)
+            .collect()
+    }
+
+    fn try_split(
+        &mut self,
+        i: usize,
+        j: usize,
+        k: usize,
+        move_key: u64,
+        rng: &mut impl rand::Rng,
+    ) -> Result<()> {
+        self.split_merge.split_proposed += 1;
+        let parent = self.part(k).params;
+        let Some((theta_j, prior_over_q)) = self.settings.split_params(&parent, rng)? else {
+            return Ok(());
+        };
+        let frames = self.members(k);
+        let div = self.launch(&frames, i, j, [parent, theta_j], None, move_key, rng)?;
+        let [nl, nr] = [div.sums[0].n_frames, div.sums[1].n_frames];
+        let fit_l = self.fit_sums(&div.sums[0], parent)?;
+        let fit_r = self.fit_sums(&div.sums[1], theta_j)?;
+        let log_target =
+            self.crp_split_ratio(nl, nr) + fit_l.post.log_marginal + fit_r.post.log_marginal
+                - self.log_marginal_of(k);
+        if !self.accept(log_target, prior_over_q - self.log_q(&div), rng) {
+            return Ok(());
+        }
+        self.split_merge.split_accepted += 1;
+        let [sl, sr] = div.sums;
+        self.slots[k] = None;
+        let a = self.add_part(sl, parent, Some(fit_l));
+        let b = self.add_part(sr, theta_j, Some(fit_r));
+        for (f, left) in frames.iter().zip(&div.left) {
+            self.labels[*f] = if *left { a } else { b };
+        }
+        Ok(())
+    }
+
+    fn try_merge(
+        &mut self,
+        i: usize,
+        j: usize,
+        ki: usize,
+        kj: usize,
+        move_key: u64,
+        rng: &mut impl rand::Rng,
+    ) -> Result<()> {
+        self.split_merge.merge_proposed += 1;
+        let (pa, pb) = (self.part(ki).params, self.part(kj).params);
+        let mut merged = self.part(ki).sums.clone();
+        merged.add(&self.part(kj).sums);
+        let fit = self.fit_sums(&merged, pa)?;
+        let (na, nb) = (self.part(ki).sums.n_frames, self.part(kj).sums.n_frames);
+        let log_target = -self.crp_split_ratio(na, nb) + fit.post.log_marginal
+            - self.log_marginal_of(ki)
+            - self.log_marginal_of(kj);
+        let q_over_prior = -self.settings.log_prior_over_proposal(&pb, &pa);
+        // The reverse split's log q is at most 0: a uniform that rejects the ratio without it
+        // rejects the move, before the launch is paid for.
+        let log_u = match self.settings.assignment {
+            Assignment::Map if log_target > 0.0 => f64::NEG_INFINITY,
+            Assignment::Map => return Ok(()),
+            Assignment::Gibbs => rng.random::<f64>().ln(),
+        };
+        if log_u >= log_target + q_over_prior {
+            return Ok(());
+        }
+        if self.settings.assignment == Assignment::Gibbs {
+            let mut frames: Vec<usize> = (0..self.labels.len())
+                .filter(|&f| self.labels[f] == ki || self.labels[f] == kj)
+                .collect();
+            frames.sort_unstable();
+            let side: Vec<bool> = frames.iter().map(|&f| self.labels[f] == ki).collect();
+            let div = self.launch(&frames, i, j, [pa, pb], Some(&side), move_key, rng)?;
+            if log_u >= log_target + q_over_prior + self.log_q(&div) {
+                return Ok(());
+            }
+        }
+        self.split_merge.merge_accepted += 1;
+        self.slots[ki] = None;
+        self.slots[kj] = None;
+        let s = self.add_part(merged, pa, Some(fit));
+        for l in self.labels.iter_mut() {
+            if *l == ki || *l == kj {
+                *l = s;
+            }
+        }
+        Ok(())
+    }
+
+    /// `log q` of a division as the ratio takes it.
+    fn log_q(&self, div: &Division) -> f64 {
+        #[cfg(test)]
+        if self.wrong_ratio {
+            return 0.0;
+        }
+        div.log_q
+    }
+
+    /// Accept a move whose target log ratio is `log_target` and proposal log ratio `log_prop`.
+    fn accept(&self, log_target: f64, log_prop: f64, rng: &mut impl rand::Rng) -> bool {
+        match self.settings.assignment {
+            Assignment::Map => log_target > 0.0,
+            Assignment::Gibbs => rng.random::<f64>().ln() < log_target + log_prop,
+        }
+    }
+
+    fn fit_sums(&self, sums: &Sums, params: GpParams) -> Result<Fit> {
+        let gram = std::sync::Arc::new(sums.gram(&self.basis));
+        let post = Posterior::new(&self.basis, sums, &gram, params)?;
+        Ok(Fit { gram, post })
+    }
+
+    /// The sums of one frame.
+    fn frame_sums(&self, f: usize) -> Sums {
+        let fr = self.data.frame(f);
+        Sums::of_points(&self.basis, fr.xy, fr.v, 1)
+    }
+
+    /// Divide `frames` (sorted; holding the anchors `i`, `j`) between two sub-patterns with
+    /// hyperparameters `theta = [θ_i, θ_j]`: a launch, then every frame's side drawn from its
+    /// final sub-label probabilities, or, with `forced`, the given sides scored.
+    #[allow(clippy::too_many_arguments)]
+    fn launch(
+        &self,
+        frames: &[usize],
+        i: usize,
+        j: usize,
+        theta: [GpParams; 2],
+        forced: Option<&[bool]>,
+        move_key: u64,
+        rng: &mut impl rand::Rng,
+    ) -> Result<Division> {
+        let others: Vec<usize> = frames
+            .iter()
+            .copied()
+            .filter(|&f| f != i && f != j)
+            .collect();
+        // A uniform sample of the other frames (partial Fisher–Yates), in frame order.
+        let mut sample = others.clone();
+        let take = sample.len().min(LAUNCH_FRAMES);
+        for t in 0..take {
+            let s = t
+                + ((rng.random::<f64>() * (sample.len() - t) as f64) as usize)
+                    .min(sample.len() - t - 1);
+            sample.swap(t, s);
+        }
+        sample.truncate(take);
+        sample.sort_unstable();
+
+        let mut sums = [self.frame_sums(i), self.frame_sums(j)];
+        let mut fields = self.draw_sides(&sums, theta, rng)?;
+        let mut log_pi = [0.5f64.ln(); 2];
+        for _ in 0..LAUNCH_SCANS {
+            let lls = self.side_logliks(&sample, &fields, theta)?;
+            let mut left_set = vec![i];
+            let mut right_set = vec![j];
+            for (f, ll) in sample.iter().zip(lls.chunks(2)) {
+                let pl = side_prob(ll, log_pi);
+                if rng.random::<f64>() < pl {
+                    left_set.push(*f);
+                } else {
+                    right_set.push(*f);
+                }
+            }
+            left_set.sort_unstable();
+            right_set.sort_unstable();
+            let [sl, sr]: [Sums; 2] = self
+                .sums_of_sets(&[&left_set, &right_set])
+                .try_into()
+                .expect("two sets");
+            sums = [sl, sr];
+            let total = (left_set.len() + right_set.len()) as f64;
+            log_pi = [
+                (left_set.len() as f64 / total).ln(),
+                (right_set.len() as f64 / total).ln(),
+            ];
+            fields = self.draw_sides(&sums, theta, rng)?;
+        }
+        self.final_division(frames, i, j, &fields, theta, log_pi, forced, move_key)
+    }
+
+    /// Draws of the two sub-patterns' fields from their posteriors given `sums`.
+    fn draw_sides(
+        &self,
+        sums: &[Sums; 2],
+        theta: [GpParams; 2],
+        rng: &mut impl rand::Rng,
+    ) -> Result<[[Vec<f64>; 2]; 2]> {
+        let mut out: [[Vec<f64>; 2]; 2] = Default::default();
+        for s in 0..2 {
+            let post = Posterior::new(&self.basis, &sums[s], &sums[s].gram(&self.basis), theta[s])?;
+            let mut r = stream(rng.random::<u64>(), 0, Phase::Launch, s as u64);
+            out[s] = post.weights(Some(&mut r));
+        }
+        Ok(out)
+    }
+
+    /// `[log f(V_f | a_l), log f(V_f | a_r)]` of each of `frames`, in parallel over tiles.
+    fn side_logliks(
+        &self,
+        frames: &[usize],
+        fields: &[[Vec<f64>; 2]; 2],
+        theta: [GpParams; 2],
+    ) -> Result<Vec<f64>> {
+        let bank = FieldBank::new(
+            &self.basis,
+            fields,
+            &[theta[0].noise_var, theta[1].noise_var],
+            self.settings.base.mean,
+        );
+        let tiles: Vec<Vec<f64>> = frames
+            .par_chunks(TILE)
+            .map(|tile| {
+                let (xy, v, starts) = gather(&self.data, tile);
+                let mut ll = vec![0.0; 2 * tile.len()];
+                bank.frame_logliks(&self.basis, &xy, &v, &starts, &mut ll);
+                ll
+            })
+            .collect();
+        Ok(tiles.concat())
+    }
+
+    /// The final step over every frame but the anchors: each frame's side drawn from (or, with
+    /// `forced`, set to) its sub-label probability, `log q`, and the sums of both sides, in
+    /// parallel over tiles and reduced in tile order.
+    #[allow(clippy::too_many_arguments)]
+    fn final_division(
+        &self,
+        frames: &[usize],
+        i: usize,
+        j: usize,
+        fields: &[[Vec<f64>; 2]; 2],
+        theta: [GpParams; 2],
+        log_pi: [f64; 2],
+        forced: Option<&[bool]>,
+        move_key: u64,
+    ) -> Result<Division> {
+        let bank = FieldBank::new(
+            &self.basis,
+            fields,
+            &[theta[0].noise_var, theta[1].noise_var],
+            self.settings.base.mean,
+        );
+        let seed = self.settings.seed;
+        let n_tiles = frames.len().div_ceil(TILE);
+        type Tile = (Vec<bool>, f64, Option<[Sums; 2]>);
+        let tiles: Vec<Tile> = (0..n_tiles)
+            .into_par_iter()
+            .map(|t| {
+                let range = t * TILE..((t + 1) * TILE).min(frames.len());
+                let tile = &frames[range.clone()];
+                let (xy, v, starts) = gather(&self.data, tile);
+                let mut ll = vec![0.0; 2 * tile.len()];
+                bank.frame_logliks(&self.basis, &xy, &v, &starts, &mut ll);
+                let mut sides = Vec::with_capacity(tile.len());
+                let mut log_q = 0.0;
+                for (n, (&f, l)) in tile.iter().zip(ll.chunks(2)).enumerate() {
+                    let left = if f == i {
+                        true
+                    } else if f == j {
+                        false
+                    } else {
+                        let pl = side_prob(l, log_pi);
+                        let left = match forced {
+                            Some(side) => side[range.start + n],
+                            None => uniform(seed, move_key, Phase::Launch, f as u64) < pl,
+                        };
+                        log_q += if left { pl.ln() } else { (1.0 - pl).ln() };
+                        left
+                    };
+                    sides.push(left);
+                }
+                let sums = forced
+                    .is_none()
+                    .then(|| side_sums(&self.basis, &self.data, tile, &sides));
+                (sides, log_q, sums)
+            })
+            .collect();
+        let mut div = Division {
+            left: Vec::with_capacity(frames.len()),
+            sums: [Sums::zeros(&self.basis), Sums::zeros(&self.basis)],
+            log_q: 0.0,
+        };
+        for (sides, lq, sums) in tiles {
+            div.left.extend(sides);
+            div.log_q += lq;
+            if let Some([l, r]) = sums {
+                div.sums[0].add(&l);
+                div.sums[1].add(&r);
+            }
+        }
+        Ok(div)
+    }
+}
+
+/// `r(l)`: the probability of the left side from the two log-likelihoods and log weights.
+fn side_prob(ll: &[f64], log_pi: [f64; 2]) -> f64 {
+    let (a, b) = (ll[0] + log_pi[0], ll[1] + log_pi[1]);
+    1.0 / (1.0 + (b - a).exp())
+}
+
+/// The points of `frames` one after another, and where each starts (ending with the total).
+fn gather(data: &crate::gibbs::Data, frames: &[usize]) -> (Vec<Point>, Vec<[f64; 2]>, Vec<usize>) {
+    let (mut xy, mut v, mut starts) = (Vec::new(), Vec::new(), vec![0]);
+    for &f in frames {
+        let fr = data.frame(f);
+        xy.extend_from_slice(fr.xy);
+        v.extend_from_slice(fr.v);
+        starts.push(xy.len());
+    }
+    (xy, v, starts)
+}
+
+/// The sums of the left and the right frames of a tile.
+fn side_sums(
+    basis: &Basis,
+    data: &crate::gibbs::Data,
+    tile: &[usize],
+    sides: &[bool],
+) -> [Sums; 2] {
+    [true, false].map(|want| {
+        let chosen: Vec<usize> = tile
+            .iter()
+            .zip(sides)
+            .filter(|(_, s)| **s == want)
+            .map(|(f, _)| *f)
+            .collect();
+        let (xy, v, _) = gather(data, &chosen);
+        Sums::of_points(basis, &xy, &v, chosen.len())
+    })
+}

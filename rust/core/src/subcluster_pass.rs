@@ -1,0 +1,347 @@
+//! The sub-cluster sampler's assignment pass: draw the patterns' weights and fields, give every
+//! frame its label in parallel, and update the sums of the patterns frames moved between.
+//!
+//! **Fields at many points at once.** A field is `φ(x)ᵀ a` with `φ_jk = s_j(x) t_k(y)`, so with the
+//! weights as an `m_x x m_y` matrix `A`, the field at a point is `s(x)ᵀ A t(y)`. For a chunk of
+//! points with per-axis values `S` (`n x m_x`) and `T` (`n x m_y`), one matrix product
+//! `S [A_1 … A_F]` (or `T [A_1ᵀ … A_Fᵀ]`, whichever axis has more functions) gives every field
+//! `f` as the row sums of `(S A_f) ∘ T`: `2 n M F` flops at matrix-product speed, and no `M`-long
+//! feature vector is ever formed.
+
+use std::time::Instant;
+
+use faer::linalg::matmul::matmul;
+use faer::{Accum, MatMut, MatRef, Par};
+use rayon::prelude::*;
+
+use super::{Fit, SubclusterSampler, gamma};
+use crate::basis::{AxisValues, Basis};
+use crate::error::{Error, Result};
+use crate::frame::Point;
+use crate::gp::LN_2PI;
+use crate::rng::{Phase, stream, uniform};
+use crate::special::log_sum_exp;
+
+/// Frames per parallel task of a pass.
+pub(super) const TILE: usize = 128;
+/// Points per matrix product.
+const CHUNK: usize = 256;
+/// Doubles of the product's output held at once (a quarter of a core's L2 cache).
+const PRODUCT_DOUBLES: usize = 32 * 1024;
+
+/// Several patterns' fields, stacked for one matrix product per chunk of points, with each
+/// pattern's noise: what a frame's log-likelihood under each pattern needs.
+pub(super) struct FieldBank {
+    /// Patterns.
+    k: usize,
+    /// Whether the product's inner dimension is the x axis (else y).
+    inner_x: bool,
+    inner: usize,
+    outer: usize,
+    /// `inner x (2K outer)`, column-major: field `2k + d` (pattern k, output d) at columns
+    /// `(2k + d) outer ..`.
+    w: Vec<f64>,
+    mean: [f64; 2],
+    /// Per pattern: `1 / σ_n,d²`, and `−½ Σ_d log(2π σ_n,d²)` per point.
+    inv_noise: Vec<[f64; 2]>,
+    log_norm: Vec<f64>,
+}
+
+impl FieldBank {
+    /// The bank of fields with weights `weights[k] = [a_x, a_y]` (feature order) and noise pairs
+    /// `noise[k]`.
+    pub(super) fn new(
+        basis: &Basis,
+        weights: &[[Vec<f64>; 2]],
+        noise: &[[f64; 2]],
+        mean: [f64; 2],
+    ) -> Self {
+        let [mx, my] = basis.counts();
+        let inner_x = mx >= my;
+        let (inner, outer) = if inner_x { (mx, my) } else { (my, mx) };
+        let k = weights.len();
+        let mut w = Vec::with_capacity(inner * outer * 2 * k);
+        for pair in weights {
+            for a in pair {
+                if inner_x {
+                    // A (mx x my, column-major) is already inner x outer.
+                    w.extend_from_slice(a);
+                } else {
+                    // Aᵀ: my x mx.
+                    for j in 0..mx {
+                        w.extend((0..my).map(|kk| a[j + mx * kk]));
+                    }
+                }
+            }
+        }
+        Self {
+            k,
+            inner_x,
+            inner,
+            outer,
+            w,
+            mean,
+            inv_noise: noise.iter().map(|n| [1.0 / n[0], 1.0 / n[1]]).collect(),
+            log_norm: noise
+                .iter()
+                .map(|n| -0.5 * (2.0 * LN_2PI + n[0].ln() + n[1].ln()))
+                .collect(),
+        }
+    }
+
+    /// Add to `out[f K + k]` the log-likelihood of frame `f`'s velocities under pattern `k`'s
+    /// field and noise, for frames whose points are `xy`, `v` with frame `f` starting at
+    /// `starts[f]` (`starts` ends with `xy.len()`).
+    pub(super) fn frame_logliks(
+        &self,
+        basis: &Basis,
+        xy: &[Point],
+        v: &[[f64; 2]],
+        starts: &[usize],
+        out: &mut [f64],
+    ) {
+        let kk = self.k;
+        let fields = 2 * kk;
+        let group = (PRODUCT_DOUBLES / (CHUNK * self.outer)).clamp(1, fields);
+        let mut frame_of = Vec::with_capacity(xy.len());
+        for (f, w) in starts.windows(2).enumerate() {
+            frame_of.extend(std::iter::repeat_n(f, w[1] - w[0]));
+        }
+        let mut prod = vec![0.0; CHUNK * self.outer * group];
+        let mut acc = vec![0.0; CHUNK];
+        for c0 in (0..xy.len()).step_by(CHUNK) {
+            let c1 = (c0 + CHUNK).min(xy.len());
+            let n = c1 - c0;
+            let vals = AxisValues::new(basis, &xy[c0..c1]);
+            let (s_in, s_out) = if self.inner_x {
+                (&vals.sx, &vals.sy)
+            } else {
+                (&vals.sy, &vals.sx)
+            };
+            for p in c0..c1 {
+                for k in 0..kk {
+                    out[frame_of[p] * kk + k] += self.log_norm[k];
+                }
+            }
+            for g0 in (0..fields).step_by(group) {
+                let g1 = (g0 + group).min(fields);
+                let cols = (g1 - g0) * self.outer;
+                let prod = &mut prod[..n * cols];
+                matmul(
+                    MatMut::from_column_major_slice_mut(prod, n, cols),
+                    Accum::Replace,
+                    MatRef::from_column_major_slice(s_in, n, self.inner),
+                    MatRef::from_column_major_slice(
+                        &self.w[g0 * self.outer * self.inner..g1 * self.outer * self.inner],
+                        self.inner,
+                        cols,
+                    ),
+                    1.0,
+                    Par::Seq,
+                );
+                for f in g0..g1 {
+                    let acc = &mut acc[..n];
+                    acc.fill(0.0);
+                    let base = (f - g0) * self.outer;
+                    for o in 0..self.outer {
+                        let u = &prod[(base + o) * n..(base + o + 1) * n];
+                        let t = &s_out[o * n..(o + 1) * n];
+                        for ((a, u), t) in acc.iter_mut().zip(u).zip(t) {
+                            *a += u * t;
+                        }
+                    }
+                    let (k, d) = (f / 2, f % 2);
+                    let (mu, inv) = (self.mean[d], self.inv_noise[k][d]);
+                    for (i, a) in acc.iter().enumerate() {
+                        let r = v[c0 + i][d] - mu - a;
+                        out[frame_of[c0 + i] * kk + k] -= 0.5 * r * r * inv;
+                    }
+                }
+            }
+        }
+    }
+}
+
+impl SubclusterSampler {
+    /// The pass: draw the weights and fields, then every frame's label (in parallel, a frame
+    /// that is the last of its pattern staying), then the moved frames' sums. Returns how many
+    /// frames moved.
+    pub(super) fn assignment_pass(&mut self, stop: &dyn Fn() -> bool) -> Result<usize> {
+        let t = Instant::now();
+        self.refresh_fits()?;
+        let slots: Vec<usize> = self.live().map(|(k, _)| k).collect();
+        let drawn: Vec<Result<(f64, [Vec<f64>; 2])>> =
+            slots.par_iter().map(|&k| self.draw_pattern(k)).collect();
+        let (mut log_w, mut weights) = (Vec::new(), Vec::new());
+        for d in drawn {
+            let (lw, w) = d?;
+            log_w.push(lw);
+            weights.push(w);
+        }
+        let noise: Vec<[f64; 2]> = slots
+            .iter()
+            .map(|&k| self.part(k).params.noise_var)
+            .collect();
+        let bank = FieldBank::new(&self.basis, &weights, &noise, self.settings.base.mean);
+        self.timings.fields += t.elapsed().as_secs_f64();
+        if stop() {
+            return Err(Error::Interrupted);
+        }
+
+        let t = Instant::now();
+        let proposed = self.propose_labels(&bank, &log_w, &slots, stop)?;
+        // In frame order: a frame moves to its draw unless it is the last of its pattern.
+        let mut counts = vec![0usize; self.slots.len()];
+        for &k in &slots {
+            counts[k] = self.part(k).sums.n_frames;
+        }
+        let mut moved: Vec<(usize, usize, usize)> = Vec::new();
+        for (i, &to) in proposed.iter().enumerate() {
+            let from = self.labels[i];
+            if to != from && counts[from] > 1 {
+                counts[from] -= 1;
+                counts[to] += 1;
+                self.labels[i] = to;
+                moved.push((i, from, to));
+            }
+        }
+        self.timings.assign += t.elapsed().as_secs_f64();
+
+        let t = Instant::now();
+        self.apply_moves(&moved);
+        self.timings.sums += t.elapsed().as_secs_f64();
+        Ok(moved.len())
+    }
+
+    /// Pattern `k`'s log mixture weight (up to a constant shared by all patterns) and basis
+    /// weights: a draw of `Γ(n_k)` and of the weights' posterior, or (map) `log n_k` and the
+    /// posterior mean.
+    fn draw_pattern(&self, k: usize) -> Result<(f64, [Vec<f64>; 2])> {
+        let id = self.id(k);
+        let p = self.part(k);
+        let fit: &Fit = p.fit.as_ref().expect("fits refreshed before the pass");
+        let n = p.sums.n_frames as f64;
+        if self.map() {
+            return Ok((n.ln(), fit.post.weights(None)));
+        }
+        let mut rng = stream(self.settings.seed, self.sweep, Phase::Weights, id);
+        let lw = gamma(n, &mut rng)?.ln();
+        let mut rng = stream(self.settings.seed, self.sweep, Phase::Fields, id);
+        Ok((lw, fit.post.weights(Some(&mut rng))))
+    }
+
+    /// Every frame's drawn pattern (slots) given the bank, in parallel over tiles of frames.
+    fn propose_labels(
+        &self,
+        bank: &FieldBank,
+        log_w: &[f64],
+        slots: &[usize],
+        stop: &dyn Fn() -> bool,
+    ) -> Result<Vec<usize>> {
+        let n = self.data.len();
+        let (xy, v) = self.data.points();
+        let offsets = self.data.offsets();
+        let kk = slots.len();
+        let (seed, sweep, map) = (self.settings.seed, self.sweep, self.map());
+        let tiles: Vec<Vec<usize>> = (0..n.div_ceil(TILE))
+            .into_par_iter()
+            .map(|t| {
+                let (f0, f1) = (t * TILE, ((t + 1) * TILE).min(n));
+                let (a, b) = (offsets[f0], offsets[f1]);
+                let starts: Vec<usize> = offsets[f0..=f1].iter().map(|o| o - a).collect();
+                let mut ll = vec![0.0; (f1 - f0) * kk];
+                bank.frame_logliks(&self.basis, &xy[a..b], &v[a..b], &starts, &mut ll);
+                (f0..f1)
+                    .zip(ll.chunks(kk))
+                    .map(|(i, l)| {
+                        let lp: Vec<f64> = l.iter().zip(log_w).map(|(l, w)| l + w).collect();
+                        let pick = if map {
+                            argmax(&lp)
+                        } else {
+                            pick_log(&lp, uniform(seed, sweep, Phase::Labels, i as u64))
+                        };
+                        slots[pick]
+                    })
+                    .collect()
+            })
+            .collect();
+        // The pass is seconds at most: Ctrl-C is honoured after it, before anything changes.
+        if stop() {
+            return Err(Error::Interrupted);
+        }
+        Ok(tiles.concat())
+    }
+
+    /// Move the sums of the `moved` frames `(frame, from, to)`: add each pattern's arrivals and
+    /// subtract its departures (or, when most frames moved, rebuild every pattern's sums).
+    fn apply_moves(&mut self, moved: &[(usize, usize, usize)]) {
+        if moved.is_empty() {
+            return;
+        }
+        let slots: Vec<usize> = self.live().map(|(k, _)| k).collect();
+        if 2 * moved.len() > self.data.len() {
+            let sets: Vec<Vec<usize>> = slots
+                .iter()
+                .map(|&k| {
+                    (0..self.labels.len())
+                        .filter(|&i| self.labels[i] == k)
+                        .collect()
+                })
+                .collect();
+            let sums = self.sums_of_sets(&sets.iter().map(|s| &s[..]).collect::<Vec<_>>());
+            for (&k, s) in slots.iter().zip(sums) {
+                let p = self.part_mut(k);
+                p.sums = s;
+                p.fit = None;
+            }
+            return;
+        }
+        let mut arrive: Vec<Vec<usize>> = vec![Vec::new(); self.slots.len()];
+        let mut leave: Vec<Vec<usize>> = vec![Vec::new(); self.slots.len()];
+        for &(i, from, to) in moved {
+            arrive[to].push(i);
+            leave[from].push(i);
+        }
+        let touched: Vec<usize> = slots
+            .into_iter()
+            .filter(|&k| !arrive[k].is_empty() || !leave[k].is_empty())
+            .collect();
+        let sets: Vec<&[usize]> = touched
+            .iter()
+            .flat_map(|&k| [&arrive[k][..], &leave[k][..]])
+            .collect();
+        let sums = self.sums_of_sets(&sets);
+        for (j, &k) in touched.iter().enumerate() {
+            let p = self.part_mut(k);
+            p.sums.add(&sums[2 * j]);
+            p.sums.sub(&sums[2 * j + 1]);
+            p.fit = None;
+        }
+    }
+}
+
+/// The index of the largest entry.
+pub(super) fn argmax(v: &[f64]) -> usize {
+    v.iter()
+        .enumerate()
+        .fold(
+            (0, f64::NEG_INFINITY),
+            |b, (i, &x)| if x > b.1 { (i, x) } else { b },
+        )
+        .0
+}
+
+/// The index drawn with probability `∝ exp(logw)` by the uniform `u`.
+pub(super) fn pick_log(logw: &[f64], u: f64) -> usize {
+    let z = log_sum_exp(logw);
+    let mut t = u;
+    for (i, w) in logw.iter().enumerate() {
+        t -= (w - z).exp();
+        if t < 0.0 {
+            return i;
+        }
+    }
+    logw.iter()
+        .rposition(|w| w.is_finite())
+        .unwrap_or(logw.len() - 1)
+}

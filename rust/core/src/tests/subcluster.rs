@@ -1,0 +1,202 @@
+//! The sub-cluster sampler against enumeration: on the 5 small frames of the split–merge tests
+//! (hsgp), the chain's partition frequencies match the posterior enumerated over all 52
+//! partitions — with the hyperparameters fixed, with each pattern's noise sampled (integrated out
+//! by quadrature), and with each pattern's length scales sampled (integrated out on a grid); a
+//! ratio without the proposal term is detected; the chain is the same for any thread count.
+
+use std::collections::HashMap;
+
+use super::*;
+use crate::frame::FrameRef;
+use crate::gibbs::enumeration::{
+    NOISE_PRIOR, canonical, enumerated_by, enumerated_noise_integrated, tiny, tiny_hsgp,
+    tiny_settings,
+};
+use crate::gibbs::{NoiseScope, PairChoice, SamplerKind, Settings};
+use crate::special::log_sum_exp;
+use crate::test_util::tv;
+
+fn settings(seed: u64) -> Settings {
+    let mut st = tiny_settings(tiny_hsgp(), seed);
+    st.sampler = SamplerKind::Subcluster;
+    st.split_merge.moves_per_sweep = 2;
+    st
+}
+
+/// Partition frequencies of `sweeps` sweeps from all singletons, and the move counts.
+fn chain(st: Settings, sweeps: usize) -> (HashMap<Vec<usize>, f64>, SplitMergeStats) {
+    let data = Arc::new(tiny());
+    let mut s = SubclusterSampler::new(data, st).unwrap();
+    let ls = s.settings.base.length_scales;
+    s.set_state(&[0, 1, 2, 3, 4], &[ls; 5], None, 1.0).unwrap();
+    let mut counts: HashMap<Vec<usize>, f64> = HashMap::new();
+    for _ in 0..sweeps {
+        s.sweep(&|| false).unwrap();
+        *counts.entry(canonical(s.labels())).or_default() += 1.0;
+    }
+    for c in counts.values_mut() {
+        *c /= sweeps as f64;
+    }
+    (counts, s.split_merge)
+}
+
+/// The posterior with w, α and the noise fixed.
+fn enumerated_fixed(st: &Settings) -> HashMap<Vec<usize>, f64> {
+    let data = tiny();
+    enumerated_by(data.len(), st.alpha.unwrap(), |members| {
+        let m: Vec<(usize, FrameRef)> = members.iter().map(|&i| (i, data.frame(i))).collect();
+        st.likelihood.pattern(st.base, &m).unwrap().log_marginal()
+    })
+}
+
+#[test]
+fn subcluster_chain_samples_the_enumerated_posterior() {
+    for pairs in [PairChoice::Uniform, PairChoice::Informed] {
+        let mut st = settings(1);
+        st.split_merge.pairs = pairs;
+        let exact = enumerated_fixed(&st);
+        let (freq, stats) = chain(st, 60_000);
+        let d = tv(&freq, &exact);
+        eprintln!("{pairs:?}: TV {d:.4} ({stats:?})");
+        assert!(d <= 0.03, "{pairs:?}: TV {d:.4} > 0.03 ({stats:?})");
+        assert!(
+            stats.split_accepted > 1000 && stats.merge_accepted > 1000,
+            "{pairs:?}: {stats:?}"
+        );
+    }
+}
+
+/// A split ratio without its proposal probability (and a merge's without its reverse) is a
+/// different chain, and the check sees it.
+#[test]
+fn a_ratio_without_the_proposal_term_is_detected() {
+    let st = settings(2);
+    let exact = enumerated_fixed(&st);
+    let data = Arc::new(tiny());
+    let mut s = SubclusterSampler::new(data, st).unwrap();
+    s.wrong_ratio = true;
+    let ls = s.settings.base.length_scales;
+    s.set_state(&[0, 1, 2, 3, 4], &[ls; 5], None, 1.0).unwrap();
+    let mut counts: HashMap<Vec<usize>, f64> = HashMap::new();
+    let sweeps = 30_000;
+    for _ in 0..sweeps {
+        s.sweep(&|| false).unwrap();
+        *counts.entry(canonical(s.labels())).or_default() += 1.0 / sweeps as f64;
+    }
+    let d = tv(&counts, &exact);
+    eprintln!("without the proposal term: TV {d:.4}");
+    assert!(d > 0.05, "TV {d:.4}: the wrong ratio went unseen");
+}
+
+#[test]
+fn subcluster_chain_with_per_pattern_noise_samples_its_posterior() {
+    let mut st = settings(3);
+    st.noise_prior = Some(NOISE_PRIOR);
+    st.noise_scope = NoiseScope::PerPattern;
+    let exact = enumerated_noise_integrated(&tiny(), &st);
+    let (freq, stats) = chain(st, 60_000);
+    let d = tv(&freq, &exact);
+    eprintln!("per-pattern noise: TV {d:.4} ({stats:?})");
+    assert!(d <= 0.03, "TV {d:.4} > 0.03 ({stats:?})");
+}
+
+/// `log ∫∫ Gamma(w_x) Gamma(w_y) p(D | w) dw` of one pattern, on a grid of `log w`.
+fn ls_integrated(data: &Data, st: &Settings, members: &[usize]) -> f64 {
+    let m: Vec<(usize, FrameRef)> = members.iter().map(|&i| (i, data.frame(i))).collect();
+    let (a, b) = st.length_scale_prior;
+    let step = 0.05;
+    let grid: Vec<f64> = (0..=120)
+        .map(|t| (a * b).ln() - 3.0 + step * t as f64)
+        .collect();
+    let mut lp = Vec::with_capacity(grid.len() * grid.len());
+    for &ux in &grid {
+        for &uy in &grid {
+            let (wx, wy) = (ux.exp(), uy.exp());
+            let p = st.base.with_length_scales(LengthScales { wx, wy });
+            let lm = st.likelihood.pattern(p, &m).unwrap().log_marginal();
+            lp.push(ln_gamma_pdf(wx, a, b) + ln_gamma_pdf(wy, a, b) + ux + uy + lm);
+        }
+    }
+    log_sum_exp(&lp) + 2.0 * step.ln()
+}
+
+#[test]
+fn subcluster_chain_with_sampled_length_scales_samples_its_posterior() {
+    let mut st = settings(4);
+    st.fixed_length_scales = false;
+    let data = tiny();
+    let exact = enumerated_by(data.len(), st.alpha.unwrap(), |members| {
+        ls_integrated(&data, &st, members)
+    });
+    let (freq, stats) = chain(st, 60_000);
+    let d = tv(&freq, &exact);
+    eprintln!("sampled length scales: TV {d:.4} ({stats:?})");
+    assert!(d <= 0.03, "TV {d:.4} > 0.03 ({stats:?})");
+}
+
+#[test]
+fn subcluster_chain_is_the_same_whatever_the_thread_count() {
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let mut st = settings(5);
+            st.fixed_length_scales = false;
+            st.noise_prior = Some(NOISE_PRIOR);
+            st.noise_scope = NoiseScope::PerPattern;
+            st.alpha = None;
+            let mut s = SubclusterSampler::new(Arc::new(tiny()), st).unwrap();
+            s.initialize(Start::Sequential, &|| false).unwrap();
+            let mut trace = Vec::new();
+            for _ in 0..200 {
+                let r = s.sweep(&|| false).unwrap();
+                trace.push((
+                    canonical(s.labels()),
+                    r.log_joint.to_bits(),
+                    r.alpha.to_bits(),
+                ));
+            }
+            trace
+        })
+    };
+    let one = run(1);
+    assert_eq!(one, run(2));
+    assert_eq!(one, run(4));
+}
+
+/// The pass never empties a pattern: from two patterns of one frame each and one of three, with
+/// every frame preferring one place, the singletons stay until a move merges them.
+#[test]
+fn the_pass_keeps_every_pattern() {
+    let mut st = settings(6);
+    st.split_merge.moves_per_sweep = 0;
+    let mut s = SubclusterSampler::new(Arc::new(tiny()), st).unwrap();
+    let ls = s.settings.base.length_scales;
+    s.set_state(&[0, 1, 2, 2, 2], &[ls; 3], None, 1.0).unwrap();
+    for _ in 0..200 {
+        s.sweep(&|| false).unwrap();
+        assert_eq!(s.patterns().len(), 3);
+    }
+}
+
+#[test]
+fn starts_one_and_many() {
+    assert_eq!(start_groups(Start::One, 4), vec![0; 4]);
+    assert_eq!(start_groups(Start::Many, 4), vec![0, 1, 2, 3]);
+    let g = start_groups(Start::Many, 10 * MANY_PATTERNS);
+    assert_eq!(g.iter().max(), Some(&(MANY_PATTERNS - 1)));
+    assert!(g.windows(2).all(|w| w[1] >= w[0]));
+    let mut s = SubclusterSampler::new(Arc::new(tiny()), settings(7)).unwrap();
+    s.initialize(Start::Many, &|| false).unwrap();
+    assert_eq!(s.patterns().len(), 5);
+}
+
+#[test]
+fn the_exact_likelihood_is_refused() {
+    let mut st = tiny_settings(crate::pattern_model::Likelihood::Exact, 1);
+    st.sampler = SamplerKind::Subcluster;
+    let err = SubclusterSampler::new(Arc::new(tiny()), st).unwrap_err();
+    assert!(err.to_string().contains("hsgp"), "{err}");
+}
