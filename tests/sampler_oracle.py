@@ -14,7 +14,7 @@ one (Neal's Algorithm 8 with w fixed: every auxiliary pattern has the same prior
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from math import lgamma
 
 import numpy as np
@@ -314,4 +314,48 @@ def partition_posterior_noise_per_pattern(
             members = np.flatnonzero(z == k)
             total += own[int(sum(1 << int(j) for j in members))] + np.log(alpha) + lgamma(len(members))
         logw[t] = total
+    return parts, logw - logsumexp(logw)
+
+
+def partition_posterior_length_scales(
+    frames, p: Params, alpha: float, prior: tuple[float, float], grid: int = 31, span: float = 3.0
+):
+    """``(partitions, log_probs)``: the posterior over partitions when each pattern has its own
+    length scales under independent Gamma(shape, scale) ``prior``s, integrated out per pattern,
+
+        p(z | V) ∝ α^K Π_k Γ(n_k) ∫∫ p(D_k | w_x, w_y) Γ(w_x) Γ(w_y) dw_x dw_y,
+
+    on a ``grid x grid`` lattice of (log w_x, log w_y) over the prior's log-mean ± ``span`` sds of
+    log w (trapezoid weights; the Jacobian w enters the density on the log scale)."""
+    from scipy.stats import gamma
+
+    n = len(frames)
+    parts = set_partitions(n)
+    a, b = prior
+    sd = 1.0 / np.sqrt(a)  # of log w under Gamma(a, b), near enough for the lattice's extent
+    axis = np.log(a * b) + np.linspace(-span * sd, span * sd, grid)
+    h = axis[1] - axis[0]
+    trap = np.log(np.r_[0.5, np.ones(grid - 2), 0.5] * h)
+    log_prior = gamma.logpdf(np.exp(axis), a, scale=b) + axis + trap  # per axis, on the log scale
+    own: dict[int, float] = {}
+    for mask in range(1, 1 << n):
+        xy, v = _rows(frames, [j for j in range(n) if mask >> j & 1])
+        lml = np.array(
+            [
+                [
+                    gp_oracle.log_marginal_likelihood(
+                        xy, v, replace(p, length_scales=(float(np.exp(ux)), float(np.exp(uy))))
+                    )
+                    for uy in axis
+                ]
+                for ux in axis
+            ]
+        )
+        own[mask] = logsumexp(lml + log_prior[:, None] + log_prior[None, :])
+    logw = np.empty(len(parts))
+    for t, z in enumerate(parts):
+        logw[t] = sum(
+            own[int(sum(1 << int(j) for j in np.flatnonzero(z == k)))] + np.log(alpha) + lgamma(int(np.sum(z == k)))
+            for k in np.unique(z)
+        )
     return parts, logw - logsumexp(logw)

@@ -43,7 +43,7 @@ def _fit(args: argparse.Namespace) -> int:
     model = DPGP(
         iterations=args.iterations, assignment=args.assignment, seed=args.seed, alpha=args.alpha,
         n_threads=args.threads, progress=args.progress, preset=args.preset, checkpoint=args.checkpoint,
-        checkpoint_every=args.checkpoint_every,
+        checkpoint_every=args.checkpoint_every, sampler=args.sampler, init=args.init,
     )  # fmt: skip
     t = time.perf_counter()
     model.fit(frames)
@@ -75,6 +75,7 @@ def _fit_chains(args: argparse.Namespace, frames: Any) -> int:
             frames, args.chains, client, iterations=args.iterations, until="converged" if args.until_converged else None,
             rhat=args.rhat, min_ess=args.min_ess, max_iterations=args.max_iterations, seed=args.seed,
             progress=args.progress, assignment=args.assignment, alpha=args.alpha, n_threads=args.threads or 1,
+            sampler=args.sampler, init=args.init,
         )  # fmt: skip
     finally:
         if client is not None:
@@ -341,6 +342,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", choices=("paper",),
                    help="'paper': the paper's Gamma(10, 1) length scales, noise variance 1 and map assignment "
                    "(for data in feet; the default settings scale with the data)")  # fmt: skip
+    p.add_argument("--sampler", default="auto",  # no choices: the estimator checks the name
+                   help="'subcluster': every frame in parallel with sub-pattern split-merge moves (hsgp); "
+                   "'collapsed': the paper's one frame at a time; 'auto' (default): subcluster where it runs")  # fmt: skip
+    p.add_argument("--init", default="sequential",
+                   help="where the chain starts: 'sequential' (default), 'one' pattern, 'many' patterns; "
+                   "with --chains also 'dispersed' (chains from one and from many)")  # fmt: skip
     p.add_argument("--alpha", type=float, help="fix the DP concentration (default: sampled)")
     p.add_argument("--max-frames", type=int, help="use only the first N frames")
     p.add_argument("--threads", type=int, help="worker threads (default: all cores)")

@@ -64,12 +64,37 @@ def test_diagnostics_are_those_of_the_kept_draws(chains):
         np.testing.assert_equal(rhat[q], diagnostics.rhat(kept))
         assert bulk[q] == diagnostics.ess_bulk(kept) and tail[q] == diagnostics.ess_tail(kept)
     table = chains.summary()
-    assert list(table.columns) == ["mean", "sd", "rhat", "ess_bulk", "ess_tail"]
+    assert list(table.columns) == ["mean", "sd", "rhat", "ess_bulk", "ess_tail", "min"]
     chains.burn_in = 2
     assert chains.draws("alpha").shape == (4, 10)
     chains.burn_in = 6
     with pytest.raises(InvalidInputError, match="burn_in"):
         chains.burn_in = 12
+
+
+def test_summary_reports_how_far_the_chains_summary_partitions_agree(chains):
+    """Each chain's summary partition is the point estimate of its own kept sweeps; the summary's
+    ``partition_ari`` row is the adjusted Rand index of every pair of them (recomputed here)."""
+    est = chains.chain_estimates()
+    for c in range(chains.n_chains):
+        own = partition.salso(chains.labels[c, chains.burn_in :], "vi", n_runs=4, init=chains.labels[c, -1:], seed=5)
+        np.testing.assert_array_equal(est[c], own.labels)
+    agree = chains.agreement()
+    pairs = [dpgp.adjusted_rand_index(est[a], est[b]) for a in range(4) for b in range(a + 1, 4)]
+    np.testing.assert_allclose(agree[np.triu_indices(4, 1)], pairs)
+    np.testing.assert_array_equal(np.diag(agree), 1.0)
+    row = chains.summary().loc["partition_ari"]
+    assert row["mean"] == pytest.approx(np.mean(pairs)) and row["min"] == pytest.approx(min(pairs))
+
+
+def test_dispersed_chains_start_from_one_pattern_and_from_many(frames):
+    ch = dpgp.fit_chains(frames, 2, iterations=1, block=1, seed=5, progress=False, init="dispersed")
+    k = ch.traces["n_patterns"][:, 0]
+    assert k[0] < k[1], k  # after one sweep, the chain from one pattern has fewer than the one from 60
+    starts = [dpgp.DPGP(iterations=0, init=i, progress=False).fit(frames).n_patterns_ for i in ("one", "many")]
+    assert starts == [1, 60]
+    with pytest.raises(InvalidInputError, match="init"):
+        dpgp.fit_chains(frames, 2, iterations=1, progress=False, init="scattered")
 
 
 def test_to_inference_data_round_trips_through_arviz(chains):

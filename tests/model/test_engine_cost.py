@@ -89,7 +89,10 @@ def test_auto_after_the_probe_is_the_engine_it_picks(monkeypatch, winner):
     """Undecided up front, auto initialises hsgp, predicts both engines from its pattern sizes and
     runs the winner: bitwise the explicit engine's fit (never a switch mid-chain)."""
     frames = dpgp.datasets.synthetic("intersection", n_frames=50, seed=4)
-    kw = dict(iterations=3, noise_var=0.5, length_scale_prior=(10.0, 1.0), seed=7, progress=False, posterior_draws=2)
+    kw = dict(
+        iterations=3, noise_var=0.5, length_scale_prior=(10.0, 1.0), seed=7, progress=False, posterior_draws=2,
+        sampler="collapsed",  # the rule between the collapsed sampler's engines (the sub-cluster one: below)
+    )  # fmt: skip
     n = frames.n_points
     if winner == "exact":
         # exact pays n³, hsgp a flat half of exact's worst case per frame: exact is slower for one
@@ -151,7 +154,10 @@ def test_auto_keeps_exact_where_hsgp_would_be_faster_but_inaccurate(monkeypatch)
     auto runs exact, bitwise the explicit exact fit, and records the probe's gap."""
     frames = dpgp.datasets.synthetic("intersection", n_frames=40, seed=4)
     monkeypatch.setattr(ec, "COEFFICIENTS", {"exact": (1.0, 0.0, 0.0), "hsgp": (1e-9, 0.0, 0.0, 0.0)})
-    kw = dict(iterations=2, noise_var=0.5, length_scale_prior=(10.0, 1.0), seed=3, progress=False, posterior_draws=2)
+    kw = dict(
+        iterations=2, noise_var=0.5, length_scale_prior=(10.0, 1.0), seed=3, progress=False, posterior_draws=2,
+        sampler="collapsed",
+    )  # fmt: skip
     coarse = dict(kw, n_basis=(4, 4))  # a basis far too coarse for the intersection's turns
     auto = dpgp.DPGP(**coarse).fit(frames)
     assert auto.engine_choice_["resolution_gap"] > ec.PROBE_TOLERANCE
@@ -192,7 +198,10 @@ def test_auto_engine_is_a_decision_about_the_data_not_the_seed(monkeypatch):
     probe of the fit's own initialisation would not pass."""
     frames = dpgp.datasets.synthetic("intersection", n_frames=40, seed=4)
     monkeypatch.setattr(ec, "COEFFICIENTS", {"exact": (1.0, 0.0, 0.0), "hsgp": (1e-9, 0.0, 0.0, 0.0)})
-    kw = dict(iterations=1, noise_var=0.5, length_scale_prior=(10.0, 1.0), progress=False, posterior_draws=2)
+    kw = dict(
+        iterations=1, noise_var=0.5, length_scale_prior=(10.0, 1.0), progress=False, posterior_draws=2,
+        sampler="collapsed",
+    )  # fmt: skip
     distinct = []
     for n_basis, engine in (((4, 4), "exact"), (None, "hsgp")):
         fits = [dpgp.DPGP(seed=seed, n_basis=n_basis, **kw).fit(frames) for seed in (0, 3, 11)]
@@ -210,3 +219,26 @@ def test_auto_engine_is_a_decision_about_the_data_not_the_seed(monkeypatch):
         np.testing.assert_allclose(again, gaps, rtol=1e-12)
         assert (np.median(again) > ec.PROBE_TOLERANCE) == (engine == "exact")
     assert distinct == [False, True]  # the coarse basis's partitions agree; the sized basis's differ
+
+
+def test_subcluster_features_and_the_rule_with_the_subcluster_sampler(monkeypatch):
+    """With hsgp on the sub-cluster sampler, hsgp's predicted sweep is that sampler's:
+    ``[M K Σ l_f, K M³, moves (M Σ l_f / K + M³)]``; auto compares exact with it, and a fit with
+    ``sampler="auto"`` probes, then runs the engine it picks on the sampler it says."""
+    n, frames, m = [10, 200, 3000], [3, 4], 50
+    moves = ec.subcluster_moves(len(frames))
+    np.testing.assert_array_equal(
+        ec.features("subcluster", n, frames, m), [7 * m * 3, 3 * m**3, moves * (7 / 3 * m + m**3)]
+    )
+    with pytest.raises(ValueError):
+        ec.features("subcluster", n, frames)
+    assert ec.subcluster_moves(1000) == 30 and ec.subcluster_moves(10_000) == 10 and ec.subcluster_moves(10**6) == 1
+    fast = {"exact": (1.0, 0.0, 0.0), "hsgp": (1.0, 0.0, 0.0, 0.0), "subcluster": (1e-12, 0.0, 0.0)}
+    monkeypatch.setattr(ec, "COEFFICIENTS", fast)
+    assert ec.choose_upfront([10] * 30, 400, None) is not None  # the collapsed hsgp is no faster
+    assert ec.choose_upfront([10] * 30, 400, None, subcluster=True) is None  # the sub-cluster one is
+    assert ec.choose([300], [10] * 30, 400, None, subcluster=True).engine == "hsgp"
+    frames = dpgp.datasets.synthetic("intersection", n_frames=40, seed=4)
+    m = dpgp.DPGP(iterations=1, noise_var=0.5, length_scale_prior=(10.0, 1.0), progress=False).fit(frames)
+    assert m.likelihood_ == "hsgp" and m.sampler_ == "subcluster"
+    assert m.engine_choice_["sizes_from"] == "hsgp initialisation" and m.engine_choice_["resolution_gap"] is not None

@@ -29,7 +29,7 @@ def fit_tiny(p, alpha, **kw):
     settings = dict(
         assignment="gibbs", length_scales=p.length_scales, signal_var=p.signal_var, mean=p.mean,
         alpha=alpha, progress=False, iterations=SWEEPS, store_labels=True, n_basis=(2, 3),
-        noise_var="per_pattern", split_merge=2, posterior_draws=0,
+        noise_var="per_pattern", split_merge=2, posterior_draws=0, sampler="collapsed",
     )  # fmt: skip
     return dpgp.DPGP(**{**settings, **kw}).fit(frames)
 

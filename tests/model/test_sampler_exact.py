@@ -186,7 +186,15 @@ def test_every_engine_matches_its_enumerated_posterior(likelihood, proposal):
 
     frames, p, alpha = so.tiny_problem(5)
     m = fit_tiny(
-        p, alpha, iterations=SWEEPS, seed=7, store_labels=True, likelihood=likelihood, proposal=proposal, n_basis=(2, 3)
+        p,
+        alpha,
+        iterations=SWEEPS,
+        seed=7,
+        store_labels=True,
+        likelihood=likelihood,
+        proposal=proposal,
+        n_basis=(2, 3),
+        sampler="collapsed",  # the collapsed sampler's proposals; tests/model/test_subcluster.py: the other
     )
     assert m.likelihood_ == likelihood
     target = p if likelihood == "exact" else dataclasses.replace(p, basis=m.basis_)

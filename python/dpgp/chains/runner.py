@@ -147,17 +147,17 @@ def _run_block(frames: Frames | None, settings: dict[str, Any], seed: int, state
     return _Block(traces, model.label_trace_[-sweeps:].astype(np.int32), _state_of(model))
 
 
-def _resolve(frames: Frames | None, settings: dict[str, Any], seed: int) -> tuple[dict[str, Any] | None, str]:
+def _resolve(frames: Frames | None, settings: dict[str, Any], seed: int) -> tuple[dict[str, Any] | None, str, str]:
     """What the "auto" settings resolve to on the frames (a fit with no sweeps resolves them),
-    or None where the model has nothing to resolve, and the likelihood (``"auto"`` decides it
-    by predicted cost, dpgp.engine_cost). Run once per fit_chains, so that every chain samples
-    the same model."""
+    or None where the model has nothing to resolve, the likelihood (``"auto"`` decides it by
+    predicted cost, dpgp.engine_cost) and the sampler. Run once per fit_chains, so that every
+    chain samples the same model with the same sampler."""
     from ..model.estimator import DPGP
 
     frames = _WORKER_FRAMES if frames is None else frames
     model = DPGP(**{**settings, "seed": seed, "progress": False}, iterations=0).fit(frames)
     defaults = getattr(model, "defaults_", None)
-    return (None if defaults is None else defaults.to_dict()), model.likelihood_
+    return (None if defaults is None else defaults.to_dict()), model.likelihood_, model.sampler_
 
 
 def _explicit(settings: dict[str, Any], resolved: dict[str, Any] | None) -> dict[str, Any]:
@@ -264,6 +264,7 @@ def fit_chains(
     seed: int = 0,
     n_workers: int | None = None,
     progress: bool = True,
+    init: str = "sequential",
     **settings: Any,
 ) -> Chains:
     """Fit ``n_chains`` independent chains of :class:`dpgp.DPGP` and return them as :class:`Chains`.
@@ -285,6 +286,10 @@ def fit_chains(
     burn_in : sweeps dropped from each chain for the summaries (default: the first half).
     seed : chain c's sweeps are seeded from ``SeedSequence(seed, spawn_key=(c, block))``: the
         same seed gives the same chains, locally or on Dask, on any number of workers.
+    init : where the chains start: ``"dispersed"`` starts the even chains from one pattern and
+        the odd ones from many (``DPGP(init="one")``, ``init="many"``), as practitioners advise
+        for DP mixtures: chains that agree from such different starts have forgotten them.
+        ``"sequential"`` (default), ``"one"`` or ``"many"``: every chain so.
     settings : passed to :class:`dpgp.DPGP` (``assignment``, ``alpha``, ...); ``n_threads``
         defaults to 1 (one core per chain).
     """
@@ -313,6 +318,10 @@ def fit_chains(
         raise InvalidInputError(
             "checkpoint is a setting of a single fit (DPGP(checkpoint=...).fit), not of fit_chains; leave it out"
         )
+    if init not in ("sequential", "one", "many", "dispersed"):
+        raise InvalidInputError(f"init must be 'sequential', 'one', 'many' or 'dispersed', got {init!r}")
+    if init != "dispersed":
+        settings = {**settings, "init": init}
     settings = {"n_threads": 1, **settings}
     try:
         DPGP(**settings)._check_settings()
@@ -327,7 +336,7 @@ def fit_chains(
         engine: Any = _LocalEngine(frames, max(1, int(workers)))
     else:
         engine = _DaskEngine(client, frames)
-    runner = _Runner(engine, frames, settings, n_chains, seed, block, progress)
+    runner = _Runner(engine, frames, settings, n_chains, seed, block, progress, init)
     try:
         runner.resolve()
         runner.run(until, iterations, rhat, min_ess, max_iterations, max_seconds)
@@ -348,6 +357,7 @@ class _Runner:
         seed: int,
         block: int,
         progress: bool,
+        init: str = "sequential",
     ) -> None:
         self.engine, self.frames, self.settings, self.seed, self.block = engine, frames, settings, seed, block
         self.names = [f"chain{c}" for c in range(n_chains)]
@@ -362,6 +372,7 @@ class _Runner:
         self.pending: dict[Any, int] = {}  # future -> chain
         self.resolved: dict[str, Any] | None = None
         self.chain_settings = settings
+        self.init = init
 
     def sweeps(self, c: int) -> int:
         return sum(len(b.labels) for b in self.blocks[c])
@@ -369,7 +380,10 @@ class _Runner:
     def _submit(self, c: int, n: int) -> Any:
         b = len(self.blocks[c])
         state = self.blocks[c][-1].state if b else None
-        args = (self.chain_settings, block_seed(self.seed, c, b), state, n)
+        settings = self.chain_settings
+        if self.init == "dispersed" and state is None:  # chains start from one and from many patterns
+            settings = {**settings, "init": ("one", "many")[c % 2]}
+        args = (settings, block_seed(self.seed, c, b), state, n)
         return self.engine.submit(f"{self.names[c]}-block{b}", _run_block, *args)
 
     def _feed(self, c: int, target: int) -> None:
@@ -439,14 +453,18 @@ class _Runner:
             self.engine.cancel([future])
             raise
         try:
-            self.resolved, likelihood = future.result()
+            self.resolved, likelihood, sampler = future.result()
         except KeyboardInterrupt:
             raise
         except BaseException as e:  # noqa: BLE001
             if isinstance(e, DpgpError):
                 raise
             raise ChainsFailedError(f"resolving the settings failed: {type(e).__name__}: {e}") from e
-        self.chain_settings = {**_explicit(self.settings, self.resolved), "likelihood": likelihood}
+        self.chain_settings = {
+            **_explicit(self.settings, self.resolved),
+            "likelihood": likelihood,
+            "sampler": sampler,
+        }
 
     def run(
         self,
@@ -607,6 +625,7 @@ class Chains:
         self.retried_ = retried or {}  # chains whose block was rerun after a local worker died
         self._models: list[Any] | None = None
         self._estimates: dict[tuple[str, int, int], partition.PointEstimate] = {}
+        self._chain_estimates: dict[tuple[str, int], list[np.ndarray]] = {}
 
     # --- shape --------------------------------------------------------------------------------
     @property
@@ -652,7 +671,10 @@ class Chains:
         return {q: diagnostics.ess(self.draws(q), method) for q in QUANTITIES}
 
     def summary(self) -> Any:
-        """A table (pandas DataFrame) per quantity: mean, sd, R̂, bulk ESS, tail ESS."""
+        """A table (pandas DataFrame) per quantity: mean, sd, R̂, bulk ESS, tail ESS; and a row
+        ``partition_ari``: the adjusted Rand index between every two chains' summary partitions
+        (:meth:`agreement`), its mean, sd and minimum (label-free, it says whether the chains found
+        the same patterns)."""
         import pandas as pd
 
         rows = {
@@ -665,7 +687,39 @@ class Chains:
             }
             for q in QUANTITIES
         }
+        pairs = self.agreement()[np.triu_indices(self.n_chains, 1)]
+        nan = float("nan")
+        rows["partition_ari"] = {
+            "mean": float(pairs.mean()) if pairs.size else nan,
+            "sd": float(pairs.std(ddof=1)) if pairs.size > 1 else nan,
+            "min": float(pairs.min()) if pairs.size else nan,
+        }
         return pd.DataFrame.from_dict(rows, orient="index")
+
+    def chain_estimates(self, loss: str = "vi") -> list[np.ndarray]:
+        """Each chain's summary partition: the point estimate (:func:`dpgp.partition.salso`) of its
+        own kept sweeps. Cached."""
+        key = (loss, self.burn_in)
+        if key not in self._chain_estimates:
+            kept = self.labels[:, self.burn_in :]
+            self._chain_estimates[key] = [
+                partition.salso(kept[c], loss, n_runs=4, init=self.labels[c, -1:], seed=self.seed).labels
+                for c in range(self.n_chains)
+            ]
+        return self._chain_estimates[key]
+
+    def agreement(self, loss: str = "vi") -> np.ndarray:
+        """(chains, chains): the adjusted Rand index between every two chains' summary partitions
+        (:meth:`chain_estimates`); 1 on the diagonal."""
+        from ..evaluate.metrics import adjusted_rand_index
+
+        est = self.chain_estimates(loss)
+        n = len(est)
+        out = np.ones((n, n))
+        for a in range(n):
+            for b in range(a + 1, n):
+                out[a, b] = out[b, a] = adjusted_rand_index(est[a], est[b])
+        return out
 
     def rhat_by_sweeps(self, points: int = 30) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """R̂ of each quantity had the run stopped after n sweeps (the second half kept), for up

@@ -89,6 +89,9 @@ NOISE_PRIOR = (float(np.log(0.1)), 2.0)
 #: the same seconds (its burn-in outlasts any ESS estimate; 30 and 100 moves tie, 10 lag by ~550
 #: nats of log joint) and by held-out spread on ETH and Zara (docs/inference.md).
 SPLIT_MERGE_MOVES = 30
+#: The sub-cluster sampler's split–merge moves per sweep keep about this many frames' work (at
+#: least one move, at most SPLIT_MERGE_MOVES): 30 moves below 3,334 frames, 1 from 100,000.
+SUBCLUSTER_MOVE_FRAMES = 100_000
 
 
 @dataclass(frozen=True)
@@ -281,5 +284,5 @@ def _gamma(name: str, value: Any) -> tuple[float, float]:
 
 __all__ = [
     "Resolved", "resolve", "vehicle_spacing", "estimate_noise_var", "refine_grid", "spread", "Pilot",
-    "PAPER", "PRESETS", "NOISE_PRIOR", "SPLIT_MERGE_MOVES",
+    "PAPER", "PRESETS", "NOISE_PRIOR", "SPLIT_MERGE_MOVES", "SUBCLUSTER_MOVE_FRAMES",
 ]  # fmt: skip

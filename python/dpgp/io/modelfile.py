@@ -308,6 +308,7 @@ class ModelFile:
     transitions: Any = None  # a dpgp.evaluate.transitions.Transitions; None before issue 20 or without times
     sticky: dict[str, Any] | None = None  # ρ and the linked frames under dynamics="sticky"
     pattern_noise_var: np.ndarray | None = None  # (K, 2): each pattern's noise pair (per-pattern noise)
+    sampler: str = "collapsed"  # the sampler that ran the chain; files before issue 32 ran the collapsed one
 
 
 def read_model_file(path: str | os.PathLike) -> ModelFile:
@@ -400,7 +401,7 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
         path, settings, frames, labels, ls, float(meta["alpha"]), params, _resolved(meta), likelihood, basis, state,
         None if d is None else EmpiricalDistributions.from_dict(d), parse_resume(meta, arrays, frames),
         None if meta.get("motion") is None else MotionModel.from_dict(meta["motion"]), transitions,
-        _sticky(meta.get("sticky"), len(frames)), _pattern_noise(arrays, len(ls)),
+        _sticky(meta.get("sticky"), len(frames)), _pattern_noise(arrays, len(ls)), _sampler(meta),
     )  # fmt: skip
 
 
@@ -470,6 +471,16 @@ def _engine(meta: dict[str, Any]) -> tuple[str, Any]:
     if e.get("likelihood") not in ("exact", "hsgp") or (e["likelihood"] == "hsgp") != (e.get("basis") is not None):
         raise ModelFileError(f"unknown likelihood or basis in the model file: {e!r}")
     return e["likelihood"], None if e.get("basis") is None else Basis.from_dict(e["basis"])
+
+
+def _sampler(meta: dict[str, Any]) -> str:
+    """The sampler that ran the chain ("collapsed" in files written before the sub-cluster sampler)."""
+    sampler = (meta.get("engine") or {}).get("sampler", "collapsed")
+    if sampler not in ("collapsed", "subcluster"):
+        raise ModelFileError(f"unknown sampler in the model file: {sampler!r}")
+    if sampler == "subcluster" and (meta.get("engine") or {}).get("likelihood") != "hsgp":
+        raise ModelFileError("the model file says the sub-cluster sampler ran without the hsgp likelihood")
+    return sampler
 
 
 def _resolved(meta: dict[str, Any]) -> Any:

@@ -63,7 +63,7 @@ from typing import Any
 
 import numpy as np
 
-ENGINES = ("exact", "hsgp")
+ENGINES = ("exact", "hsgp", "subcluster")
 
 #: hsgp runs only where it is predicted at least this many times faster than exact. Exact is the
 #: model and hsgp its approximation, and each engine's prediction is off by up to about 2× on
@@ -82,16 +82,25 @@ EXACT_FAST_ENOUGH = 0.05
 COEFFICIENTS: dict[str, tuple[float, ...]] = {
     "exact": (2.02e-6, 7.19e-7, 8.09e-10),
     "hsgp": (3.31e-10, 0.0, 2.84e-9, 4.17e-9),
+    "subcluster": (2.0e-10, 1.0e-9, 1.1e-9),
 }
 
 
 def features(engine: str, pattern_points: object, frame_sizes: object, basis_size: int | None = None) -> np.ndarray:
     """The cost model's features of one sweep (module docstring): ``[Σ l_f², Σ n_k², Σ n_k³]``
-    for exact, ``[M Σ l_f², Σ n_k s_k², Σ s_k³, M Σ_{n_k ≤ M} n_k²]`` for hsgp."""
+    for exact, ``[M Σ l_f², Σ n_k s_k², Σ s_k³, M Σ_{n_k ≤ M} n_k²]`` for hsgp on the collapsed
+    sampler, ``[M K Σ l_f, K M³, moves (M Σ l_f / K + M³)]`` for hsgp on the sub-cluster sampler."""
     n = np.asarray(pattern_points, dtype=np.float64).ravel()
     frames_sq = float((np.asarray(frame_sizes, dtype=np.float64) ** 2).sum())
     if engine == "exact":
         return np.array([frames_sq, float((n**2).sum()), float((n**3).sum())])
+    if engine == "subcluster":
+        if basis_size is None or basis_size < 1:
+            raise ValueError("the subcluster cost needs the basis size M")
+        m, k = float(basis_size), max(len(n), 1)
+        points = float(np.asarray(frame_sizes, dtype=np.float64).sum())
+        moves = float(subcluster_moves(len(np.asarray(frame_sizes))))
+        return np.array([points * m * k, k * m**3, moves * (points / k * m + m**3)])
     if engine == "hsgp":
         if basis_size is None or basis_size < 1:
             raise ValueError("the hsgp cost needs the basis size M")
@@ -101,6 +110,16 @@ def features(engine: str, pattern_points: object, frame_sizes: object, basis_siz
             [m * frames_sq, float((n * s**2).sum()), float((s**3).sum()), m * float((n[n <= m] ** 2).sum())]
         )
     raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
+
+
+def subcluster_moves(n_frames: int) -> int:
+    """The sub-cluster sampler's split–merge moves per sweep under ``split_merge="auto"``: about
+    :data:`dpgp.defaults.SUBCLUSTER_MOVE_FRAMES` frames' work (at least one move, at most
+    :data:`dpgp.defaults.SPLIT_MERGE_MOVES`), a function of the data's size only (a count that
+    depended on the state would break the chain's balance)."""
+    from ..gp.defaults import SPLIT_MERGE_MOVES, SUBCLUSTER_MOVE_FRAMES
+
+    return int(np.clip(SUBCLUSTER_MOVE_FRAMES // max(int(n_frames), 1), 1, SPLIT_MERGE_MOVES))
 
 
 def sweep_seconds(engine: str, pattern_points: object, frame_sizes: object, basis_size: int | None = None) -> float:
@@ -151,26 +170,33 @@ class Choice:
         return out
 
 
-def choose_upfront(frame_sizes: object, basis_size: int, memory_budget: int | None) -> Choice | None:
+def choose_upfront(
+    frame_sizes: object, basis_size: int, memory_budget: int | None, subcluster: bool = False
+) -> Choice | None:
     """Step 1 of the rule: exact if its worst case (all points in one pattern) is predicted no
     slower than hsgp's least cost over all partitions (its per-frame term alone) and fits the
-    budget; None when the pattern sizes must be predicted first."""
+    budget; None when the pattern sizes must be predicted first. ``subcluster``: hsgp would run
+    on the sub-cluster sampler, and its least cost is one pattern's sweep on that sampler."""
     n_points = int(np.sum(np.asarray(frame_sizes)))
     exact = sweep_seconds("exact", [n_points], frame_sizes)
-    hsgp = sweep_seconds("hsgp", [], frame_sizes, basis_size)
+    hsgp = sweep_seconds(
+        "subcluster" if subcluster else "hsgp", [n_points] if subcluster else [], frame_sizes, basis_size
+    )
     fits = memory_budget is None or exact_peak_bytes(n_points) <= memory_budget
     if fits and (exact <= HSGP_MARGIN * hsgp or exact <= EXACT_FAST_ENOUGH):
         return Choice("exact", basis_size, "worst case", exact, hsgp, fits)
     return None
 
 
-def choose(pattern_points: object, frame_sizes: object, basis_size: int, memory_budget: int | None) -> Choice:
+def choose(
+    pattern_points: object, frame_sizes: object, basis_size: int, memory_budget: int | None, subcluster: bool = False
+) -> Choice:
     """Step 2 of the rule: hsgp if it is predicted :data:`HSGP_MARGIN` times faster on these
     pattern sizes (points) or exact's peak (:func:`exact_peak_bytes`) does not fit the memory
-    budget; else exact."""
+    budget; else exact. ``subcluster``: hsgp's sweep is the sub-cluster sampler's."""
     n = np.asarray(pattern_points, dtype=np.float64).ravel()
     exact = sweep_seconds("exact", n, frame_sizes)
-    hsgp = sweep_seconds("hsgp", n, frame_sizes, basis_size)
+    hsgp = sweep_seconds("subcluster" if subcluster else "hsgp", n, frame_sizes, basis_size)
     fits = memory_budget is None or exact_peak_bytes(int(n.sum())) <= memory_budget
     engine = "exact" if fits and (exact <= HSGP_MARGIN * hsgp or exact <= EXACT_FAST_ENOUGH) else "hsgp"
     return Choice(engine, basis_size, "hsgp initialisation", exact, hsgp, fits)

@@ -38,6 +38,13 @@ if TYPE_CHECKING:
     from ..io.modelfile import ModelState
 
 _DYNAMICS = (None, "sticky")
+_SAMPLERS = ("auto", "subcluster", "collapsed")
+_INITS = ("sequential", "one", "many")
+#: Why ``sampler="auto"`` runs the sub-cluster sampler where it can (engine_choice_["sampler"]).
+SUBCLUSTER_REASON = (
+    "hsgp: the sub-cluster sampler reached convergence sooner than the collapsed sampler on every "
+    "benchmark (effective samples per second of the log joint and K; docs/performance/convergence.md)"
+)
 # ρ ~ Beta(1, 1) under dynamics="sticky": uniform, so the recording decides how sticky its scene is
 # (thousands of links outweigh it); a prior favouring stickiness would hide a scene that flickers.
 STICKINESS_PRIOR = (1.0, 1.0)
@@ -93,6 +100,21 @@ class DPGP:
         proposals and acceptances per sweep are in ``history_`` (``split_proposed``, ...).
     split_merge_pairs : ``"informed"`` (default) or ``"uniform"``: how the second frame of a
         move's pair is drawn (half the time by similar mean velocity when informed).
+    sampler : ``"subcluster"``: the parallel sub-cluster sampler (hsgp only; docs/inference.md,
+        "The sub-cluster sampler"): each sweep draws every pattern's field and mixture weight, then
+        every frame's pattern in parallel given them, and splits and merges whole patterns by
+        Metropolis–Hastings moves built from two sub-patterns; exact, like the collapsed sampler,
+        and its sweep costs ``O(frames · K · M)`` instead of ``O(frames · K · M²)``.
+        ``"collapsed"``: the paper's collapsed Gibbs sampler, one frame at a time (the only one
+        for ``likelihood="exact"``, ``dynamics="sticky"`` and ``pattern_moments``). ``"auto"``
+        (default): the sub-cluster sampler wherever it can run, since it reached convergence
+        sooner on every benchmark (docs/performance); with ``likelihood="auto"`` the engine is
+        chosen for it (:mod:`dpgp.engine_cost`). Which ran: ``sampler_``; why:
+        ``engine_choice_["sampler"]``.
+    init : where the chain starts: ``"sequential"`` (default): frames placed one by one by the
+        conditional (then, past 1,000 frames, by cheap score); ``"one"``: every frame in one
+        pattern; ``"many"``: every frame its own pattern, or 256 contiguous blocks of frames on
+        larger data. ``fit_chains(init="dispersed")`` starts chains from one and from many.
     dynamics : ``None`` (default): frames are exchangeable, the paper's independent DP.
         ``"sticky"``: a Markov prior on consecutive frames' labels (docs/dynamics.md): each
         frame stays in its predecessor's pattern with probability ρ (``stickiness_``, sampled
@@ -166,6 +188,8 @@ class DPGP:
         split_merge: int | str = "auto",
         split_merge_pairs: str = "informed",
         dynamics: str | None = None,
+        sampler: str = "auto",
+        init: str = "sequential",
     ) -> None:
         self.iterations = iterations
         self.assignment = assignment
@@ -195,6 +219,8 @@ class DPGP:
         self.split_merge = split_merge
         self.split_merge_pairs = split_merge_pairs
         self.dynamics = dynamics
+        self.sampler = sampler
+        self.init = init
 
     # Set outside __init__ (not settings): a resumed chain's start, the generation cache, and
     # whether Ctrl-C keeps the state reached (a pilot fit's does not).
@@ -285,6 +311,10 @@ class DPGP:
             raise InvalidInputError(f"posterior_draws must be an integer in [0, 100000], got {self.posterior_draws!r}")
         if self.dynamics not in _DYNAMICS:  # the estimator's own: it decides what the core is given
             raise InvalidInputError(f"dynamics must be None or 'sticky', got {self.dynamics!r}")
+        if self.sampler not in _SAMPLERS:
+            raise InvalidInputError(f"sampler must be one of {_SAMPLERS}, got {self.sampler!r}")
+        if self.init not in _INITS:
+            raise InvalidInputError(f"init must be one of {_INITS}, got {self.init!r}")
         if self.dynamics is not None and self.checkpoint is not None:
             raise InvalidInputError("dynamics='sticky' cannot write checkpoints yet (its links are not stored in them)")
         _core.check_settings(self._sampler_settings())
@@ -308,6 +338,8 @@ class DPGP:
         }
         if not _is_auto(self.likelihood):  # "auto" is decided from the data (_resolve_engine)
             settings["likelihood"] = self.likelihood
+        if not _is_auto(self.sampler):
+            settings["sampler"] = self.sampler
         return settings
 
     def fit(self, frames: Frames | Any, y: None = None, *, warm_start: bool = False) -> DPGP:
@@ -356,7 +388,7 @@ class DPGP:
         self.n_iter_ = 0
         t = time.perf_counter()
         try:
-            self._sampler.initialize()
+            self._sampler.initialize(self.init)
             if self._auto_pending:
                 self._settle_auto(frames)
         except KeyboardInterrupt:
@@ -523,11 +555,13 @@ class DPGP:
         likelihood = self.likelihood
         self.engine_choice_, self._auto_pending = None, False
         basis = None
+        if likelihood == "auto" and self.sampler == "subcluster":
+            likelihood = "hsgp"  # the sub-cluster sampler needs it
         if likelihood == "auto":  # by predicted cost (dpgp.engine_cost)
             from .engine_cost import choose_upfront
 
             basis = self._basis(frames)
-            choice = choose_upfront(frames.sizes, basis.size, self.memory_budget_)
+            choice = choose_upfront(frames.sizes, basis.size, self.memory_budget_, self._subcluster_possible())
             if choice is None:  # fit predicts the pattern sizes by hsgp's initialisation
                 likelihood, self._auto_pending = "hsgp", True
             else:
@@ -536,6 +570,28 @@ class DPGP:
         self.basis_ = None
         if likelihood == "hsgp":
             self.basis_ = basis or self._basis(frames)
+        self._resolve_sampler()
+
+    def _subcluster_possible(self) -> bool:
+        """Whether settings other than the likelihood let the sub-cluster sampler run."""
+        return self.sampler != "collapsed" and self.dynamics is None and not self.pattern_moments
+
+    def _resolve_sampler(self) -> None:
+        """``sampler_`` for ``likelihood_``, and why in ``engine_choice_["sampler"]``."""
+        if self.sampler != "auto":
+            sampler, why = self.sampler, "given"
+        elif self.likelihood_ != "hsgp":
+            sampler, why = "collapsed", "the exact likelihood has no finite weights to draw"
+        elif self.dynamics is not None:
+            sampler, why = "collapsed", "the sticky prior runs on the collapsed sampler"
+        elif self.pattern_moments:
+            sampler, why = "collapsed", "pattern_moments runs on the collapsed sampler"
+        else:
+            sampler, why = "subcluster", SUBCLUSTER_REASON
+        self.sampler_ = sampler
+        choice = dict(self.engine_choice_ or {})
+        choice["sampler"] = {"sampler": sampler, "why": why}
+        self.engine_choice_ = choice
 
     def _basis(self, frames: Frames) -> Any:
         return basis_for(
@@ -555,7 +611,9 @@ class DPGP:
         labels = np.asarray(self._sampler.labels(), dtype=np.int64)
         points = pattern_points(labels, frames.sizes)
         assert self.basis_ is not None  # hsgp ran the initialisation
-        choice = choose(points[points > 0], frames.sizes, self.basis_.size, self.memory_budget_)
+        choice = choose(
+            points[points > 0], frames.sizes, self.basis_.size, self.memory_budget_, self.sampler_ == "subcluster"
+        )
         if choice.engine == "hsgp" and choice.exact_fits:  # faster: is it accurate on these data?
             # On the initialisations of fixed seeds, not this fit's: a decision about the data.
             cache: dict[bytes, float] = {}  # a pattern several initialisations share is probed once
@@ -573,6 +631,7 @@ class DPGP:
         self.engine_choice_ = choice.to_dict()
         if choice.engine == "exact":
             self.likelihood_, self.basis_ = "exact", None
+            self._resolve_sampler()
             del self._sampler  # free hsgp's before the exact one allocates
             self._sampler = self._new_sampler(frames)
             self._sampler.initialize()
@@ -580,18 +639,25 @@ class DPGP:
     def _probe_labels(self, frames: Frames, seed: int) -> np.ndarray:
         """The labels of this fit's sequential initialisation (its engine, basis and settings) had
         it been started with ``seed``: the partitions auto's accuracy probe reads."""
-        sampler = self._new_sampler(frames, seed=seed)
+        sampler = self._new_sampler(frames, seed=seed, collapsed=True)
         sampler.initialize()
         return np.asarray(sampler.labels(), dtype=np.int64)
 
-    def _new_sampler(self, frames: Frames, seed: int | None = None) -> _core.Sampler:
+    def _new_sampler(self, frames: Frames, seed: int | None = None, collapsed: bool = False) -> _core.Sampler:
         """A core sampler over ``frames`` with this model's settings and ``params_`` (and the
-        given ``seed`` instead of ``self.seed``, for auto's probe); shared by ``fit`` and by
-        loading a model file, so that both compute identically."""
+        given ``seed`` instead of ``self.seed``, for auto's probe; ``collapsed``: the collapsed
+        sampler whatever ``sampler_``); shared by ``fit`` and by loading a model file, so that
+        both compute identically."""
         a, b = self.length_scale_prior_
         settings = self._sampler_settings()
         if seed is not None:
             settings["seed"] = seed
+        sampler = "collapsed" if collapsed else getattr(self, "sampler_", "collapsed")
+        settings["sampler"] = sampler
+        if sampler == "subcluster" and _is_auto(self.split_merge):
+            from .engine_cost import subcluster_moves
+
+            settings["split_merge"] = subcluster_moves(len(frames))
         settings.update(
             {
                 "assignment": self.assignment_,
@@ -659,7 +725,7 @@ class DPGP:
             self.weights_,
             self.alpha_,
             cache,
-            self._new_sampler,
+            lambda frames: self._new_sampler(frames, collapsed=True),  # scores other frames only
         )
 
     @property
@@ -792,7 +858,7 @@ class DPGP:
             )
             for i in used(draws, self.n_iter_)
         ]
-        return averaged(terms, self.labels_, states, lambda: self._new_sampler(self.frames_), frames)
+        return averaged(terms, self.labels_, states, lambda: self._new_sampler(self.frames_, collapsed=True), frames)
 
     def predict_proba(self, frames: Frames | Any, average: bool = False) -> np.ndarray:
         """Posterior probability of each pattern for each frame: shape (N, K+1), the last column
@@ -996,6 +1062,7 @@ class DPGP:
             "basis": None if basis is None else basis.to_dict(),
             "memory_budget": getattr(self, "memory_budget_", None),
             "choice": getattr(self, "engine_choice_", None),  # likelihood="auto"'s decision (dpgp.model.engine_cost)
+            "sampler": getattr(self, "sampler_", "collapsed"),
         }
 
     @classmethod
@@ -1073,6 +1140,7 @@ class DPGP:
             r.assignment, r.noise_var, r.length_scale_prior, r,
         )  # fmt: skip
         model.likelihood_, model.basis_ = file.likelihood, file.basis
+        model.sampler_ = file.sampler
         budget = parse_bytes("memory_budget", model.memory_budget)  # this machine's budget
         model.memory_budget_ = budget if budget is not None else default_memory_budget(model.n_threads)
         model._sampler = model._new_sampler(file.frames)

@@ -306,58 +306,75 @@ impl AxisValues {
 
     fn build(basis: &Basis, pts: &[Point], cosines: bool) -> Self {
         let n = pts.len();
-        let [mx, my] = basis.m;
+        // Per axis, cos θ and sin θ of each point (both 0 outside the box: the recurrences then
+        // give zeros throughout), and whether the point is in the box on both axes.
+        let mut cos1 = [vec![0.0; n], vec![0.0; n]];
+        let mut sin1 = [vec![0.0; n], vec![0.0; n]];
+        let mut inside = vec![1.0; n];
+        for (i, p) in pts.iter().enumerate() {
+            for d in 0..2 {
+                let t = p[d] - basis.center[d] + basis.half[d];
+                if (0.0..=2.0 * basis.half[d]).contains(&t) {
+                    let (s, c) = (PI * t / (2.0 * basis.half[d])).sin_cos();
+                    cos1[d][i] = c;
+                    sin1[d][i] = s;
+                } else {
+                    inside[i] = 0.0;
+                }
+            }
+        }
         let mut out = Self {
             n,
-            sx: vec![0.0; n * mx],
-            sy: vec![0.0; n * my],
+            sx: sines(&cos1[0], &sin1[0], basis.half[0].sqrt().recip(), basis.m[0]),
+            sy: sines(&cos1[1], &sin1[1], basis.half[1].sqrt().recip(), basis.m[1]),
             ..Self::default()
         };
         if cosines {
-            out.cx = vec![0.0; n * (2 * mx + 1)];
-            out.cy = vec![0.0; n * (2 * my + 1)];
-        }
-        for (i, p) in pts.iter().enumerate() {
-            let theta = [0, 1].map(|d| {
-                let t = p[d] - basis.center[d] + basis.half[d];
-                (0.0..=2.0 * basis.half[d])
-                    .contains(&t)
-                    .then(|| PI * t / (2.0 * basis.half[d]))
-            });
-            for d in 0..2 {
-                let Some(th) = theta[d] else { continue };
-                let s = if d == 0 { &mut out.sx } else { &mut out.sy };
-                sines(th, basis.half[d].sqrt().recip(), n, i, &mut s[..]);
-            }
-            if cosines && theta.iter().all(Option::is_some) {
-                for d in 0..2 {
-                    let c = if d == 0 { &mut out.cx } else { &mut out.cy };
-                    cosines_at(theta[d].unwrap_or(0.0), n, i, &mut c[..]);
-                }
-            }
+            // A point outside the box on either axis has no features: zero cosine rows.
+            out.cx = cosine_columns(&cos1[0], &inside, 2 * basis.m[0] + 1);
+            out.cy = cosine_columns(&cos1[1], &inside, 2 * basis.m[1] + 1);
         }
         out
     }
 }
 
-/// `scale · sin((j+1) θ)` into `out[j n + i]` for every column `j`.
-fn sines(theta: f64, scale: f64, n: usize, i: usize, out: &mut [f64]) {
-    let m = out.len() / n;
-    let two_c = 2.0 * theta.cos();
-    let (mut prev, mut cur) = (0.0, theta.sin());
+/// `scale · sin((j+1) θ)` for `j < m`, column by column over the points (column-major `n x m`),
+/// from `cos θ` and `sin θ` of each point.
+fn sines(c1: &[f64], s1: &[f64], scale: f64, m: usize) -> Vec<f64> {
+    let n = c1.len();
+    let mut out = vec![0.0; n * m];
+    let mut prev = vec![0.0; n];
+    let mut cur = s1.to_vec();
     for j in 0..m {
-        out[j * n + i] = scale * cur;
-        (prev, cur) = (cur, two_c * cur - prev);
+        step(&mut out[j * n..(j + 1) * n], &mut prev, &mut cur, c1, scale);
     }
+    out
 }
 
-/// `cos(a θ)` into `out[a n + i]` for every column `a`.
-fn cosines_at(theta: f64, n: usize, i: usize, out: &mut [f64]) {
-    let m = out.len() / n;
-    let c1 = theta.cos();
-    let (mut prev, mut cur) = (c1, 1.0); // cos(−θ), cos(0)
+/// `mask · cos(a θ)` for `a < m`, column by column over the points, from `cos θ`.
+fn cosine_columns(c1: &[f64], mask: &[f64], m: usize) -> Vec<f64> {
+    let n = c1.len();
+    let mut out = vec![0.0; n * m];
+    let mut prev: Vec<f64> = c1.iter().zip(mask).map(|(c, w)| c * w).collect(); // cos(−θ)
+    let mut cur = mask.to_vec(); // cos 0
     for a in 0..m {
-        out[a * n + i] = cur;
-        (prev, cur) = (cur, 2.0 * c1 * cur - prev);
+        step(&mut out[a * n..(a + 1) * n], &mut prev, &mut cur, c1, 1.0);
+    }
+    out
+}
+
+/// One step of the Chebyshev recurrence for every point: write `scale · cur`, then
+/// `(prev, cur) ← (cur, 2 cos θ · cur − prev)`.
+fn step(col: &mut [f64], prev: &mut [f64], cur: &mut [f64], c1: &[f64], scale: f64) {
+    for (((o, p), c), k) in col
+        .iter_mut()
+        .zip(prev.iter_mut())
+        .zip(cur.iter_mut())
+        .zip(c1)
+    {
+        *o = scale * *c;
+        let next = 2.0 * k * *c - *p;
+        *p = *c;
+        *c = next;
     }
 }

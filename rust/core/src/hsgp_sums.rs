@@ -343,11 +343,47 @@ impl Posterior {
     /// Factor `sums` (whose Gram matrix is `gram`) under `params`: one M x M Cholesky per output
     /// group.
     pub fn new(basis: &Basis, sums: &Sums, gram: &[f64], params: GpParams) -> Result<Self> {
+        Self::reusing(basis, sums, gram, params, None)
+    }
+
+    /// The same sums under other `params`, keeping the factor of every output group whose
+    /// variances are unchanged when the length scales and means are (a noise step changes one
+    /// output's noise at a time: the other group's factor is the same numbers).
+    pub fn refit(
+        &self,
+        basis: &Basis,
+        sums: &Sums,
+        gram: &[f64],
+        params: GpParams,
+    ) -> Result<Self> {
+        let same =
+            params.length_scales == self.params.length_scales && params.mean == self.params.mean;
+        Self::reusing(basis, sums, gram, params, same.then_some(self))
+    }
+
+    fn reusing(
+        basis: &Basis,
+        sums: &Sums,
+        gram: &[f64],
+        params: GpParams,
+        old: Option<&Self>,
+    ) -> Result<Self> {
         let sqrt_s = basis.sqrt_spectral(params.length_scales);
         let mut groups = Vec::new();
         let mut ds = Vec::new();
         for outs in params.groups() {
             let vars = params.group_vars(outs);
+            let kept = old.and_then(|o| {
+                o.groups
+                    .iter()
+                    .zip(&o.d)
+                    .find(|(g, _)| g.outs == *outs && (g.signal_var, g.noise_var) == vars)
+            });
+            if let Some((g, d)) = kept {
+                groups.push(g.clone());
+                ds.push(d.clone());
+                continue;
+            }
             let d = scaled_sqrt_spectrum(&sqrt_s, vars.0);
             groups.push(Group::new(outs, vars, gram, &d, &sums.vecs, params.mean)?);
             ds.push(d);

@@ -147,7 +147,10 @@ impl crate::gibbs::Refit for Candidate<'_> {
         self.sums.vecs.n_points
     }
     fn refit(&self, params: GpParams) -> Result<Self> {
-        let post = Posterior::new(self.basis, self.sums, &self.fit.gram, params)?;
+        let post = self
+            .fit
+            .post
+            .refit(self.basis, self.sums, &self.fit.gram, params)?;
         Ok(Self {
             fit: Fit {
                 gram: Arc::clone(&self.fit.gram),
@@ -268,6 +271,24 @@ impl SubclusterSampler {
     /// The noise pair the chain is at (per pattern: the pair it started at).
     pub fn noise_var(&self) -> [f64; 2] {
         self.settings.base.noise_var
+    }
+
+    /// Put the chain at the noise pair `noise` (a resumed chain): the chain's pair, and every
+    /// pattern's when the noise is one for all.
+    pub fn set_noise_var(&mut self, noise: [f64; 2]) -> Result<()> {
+        if !noise.iter().all(|v| v.is_finite() && *v > 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "noise_var must be two positive variances, got {noise:?}"
+            )));
+        }
+        self.settings.base.noise_var = noise;
+        if self.settings.noise_scope == NoiseScope::Global {
+            for p in self.slots.iter_mut().flatten() {
+                p.params.noise_var = noise;
+                p.fit = None;
+            }
+        }
+        self.refresh_fits()
     }
 
     /// Bytes held by the patterns' sums and cached factors.

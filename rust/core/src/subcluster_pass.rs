@@ -1,12 +1,10 @@
 //! The sub-cluster sampler's assignment pass: draw the patterns' weights and fields, give every
 //! frame its label in parallel, and update the sums of the patterns frames moved between.
 //!
-//! **Fields at many points at once.** A field is `φ(x)ᵀ a` with `φ_jk = s_j(x) t_k(y)`, so with the
-//! weights as an `m_x x m_y` matrix `A`, the field at a point is `s(x)ᵀ A t(y)`. For a chunk of
-//! points with per-axis values `S` (`n x m_x`) and `T` (`n x m_y`), one matrix product
-//! `S [A_1 … A_F]` (or `T [A_1ᵀ … A_Fᵀ]`, whichever axis has more functions) gives every field
-//! `f` as the row sums of `(S A_f) ∘ T`: `2 n M F` flops at matrix-product speed, and no `M`-long
-//! feature vector is ever formed.
+//! **Fields at many points at once.** For a chunk of points, the features `Φ` (`n x M`, each
+//! `φ_jk = s_j(x) t_k(y)` from per-axis values by recurrence) times the stacked weights `W`
+//! (`M x 2K`: every pattern's two outputs) give every field at every point in one matrix product
+//! whose inner dimension is `M`: `2 n M K` flops at matrix-product speed.
 
 use std::time::Instant;
 
@@ -24,22 +22,16 @@ use crate::special::log_sum_exp;
 
 /// Frames per parallel task of a pass.
 pub(super) const TILE: usize = 128;
-/// Points per matrix product.
-const CHUNK: usize = 256;
-/// Doubles of the product's output held at once (a quarter of a core's L2 cache).
-const PRODUCT_DOUBLES: usize = 32 * 1024;
+/// Doubles of a chunk's features held at once (a quarter of a core's L2 cache).
+const FEATURE_DOUBLES: usize = 32 * 1024;
 
 /// Several patterns' fields, stacked for one matrix product per chunk of points, with each
 /// pattern's noise: what a frame's log-likelihood under each pattern needs.
 pub(super) struct FieldBank {
     /// Patterns.
     k: usize,
-    /// Whether the product's inner dimension is the x axis (else y).
-    inner_x: bool,
-    inner: usize,
-    outer: usize,
-    /// `inner x (2K outer)`, column-major: field `2k + d` (pattern k, output d) at columns
-    /// `(2k + d) outer ..`.
+    m: usize,
+    /// `M x 2K`, column-major: field `2k + d` (pattern k, output d) in column `2k + d`.
     w: Vec<f64>,
     mean: [f64; 2],
     /// Per pattern: `1 / σ_n,d²`, and `−½ Σ_d log(2π σ_n,d²)` per point.
@@ -56,30 +48,10 @@ impl FieldBank {
         noise: &[[f64; 2]],
         mean: [f64; 2],
     ) -> Self {
-        let [mx, my] = basis.counts();
-        let inner_x = mx >= my;
-        let (inner, outer) = if inner_x { (mx, my) } else { (my, mx) };
-        let k = weights.len();
-        let mut w = Vec::with_capacity(inner * outer * 2 * k);
-        for pair in weights {
-            for a in pair {
-                if inner_x {
-                    // A (mx x my, column-major) is already inner x outer.
-                    w.extend_from_slice(a);
-                } else {
-                    // Aᵀ: my x mx.
-                    for j in 0..mx {
-                        w.extend((0..my).map(|kk| a[j + mx * kk]));
-                    }
-                }
-            }
-        }
         Self {
-            k,
-            inner_x,
-            inner,
-            outer,
-            w,
+            k: weights.len(),
+            m: basis.len(),
+            w: weights.iter().flatten().flatten().copied().collect(),
             mean,
             inv_noise: noise.iter().map(|n| [1.0 / n[0], 1.0 / n[1]]).collect(),
             log_norm: noise
@@ -100,62 +72,48 @@ impl FieldBank {
         starts: &[usize],
         out: &mut [f64],
     ) {
-        let kk = self.k;
+        let (kk, m) = (self.k, self.m);
         let fields = 2 * kk;
-        let group = (PRODUCT_DOUBLES / (CHUNK * self.outer)).clamp(1, fields);
+        let [mx, my] = basis.counts();
+        let chunk = (FEATURE_DOUBLES / m).clamp(16, 512);
         let mut frame_of = Vec::with_capacity(xy.len());
         for (f, w) in starts.windows(2).enumerate() {
             frame_of.extend(std::iter::repeat_n(f, w[1] - w[0]));
         }
-        let mut prod = vec![0.0; CHUNK * self.outer * group];
-        let mut acc = vec![0.0; CHUNK];
-        for c0 in (0..xy.len()).step_by(CHUNK) {
-            let c1 = (c0 + CHUNK).min(xy.len());
+        let mut phi = vec![0.0; chunk * m];
+        let mut mean = vec![0.0; chunk * fields];
+        for c0 in (0..xy.len()).step_by(chunk) {
+            let c1 = (c0 + chunk).min(xy.len());
             let n = c1 - c0;
             let vals = AxisValues::new(basis, &xy[c0..c1]);
-            let (s_in, s_out) = if self.inner_x {
-                (&vals.sx, &vals.sy)
-            } else {
-                (&vals.sy, &vals.sx)
-            };
-            for p in c0..c1 {
-                for k in 0..kk {
-                    out[frame_of[p] * kk + k] += self.log_norm[k];
+            for k in 0..my {
+                let t = &vals.sy[k * n..(k + 1) * n];
+                for j in 0..mx {
+                    let s = &vals.sx[j * n..(j + 1) * n];
+                    let col = &mut phi[(j + mx * k) * n..(j + mx * k + 1) * n];
+                    for ((c, s), t) in col.iter_mut().zip(s).zip(t) {
+                        *c = s * t;
+                    }
                 }
             }
-            for g0 in (0..fields).step_by(group) {
-                let g1 = (g0 + group).min(fields);
-                let cols = (g1 - g0) * self.outer;
-                let prod = &mut prod[..n * cols];
-                matmul(
-                    MatMut::from_column_major_slice_mut(prod, n, cols),
-                    Accum::Replace,
-                    MatRef::from_column_major_slice(s_in, n, self.inner),
-                    MatRef::from_column_major_slice(
-                        &self.w[g0 * self.outer * self.inner..g1 * self.outer * self.inner],
-                        self.inner,
-                        cols,
-                    ),
-                    1.0,
-                    Par::Seq,
-                );
-                for f in g0..g1 {
-                    let acc = &mut acc[..n];
-                    acc.fill(0.0);
-                    let base = (f - g0) * self.outer;
-                    for o in 0..self.outer {
-                        let u = &prod[(base + o) * n..(base + o + 1) * n];
-                        let t = &s_out[o * n..(o + 1) * n];
-                        for ((a, u), t) in acc.iter_mut().zip(u).zip(t) {
-                            *a += u * t;
-                        }
+            let mean = &mut mean[..n * fields];
+            matmul(
+                MatMut::from_column_major_slice_mut(mean, n, fields),
+                Accum::Replace,
+                MatRef::from_column_major_slice(&phi[..n * m], n, m),
+                MatRef::from_column_major_slice(&self.w, m, fields),
+                1.0,
+                Par::Seq,
+            );
+            for (i, p) in (c0..c1).enumerate() {
+                let row = &mut out[frame_of[p] * kk..(frame_of[p] + 1) * kk];
+                for k in 0..kk {
+                    let mut ll = self.log_norm[k];
+                    for d in 0..2 {
+                        let r = v[p][d] - self.mean[d] - mean[(2 * k + d) * n + i];
+                        ll -= 0.5 * r * r * self.inv_noise[k][d];
                     }
-                    let (k, d) = (f / 2, f % 2);
-                    let (mu, inv) = (self.mean[d], self.inv_noise[k][d]);
-                    for (i, a) in acc.iter().enumerate() {
-                        let r = v[c0 + i][d] - mu - a;
-                        out[frame_of[c0 + i] * kk + k] -= 0.5 * r * r * inv;
-                    }
+                    row[k] += ll;
                 }
             }
         }

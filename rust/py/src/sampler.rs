@@ -1,6 +1,8 @@
-//! The `Sampler` class: a DP-GP Gibbs sampler owned by Python, run on a rayon pool (one per
-//! thread count, shared by every sampler of the process) with
-//! the GIL released, and stoppable with Ctrl-C between frames.
+//! The `Sampler` class: a DP-GP chain owned by Python — the collapsed Gibbs sampler or the
+//! sub-cluster sampler (settings key `sampler`) — run on a rayon pool (one per thread count,
+//! shared by every sampler of the process) with the GIL released, and stoppable with Ctrl-C.
+//! What the sub-cluster chain does not compute itself (scores of frames, fields, rollouts) it
+//! answers through a collapsed sampler built at its state on first use.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, mpsc};
@@ -14,14 +16,74 @@ use crate::convert::{pairs, to_numpy};
 use crate::errors::{CoreError, CoreResult};
 use crate::settings::SamplerSettings;
 use dpgp_core::Error;
-use dpgp_core::gibbs::{Data, Sampler};
+use dpgp_core::gibbs::{Data, Sampler, SamplerKind, Settings, SweepStats};
 use dpgp_core::kernel::LengthScales;
 use dpgp_core::pattern::FrameRef;
+use dpgp_core::subcluster::{Start, SubclusterSampler};
 
 #[pyclass(module = "dpgp._core", name = "Sampler")]
 pub struct PySampler {
-    inner: Mutex<Sampler>,
+    inner: Mutex<Engine>,
     pool: Arc<rayon::ThreadPool>,
+}
+
+/// The chain, by sampler.
+pub(crate) enum Engine {
+    Collapsed(Sampler),
+    /// The sub-cluster chain and, once asked for, a collapsed sampler at its state.
+    Subcluster(SubclusterSampler, Option<Box<Sampler>>),
+}
+
+impl Engine {
+    /// The collapsed sampler at the chain's state (built for a sub-cluster chain on first use).
+    fn collapsed(&mut self) -> dpgp_core::Result<&mut Sampler> {
+        match self {
+            Self::Collapsed(s) => Ok(s),
+            Self::Subcluster(chain, view) => {
+                if view.is_none() {
+                    *view = Some(Box::new(collapsed_at(chain)?));
+                }
+                Ok(view.as_mut().expect("built above"))
+            }
+        }
+    }
+
+    /// The sub-cluster chain, its collapsed view dropped (the chain is about to change).
+    fn chain_mut(&mut self) -> Option<&mut SubclusterSampler> {
+        match self {
+            Self::Collapsed(_) => None,
+            Self::Subcluster(chain, view) => {
+                *view = None;
+                Some(chain)
+            }
+        }
+    }
+
+    fn kind(&self) -> &'static str {
+        match self {
+            Self::Collapsed(_) => "collapsed",
+            Self::Subcluster(..) => "subcluster",
+        }
+    }
+}
+
+/// A collapsed sampler holding the sub-cluster chain's state: its patterns (with their own
+/// hyperparameters), α and sweep count.
+fn collapsed_at(chain: &SubclusterSampler) -> dpgp_core::Result<Sampler> {
+    let settings = Settings {
+        sampler: SamplerKind::Collapsed,
+        ..chain.settings().clone()
+    };
+    let mut s = Sampler::new_with_data(Arc::clone(chain.data()), settings)?;
+    let infos = chain.patterns();
+    let group: std::collections::HashMap<usize, usize> =
+        infos.iter().enumerate().map(|(g, p)| (p.slot, g)).collect();
+    let labels: Vec<usize> = chain.labels().iter().map(|l| group[l]).collect();
+    let ls: Vec<LengthScales> = infos.iter().map(|p| p.length_scales).collect();
+    let noise: Vec<[f64; 2]> = infos.iter().map(|p| p.noise_var).collect();
+    s.set_state_with_noise(&labels, &ls, Some(&noise), chain.alpha())?;
+    s.set_sweeps_done(chain.sweeps_done());
+    Ok(s)
 }
 
 pub(crate) fn offsets_vec(name: &str, o: &PyReadonlyArray1<'_, i64>) -> CoreResult<Vec<usize>> {
@@ -80,17 +142,26 @@ fn shared_pool(n: usize) -> PyResult<Arc<rayon::ThreadPool>> {
 }
 
 impl PySampler {
-    fn lock(&self) -> std::sync::MutexGuard<'_, Sampler> {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Engine> {
         // A panic inside a sweep cannot leave the state half-written in a way we could repair,
         // but the data stays memory-safe; keep serving it.
         self.inner.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Run `work` on the pool with the GIL released, polling Ctrl-C on this (the main) thread.
+    /// Run `work` on the collapsed sampler at the chain's state (see [`Engine::collapsed`]).
     pub(crate) fn run<T: Send>(
         &self,
         py: Python<'_>,
         work: impl FnOnce(&mut Sampler, &dyn Fn() -> bool) -> dpgp_core::Result<T> + Send,
+    ) -> PyResult<T> {
+        self.run_engine(py, |e, stop| work(e.collapsed()?, stop))
+    }
+
+    /// Run `work` on the pool with the GIL released, polling Ctrl-C on this (the main) thread.
+    pub(crate) fn run_engine<T: Send>(
+        &self,
+        py: Python<'_>,
+        work: impl FnOnce(&mut Engine, &dyn Fn() -> bool) -> dpgp_core::Result<T> + Send,
     ) -> PyResult<T> {
         let stop = AtomicBool::new(false);
         let mut interrupt: Option<PyErr> = None;
@@ -100,7 +171,7 @@ impl PySampler {
                 let stop_ref = &stop;
                 let handle = s.spawn(move || {
                     let mut guard = self.lock();
-                    let sampler: &mut Sampler = &mut guard;
+                    let sampler: &mut Engine = &mut guard;
                     let r = self
                         .pool
                         .install(|| work(sampler, &|| stop_ref.load(Ordering::Relaxed)));
@@ -155,9 +226,16 @@ impl PySampler {
         let (settings, n_threads) = SamplerSettings::extract(settings)?.into_core(false)?;
         let (xy, v) = (pairs("xy", &xy)?, pairs("v", &v)?);
         let offsets = offsets_vec("offsets", &offsets)?;
-        let data = Data::new(xy.to_vec(), v.to_vec(), offsets).map_err(CoreError)?;
+        let data = Arc::new(Data::new(xy.to_vec(), v.to_vec(), offsets).map_err(CoreError)?);
         let sampler = py
-            .detach(|| Sampler::new(data, settings))
+            .detach(|| match settings.sampler {
+                SamplerKind::Collapsed => {
+                    Sampler::new_with_data(data, settings).map(Engine::Collapsed)
+                }
+                SamplerKind::Subcluster => {
+                    SubclusterSampler::new(data, settings).map(|c| Engine::Subcluster(c, None))
+                }
+            })
             .map_err(CoreError)?;
         let pool = shared_pool(n_threads)?;
         Ok(Self {
@@ -166,47 +244,86 @@ impl PySampler {
         })
     }
 
+    /// Which sampler runs the chain: "collapsed" or "subcluster".
+    fn kind(&self) -> &'static str {
+        self.lock().kind()
+    }
+
     /// ρ of the sticky prior (`None` without it).
     fn stickiness(&self) -> Option<f64> {
-        self.lock().stickiness()
+        match &*self.lock() {
+            Engine::Collapsed(s) => s.stickiness(),
+            Engine::Subcluster(..) => None,
+        }
     }
 
     /// Each frame's link under the sticky prior (`True`: it stays in its predecessor's
     /// pattern), or `None` without it.
     fn links<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<bool>>> {
-        self.lock().links().map(|l| l.to_vec().into_pyarray(py))
+        match &*self.lock() {
+            Engine::Collapsed(s) => s.links().map(|l| l.to_vec().into_pyarray(py)),
+            Engine::Subcluster(..) => None,
+        }
     }
 
     /// Set the links and ρ (a resumed chain); links the labels do not allow are dropped.
     fn set_links(&self, links: PyReadonlyArray1<'_, bool>, rho: f64) -> PyResult<()> {
         let links: Vec<bool> = links.as_array().to_vec();
-        self.lock()
-            .set_links(&links, rho)
-            .map_err(|e| CoreError(e).into())
+        match &mut *self.lock() {
+            Engine::Collapsed(s) => s.set_links(&links, rho).map_err(|e| CoreError(e).into()),
+            Engine::Subcluster(..) => Err(CoreError(Error::InvalidInput(
+                "the sub-cluster sampler has no sticky links".into(),
+            ))
+            .into()),
+        }
     }
 
-    /// Place every unassigned frame by the sequential CRP conditional.
-    fn initialize(&self, py: Python<'_>) -> PyResult<()> {
-        self.run(py, |s, stop| s.initialize(stop))
+    /// Place every unassigned frame: `init` "sequential" (the sequential CRP conditional; the
+    /// default), "one" (one pattern) or "many" (many patterns).
+    #[pyo3(signature = (init=None))]
+    fn initialize(&self, py: Python<'_>, init: Option<&str>) -> PyResult<()> {
+        let start: Start = init.unwrap_or("sequential").parse().map_err(CoreError)?;
+        self.run_engine(py, |e, stop| match e {
+            Engine::Collapsed(s) => match start {
+                Start::Sequential => s.initialize(stop),
+                _ => {
+                    let groups = dpgp_core::subcluster::start_groups(start, s.data().len());
+                    let k = groups.iter().max().map_or(0, |g| g + 1);
+                    let ls = vec![s.settings().base.length_scales; k];
+                    let alpha = s.alpha();
+                    s.set_state(&groups, &ls, alpha)
+                }
+            },
+            Engine::Subcluster(..) => {
+                let chain = e.chain_mut().expect("a sub-cluster chain");
+                chain.initialize(start, stop)
+            }
+        })
     }
 
     /// One sweep; returns (moves, K, alpha, log_joint).
     fn sweep(&self, py: Python<'_>) -> PyResult<(usize, usize, f64, f64)> {
-        self.run(py, |s, stop| {
-            s.sweep(stop)
-                .map(|r| (r.moves, r.n_patterns, r.alpha, r.log_joint))
+        self.run_engine(py, |e, stop| {
+            let r: SweepStats = match e.chain_mut() {
+                Some(chain) => chain.sweep(stop)?,
+                None => e.collapsed()?.sweep(stop)?,
+            };
+            Ok((r.moves, r.n_patterns, r.alpha, r.log_joint))
         })
     }
 
     /// The arena slot of each frame's pattern.
     fn labels<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<usize>> {
-        self.lock().labels().to_vec().into_pyarray(py)
+        let labels = match &*self.lock() {
+            Engine::Collapsed(s) => s.labels().to_vec(),
+            Engine::Subcluster(c, _) => c.labels().to_vec(),
+        };
+        labels.into_pyarray(py)
     }
 
     /// (slot, stable id, n_frames, w_x, w_y) for each pattern, in slot order.
     fn patterns(&self) -> Vec<(usize, u64, usize, f64, f64)> {
-        self.lock()
-            .patterns()
+        self.infos()
             .into_iter()
             .map(|p| {
                 (
@@ -221,37 +338,64 @@ impl PySampler {
     }
 
     fn alpha(&self) -> f64 {
-        self.lock().alpha()
+        match &*self.lock() {
+            Engine::Collapsed(s) => s.alpha(),
+            Engine::Subcluster(c, _) => c.alpha(),
+        }
     }
 
     /// Sweeps done so far: with the seed, the position of the random stream.
     fn sweeps_done(&self) -> u64 {
-        self.lock().sweeps_done()
+        match &*self.lock() {
+            Engine::Collapsed(s) => s.sweeps_done(),
+            Engine::Subcluster(c, _) => c.sweeps_done(),
+        }
     }
 
     /// Continue as if `sweeps` sweeps had been done (a resumed chain).
     fn set_sweeps_done(&self, sweeps: u64) {
-        self.lock().set_sweeps_done(sweeps)
+        let mut e = self.lock();
+        match e.chain_mut() {
+            Some(c) => c.set_sweeps_done(sweeps),
+            None => {
+                if let Engine::Collapsed(s) = &mut *e {
+                    s.set_sweeps_done(sweeps)
+                }
+            }
+        }
     }
 
     fn log_joint(&self) -> f64 {
-        self.lock().log_joint()
+        match &*self.lock() {
+            Engine::Collapsed(s) => s.log_joint(),
+            Engine::Subcluster(c, _) => c.log_joint(),
+        }
     }
 
-    /// Bytes held by the patterns and the score cache.
+    /// Bytes held by the patterns (and the collapsed sampler's score cache).
     fn memory_bytes(&self) -> usize {
-        self.lock().memory_bytes()
+        match &*self.lock() {
+            Engine::Collapsed(s) => s.memory_bytes(),
+            Engine::Subcluster(c, v) => {
+                c.memory_bytes() + v.as_ref().map_or(0, |v| v.memory_bytes())
+            }
+        }
     }
 
-    /// (proposed, accepted) counts of informed proposals so far.
+    /// (proposed, accepted) counts of informed proposals so far (the collapsed sampler's).
     fn proposal_counts(&self) -> (u64, u64) {
-        let p = self.lock().proposals;
-        (p.proposed, p.accepted)
+        match &*self.lock() {
+            Engine::Collapsed(s) => (s.proposals.proposed, s.proposals.accepted),
+            Engine::Subcluster(..) => (0, 0),
+        }
     }
 
     /// (split proposed, split accepted, merge proposed, merge accepted) so far.
     fn split_merge_counts(&self) -> (u64, u64, u64, u64) {
-        let s = self.lock().split_merge;
+        let s = match &*self.lock() {
+            Engine::Collapsed(s) => s.split_merge,
+            Engine::Subcluster(c, _) => c.split_merge,
+        };
         (
             s.split_proposed,
             s.split_accepted,
@@ -262,15 +406,17 @@ impl PySampler {
 
     /// The noise pair the chain is at.
     fn noise_var(&self) -> (f64, f64) {
-        let n = self.lock().noise_var();
+        let n = match &*self.lock() {
+            Engine::Collapsed(s) => s.noise_var(),
+            Engine::Subcluster(c, _) => c.noise_var(),
+        };
         (n[0], n[1])
     }
 
     /// Each pattern's noise pair, in slot order (the chain's pair unless the noise is per
     /// pattern).
     fn pattern_noise(&self) -> Vec<(f64, f64)> {
-        self.lock()
-            .patterns()
+        self.infos()
             .into_iter()
             .map(|p| (p.noise_var[0], p.noise_var[1]))
             .collect()
@@ -278,21 +424,39 @@ impl PySampler {
 
     /// Put the chain at a noise pair (a resumed chain).
     fn set_noise_var(&self, py: Python<'_>, noise_var: (f64, f64)) -> PyResult<()> {
-        self.run(py, |s, _| s.set_noise_var([noise_var.0, noise_var.1]))
+        let noise = [noise_var.0, noise_var.1];
+        self.run_engine(py, |e, _| match e.chain_mut() {
+            Some(c) => c.set_noise_var(noise),
+            None => e.collapsed()?.set_noise_var(noise),
+        })
     }
 
-    /// Seconds spent per part of the sweep so far.
+    /// Seconds spent per part of the sweep so far (the parts depend on the sampler).
     fn timings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let t = self.lock().timings;
         let d = PyDict::new(py);
-        d.set_item("refresh", t.refresh)?;
-        d.set_item("scoring", t.scoring)?;
-        d.set_item("moves", t.moves)?;
-        d.set_item("new_pattern", t.new_pattern)?;
-        d.set_item("length_scales", t.length_scales)?;
-        d.set_item("alpha", t.alpha)?;
-        d.set_item("split_merge", t.split_merge)?;
-        d.set_item("noise", t.noise)?;
+        match &*self.lock() {
+            Engine::Collapsed(s) => {
+                let t = s.timings;
+                d.set_item("refresh", t.refresh)?;
+                d.set_item("scoring", t.scoring)?;
+                d.set_item("moves", t.moves)?;
+                d.set_item("new_pattern", t.new_pattern)?;
+                d.set_item("length_scales", t.length_scales)?;
+                d.set_item("alpha", t.alpha)?;
+                d.set_item("split_merge", t.split_merge)?;
+                d.set_item("noise", t.noise)?;
+            }
+            Engine::Subcluster(c, _) => {
+                let t = c.timings;
+                d.set_item("fields", t.fields)?;
+                d.set_item("assign", t.assign)?;
+                d.set_item("sums", t.sums)?;
+                d.set_item("split_merge", t.split_merge)?;
+                d.set_item("length_scales", t.length_scales)?;
+                d.set_item("noise", t.noise)?;
+                d.set_item("alpha", t.alpha)?;
+            }
+        }
         Ok(d)
     }
 
@@ -360,9 +524,21 @@ impl PySampler {
             Some(n) => Some(pairs("noise_var", n)?.to_vec()),
             None => None,
         };
-        self.run(py, |s, _| {
-            s.set_state_with_noise(&labels, &ls, noise.as_deref(), alpha)
+        self.run_engine(py, |e, _| match e.chain_mut() {
+            Some(c) => c.set_state(&labels, &ls, noise.as_deref(), alpha),
+            None => e
+                .collapsed()?
+                .set_state_with_noise(&labels, &ls, noise.as_deref(), alpha),
         })
+    }
+}
+
+impl PySampler {
+    fn infos(&self) -> Vec<dpgp_core::gibbs::PatternInfo> {
+        match &*self.lock() {
+            Engine::Collapsed(s) => s.patterns(),
+            Engine::Subcluster(c, _) => c.patterns(),
+        }
     }
 }
 

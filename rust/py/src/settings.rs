@@ -12,9 +12,10 @@ use crate::errors::{CoreError, InvalidInputError};
 use crate::gp::{ParamTuple, params};
 use crate::hsgp::BasisTuple;
 use dpgp_core::gibbs::{
-    NoisePrior, Settings, SplitMerge, StickyPrior, check_length_scale_prior as core_check_prior,
-    check_threads,
+    NoisePrior, SamplerKind, Settings, SplitMerge, StickyPrior,
+    check_length_scale_prior as core_check_prior, check_threads,
 };
+use dpgp_core::hsgp::Basis;
 use dpgp_core::pattern_model::{Likelihood, LikelihoodKind};
 
 /// The keys a user sets are required; those the estimator resolves from the data (`params`,
@@ -61,13 +62,16 @@ pub struct SamplerSettings {
     /// and a fixed ρ or `None`; `None` for the independent DP.
     #[pyo3(default)]
     dynamics: Option<(Vec<i64>, (f64, f64), Option<f64>)>,
+    /// "collapsed" or "subcluster" (parsed by the core); `None`: collapsed.
+    #[pyo3(default)]
+    sampler: Option<String>,
 }
 
 /// Keys whose value is a bool; anywhere else a bool is a mistake, though Python counts it as 1.
 const BOOL_KEYS: [&str; 2] = ["fixed_length_scales", "pattern_moments"];
 /// The struct's fields: the dict may hold no other key (a misspelt one would silently take its
 /// default), and a field missing here is refused at once as unknown, so the two cannot drift.
-const KEYS: [&str; 19] = [
+const KEYS: [&str; 20] = [
     "assignment",
     "likelihood",
     "proposal",
@@ -87,6 +91,7 @@ const KEYS: [&str; 19] = [
     "noise_prior",
     "noise_scope",
     "dynamics",
+    "sampler",
 ];
 
 /// A value's repr cut to 40 characters (a 300-digit integer says nothing more).
@@ -149,6 +154,7 @@ impl SamplerSettings {
     /// have sized the basis).
     pub fn into_core(self, partial: bool) -> PyResult<(Settings, usize)> {
         let d = Settings::default();
+        let likelihood_given = self.likelihood.is_some();
         let kind = match self.likelihood {
             Some(name) => name.parse().map_err(CoreError)?,
             None => LikelihoodKind::Exact,
@@ -157,8 +163,20 @@ impl SamplerSettings {
             .basis
             .map(|b| crate::hsgp::basis(b).map(Arc::new))
             .transpose()?;
+        let sampler: SamplerKind = match self.sampler {
+            Some(name) => name.parse().map_err(CoreError)?,
+            None => SamplerKind::Collapsed,
+        };
+        // An early check has no basis yet: a stand-in box for likelihood "hsgp", and for an
+        // undecided likelihood ("auto") of the sub-cluster sampler, which needs hsgp.
+        let stand_in = || Basis::new([0.0, 0.0], [1.0, 1.0], [1, 1]).map(Arc::new);
         let likelihood = match (kind, basis, partial) {
-            (LikelihoodKind::Hsgp, None, true) => Likelihood::Exact,
+            (LikelihoodKind::Hsgp, None, true) => Likelihood::Hsgp(stand_in().map_err(CoreError)?),
+            (LikelihoodKind::Exact, _, true)
+                if !likelihood_given && sampler == SamplerKind::Subcluster =>
+            {
+                Likelihood::Hsgp(stand_in().map_err(CoreError)?)
+            }
             (k, b, _) => Likelihood::new(k, b).map_err(CoreError)?,
         };
         let settings = Settings {
@@ -186,6 +204,7 @@ impl SamplerSettings {
                 None => d.noise_scope,
             },
             dynamics: self.dynamics.map(sticky).transpose()?,
+            sampler,
         };
         settings.validate().map_err(CoreError)?;
         let threads = check_threads(self.n_threads).map_err(CoreError)?;
