@@ -4,6 +4,8 @@ its own process, so that its peak resident memory is its own.
     python benches/scale.py synthetic [--sizes 1000 10000 100000] [--sweeps 20]
     python benches/scale.py us101 [--sweeps 60]          # likelihood x proposal on NGSIM US-101
     python benches/scale.py one KIND N LIKELIHOOD PROPOSAL SWEEPS   # one configuration, JSON out
+    python benches/scale.py defaults [--sizes 100000 1000000] [--sweeps 5] [--samplers auto collapsed]
+                                     [--max-seconds 1200] [--markdown FILE]   # every default
 
 ``--markdown FILE`` (synthetic, us101) also writes the table as a docs page stamped with the commit,
 the machine and the date (benches/tables.py), e.g. ``docs/performance/scale.md``.
@@ -11,6 +13,13 @@ the machine and the date (benches/tables.py), e.g. ``docs/performance/scale.md``
 ``synthetic``: dpgp.datasets.synthetic highway and intersection scenes at each size, exact (up to
 1,000 frames, beyond which it does not fit in time or memory) and hsgp, default proposal; prints
 the median seconds per sweep, initialisation seconds, peak RSS, K and the ARI against the truth.
+
+``defaults``: synthetic highway scenes (``dpgp.datasets.synthetic("highway", n, seed=1)``) fitted with
+every default (``DPGP(iterations=S, seed=1)``; ``--samplers`` adds ``sampler=...`` unless it is
+``auto``), each in its own process with a wall-time cap: median seconds per sweep, initialisation,
+peak resident memory, K, ARI against the truth, and the cores busy during the sweeps (process CPU
+seconds over wall seconds, sweeps only). The standing check of the issue "A sampler that mixes and
+scales": 100k and 1M frames.
 
 ``us101``: the 1000 US-101 frames under the paper's model constants (σ_n² = 1, Gamma(10, 1)) in
 all four combinations of likelihood and proposal, then the new defaults. For each: median
@@ -64,8 +73,41 @@ def one(kind: str, n: int, likelihood: str, proposal: str, sweeps: int, paper: b
     return out
 
 
-def run(*args: object) -> dict:
-    r = subprocess.run([sys.executable, __file__, "one", *map(str, args)], capture_output=True, text=True)
+def one_defaults(kind: str, n: int, sweeps: int, sampler: str) -> dict:
+    """A fit of ``n`` synthetic frames with every default (and ``sampler`` unless "auto"), timed
+    sweep by sweep through ``warm_start`` so that each sweep's CPU seconds are known too."""
+    import os
+
+    import dpgp
+
+    t = time.perf_counter()
+    frames = dpgp.datasets.synthetic(kind, n, seed=1)
+    data_s = time.perf_counter() - t
+    kw = {} if sampler == "auto" else {"sampler": sampler}
+    t = time.perf_counter()
+    m = dpgp.DPGP(iterations=0, seed=1, progress=False, **kw).fit(frames)  # resolves, initialises
+    setup = time.perf_counter() - t
+    wall, cpu = [], []
+    for _ in range(sweeps):
+        w0, c0 = time.perf_counter(), sum(os.times()[:2])
+        m.set_params(iterations=1).fit(frames, warm_start=True)
+        wall.append(time.perf_counter() - w0)
+        cpu.append(sum(os.times()[:2]) - c0)
+    return {
+        "data": kind, "frames": len(frames), "points": frames.n_points, "sampler": getattr(m, "sampler_", "collapsed"),
+        "likelihood": m.likelihood_, "M": None if m.basis_ is None else m.basis_.size, "sweeps": sweeps,
+        "median_sweep_s": float(np.median(wall)), "max_sweep_s": float(np.max(wall)),
+        "cores_busy": float(np.sum(cpu) / np.sum(wall)), "setup_s": setup, "init_s": m.init_seconds_,
+        "data_s": data_s, "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6,
+        "K": m.n_patterns_, "ari": dpgp.adjusted_rand_index(m.labels_, frames.labels),
+    }  # fmt: skip
+
+
+def run(*args: object, timeout: float | None = None) -> dict:
+    try:
+        r = subprocess.run([sys.executable, __file__, *map(str, args)], capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"error": f"did not finish in {timeout:g} s", "args": args}
     if r.returncode != 0:
         return {
             "error": r.stderr.strip().splitlines()[-1] if r.stderr.strip() else f"exit {r.returncode}",
@@ -99,9 +141,40 @@ def main() -> None:
     o = sub.add_parser("one")
     for name in ("kind", "n", "likelihood", "proposal", "sweeps", "paper"):
         o.add_argument(name)
+    d = sub.add_parser("defaults")
+    d.add_argument("--sizes", type=int, nargs="+", default=[100_000, 1_000_000])
+    d.add_argument("--sweeps", type=int, default=5)
+    d.add_argument("--samplers", nargs="+", default=["auto"], help="auto, subcluster, collapsed")
+    d.add_argument("--max-seconds", type=float, default=1200, help="wall-time cap of each configuration")
+    d.add_argument("--markdown", metavar="FILE", help="also write the table as a stamped docs page")
+    od = sub.add_parser("one-defaults")
+    for name in ("kind", "n", "sweeps", "sampler"):
+        od.add_argument(name)
     a = ap.parse_args()
     if a.cmd == "one":
         print(json.dumps(one(a.kind, int(a.n), a.likelihood, a.proposal, int(a.sweeps), a.paper == "True")))
+        return
+    if a.cmd == "one-defaults":
+        print(json.dumps(one_defaults(a.kind, int(a.n), int(a.sweeps), a.sampler)))
+        return
+    if a.cmd == "defaults":
+        cols = ["frames", "sampler", "likelihood", "M", "sweeps", "median_sweep_s", "max_sweep_s", "cores_busy",
+                "init_s", "peak_rss_gb", "K", "ari"]  # fmt: skip
+        rows = []
+        for n in a.sizes:
+            for sampler in a.samplers:
+                rows.append(run("one-defaults", "highway", n, a.sweeps, sampler, timeout=a.max_seconds))
+                show(rows[-1:], cols)
+        print()
+        show(rows, cols)
+        if a.markdown:
+            intro = (
+                'Synthetic highway scenes (`dpgp.datasets.synthetic("highway", n, seed=1)`, about 12 vehicles a\n'
+                "frame, three true patterns) fitted with every default, each configuration in its own process:\n"
+                "median and slowest seconds per sweep, the cores busy during the sweeps (CPU seconds over wall\n"
+                "seconds), initialisation, peak resident memory, K and the adjusted Rand index against the truth."
+            )
+            _markdown(a.markdown, "Scaling with every default", intro, rows, cols)
         return
     if a.cmd == "synthetic":
         rows = []
@@ -123,7 +196,7 @@ def main() -> None:
                 for lik in ("exact", "hsgp") if n <= 1000 else ("hsgp",):
                     # exact costs tens of seconds per sweep here: a few sweeps give its speed
                     sweeps = a.sweeps if lik == "hsgp" else min(a.sweeps, 2)
-                    rows.append(run(kind, n, lik, "informed", sweeps, True))
+                    rows.append(run("one", kind, n, lik, "informed", sweeps, True))
                     show(rows[-1:], cols)
         print()
         show(rows, cols)
@@ -151,9 +224,11 @@ def main() -> None:
         ]
         for lik in ("exact", "hsgp"):
             for prop in ("full", "informed"):
-                rows.append(run("us101", 0, lik, prop, a.sweeps, True))
+                rows.append(run("one", "us101", 0, lik, prop, a.sweeps, True))
                 show(rows[-1:], cols)
-        rows.append({**run("us101", 0, "auto", "informed", a.sweeps, False), "proposal": "informed (all defaults)"})
+        rows.append(
+            {**run("one", "us101", 0, "auto", "informed", a.sweeps, False), "proposal": "informed (all defaults)"}
+        )
         print()
         show(rows, cols)
         if a.markdown:

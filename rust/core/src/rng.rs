@@ -22,6 +22,7 @@ pub enum Phase {
     Fields = 11,
     Labels = 12,
     Launch = 13,
+    Peel = 14,
 }
 
 fn splitmix(mut x: u64) -> u64 {
@@ -44,9 +45,4 @@ pub fn stream(seed: u64, sweep: u64, phase: Phase, entity: u64) -> ChaCha8Rng {
 pub fn uniform(seed: u64, sweep: u64, phase: Phase, entity: u64) -> f64 {
     let key = splitmix(splitmix(splitmix(splitmix(sweep) ^ phase as u64) ^ entity) ^ seed);
     (key >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
-}
-
-/// A key for the entity `parts` (a move, a step, a frame): chained as [`stream`] chains its key.
-pub fn key(parts: &[u64]) -> u64 {
-    parts.iter().fold(0x5EED, |k, &p| splitmix(k ^ p))
 }

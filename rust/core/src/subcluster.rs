@@ -55,6 +55,8 @@ use crate::special::{ln_gamma, ln_gamma_pdf};
 mod moves;
 #[path = "subcluster_pass.rs"]
 mod pass;
+#[path = "subcluster_peel.rs"]
+mod peel;
 
 /// Where a chain starts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -111,6 +113,15 @@ pub struct Timings {
     pub length_scales: f64,
     pub noise: f64,
     pub alpha: f64,
+}
+
+/// Peel and absorb moves (`subcluster_peel.rs`) proposed and accepted, accumulated over the run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PeelStats {
+    pub peel_proposed: u64,
+    pub peel_accepted: u64,
+    pub absorb_proposed: u64,
+    pub absorb_accepted: u64,
 }
 
 /// A pattern: the sums of its frames, its hyperparameters, and its factor at them (on demand).
@@ -174,11 +185,15 @@ pub struct SubclusterSampler {
     sweep: u64,
     pub timings: Timings,
     pub split_merge: SplitMergeStats,
+    pub peels: PeelStats,
     /// Each frame's mean velocity, for informed split–merge pairs (computed once, on demand).
     frame_means: OnceLock<Arc<Vec<[f64; 2]>>>,
     /// Tests: leave the proposal probability out of the split–merge ratio (a wrong chain).
     #[cfg(test)]
     pub(crate) wrong_ratio: bool,
+    /// Tests: the peel and absorb moves without split–merge moves.
+    #[cfg(test)]
+    pub(crate) only_peel: bool,
 }
 
 const NONE: usize = usize::MAX;
@@ -205,9 +220,12 @@ impl SubclusterSampler {
             sweep: 0,
             timings: Timings::default(),
             split_merge: SplitMergeStats::default(),
+            peels: PeelStats::default(),
             frame_means: OnceLock::new(),
             #[cfg(test)]
             wrong_ratio: false,
+            #[cfg(test)]
+            only_peel: false,
         })
     }
 
@@ -470,7 +488,14 @@ impl SubclusterSampler {
         let moved = self.assignment_pass(stop)?;
         if self.settings.split_merge.moves_per_sweep > 0 {
             let t = Instant::now();
-            self.split_merge_moves(stop)?;
+            self.peel_absorb_moves()?;
+            #[cfg(test)]
+            let skip = self.only_peel;
+            #[cfg(not(test))]
+            let skip = false;
+            if !skip {
+                self.split_merge_moves(stop)?;
+            }
             self.timings.split_merge += t.elapsed().as_secs_f64();
         }
         if self.settings.noise_prior.is_some() {

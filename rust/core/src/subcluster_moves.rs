@@ -11,13 +11,16 @@
 //! **Sub-patterns (the launch).** `S`'s frames are divided between two sub-patterns grown from the
 //! anchors: each sub-pattern's field is drawn from its posterior given the anchor alone (`θ_i`,
 //! `θ_j`), a sample of `S` (at most [`LAUNCH_FRAMES`] frames) is given sub-labels by those fields,
-//! the fields are redrawn from the sub-labels' sums, [`LAUNCH_SCANS`] times. Then, over *every*
-//! frame of `S` but the anchors, in parallel, the final sub-fields `a_l`, `a_r` and sub-weights
-//! give each frame `r_f(l) = π̄_l f(V_f | a_l) / Σ_h π̄_h f(V_f | a_h)`. A split draws each frame's
-//! side from `r_f`; its proposal probability is `q = Π_f r_f(side_f)`. The launch depends only on
-//! `(S, i, j, θ_i, θ_j)` and fresh randomness, never on how `S` is split now, so a merge's reverse
-//! split is scored by running the same launch on `A ∪ B` and evaluating `q` at `A`'s and `B`'s
-//! frames (restricted Gibbs launches, Jain & Neal 2004, with instantiated sub-fields).
+//! the fields are redrawn from the sub-labels' sums, [`LAUNCH_SCANS`] times. Then every frame of `S`
+//! but the anchors gets its log-likelihood under both final sub-fields, in parallel, and in a
+//! uniformly random order joins a side with probability `∝ n_side f(V_f | a_side)`, `n_side` the
+//! frames on that side so far (an urn like the DP's own, so that for frames the sub-fields cannot
+//! tell apart `q` is `Γ(n_l) Γ(n_r) / Γ(n_S)` and cancels the prior's ratio: two alike patterns can
+//! merge). A split's proposal probability `q` is the product of those steps. The launch depends
+//! only on `(S, i, j, θ_i, θ_j)` and fresh randomness, never on how `S` is split now, so a merge's
+//! reverse split is scored by running the same launch on `A ∪ B` and the urn along a fresh order
+//! with each frame forced to its side (restricted Gibbs launches, Jain & Neal 2004; the sequential
+//! allocation of Dahl & Newcomb 2022; instantiated sub-fields).
 //!
 //! **Ratio** (split; a merge's is its inverse):
 //! `α Γ(n_l) Γ(n_r) / Γ(n_S) · p(D_l | θ_i) p(D_r | θ_j) / p(D_S | θ_i) · p(θ_j) / q(θ_j | θ_i) / q`,
@@ -38,7 +41,7 @@ use crate::frame::Point;
 use crate::gibbs::Assignment;
 use crate::gp::GpParams;
 use crate::hsgp_sums::{Posterior, Sums};
-use crate::rng::{Phase, key, stream, uniform};
+use crate::rng::{Phase, stream};
 use crate::special::ln_gamma;
 
 /// Most frames of `S` the launch scans (a uniform sample of them); the final step covers all.
@@ -69,12 +72,11 @@ impl SubclusterSampler {
             let n = self.data.len();
             let i = ((rng.random::<f64>() * n as f64) as usize).min(n - 1);
             let j = self.settings.pair_partner(i, &self.frame_means(), &mut rng);
-            let move_key = key(&[self.sweep, m as u64]);
             let (ki, kj) = (self.labels[i], self.labels[j]);
             if ki == kj {
-                self.try_split(i, j, ki, move_key, &mut rng)?;
+                self.try_split(i, j, ki, &mut rng)?;
             } else {
-                self.try_merge(i, j, ki, kj, move_key, &mut rng)?;
+                self.try_merge(i, j, ki, kj, &mut rng)?;
             }
         }
         Ok(())
@@ -91,21 +93,14 @@ impl SubclusterSampler {
             .collect()
     }
 
-    fn try_split(
-        &mut self,
-        i: usize,
-        j: usize,
-        k: usize,
-        move_key: u64,
-        rng: &mut impl rand::Rng,
-    ) -> Result<()> {
+    fn try_split(&mut self, i: usize, j: usize, k: usize, rng: &mut impl rand::Rng) -> Result<()> {
         self.split_merge.split_proposed += 1;
         let parent = self.part(k).params;
         let Some((theta_j, prior_over_q)) = self.settings.split_params(&parent, rng)? else {
             return Ok(());
         };
         let frames = self.members(k);
-        let div = self.launch(&frames, i, j, [parent, theta_j], None, move_key, rng)?;
+        let div = self.launch(&frames, i, j, [parent, theta_j], None, rng)?;
         let [nl, nr] = [div.sums[0].n_frames, div.sums[1].n_frames];
         let fit_l = self.fit_sums(&div.sums[0], parent)?;
         let fit_r = self.fit_sums(&div.sums[1], theta_j)?;
@@ -132,7 +127,6 @@ impl SubclusterSampler {
         j: usize,
         ki: usize,
         kj: usize,
-        move_key: u64,
         rng: &mut impl rand::Rng,
     ) -> Result<()> {
         self.split_merge.merge_proposed += 1;
@@ -161,7 +155,7 @@ impl SubclusterSampler {
                 .collect();
             frames.sort_unstable();
             let side: Vec<bool> = frames.iter().map(|&f| self.labels[f] == ki).collect();
-            let div = self.launch(&frames, i, j, [pa, pb], Some(&side), move_key, rng)?;
+            let div = self.launch(&frames, i, j, [pa, pb], Some(&side), rng)?;
             if log_u >= log_target + q_over_prior + self.log_q(&div) {
                 return Ok(());
             }
@@ -195,14 +189,14 @@ impl SubclusterSampler {
         }
     }
 
-    fn fit_sums(&self, sums: &Sums, params: GpParams) -> Result<Fit> {
+    pub(super) fn fit_sums(&self, sums: &Sums, params: GpParams) -> Result<Fit> {
         let gram = std::sync::Arc::new(sums.gram(&self.basis));
         let post = Posterior::new(&self.basis, sums, &gram, params)?;
         Ok(Fit { gram, post })
     }
 
     /// The sums of one frame.
-    fn frame_sums(&self, f: usize) -> Sums {
+    pub(super) fn frame_sums(&self, f: usize) -> Sums {
         let fr = self.data.frame(f);
         Sums::of_points(&self.basis, fr.xy, fr.v, 1)
     }
@@ -218,7 +212,6 @@ impl SubclusterSampler {
         j: usize,
         theta: [GpParams; 2],
         forced: Option<&[bool]>,
-        move_key: u64,
         rng: &mut impl rand::Rng,
     ) -> Result<Division> {
         let others: Vec<usize> = frames
@@ -267,7 +260,7 @@ impl SubclusterSampler {
             ];
             fields = self.draw_sides(&sums, theta, rng)?;
         }
-        self.final_division(frames, i, j, &fields, theta, log_pi, forced, move_key)
+        self.final_division(frames, i, j, &fields, theta, forced, rng)
     }
 
     /// Draws of the two sub-patterns' fields from their posteriors given `sums`.
@@ -311,9 +304,13 @@ impl SubclusterSampler {
         Ok(tiles.concat())
     }
 
-    /// The final step over every frame but the anchors: each frame's side drawn from (or, with
-    /// `forced`, set to) its sub-label probability, `log q`, and the sums of both sides, in
-    /// parallel over tiles and reduced in tile order.
+    /// The final step over every frame but the anchors. Their log-likelihoods under the two
+    /// final sub-fields are computed in parallel; then, in a uniformly random order, each frame
+    /// joins a side with probability `∝ n_side f(V_f | a_side)`, `n_side` the frames on that side
+    /// so far (the anchors count one each): an urn like the DP's own, so that `q` of a division
+    /// whose frames the sub-fields cannot tell apart is `Γ(n_l) Γ(n_r) / Γ(n_S)`, which cancels the
+    /// prior's ratio in a merge of two alike patterns. With `forced`, the given sides are scored.
+    /// Last, the sums of both sides, in parallel over tiles and added in tile order.
     #[allow(clippy::too_many_arguments)]
     fn final_division(
         &self,
@@ -322,65 +319,52 @@ impl SubclusterSampler {
         j: usize,
         fields: &[[Vec<f64>; 2]; 2],
         theta: [GpParams; 2],
-        log_pi: [f64; 2],
         forced: Option<&[bool]>,
-        move_key: u64,
+        rng: &mut impl rand::Rng,
     ) -> Result<Division> {
-        let bank = FieldBank::new(
-            &self.basis,
-            fields,
-            &[theta[0].noise_var, theta[1].noise_var],
-            self.settings.base.mean,
-        );
-        let seed = self.settings.seed;
-        let n_tiles = frames.len().div_ceil(TILE);
-        type Tile = (Vec<bool>, f64, Option<[Sums; 2]>);
-        let tiles: Vec<Tile> = (0..n_tiles)
-            .into_par_iter()
-            .map(|t| {
-                let range = t * TILE..((t + 1) * TILE).min(frames.len());
-                let tile = &frames[range.clone()];
-                let (xy, v, starts) = gather(&self.data, tile);
-                let mut ll = vec![0.0; 2 * tile.len()];
-                bank.frame_logliks(&self.basis, &xy, &v, &starts, &mut ll);
-                let mut sides = Vec::with_capacity(tile.len());
-                let mut log_q = 0.0;
-                for (n, (&f, l)) in tile.iter().zip(ll.chunks(2)).enumerate() {
-                    let left = if f == i {
-                        true
-                    } else if f == j {
-                        false
-                    } else {
-                        let pl = side_prob(l, log_pi);
-                        let left = match forced {
-                            Some(side) => side[range.start + n],
-                            None => uniform(seed, move_key, Phase::Launch, f as u64) < pl,
-                        };
-                        log_q += if left { pl.ln() } else { (1.0 - pl).ln() };
-                        left
-                    };
-                    sides.push(left);
-                }
-                let sums = forced
-                    .is_none()
-                    .then(|| side_sums(&self.basis, &self.data, tile, &sides));
-                (sides, log_q, sums)
-            })
+        let ll = self.side_logliks(frames, fields, theta)?;
+        let mut order: Vec<usize> = (0..frames.len())
+            .filter(|&t| frames[t] != i && frames[t] != j)
             .collect();
-        let mut div = Division {
-            left: Vec::with_capacity(frames.len()),
-            sums: [Sums::zeros(&self.basis), Sums::zeros(&self.basis)],
-            log_q: 0.0,
-        };
-        for (sides, lq, sums) in tiles {
-            div.left.extend(sides);
-            div.log_q += lq;
-            if let Some([l, r]) = sums {
-                div.sums[0].add(&l);
-                div.sums[1].add(&r);
+        // Fisher–Yates: a uniform order, independent of the state.
+        for t in (1..order.len()).rev() {
+            let s = ((rng.random::<f64>() * (t + 1) as f64) as usize).min(t);
+            order.swap(t, s);
+        }
+        let mut left: Vec<bool> = frames.iter().map(|&f| f == i).collect();
+        let (mut nl, mut nr) = (1.0f64, 1.0f64);
+        let mut log_q = 0.0;
+        for &t in &order {
+            let pl = side_prob(&ll[2 * t..2 * t + 2], [nl.ln(), nr.ln()]);
+            let l = match forced {
+                Some(side) => side[t],
+                None => rng.random::<f64>() < pl,
+            };
+            log_q += if l { pl.ln() } else { (1.0 - pl).ln() };
+            left[t] = l;
+            if l {
+                nl += 1.0;
+            } else {
+                nr += 1.0;
             }
         }
-        Ok(div)
+        let sums = match forced {
+            Some(_) => [Sums::zeros(&self.basis), Sums::zeros(&self.basis)],
+            None => {
+                let tiles: Vec<[Sums; 2]> = frames
+                    .par_chunks(TILE)
+                    .zip(left.par_chunks(TILE))
+                    .map(|(tile, sides)| side_sums(&self.basis, &self.data, tile, sides))
+                    .collect();
+                let mut out = [Sums::zeros(&self.basis), Sums::zeros(&self.basis)];
+                for [l, r] in &tiles {
+                    out[0].add(l);
+                    out[1].add(r);
+                }
+                out
+            }
+        };
+        Ok(Division { left, sums, log_q })
     }
 }
 

@@ -88,6 +88,38 @@ fn a_ratio_without_the_proposal_term_is_detected() {
     assert!(d > 0.05, "TV {d:.4}: the wrong ratio went unseen");
 }
 
+/// The pass with peel and absorb moves alone (no split–merge) is ergodic and exact too; leaving the
+/// affinity's reverse probability out of their ratio is detected.
+#[test]
+fn peel_and_absorb_moves_sample_the_enumerated_posterior() {
+    let st = settings(8);
+    let exact = enumerated_fixed(&st);
+    for wrong in [false, true] {
+        let mut s = SubclusterSampler::new(Arc::new(tiny()), st.clone()).unwrap();
+        s.only_peel = true;
+        s.wrong_ratio = wrong;
+        let ls = s.settings.base.length_scales;
+        s.set_state(&[0, 0, 0, 0, 0], &[ls], None, 1.0).unwrap();
+        let sweeps = 60_000;
+        let mut counts: HashMap<Vec<usize>, f64> = HashMap::new();
+        for _ in 0..sweeps {
+            s.sweep(&|| false).unwrap();
+            *counts.entry(canonical(s.labels())).or_default() += 1.0 / sweeps as f64;
+        }
+        let d = tv(&counts, &exact);
+        eprintln!(
+            "peel and absorb, wrong ratio {wrong}: TV {d:.4} ({:?})",
+            s.peels
+        );
+        if wrong {
+            assert!(d > 0.05, "TV {d:.4}: the wrong ratio went unseen");
+        } else {
+            assert!(d <= 0.03, "TV {d:.4} > 0.03 ({:?})", s.peels);
+            assert!(s.peels.peel_accepted > 1000 && s.peels.absorb_accepted > 1000);
+        }
+    }
+}
+
 #[test]
 fn subcluster_chain_with_per_pattern_noise_samples_its_posterior() {
     let mut st = settings(3);
