@@ -51,7 +51,7 @@ mod noise;
 mod split_merge;
 #[path = "sticky.rs"]
 mod sticky;
-pub(crate) use hyper::{Refit, length_scale_step, noise_step};
+pub(crate) use hyper::{Refit, length_scale_step, length_scale_width, noise_step};
 pub(crate) use noise::{MIN_RATIO as MIN_NOISE_RATIO, width as noise_width};
 pub use noise::{NoisePrior, NoiseScope};
 pub(crate) use split_merge::frame_means;
@@ -1441,7 +1441,7 @@ impl Sampler {
             .map(|&(k, id)| {
                 let mut rng = stream(self.settings.seed, sweep, Phase::LengthScales, id);
                 let current = self.live_slot(k).pattern.clone();
-                hyper::length_scale_step(current, prior, fraction, &mut rng)
+                hyper::length_scale_step(current, prior, fraction, 0.5, &mut rng)
             })
             .collect();
         for ((k, _), p) in keys.iter().zip(updated) {

@@ -193,6 +193,28 @@ impl Sums {
         self.vecs.add_scaled(&other.vecs, sign);
     }
 
+    /// The sums under `coarse`, a basis on the same box with at most as many functions per axis
+    /// (the lowest frequencies): sub-blocks of the moments and of the vector sums.
+    pub fn restrict(&self, full: &Basis, coarse: &Basis) -> Self {
+        let ([mx, _], [cx, cy]) = (full.counts(), coarse.counts());
+        let hx = 2 * mx + 1;
+        let mut h = Vec::with_capacity((2 * cx + 1) * (2 * cy + 1));
+        for b in 0..2 * cy + 1 {
+            h.extend_from_slice(&self.h[b * hx..b * hx + 2 * cx + 1]);
+        }
+        let m = full.len();
+        let pick = |v: &[f64]| -> Vec<f64> { coarse_indices(full, coarse).map(|c| v[c]).collect() };
+        Self {
+            h,
+            vecs: VecSums {
+                phi_sum: pick(&self.vecs.phi_sum),
+                phi_v: [pick(&self.vecs.phi_v[..m]), pick(&self.vecs.phi_v[m..])].concat(),
+                ..self.vecs.clone()
+            },
+            n_frames: self.n_frames,
+        }
+    }
+
     /// `G = Σ φ φᵀ` (M x M, both triangles) from the moments.
     pub fn gram(&self, basis: &Basis) -> Vec<f64> {
         let [mx, my] = basis.counts();
@@ -215,6 +237,22 @@ impl Sums {
         }
         g
     }
+}
+
+/// Where each function of `coarse` (a basis on the same box with no more functions per axis) sits
+/// in `full`'s feature order.
+pub fn coarse_indices<'a>(full: &'a Basis, coarse: &'a Basis) -> impl Iterator<Item = usize> + 'a {
+    let ([mx, _], [cx, cy]) = (full.counts(), coarse.counts());
+    (0..cy).flat_map(move |k| (0..cx).map(move |j| j + mx * k))
+}
+
+/// Weights on `coarse`'s functions as weights on `full`'s (zero on the functions it lacks).
+pub fn embed(full: &Basis, coarse: &Basis, w: &[f64]) -> Vec<f64> {
+    let mut out = vec![0.0; full.len()];
+    for (c, x) in coarse_indices(full, coarse).zip(w) {
+        out[c] = *x;
+    }
+    out
 }
 
 /// One output group's factor: `R = chol(σ_n² I + D G D)` and `z = R⁻¹ D b` (M x outputs).

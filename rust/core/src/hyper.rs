@@ -33,12 +33,14 @@ pub(crate) fn ls_log_target<P: Refit>(p: &P, prior: (f64, f64)) -> f64 {
         + p.log_marginal()
 }
 
-/// Slice-sample `log w_x` then `log w_y` of `current` under the Gamma `prior`; with `fraction`
-/// below 1, only that share of calls updates (a uniform drawn first decides).
+/// Slice-sample `log w_x` then `log w_y` of `current` under the Gamma `prior`, slices of
+/// `width` on the log scale; with `fraction` below 1, only that share of calls updates (a
+/// uniform drawn first decides).
 pub(crate) fn length_scale_step<P: Refit>(
     mut current: P,
     prior: (f64, f64),
     fraction: f64,
+    width: f64,
     rng: &mut impl rand::Rng,
 ) -> P {
     if fraction < 1.0 && rng.random::<f64>() >= fraction {
@@ -50,7 +52,7 @@ pub(crate) fn length_scale_step<P: Refit>(
         let ls = params.length_scales;
         let x0 = if axis == 0 { ls.wx.ln() } else { ls.wy.ln() };
         let mut last: Option<(f64, P)> = None;
-        let (x, fx) = slice_step(x0, f0, 0.5, rng, |x| {
+        let (x, fx) = slice_step(x0, f0, width, rng, |x| {
             let w = x.exp();
             if !(w.is_finite() && w > 0.0) {
                 return f64::NEG_INFINITY;
@@ -128,4 +130,11 @@ pub(crate) fn noise_step<P: Refit>(
         current = Some(p);
     }
     Ok(current)
+}
+
+/// Slice width for a pattern's `log w` given its points: the posterior of a length scale narrows
+/// like `1 / √points`, so a fixed width spends most evaluations shrinking on large patterns. Set
+/// by the pattern's size only (fixed during the step), so the update stays a valid slice step.
+pub(crate) fn length_scale_width(points: usize) -> f64 {
+    (0.5 * (1000.0 / points.max(1) as f64).sqrt()).clamp(0.02, 0.5)
 }

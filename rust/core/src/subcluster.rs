@@ -178,6 +178,8 @@ pub struct SubclusterSampler {
     settings: Settings,
     data: Arc<Data>,
     basis: Arc<Basis>,
+    /// The basis's lower half of frequencies per axis, for the launches' sub-fields.
+    coarse: Arc<Basis>,
     slots: Vec<Option<Part>>,
     generations: Vec<u32>,
     labels: Vec<usize>,
@@ -206,6 +208,12 @@ impl SubclusterSampler {
             unreachable!("validate() refuses the sub-cluster sampler without a basis");
         };
         let basis = Arc::clone(basis);
+        let [mx, my] = basis.counts();
+        let coarse = Arc::new(Basis::new(
+            basis.center(),
+            basis.half_widths(),
+            [mx.div_ceil(2), my.div_ceil(2)],
+        )?);
         // The same starting α as the collapsed sampler (the same stream).
         let alpha = crate::gibbs::initial_alpha(&settings)?;
         let n = data.len();
@@ -213,6 +221,7 @@ impl SubclusterSampler {
             settings,
             data,
             basis,
+            coarse,
             slots: Vec::new(),
             generations: Vec::new(),
             labels: vec![NONE; n],
@@ -536,7 +545,8 @@ impl SubclusterSampler {
             .map(|&(k, id)| {
                 let mut rng = stream(self.settings.seed, self.sweep, Phase::LengthScales, id);
                 let c = self.candidate(k);
-                crate::gibbs::length_scale_step(c, prior, fraction, &mut rng).fit
+                let width = crate::gibbs::length_scale_width(c.sums.vecs.n_points);
+                crate::gibbs::length_scale_step(c, prior, fraction, width, &mut rng).fit
             })
             .collect();
         for ((k, _), fit) in keys.iter().zip(updated) {

@@ -175,3 +175,39 @@ fn the_log_marginal_from_sums_is_the_patterns() {
 }
 
 use std::sync::Arc;
+
+/// The sums restricted to a coarser basis on the same box are the coarse basis's own sums, and
+/// weights embedded back give the same field.
+#[test]
+fn restricted_sums_are_the_coarse_bases_sums() {
+    let b = basis();
+    let coarse = Basis::new(b.center(), b.half_widths(), [4, 3]).unwrap();
+    let (xy, v) = points(120, 6);
+    let direct = Sums::of_points(&coarse, &xy, &v, 4);
+    let restricted = Sums::of_points(&b, &xy, &v, 4).restrict(&b, &coarse);
+    for (a, c) in direct
+        .h
+        .iter()
+        .zip(&restricted.h)
+        .chain(direct.vecs.phi_v.iter().zip(&restricted.vecs.phi_v))
+    {
+        assert!((a - c).abs() < 1e-9, "{a} vs {c}");
+    }
+    assert_eq!(direct.h.len(), restricted.h.len());
+    let w: Vec<f64> = (0..coarse.len()).map(|j| 0.1 * j as f64).collect();
+    let full = embed(&b, &coarse, &w);
+    let (fc, ff) = (coarse.features(&xy[..3]), b.features(&xy[..3]));
+    for p in 0..3 {
+        let a: f64 = fc[p * coarse.len()..(p + 1) * coarse.len()]
+            .iter()
+            .zip(&w)
+            .map(|(x, y)| x * y)
+            .sum();
+        let c: f64 = ff[p * b.len()..(p + 1) * b.len()]
+            .iter()
+            .zip(&full)
+            .map(|(x, y)| x * y)
+            .sum();
+        assert!((a - c).abs() < 1e-12);
+    }
+}
