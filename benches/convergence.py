@@ -1,14 +1,16 @@
-"""Convergence of fit_chains on NGSIM US-101 (1000 frames, every default), with and without
-split–merge moves, and with preset="paper" (docs/inference.md):
+"""Convergence of fit_chains on NGSIM US-101 (1000 frames, every default), by sampler and start,
+with and without split–merge moves, and with preset="paper" (docs/inference.md):
 
-    python benches/convergence.py                       # defaults, split-merge on then off, 600 s each
+    python benches/convergence.py                       # dispersed starts, sub-cluster then collapsed, 600 s each
+    python benches/convergence.py --runs split-merge no-split-merge
     python benches/convergence.py --runs paper          # preset="paper"
     python benches/convergence.py --seconds 120 --frames 300
 
 Each run: ``fit_chains(frames, n_chains=4, until="converged", max_seconds=S)``. Prints, per run,
 the sweeps per chain, wall seconds, split-R̂ and bulk ESS of the log joint and K (second half
 of each chain, as the stopping rule), ESS per second of wall time, K and the noise pair, and
-the split–merge proposals and acceptances. One JSON line per run goes to --out.
+the split–merge proposals and acceptances, and the pairwise adjusted Rand index of the chains'
+summary partitions (``Chains.agreement``). One JSON line per run goes to --out.
 """
 
 from __future__ import annotations
@@ -24,6 +26,10 @@ import dpgp
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ngsim_us101_frames.tsv"
 RUNS = {
+    "defaults": {},
+    "dispersed": {"init": "dispersed"},
+    "collapsed": {"sampler": "collapsed"},
+    "collapsed-dispersed": {"sampler": "collapsed", "init": "dispersed"},
     "split-merge": {},
     "no-split-merge": {"split_merge": 0},
     "paper": {"preset": "paper"},
@@ -36,7 +42,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=1000)
     ap.add_argument("--seconds", type=float, default=600)
-    ap.add_argument("--runs", nargs="+", default=["split-merge", "no-split-merge"], choices=sorted(RUNS))
+    ap.add_argument("--runs", nargs="+", default=["dispersed", "collapsed-dispersed"], choices=sorted(RUNS))
     ap.add_argument("--block", type=int, default=10)
     ap.add_argument("--out", default="convergence.jsonl")
     ap.add_argument("--traces", default=None, help="save each run's (chains, sweeps) traces to PREFIX_RUN.npz")
@@ -48,6 +54,7 @@ def main() -> None:
                              seed=1, progress=False, **RUNS[name])  # fmt: skip
         wall = time.perf_counter() - t
         rhat, ess = ch.rhat(), ch.ess("bulk")
+        agreement = ch.agreement()[np.triu_indices(ch.n_chains, 1)]
         models = ch.models
         hist = [m.history_ for m in models if hasattr(m, "history_")]
         row = {
@@ -58,6 +65,8 @@ def main() -> None:
             "ess_per_second": {q: round(float(ess[q]) / wall, 3) for q in ("log_joint", "n_patterns")},
             "K_last": [int(k) for k in ch.traces["n_patterns"][:, -1]],
             "median_sweep_seconds": round(float(np.median(ch.traces["seconds"])), 2),
+            "sampler": [getattr(m, "sampler_", "collapsed") for m in models][0],
+            "partition_ari": {"min": round(float(agreement.min()), 3), "mean": round(float(agreement.mean()), 3)},
             "noise_var": [list(map(float, m.noise_var_)) for m in models],
         }  # fmt: skip
         print(json.dumps(row), flush=True)
