@@ -253,7 +253,9 @@ class _DaskEngine:
         self.run = uuid.uuid4().hex[:8]
 
     def submit(self, key: str, fn: Any, *args: Any) -> Any:
-        return self.client.submit(_task, key, fn, self.frames, *args, key=f"dpgp-{key}-{self.run}", pure=False, retries=0)
+        return self.client.submit(
+            _task, key, fn, self.frames, *args, key=f"dpgp-{key}-{self.run}", pure=False, retries=0
+        )
 
     def wait(self, futures: list[Any], timeout: float) -> set[Any]:
         from distributed import wait
