@@ -82,7 +82,12 @@ if __name__ == "__mp_main__" and os.environ.get("CTRL_C_TEAR"):
     connection.Connection._send_bytes = _half
 
 if __name__ == "__main__":
+    import signal
     import warnings
+
+    # Ctrl-C as a terminal's foreground job takes it, however the runner was started: one started
+    # with `&` or nohup hands its children SIGINT ignored, and Python keeps it ignored.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
     import dpgp
 
