@@ -6,14 +6,16 @@ Why not simply catch KeyboardInterrupt: Python raises it at whatever bytecode th
 running, and some of those moments leave the run in a state it cannot get out of:
 
 - inside ``ProcessPoolExecutor.submit``, between spawning a worker and registering it: the
-  worker is never stopped, and the interpreter waits for it at exit, forever;
+  pool does not know the worker, so nothing stops it, and multiprocessing joins it at exit;
 - between taking a finished block off the pending list and storing it: the block is lost;
 - inside a ``__del__`` or a weakref callback: Python prints the KeyboardInterrupt and drops it,
   and the fit runs on.
 
 So while :class:`Interrupts` is entered, Ctrl-C raises only where the driver waits (inside
 :meth:`~Interrupts.interruptible`: for tasks, for a cluster), where nothing is half done; one that
-arrives elsewhere is remembered and raised when the driver next waits, a moment later.
+arrives elsewhere is remembered and raised when the driver next waits, a moment later (one that
+arrives after the last wait, while the pool closes and the chains are put together, is dropped:
+the run is complete by then).
 
 Workers must not die of the same Ctrl-C (a terminal sends it to the whole process group): a
 worker killed while importing breaks the pool, and one killed in the middle of a task prints
