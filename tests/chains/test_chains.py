@@ -1,12 +1,8 @@
 """dpgp.fit_chains on local worker processes: deterministic chains, the stopping rule, the
 summaries (R̂/ESS as dpgp.diagnostics computes them, similarity, point estimate, best model),
-Ctrl-C and a worker process that dies. The Dask engine is tested in test_chains_dask.py."""
+a worker process that dies. Ctrl-C is tested in test_ctrl_c.py, the Dask engine in
+test_chains_dask.py."""
 
-import os
-import signal
-import subprocess
-import sys
-import textwrap
 import threading
 import time
 import warnings
@@ -205,39 +201,6 @@ def test_a_local_worker_that_dies_is_replaced_and_its_block_rerun(frames, chains
     assert killed and again.retried_, "the kill did not land while blocks were running"
     assert again.failures_ == {}
     np.testing.assert_array_equal(again.labels, chains.labels)
-
-
-_CTRL_C = textwrap.dedent(
-    """
-    import warnings, dpgp
-    if __name__ == "__main__":
-        frames = dpgp.datasets.synthetic("intersection", n_frames=60, seed=0)
-        print("start", flush=True)
-        with warnings.catch_warnings(record=True) as w:
-            warnings.simplefilter("always")
-            ch = dpgp.fit_chains(frames, 2, iterations=100000, block=2, progress=False)
-        print("kept", ch.n_sweeps, ch.converged_, "|", ch.stop_reason_, "|", [str(x.message) for x in w], flush=True)
-    """
-)
-
-
-def test_ctrl_c_cancels_the_tasks_and_keeps_the_finished_sweeps(tmp_path):
-    script = tmp_path / "ctrl_c.py"
-    script.write_text(_CTRL_C)
-    proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)  # fmt: skip
-    try:
-        assert proc.stdout.readline().strip() == "start"
-        time.sleep(8.0)  # workers spawn, import dpgp and finish some blocks
-        os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in a terminal does: the whole group
-        out, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-    assert proc.returncode == 0, err
-    kept = out.split()
-    assert kept[0] == "kept" and int(kept[1]) >= 2 and kept[2] == "False", out
-    assert "interrupted (Ctrl-C)" in out and "keep every finished block" in out
 
 
 def test_chain_figures(chains):

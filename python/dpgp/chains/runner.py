@@ -25,7 +25,6 @@ How a run is organised (the why):
 from __future__ import annotations
 
 import concurrent.futures as cf
-import multiprocessing
 import os
 import signal
 import time
@@ -39,11 +38,16 @@ import numpy as np
 from ..data.frames import Frames, as_frames
 from ..exceptions import DpgpError, InvalidInputError
 from . import diagnostics, partition
+from ._interrupt import Interrupts, WorkerContext, mark
 
 QUANTITIES = ("log_joint", "n_patterns", "alpha")
 _TRACES = (*QUANTITIES, "moves", "seconds")
 # Settings that fit_chains controls itself; the rest pass through to DPGP.
 _RESERVED = ("iterations", "seed", "progress", "store_labels", "n_iter_no_change")
+# How often the driver, waiting for tasks, looks for a Ctrl-C that came while it was not waiting
+# (_interrupt), and how long it waits for a block that finished on a cluster as Ctrl-C came.
+_POLL_SECONDS = 0.2
+_FETCH_SECONDS = 2.0
 
 
 class ChainsFailedError(DpgpError):
@@ -79,10 +83,17 @@ _WORKER_FRAMES: Frames | None = None
 
 
 def _init_worker(frames: Frames) -> None:
-    """Local worker start-up: keep the frames; leave Ctrl-C to the driver, which cancels."""
+    """Local worker start-up: keep the frames; leave Ctrl-C to the driver, which cancels (the
+    worker was spawned with SIGINT blocked; ignoring it also drops one that is pending)."""
     global _WORKER_FRAMES
     _WORKER_FRAMES = frames
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _task(key: str, fn: Any, *args: Any) -> Any:
+    """Run one task (a block, or resolving the settings) on a worker; its start is a trace event."""
+    mark(f"task {key} start")
+    return fn(*args)
 
 
 def _state_of(model: Any) -> _State:
@@ -189,14 +200,19 @@ class _LocalEngine:
         self.pool = self._new_pool()
 
     def _new_pool(self) -> cf.ProcessPoolExecutor:
-        ctx = multiprocessing.get_context("spawn")
+        ctx = WorkerContext()  # "spawn", workers deaf to Ctrl-C from birth
         return cf.ProcessPoolExecutor(self.n_workers, mp_context=ctx, initializer=_init_worker, initargs=(self.frames,))
 
     def submit(self, key: str, fn: Any, *args: Any) -> cf.Future:
-        return self.pool.submit(fn, None, *args)
+        return self.pool.submit(_task, key, fn, None, *args)
 
-    def wait(self, futures: list[Any]) -> set[Any]:
-        return cf.wait(futures, return_when=cf.FIRST_COMPLETED)[0]
+    def wait(self, futures: list[Any], timeout: float) -> set[Any]:
+        return cf.wait(futures, timeout=timeout, return_when=cf.FIRST_COMPLETED)[0]
+
+    def finished(self, future: cf.Future) -> Any:
+        """The result of a task that has finished without error, else None."""
+        ok = future.done() and not future.cancelled() and future.exception() is None
+        return future.result() if ok else None
 
     def broken(self, error: BaseException) -> bool:
         """A worker process died: every block in flight failed with it; start a fresh pool."""
@@ -216,6 +232,13 @@ class _LocalEngine:
         else:
             for p in list(getattr(self.pool, "_processes", {}).values()):
                 p.terminate()
+        # A worker stopped while sending its result leaves half a message in the result pipe, and
+        # the pool's manager thread would wait for the rest forever (and shutdown with it, and the
+        # interpreter at exit). With the driver's copy of the pipe's write end closed, the stopped
+        # workers held the last ones: the thread reads end-of-file and gives up.
+        queue = getattr(self.pool, "_result_queue", None)
+        if queue is not None:
+            queue._writer.close()
 
     def close(self) -> None:
         self.pool.shutdown(wait=True, cancel_futures=True)
@@ -230,12 +253,27 @@ class _DaskEngine:
         self.run = uuid.uuid4().hex[:8]
 
     def submit(self, key: str, fn: Any, *args: Any) -> Any:
-        return self.client.submit(fn, self.frames, *args, key=f"dpgp-{key}-{self.run}", pure=False, retries=0)
+        return self.client.submit(
+            _task, key, fn, self.frames, *args, key=f"dpgp-{key}-{self.run}", pure=False, retries=0
+        )
 
-    def wait(self, futures: list[Any]) -> set[Any]:
+    def wait(self, futures: list[Any], timeout: float) -> set[Any]:
         from distributed import wait
 
-        return set(wait(futures, return_when="FIRST_COMPLETED").done)
+        try:
+            return set(wait(futures, timeout=timeout, return_when="FIRST_COMPLETED").done)
+        except TimeoutError:
+            return set()
+
+    def finished(self, future: Any) -> Any:
+        """The result of a task that has finished without error, else None; not waiting long for
+        it (its worker may have taken the same Ctrl-C and gone)."""
+        if future.status != "finished":
+            return None
+        try:
+            return future.result(timeout=_FETCH_SECONDS)
+        except Exception:  # noqa: BLE001 - lost with its worker: not a finished block after all
+            return None
 
     def broken(self, error: BaseException) -> bool:
         return False  # Dask reschedules on its own; an error here belongs to one chain
@@ -331,18 +369,21 @@ def fit_chains(
     block = min(20 if block is None else int(block), target)
     if block < 1:
         raise InvalidInputError(f"block must be a positive integer, got {block!r}")
-    if client is None:
-        workers = n_workers if n_workers is not None else min(n_chains, os.cpu_count() or 1)
-        engine: Any = _LocalEngine(frames, max(1, int(workers)))
-    else:
-        engine = _DaskEngine(client, frames)
-    runner = _Runner(engine, frames, settings, n_chains, seed, block, progress, init)
-    try:
-        runner.resolve()
-        runner.run(until, iterations, rhat, min_ess, max_iterations, max_seconds)
-    finally:
-        engine.close()
-    return runner.chains(burn_in, rhat, min_ess)
+    mark("chains start")
+    with Interrupts() as interrupts:
+        with interrupts.interruptible():  # scattering the frames waits for the cluster
+            if client is None:
+                workers = n_workers if n_workers is not None else min(n_chains, os.cpu_count() or 1)
+                engine: Any = _LocalEngine(frames, max(1, int(workers)))
+            else:
+                engine = _DaskEngine(client, frames)
+        runner = _Runner(engine, frames, settings, n_chains, seed, block, progress, interrupts, init)
+        try:
+            runner.resolve()
+            runner.run(until, iterations, rhat, min_ess, max_iterations, max_seconds)
+        finally:
+            engine.close()
+        return runner.chains(burn_in, rhat, min_ess)
 
 
 class _Runner:
@@ -357,9 +398,11 @@ class _Runner:
         seed: int,
         block: int,
         progress: bool,
+        interrupts: Interrupts,
         init: str = "sequential",
     ) -> None:
         self.engine, self.frames, self.settings, self.seed, self.block = engine, frames, settings, seed, block
+        self.interrupts = interrupts
         self.names = [f"chain{c}" for c in range(n_chains)]
         self.blocks: list[list[_Block]] = [[] for _ in range(n_chains)]
         self.failures: dict[str, str] = {}
@@ -392,32 +435,57 @@ class _Runner:
         if left > 0 and self.names[c] not in self.failures:
             self.pending[self._submit(c, min(self.block, left))] = c
 
+    def _wait(self, futures: list[Any]) -> set[Any]:
+        """The finished ones of ``futures`` (at least one): the only place a Ctrl-C is raised."""
+        while True:
+            with self.interrupts.interruptible():
+                done = self.engine.wait(futures, _POLL_SECONDS)
+            if done:
+                return done
+
     def _round(self, target: int, bar: Any) -> None:
         """Advance every live chain to ``target`` sweeps, each as soon as its last block is in."""
         for c in range(len(self.names)):
             self._feed(c, target)
         while self.pending:
-            for f in self.engine.wait(list(self.pending)):
-                if f not in self.pending:
-                    continue  # a block resubmitted after its worker pool died
-                c = self.pending.pop(f)
-                try:
-                    result = f.result()
-                except (KeyboardInterrupt, SystemExit):
-                    raise
-                except BaseException as e:  # noqa: BLE001 - any failure belongs to this chain
-                    if self.engine.broken(e):
-                        self._retry([c, *self.pending.values()], target, bar)
-                    else:
-                        self._fail(c, e)
-                    continue
-                self._done(c, result, bar)
-                self._feed(c, target)
+            for f in self._wait(list(self.pending)):
+                if f in self.pending:  # else: a block resubmitted after its worker pool died
+                    self._take(f, target, bar)
+
+    def _take(self, f: Any, target: int, bar: Any) -> None:
+        """A finished task: keep its block and submit the chain's next, or handle its failure."""
+        try:
+            with self.interrupts.interruptible():  # fetching it from a cluster may wait
+                result, error = f.result(), None
+        except (KeyboardInterrupt, SystemExit):
+            raise
+        except BaseException as e:  # noqa: BLE001 - any failure belongs to this chain
+            result, error = None, e
+        c = self.pending.pop(f)
+        if error is None:
+            self._done(c, result, bar)
+            self._feed(c, target)
+        elif self.engine.broken(error):
+            self._retry([c, *self.pending.values()], target, bar)
+        else:
+            self._fail(c, error)
 
     def _done(self, c: int, result: _Block, bar: Any) -> None:
         self.blocks[c].append(result)
+        mark(f"block {self.names[c]}-block{len(self.blocks[c]) - 1} received")
         if bar is not None:
             bar.update(len(result.labels))
+
+    def _stop(self, bar: Any) -> None:
+        """After Ctrl-C: keep the blocks that finished meanwhile, cancel the others."""
+        for f, c in self.pending.items():
+            result = self.engine.finished(f)
+            if result is not None:
+                self._done(c, result, bar)
+        self.engine.cancel(list(self.pending))
+        self.pending.clear()
+        self.interrupted = True
+        self.interrupts.handled()
 
     def _fail(self, c: int, error: BaseException) -> None:
         text = f"{type(error).__name__}: {error}"
@@ -448,14 +516,13 @@ class _Runner:
             return  # every setting is a value already
         future = self.engine.submit("resolve-settings", _resolve, self.settings, self.seed)
         try:
-            self.engine.wait([future])
+            self._wait([future])
+            with self.interrupts.interruptible():  # fetching it from a cluster may wait
+                self.resolved, likelihood, sampler = future.result()
         except KeyboardInterrupt:
             self.engine.cancel([future])
-            raise
-        try:
-            self.resolved, likelihood, sampler = future.result()
-        except KeyboardInterrupt:
-            raise
+            self.interrupts.handled()
+            raise  # nothing to keep
         except BaseException as e:  # noqa: BLE001
             if isinstance(e, DpgpError):
                 raise
@@ -502,10 +569,9 @@ class _Runner:
                     return
                 target = min(target + self.block, max_iterations)
         except KeyboardInterrupt:
-            self.engine.cancel(list(self.pending))
-            self.pending.clear()
-            self.interrupted = True
-            done = min((self.sweeps(c) for c in self._live()), default=0)
+            self._stop(bar)
+            # The sweeps the chains keep: chains cut to the shortest one that has a block.
+            done = min((self.sweeps(c) for c in self._live() if self.blocks[c]), default=0)
             self.reason = f"interrupted (Ctrl-C) after {done} sweeps"
             warnings.warn(f"fit_chains {self.reason}; the chains keep every finished block", stacklevel=3)
         finally:
@@ -527,7 +593,9 @@ class _Runner:
     def chains(self, burn_in: int | None, rhat: float, min_ess: float) -> Chains:
         live = [c for c in range(len(self.names)) if self.names[c] not in self.failures and self.blocks[c]]
         if not live:
-            raise KeyboardInterrupt if self.interrupted else ChainsFailedError(str(self.failures))
+            if self.interrupted:
+                raise KeyboardInterrupt("Ctrl-C before any block had finished: nothing to keep")
+            raise ChainsFailedError(str(self.failures))
         return Chains(
             frames=self.frames,
             settings=self.settings,
