@@ -35,7 +35,10 @@ readers that know nothing of them read the model as before, so they need no new 
 ``settings`` (``DPGP.get_params()``), ``params`` (the global GP parameters), ``alpha``,
 ``history`` (per-sweep lists), ``n_iter``, ``converged``, ``init_seconds``, ``timings``,
 ``log_joint``, ``frames_summary`` (what ``make_frames`` did, with ``dt`` and ``roi``, or null)
-and ``distributions`` (φ and ψ, ``EmpiricalDistributions.to_dict`` as lists); a model made by
+and ``distributions`` (φ and ψ, ``EmpiricalDistributions.to_dict`` as lists, with the
+pseudo-counts the scores smooth them by: ``count_pseudocount`` and ``position_pseudocount``,
+keys that files before issue 36 lack, which then load as the paper's unsmoothed form, flagged by
+``EmpiricalDistributions.is_paper_form``, and that older readers ignore); a model made by
 ``dpgp.Chains.best_model`` adds ``chain_summary`` (R̂, ESS, burn-in, the stopping verdict and the
 point estimate's expected loss; ``Chains.summary_dict``). From version 2, ``resolved`` holds the
 assignment, σ_n² and length-scale prior the fit ran with after ``"auto"`` and ``preset`` were
