@@ -584,3 +584,18 @@ def test_conditional_log_probs_mask_what_is_impossible():
     assert isinstance(ll, np.ma.MaskedArray)
     assert np.array_equal(np.argwhere(np.ma.getmaskarray(ll)), np.c_[alone, model.labels_[alone]])
     assert np.isfinite(ll.sum())
+
+
+def test_a_stored_pseudocount_past_its_limit_is_refused(tiny, tmp_path):
+    """Found by the issue-36 fuzz run (model_files:2011, seed 0): a model file's count
+    pseudo-count of 1e308 overflowed φ̃'s total, and score_samples gave -inf."""
+    import json
+
+    def edit(arrays):
+        meta = json.loads(str(arrays["metadata"]))
+        meta["distributions"]["count_pseudocount"] = 1e308
+        arrays["metadata"] = np.array(json.dumps(meta))
+
+    path = _rewrite(tiny[1], tmp_path / "pc.npz", edit)
+    with pytest.raises(dpgp.ModelFileError, match="pseudocount must be a number from 0 to 1e\\+100"):
+        dpgp.DPGP.load(path)

@@ -195,9 +195,15 @@ def test_bad_input():
         d.log_position_density([[np.nan, 1.0]])
     with pytest.raises(dpgp.InvalidInputError, match="whole number"):
         d.sample_counts(-1)
-    for bad in (-1, np.nan, (1.0, 2.0, 3.0), "x", (0.5, np.inf)):
+    for bad in (-1, np.nan, (1.0, 2.0, 3.0), "x", (0.5, np.inf), 1.1e100):  # 1e308: totals overflowed (fuzz)
         with pytest.raises(dpgp.InvalidInputError, match="pseudocount"):
             dpgp.EmpiricalDistributions.from_frames(f, pseudocount=bad)
+    with pytest.raises(dpgp.InvalidInputError, match="whole numbers"):
+        d.log_count_pmf(np.inf)
+    for extreme in (5e-324, 1e100):  # a tiny pseudo-count over the totals must not underflow to -inf
+        e = dpgp.EmpiricalDistributions.from_frames(f, pseudocount=extreme)
+        assert np.isfinite(e.log_position_density([[0.5, 0.5], [2.5, 0.5], [9.0, 9.0]])).all()
+        assert np.isfinite(e.log_count_pmf([1, 2, 50])).all()
 
 
 def test_stored_histograms_that_overflow_or_hold_no_vehicles_are_refused():

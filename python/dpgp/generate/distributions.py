@@ -184,7 +184,8 @@ class EmpiricalDistributions:
         """log φ̃(l) for a count or an array of counts (whole numbers >= 1: a frame holds at least
         one vehicle); finite for every count unless :attr:`is_paper_form`."""
         arr = np.asarray(l)
-        if arr.dtype.kind not in "iu" and not (arr.dtype.kind == "f" and np.all(arr == np.round(arr))):
+        whole = arr.dtype.kind == "f" and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr))
+        if arr.dtype.kind not in "iu" and not whole:
             raise InvalidInputError(f"vehicle counts must be whole numbers, got {l!r}")
         if np.any(arr < 1):
             raise InvalidInputError(f"vehicle counts must be at least 1 (a frame holds a vehicle), got {l!r}")
@@ -319,10 +320,10 @@ def _smoothed_counts(count_hist: np.ndarray, a: float) -> tuple[np.ndarray, floa
     """log φ̃(l) for l = 0..L (index 0 unused: frames are never empty) and log φ̃ at the first
     count of the tail, ``L + 1`` before its halving (the class docstring's formula)."""
     largest = int(np.flatnonzero(count_hist[1:])[-1]) + 1
-    total = count_hist[1 : largest + 1].sum() + a * (largest + 1)
+    log_total = np.log(count_hist[1 : largest + 1].sum() + a * (largest + 1))
     with np.errstate(divide="ignore"):  # a = 0: the paper's form, -inf for unseen counts
-        log_count = np.log(np.r_[0.0, count_hist[1 : largest + 1] + a] / total)
-        return log_count, float(np.log(a / total))
+        log_count = np.log(np.r_[0.0, count_hist[1 : largest + 1] + a]) - log_total
+        return log_count, float(np.log(a) - log_total)  # logs apart: a tiny a over a large total underflows
 
 
 def _smoothed_bins(position_hist: np.ndarray, roi: tuple[float, ...], a: float) -> tuple[np.ndarray, float]:
@@ -331,10 +332,10 @@ def _smoothed_bins(position_hist: np.ndarray, roi: tuple[float, ...], a: float) 
     nx, ny = position_hist.shape
     x0, x1, y0, y1 = roi
     log_area = np.log(x1 - x0) - np.log(nx) + np.log(y1 - y0) - np.log(ny)
-    total = position_hist.sum() + a * (nx * ny + 1)
+    log_total = np.log(position_hist.sum() + a * (nx * ny + 1))
     with np.errstate(divide="ignore"):  # a = 0: the paper's form, -inf for empty bins and outside
-        log_density = np.log((position_hist + a) / total) - log_area
-        return log_density, float(np.log(a / total) - log_area - np.log(2 * nx + 2 * ny + 4))
+        log_density = np.log(position_hist + a) - log_total - log_area
+        return log_density, float(np.log(a) - log_total - log_area - np.log(2 * nx + 2 * ny + 4))
 
 
 #: Most bin widths of fall-off a position beyond the ROI is charged: its log density stays a
@@ -391,12 +392,18 @@ def _held_out_positions(train: np.ndarray, held: np.ndarray, n_bins: int) -> np.
     return m[used] @ np.log(n[used, None] + a) - m.sum() * np.log(len(train) + a * (n_bins + 1))
 
 
+#: Largest pseudo-count taken: its totals over every count and bin stay finite (a fit's never
+#: exceeds :data:`PSEUDOCOUNT_GRID`'s 1e3).
+MAX_PSEUDOCOUNT = 1e100
+
+
 def _pseudocounts(value: Any) -> tuple[float, float]:
-    """``(a_φ, a_ψ)`` from one number for both or a pair, each finite and >= 0."""
+    """``(a_φ, a_ψ)`` from one number for both or a pair, each in ``[0, MAX_PSEUDOCOUNT]``."""
     arr = _floats("pseudocount", value)
-    if arr.shape not in ((), (2,)) or not (np.all(np.isfinite(arr)) and np.all(arr >= 0)):
+    if arr.shape not in ((), (2,)) or not (np.all(arr >= 0) and np.all(arr <= MAX_PSEUDOCOUNT)):
         raise InvalidInputError(
-            f"pseudocount must be a number >= 0 or a pair (counts, positions) of them, got {value!r:.80}"
+            f"pseudocount must be a number from 0 to {MAX_PSEUDOCOUNT:g}, or a pair (counts, positions) of them, "
+            f"got {value!r:.80}"
         )
     pair = np.broadcast_to(arr, (2,))
     return float(pair[0]), float(pair[1])
