@@ -8,8 +8,8 @@ The paper's φ and ψ are the recorded frequencies: a count or a position bin ne
 training has probability 0, so one such held-out frame scores -inf and with it a whole
 evaluation. Scores therefore use a Dirichlet smoothing of both (:class:`EmpiricalDistributions`
 says how), with pseudo-counts set from the training frames by blocked cross-validation
-(:meth:`EmpiricalDistributions.from_frames`). Scenarios are still drawn from the recorded φ and ψ: a
-generated vehicle stands only where recorded vehicles stood.
+(:meth:`EmpiricalDistributions.from_frames`). Scenarios are still drawn from the recorded φ and
+ψ: a generated vehicle stands only where recorded vehicles stood.
 """
 
 from __future__ import annotations
@@ -29,8 +29,9 @@ _MAX_SAMPLES = 10**8  # draws per call (0.8-1.6 GB of output)
 #: form (pseudo-counts 0, as model files written before issue 36 hold): Krichevsky–Trofimov's ½,
 #: what dpgp scored held-out frames with before the pseudo-counts were set from the data.
 HELD_OUT_PSEUDOCOUNT = 0.5
-#: Pseudo-counts :func:`cross_validated_pseudocounts` chooses among: 10 per decade from 1e-4 to
-#: 1e3. The least keeps every score finite (an unseen bin costs about ``log(1e-4 / N)``).
+#: Pseudo-counts the cross-validation of :meth:`EmpiricalDistributions.from_frames` chooses
+#: among: 10 per decade from 1e-4 to 1e3. The least keeps every score finite (an unseen bin
+#: costs about ``log(1e-4 / N)``).
 PSEUDOCOUNT_GRID = np.logspace(-4.0, 3.0, 71)
 #: Contiguous blocks of frames the cross-validation holds out in turn. In blocks, because
 #: consecutive frames share their vehicles: holding out single frames would let a vehicle's
@@ -68,8 +69,8 @@ class EmpiricalDistributions:
     dpgp did then.
 
     Build one with :meth:`from_frames` (``pseudocount="auto"``: set from the frames by blocked
-    cross-validation); store it with :meth:`to_dict` (plain arrays, for a
-    model file) and :meth:`from_dict`.
+    cross-validation); store it with :meth:`to_dict` (plain arrays, for a model file) and
+    :meth:`from_dict`.
     """
 
     def __init__(
