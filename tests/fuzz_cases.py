@@ -175,9 +175,13 @@ def classify_exception(e: BaseException) -> Outcome:
 
 
 def nonfinite(value: Any, allow_neg_inf: bool = False, depth: int = 0) -> str | None:
-    """Where ``value`` holds NaN or inf (``-inf`` allowed for documented log densities), else None."""
+    """Where ``value`` holds NaN or inf, else None; ``-inf`` is allowed only where a case says so
+    (the paper's unsmoothed φ, ψ, asked for explicitly), and a masked array's masked entries
+    are no values at all."""
     if depth > 4:
         return None
+    if isinstance(value, np.ma.MaskedArray):  # masked entries are documented "no value" (issue 36)
+        value = np.ma.getdata(value)[~np.ma.getmaskarray(value)]
     if isinstance(value, np.ndarray):
         if value.dtype.kind in "fc":
             bad = np.isnan(value) | (np.isposinf(value) if allow_neg_inf else np.isinf(value))
@@ -547,11 +551,14 @@ def _astype(c: np.ndarray, dtype: Any) -> np.ndarray:
 
 def case_arrays(draw: Draw, ctx: Context, d: Path) -> Any:
     target = draw.choice(
-        ["from_arrays", "from_arrays", "select", "synthetic", "distributions", "ari", "read_frames_df", "gp", "gp"],
+        ["from_arrays", "from_arrays", "select", "synthetic", "distributions", "ari", "read_frames_df", "gp", "gp",
+         "frames"],
         "target",
-    )
+    )  # fmt: skip
     if target == "gp":
         return gp_case(draw)
+    if target == "frames":
+        return frames_constructor_case(draw, ctx)
     if target in ("from_arrays", "select"):
         frame, x, y, vx, vy = tiny_frames_arrays(draw)
         cols = [frame, x, y, vx, vy]
@@ -620,17 +627,23 @@ def case_arrays(draw: Draw, ctx: Context, d: Path) -> Any:
                 [None], [(0, 1, 0, 1), (1, 0, 0, 1), (NAN, 1, 0, 1), (0, 1e308, -1e308, 1e308), "abcd", (0, 1)], "roi"
             ),
             bins=draw.maybe([(3, 4), 5], [0, -1, (1, 2, 3), 2.5, "3", 10**12, (10**6, 10**6)], "bins"),
-            pseudocount=draw.maybe([0.0, 1.0], [-1, NAN, INF, "x"], "pseudocount"),
+            pseudocount=draw.maybe(
+                ["auto", 0.0, 1.0, (0.5, 2.0)], [-1, NAN, INF, "x", (1, 2, 3), (0.5, NAN)], "pseudocount"
+            ),
         )
-        op = draw.choice(["count", "pos", "frame", "sample_counts", "sample_positions"], "op")
+        paper = dist.is_paper_form  # pseudo-counts 0, asked for: -inf is its documented answer
+        op = draw.choice(["count", "pos", "frame", "held_out", "sample_counts", "sample_positions"], "op")
         if op == "count":
-            return dist.log_count_pmf(draw.choice([0, 1, 3, -1, 2.5, 10**30, NAN, "x", [1, 2], None], "l")), True
+            return dist.log_count_pmf(draw.choice([0, 1, 3, -1, 2.5, 10**30, NAN, "x", [1, 2], None], "l")), paper
         if op == "pos":
             return dist.log_position_density(
-                draw.choice([[[0, 0]], [[NAN, 0]], [0, 0], "x", [[1e308, 1e308]], []], "xy")
-            ), True
+                draw.choice([[[0, 0]], [[NAN, 0]], [0, 0], "x", [[1e308, 1e308]], [], [[6e6, -6e6]]], "xy")
+            ), paper
+        xy = draw.choice([[[0, 0]], [[1, 2], [3, 4]], [], "x", [[1e99, 0]] * 40], "xy")
         if op == "frame":
-            return dist.log_frame_density(draw.choice([[[0, 0]], [[1, 2], [3, 4]], [], "x"], "xy")), True
+            return dist.log_frame_density(xy), paper
+        if op == "held_out":  # smoothed whatever the pseudo-counts: finite
+            return dist.held_out_log_density(xy)
         n = draw.maybe([0, 3], [-1, 2.5, 10**15, None, "3"], "n")
         seed = draw.choice([0, None, -1, "x"], "rng")
         return dist.sample_counts(n, seed) if op == "sample_counts" else dist.sample_positions(n, seed)
@@ -700,6 +713,27 @@ def hostile_tracks(draw: Draw) -> Any:
             f"{col}.values",
         )
     return df
+
+
+def frames_constructor_case(draw: Draw, ctx: Context) -> Any:
+    """``dpgp.Frames(ids, offsets, xy, v)`` itself (as a user's code or a model file calls it),
+    maybe with a NaN or inf among the positions or velocities (issue 36: it was accepted, and
+    every score of that frame was NaN), then scored by the shared model."""
+    frame, x, y, vx, vy = tiny_frames_arrays(draw)
+    xy = _astype(np.column_stack([x, y]), float)
+    v = _astype(np.column_stack([vx, vy]), float)
+    if draw.boolean("non_finite", 0.6) and xy.dtype.kind == "f" and v.dtype.kind == "f":
+        target = xy if draw.boolean("in_xy") else v
+        target[draw.index(len(target)), draw.index(2)] = draw.choice([NAN, INF, -INF], "value")
+    sizes = np.bincount(frame)
+    frames = dpgp.Frames(np.arange(len(sizes)), np.r_[0, np.cumsum(sizes)], xy, v)
+    model, _ = ctx.model
+    use = draw.choice(["none", "score", "score_velocities", "proba"], "then")
+    if use == "none":
+        return frames
+    if use == "proba":
+        return model.predict_proba(frames)
+    return model.score_samples(frames, positions=use == "score")
 
 
 def case_framing(draw: Draw, ctx: Context, d: Path) -> Any:
@@ -879,6 +913,8 @@ META_PATHS = [
     ("distributions", "roi"),
     ("distributions", "version"),
     ("distributions", "pseudocount"),
+    ("distributions", "count_pseudocount"),
+    ("distributions", "position_pseudocount"),
     ("timings",),
     ("converged",),
     ("resume",),
@@ -929,7 +965,7 @@ def damaged_model_file(draw: Draw, ctx: Context, d: Path) -> Path:
     base = ctx.checkpoint if draw.boolean("checkpoint", 0.3) else ctx.model[1]
     path = d / draw.choice(["model.npz", "model", "model.npy"], "name")
     how = draw.choice(
-        ["truncate", "flip", "metadata", "metadata", "member", "member", "shape", "huge", "foreign"], "damage"
+        ["truncate", "flip", "metadata", "metadata", "member", "member", "shape", "huge", "foreign", "shift"], "damage"
     )
     data = base
     if how == "truncate":
@@ -952,6 +988,15 @@ def damaged_model_file(draw: Draw, ctx: Context, d: Path) -> Path:
                 raw = io.BytesIO()
                 np.save(raw, v, allow_pickle=False)
                 z.writestr(k + ".npy", _npy_header(descr, shape) if k == name else raw.getvalue())
+        data = buf.getvalue()
+    elif how == "shift":
+        # the stored frames moved by up to a few bins of ψ (issue 36: their own scores were -inf)
+        arrays = _npz_members(base)
+        arrays["frame_xy"] = arrays["frame_xy"] + np.array(
+            [draw.uniform(-15.0, 15.0, "dx"), draw.uniform(-15.0, 15.0, "dy")]
+        )
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
         data = buf.getvalue()
     elif how in ("metadata", "member", "shape"):
         arrays = _npz_members(base)
@@ -1108,16 +1153,16 @@ def case_model_files(draw: Draw, ctx: Context, d: Path) -> Any:
     frames = model.frames_[:1]
     if use == "proba":
         return model, model.predict_proba(frames)
-    if use == "score":  # a documented log density: -inf where ψ has no mass (a position outside its ROI)
-        return (model, model.score_samples(frames)), True
+    if use == "score":
+        return model, model.score_samples(frames)
     if use == "field":
         return model, model.velocity_field(0, frames.xy)
     if use == "simulate":
         return model, model.simulate(0, steps=3)
     if use == "scenarios":
         return model, model.sample_scenarios(2, steps=3, seed=0)
-    if use == "cond":  # -inf: frame 0's own pattern when it holds only frame 0 (as in model_use)
-        return (model, model.conditional_log_probs(0)), True
+    if use == "cond":  # masked: frame 0's own pattern when it holds only frame 0 (as in model_use)
+        return model, model.conditional_log_probs(0)
     if use == "save_readonly":
         with readonly_target(draw, d) as target:
             model.save(as_drawn_path(draw, target))
@@ -1180,9 +1225,13 @@ def case_model_use(draw: Draw, ctx: Context, d: Path) -> Any:
         "method",
     )
     if op in ("predict", "predict_proba", "score_samples"):
-        frames = draw.choice(["train", "arrays", "df", "none", "list", "str"], "frames")
+        frames = draw.choice(["train", "arrays", "df", "none", "list", "str", "shifted"], "frames")
         if frames == "train":
             arg = model.frames_
+        elif frames == "shifted":  # the training frames moved by up to a few bins of ψ, past its edge
+            shift = np.array([draw.uniform(-15.0, 15.0, "dx"), draw.uniform(-15.0, 15.0, "dy")])
+            f = model.frames_
+            arg = dpgp.Frames(f.ids, f.offsets, f.xy + shift, f.v)
         elif frames in ("arrays", "df"):
             f, x, y, vx, vy = tiny_frames_arrays(draw)
             arg = dpgp.Frames.from_arrays(f, x, y, vx, vy)
@@ -1190,8 +1239,7 @@ def case_model_use(draw: Draw, ctx: Context, d: Path) -> Any:
                 arg = arg.to_pandas()
         else:
             arg = {"none": None, "list": [[0, 1, 2, 3, 4]], "str": "frames.csv"}[frames]
-        result = getattr(model, op)(arg)
-        return result, op == "score_samples"
+        return getattr(model, op)(arg)
     if op == "velocity_field":
         k = draw.maybe(
             [0, model.n_patterns_ - 1], [-1, model.n_patterns_, 0.0, None, "0", 2**64, True, np.int64(0), 1.5], "k"
@@ -1215,7 +1263,7 @@ def case_model_use(draw: Draw, ctx: Context, d: Path) -> Any:
         )
         return model.velocity_field(k, xy)
     if op == "conditional_log_probs":
-        return model.conditional_log_probs(draw.maybe([0, 3], [-1, 12, None, 1.5, "0", 2**64], "i")), True
+        return model.conditional_log_probs(draw.maybe([0, 3], [-1, 12, None, 1.5, "0", 2**64], "i"))
     steps = draw.maybe([0, 1, 5], [-1, 1.5, None, "3", 2**63, Unsafe(2 * 10**8), Unsafe(10**7)], "steps")
     dt = draw.maybe([None, 0.1, 1.0], [0, -1, NAN, INF, 1e300, 1e-300, "x", 2**1000], "dt")
     method = draw.maybe(["euler", "rk4"], ["RK4", None, 4], "method")

@@ -453,3 +453,149 @@ def test_huge_scenario_count_is_refused_quickly():  # ran for minutes and gigaby
     except subprocess.TimeoutExpired:
         pytest.fail("sample_scenarios(10**8) ran for more than 15 s")
     assert r.returncode == 0 and "typed" in r.stdout, r.stderr[-500:]
+
+
+# --- issue 36: no silent -inf or NaN from a scoring call. Each of the three classes the fuzz
+# met (26 of about 13,700 cases on 9affbf8), as the smallest reproducer; each failed there.
+
+
+def test_frames_refuse_a_nan_velocity_naming_the_frame_and_vehicle(tiny):
+    """Class 1: ``Frames`` built directly with a NaN velocity was accepted, and ``score_samples``
+    and ``predict_proba`` gave NaN for its frame."""
+    xy = np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]])
+    v = np.array([[1.0, 0.0], [1.0, 0.0], [1.0, np.nan]])
+    with pytest.raises(dpgp.InvalidInputError, match=r"frame 1 \(id 7\), vehicle 1: the velocity \(1.0, nan\)"):
+        dpgp.Frames(np.array([3, 7]), np.array([0, 1, 3]), xy, v)
+    with pytest.raises(dpgp.InvalidInputError, match=r"frame 0 \(id 3\), vehicle 0: the position \(inf, 0.0\)"):
+        dpgp.Frames(np.array([3, 7]), np.array([0, 1, 3]), xy + [[np.inf, 0.0], [0, 0], [0, 0]], np.ones((3, 2)))
+    model = tiny[0]
+    ok = dpgp.Frames(np.array([3, 7]), np.array([0, 1, 3]), xy, np.ones((3, 2)))
+    assert np.isfinite(model.score_samples(ok)).all() and np.isfinite(model.predict_proba(ok)).all()
+
+
+def _write(tmp_path, name, text):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize(
+    "read",
+    [
+        pytest.param(
+            lambda p: dpgp.read_frames(_write(p, "f.csv", "frame,x,y,vx,vy\n0,1,2,nan,0\n")), id="read_frames"
+        ),
+        pytest.param(lambda p: dpgp.read(_write(p, "f.csv", "frame,x,y,vx,vy\n0,1,2,3,0\n1,inf,2,3,0\n")), id="read"),
+        pytest.param(
+            lambda p: dpgp.read_tracks(_write(p, "t.csv", "track,t,x,y\n0,0,1,2\n0,1,nan,2\n")), id="read_tracks"
+        ),
+        pytest.param(
+            lambda p: dpgp.read_ngsim(
+                _write(p, "n.csv", "Vehicle_ID,Frame_ID,Total_Frames,Local_X,Local_Y\n1,1,2,3,nan\n1,2,2,3,4\n")
+            ),
+            id="read_ngsim",
+        ),
+        pytest.param(
+            lambda p: dpgp.read_tracks(
+                _write(
+                    p,
+                    "f.xml",
+                    '<fcd-export><timestep time="0"><vehicle id="a" x="1" y="nan" angle="0" '
+                    'speed="1"/></timestep></fcd-export>',
+                )  # fmt: skip
+            ),
+            id="read_tracks-sumo",
+        ),
+        pytest.param(
+            lambda p: dpgp.make_frames(
+                dpgp.read_tracks(_write(p, "t.csv", "track,t,x,y,vx,vy\n0,0,1,2,1,nan\n0,1,2,2,1,0\n"))
+            ),
+            id="make_frames-via-read_tracks",
+        ),
+        pytest.param(
+            lambda p: dpgp.make_frames(
+                __import__("pandas").DataFrame(
+                    {
+                        "track": [0, 0],
+                        "t": [0.0, 1.0],
+                        "x": [1.0, 2.0],
+                        "y": [2.0, 2.0],
+                        "vx": [1.0, np.inf],
+                        "vy": [0.0, 0.0],
+                    }
+                )  # fmt: skip
+            ),
+            id="make_frames",
+        ),
+        pytest.param(
+            lambda p: dpgp.Frames.from_arrays([0, 1], [1.0, 2], [1.0, 2], [1.0, 2], [0.0, np.nan]), id="from_arrays"
+        ),
+    ],
+)
+def test_every_entry_point_refuses_non_finite_values(tmp_path, read):
+    """Every reader, ``make_frames`` and ``Frames`` agree: a NaN or inf position or velocity is
+    refused with a typed error saying where (none drops it silently; docs/guide/data.md)."""
+    with pytest.raises(dpgp.InvalidInputError, match="row|vehicle"):
+        read(tmp_path)
+
+
+def test_a_frame_beyond_the_training_data_scores_finitely(tiny, tmp_path):
+    """Class 2: a vehicle half a bin of ψ beyond the training data, a vehicle count never seen,
+    and a model file whose stored frames were shifted slightly all scored -inf (the paper's
+    unsmoothed φ and ψ); now the smoothed φ̃, ψ̃ give them a finite score."""
+    model, path = tiny
+    d = dpgp.generate.scenarios.distributions(model)
+    x0, x1, y0, y1 = d.roi
+    first = model.frames_[0]
+    beyond = first.xy.copy()
+    beyond[0, 0] = x1 + 0.5 * (x1 - x0) / d.bins[0]
+    crowd = np.tile(first.xy, (d.max_count, 1))[: d.max_count + 1] + 0.01  # one vehicle more than any frame
+    frames = dpgp.Frames(
+        np.array([0, 1]), np.array([0, len(beyond), len(beyond) + len(crowd)]),
+        np.vstack([beyond, crowd]), np.vstack([first.v, np.resize(first.v, (len(crowd), 2))]),
+    )  # fmt: skip
+    assert np.isfinite(model.score_samples(frames)).all()
+
+    def shift(arrays):  # the training frames' rightmost vehicles now stand past ψ's ROI
+        arrays["frame_xy"] = arrays["frame_xy"] + [0.3 * (x1 - x0) / d.bins[0], 0.0]
+
+    shifted = dpgp.DPGP.load(_rewrite(path, tmp_path / "shifted.npz", shift))
+    assert np.isfinite(shifted.score_samples(shifted.frames_)).all()
+
+
+def test_conditional_log_probs_mask_what_is_impossible():
+    """Class 3: ``conditional_log_probs(i)`` of a frame alone in its pattern held -inf for that
+    pattern (prior weight n_k = 0 without the frame), unmarked: its sum was -inf. Now a masked
+    array: the entry is masked, the rest sums and exponentiates as it should."""
+    frames = dpgp.datasets.synthetic("intersection", n_frames=30, seed=0, vehicles=(2, 5))
+    model = dpgp.DPGP(iterations=2, seed=0, progress=False).fit(frames)
+    sizes = np.bincount(model.labels_)
+    alone = np.flatnonzero(sizes[model.labels_] == 1)
+    assert len(alone), "the fit has no frame alone in its pattern: the reproducer needs one"
+    i = int(alone[0])
+    own = int(model.labels_[i])
+    lp = model.conditional_log_probs(i)
+    assert isinstance(lp, np.ma.MaskedArray)
+    assert np.flatnonzero(np.ma.getmaskarray(lp)).tolist() == [own]
+    assert np.isfinite(lp.sum()) and np.exp(lp).sum() == pytest.approx(1.0)
+    assert lp.filled()[own] == -np.inf and lp.argmax() != own
+    assert not np.ma.getmaskarray(model.conditional_log_probs(int(np.argmax(sizes[model.labels_])))).any()
+    ll = model.training_log_likelihoods()
+    assert isinstance(ll, np.ma.MaskedArray)
+    assert np.array_equal(np.argwhere(np.ma.getmaskarray(ll)), np.c_[alone, model.labels_[alone]])
+    assert np.isfinite(ll.sum())
+
+
+def test_a_stored_pseudocount_past_its_limit_is_refused(tiny, tmp_path):
+    """Found by the issue-36 fuzz run (model_files:2011, seed 0): a model file's count
+    pseudo-count of 1e308 overflowed φ̃'s total, and score_samples gave -inf."""
+    import json
+
+    def edit(arrays):
+        meta = json.loads(str(arrays["metadata"]))
+        meta["distributions"]["count_pseudocount"] = 1e308
+        arrays["metadata"] = np.array(json.dumps(meta))
+
+    path = _rewrite(tiny[1], tmp_path / "pc.npz", edit)
+    with pytest.raises(dpgp.ModelFileError, match="pseudocount must be a number from 0 to 1e\\+100"):
+        dpgp.DPGP.load(path)

@@ -39,7 +39,9 @@ def test_to_pandas_round_trip():
 def test_from_arrays_errors():
     with pytest.raises(dpgp.ShapeError, match="x has 2 rows but frame has 3"):
         dpgp.Frames.from_arrays([0, 0, 1], [1, 2], [1, 2, 3], [1, 2, 3], [1, 2, 3])
-    with pytest.raises(dpgp.InvalidInputError, match="vx contains 1 non-finite"):
+    with pytest.raises(
+        dpgp.InvalidInputError, match=r"vx holds 1 NaN or infinite value\(s\), first at row 0 \(a vehicle of frame 0\)"
+    ):
         dpgp.Frames.from_arrays([0, 1], [1, 2], [1, 2], [np.nan, 2], [1, 2])
     with pytest.raises(dpgp.ShapeError, match="no rows"):
         dpgp.Frames.from_arrays([], [], [], [], [])

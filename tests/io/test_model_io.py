@@ -16,6 +16,7 @@ import dpgp
 from dpgp.data.framing import FramingSummary
 from dpgp.io import modelfile as mio
 
+from distributions_oracle import smoothed_oracle
 from model_files import _rewrite, _rewrite_metadata
 
 
@@ -123,6 +124,37 @@ def test_files_with_one_noise_variance_load_as_a_pair(fitted, tmp_path):
     old = dpgp.DPGP.load(tmp_path / "old.npz")
     assert old.noise_var_ == (0.7, 0.7) and old.params_.noise_var == (0.7, 0.7)
     assert np.all(np.isfinite(old.score_samples(model.frames_[:5])))
+
+
+def test_smoothing_is_stored_and_files_before_it_load_flagged(fitted, tmp_path):
+    """The pseudo-counts set from the training frames are in the file and come back; a file
+    written before them (no pseudo-counts: the paper's unsmoothed φ, ψ) loads with that form
+    flagged, says so in its summary, and scores held-out frames smoothed by ½ as it did then."""
+    model, path = fitted
+    mine = dpgp.generate.scenarios.distributions(model)
+    stored = mio.read_metadata(path)["distributions"]
+    assert (stored["count_pseudocount"], stored["position_pseudocount"]) == mine.pseudocount
+    assert (
+        not mine.is_paper_form
+        and dpgp.generate.scenarios.distributions(dpgp.DPGP.load(path)).pseudocount == mine.pseudocount
+    )
+
+    def before_issue_36(meta):
+        d = meta["distributions"]
+        d.pop("count_pseudocount"), d.pop("position_pseudocount")
+        d["pseudocount"] = 0.0
+
+    _rewrite_metadata(path, tmp_path / "old.npz", before_issue_36)
+    old = dpgp.DPGP.load(tmp_path / "old.npz")
+    d = dpgp.generate.scenarios.distributions(old)
+    assert d.is_paper_form and "the paper's unsmoothed form" in old.summary()
+    frames = dpgp.datasets.synthetic("intersection", n_frames=10, seed=99)
+    frames = dpgp.Frames(frames.ids, frames.offsets, frames.xy * 1.2, frames.v)  # some beyond the ROI
+    log_phi, log_psi = smoothed_oracle(model.frames_.sizes, model.frames_.xy, d.roi, d.bins, 0.5, 0.5)
+    want = [log_phi(len(f)) + sum(log_psi(x, y) for x, y in f.xy) for f in frames]
+    got = old.score_samples(frames) - old.score_samples(frames, positions=False)
+    np.testing.assert_allclose(got, want, rtol=1e-9)
+    assert np.isfinite(got).all()
 
 
 def test_truncated_files_are_refused(fitted, tmp_path):

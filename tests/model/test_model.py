@@ -9,6 +9,7 @@ from scipy.special import logsumexp
 import dpgp
 from dpgp import GPParams
 
+from distributions_oracle import smoothed_oracle
 from gp_oracle import log_marginal_likelihood as ref_lml
 from gp_oracle import log_predictive as ref_pred
 
@@ -49,23 +50,37 @@ def test_predict_proba_and_score_samples_match_the_formulas(fitted):
     velocity_part = logsumexp(terms, axis=1)
     np.testing.assert_allclose(model.score_samples(test, positions=False), velocity_part, rtol=1e-9)
     full = model.score_samples(test)
+    np.testing.assert_allclose(full - velocity_part, positions_oracle(model, train, test), rtol=1e-9)
+
+
+def positions_oracle(model, train, frames):
+    """log φ̃(l) + Σ log ψ̃ of each frame, from the formulas, with the model's pseudo-counts over
+    the training frames' bounding box on the model's 20 x 20 grid."""
     d = dpgp.generate.scenarios.distributions(model)
-    np.testing.assert_allclose(full - velocity_part, [d.held_out_log_density(f.xy) for f in test], rtol=1e-9)
+    assert d.roi == train.bounds() and d.bins == (20, 20)
+    log_phi, log_psi = smoothed_oracle(train.sizes, train.xy, train.bounds(), (20, 20), *d.pseudocount)
+    return [log_phi(len(f)) + sum(log_psi(x, y) for x, y in f.xy) for f in frames]
 
 
-def test_score_samples_is_finite_for_a_count_never_seen(fitted):
-    """A held-out frame with more vehicles than any training frame (φ = 0 unsmoothed) scores
-    finitely, and its positions term is the smoothed φ̃ and ψ̃ of the training frames."""
+def test_score_samples_is_finite_for_a_count_or_position_never_seen(fitted):
+    """A held-out frame with more vehicles than any training frame, or a vehicle half a bin
+    beyond the training ROI, scores finitely (the paper's φ, ψ give it 0): its positions term is
+    the smoothed φ̃ and ψ̃ of the training frames."""
     model, train, _ = fitted
     crowd = train[int(np.argmax(train.sizes))]
-    xy = np.vstack([crowd.xy, crowd.xy[:2] + 0.25])
-    v = np.vstack([crowd.v, crowd.v[:2]])
+    x0, x1, _, _ = train.bounds()
+    beyond = np.array([[x1 + 0.5 * (x1 - x0) / 20, crowd.xy[0, 1]]])
+    xy = np.vstack([crowd.xy, crowd.xy[:2] + 0.25, beyond])
+    v = np.vstack([crowd.v, crowd.v[:3]])
     frame = dpgp.Frames.from_arrays(np.zeros(len(xy)), xy[:, 0], xy[:, 1], v[:, 0], v[:, 1])
     d = dpgp.generate.scenarios.distributions(model)
-    assert len(xy) > d.max_count and d.log_frame_density(xy) == -np.inf
+    paper = dpgp.EmpiricalDistributions(d.count_hist, d.position_hist, d.roi, pseudocount=0)
+    assert len(xy) > d.max_count and paper.log_frame_density(xy) == -np.inf
     got = model.score_samples(frame)[0]
     assert np.isfinite(got)
-    assert got - model.score_samples(frame, positions=False)[0] == pytest.approx(d.held_out_log_density(xy))
+    assert got - model.score_samples(frame, positions=False)[0] == pytest.approx(
+        positions_oracle(model, train, frame)[0]
+    )
 
 
 def test_velocity_field_matches_the_gp_posterior(fitted):

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 
-from .._arrays import as_path, as_vector, check_finite, column_floats, is_path
+from .._arrays import as_path, as_vector, column_floats, is_path
 from .._validate import check_roi, inside_roi
 from ..exceptions import DataFormatError, InvalidInputError, ShapeError
 
@@ -59,7 +59,9 @@ class Frames:
     new :class:`Frames`. ``labels`` holds per-frame ground-truth pattern labels when known
     (synthetic data), else ``None``. ``tracks`` holds per row the vehicle's track id (int64;
     :func:`dpgp.make_frames` keeps it, so that a vehicle can be followed from frame to frame and
-    temporal statistics learned), else ``None`` (frames read without ids).
+    temporal statistics learned), else ``None`` (frames read without ids). Positions and
+    velocities must be finite: a NaN or inf is an :class:`~dpgp.InvalidInputError` naming the
+    frame and the vehicle (its row inside the frame), never a frame that scores NaN.
     """
 
     # summary: what dpgp.make_frames left out and why (a dpgp.FramingSummary), else None
@@ -98,6 +100,7 @@ class Frames:
         self.offsets = offsets
         self.xy = np.ascontiguousarray(xy, dtype=np.float64)
         self.v = np.ascontiguousarray(v, dtype=np.float64)
+        _check_finite_rows(self.ids, offsets, self.xy, self.v)
         self.labels = None if labels is None else np.asarray(labels)
         self.tracks = None if tracks is None else _track_ids(tracks, len(self.xy))
         self.summary: Any = None  # a dpgp.FramingSummary
@@ -126,7 +129,14 @@ class Frames:
         for name, col in cols.items():
             if len(col) != len(frame):
                 raise ShapeError(f"{name} has {len(col)} rows but frame has {len(frame)}; they must match")
-            check_finite(name, col)
+            bad = ~np.isfinite(col)
+            if bad.any():  # named by the caller's row and frame id, before the rows are grouped
+                i = int(np.flatnonzero(bad)[0])
+                ident = frame[i].item() if isinstance(frame[i], np.generic) else frame[i]
+                raise InvalidInputError(
+                    f"{name} holds {int(bad.sum())} NaN or infinite value(s), first at row {i} (a vehicle of "
+                    f"frame {ident!r}); drop or impute them first"
+                )
         if len(frame) == 0:
             raise ShapeError("no rows: a Frames needs at least one vehicle observation")
         if frame.dtype.kind == "f" and np.isnan(frame).any():
@@ -264,6 +274,23 @@ class Frames:
         if self.tracks is not None:
             df["track"] = self.tracks
         return df
+
+
+def _check_finite_rows(ids: np.ndarray, offsets: np.ndarray, xy: np.ndarray, v: np.ndarray) -> None:
+    """Refuse a NaN or infinite position or velocity, naming the first frame and vehicle that
+    holds one: every score of that frame would be NaN."""
+    bad = ~(np.isfinite(xy).all(axis=1) & np.isfinite(v).all(axis=1))
+    if not bad.any():
+        return
+    row = int(np.flatnonzero(bad)[0])
+    k = int(np.searchsorted(offsets, row, side="right") - 1)
+    what = "position" if not np.isfinite(xy[row]).all() else "velocity"
+    value = tuple(float(a) for a in (xy[row] if what == "position" else v[row]))
+    ident = ids[k].item() if isinstance(ids[k], np.generic) else ids[k]
+    raise InvalidInputError(
+        f"frame {k} (id {ident!r}), vehicle {row - int(offsets[k])}: the {what} {value} is not finite; "
+        f"{int(bad.sum())} vehicle observation(s) hold NaN or inf in all. Drop or impute them first"
+    )
 
 
 def _track_ids(tracks: object, n: int) -> np.ndarray:

@@ -524,7 +524,8 @@ def fit_phases(
     duration a log-normal up to ``max_duration`` seconds, instead of the HMM's geometric one (a
     fixed-time signal's phases last about one duration; a geometric one breaks them up); slower,
     O(frames × max_duration / dt) per EM step. ``evidence`` (frames, K): each frame's log-likelihood
-    under every pattern (``-inf`` where none); the phases are then fitted to what each frame says
+    under every pattern (``-inf``, or masked as :meth:`dpgp.DPGP.training_log_likelihoods` gives
+    it, where none); the phases are then fitted to what each frame says
     about every pattern, not only to its label (a frame that two patterns explain about equally
     well counts for both), and ``log_likelihood`` is that of the frames' velocities.
     ``cycle``: the phases follow one another in a fixed order, 0 → 1 → … → P−1 → 0 (the stages
@@ -555,7 +556,7 @@ def fit_phases(
     obs: list[_Observed] = [_Labels(z) for z in seqs]
     shift = 0.0
     if evidence is not None:
-        ev = np.asarray(evidence, dtype=np.float64)
+        ev = np.asarray(np.ma.filled(evidence, -np.inf), dtype=np.float64)  # masked: the pattern cannot have it
         if ev.ndim != 2 or len(ev) != len(labels) or ev.shape[1] < k or np.isnan(ev).any() or np.isposinf(ev).any():
             raise InvalidInputError(
                 f"evidence must be a ({len(labels)}, >= {k}) array of log-likelihoods, one row per frame "

@@ -185,9 +185,9 @@ class Scenarios:
 
 
 def distributions(model: Any, bins: Any = DEFAULT_BINS) -> EmpiricalDistributions:
-    """φ and ψ of the training frames over the training ROI (``model`` a
-    :class:`~dpgp.fitted.FittedPatterns` or a fitted estimator; kept in its cache, and in the
-    model file, so that generation does not recompute them)."""
+    """φ and ψ of the training frames over the training ROI, with the smoothing pseudo-counts
+    set from them (``model`` a :class:`~dpgp.fitted.FittedPatterns` or a fitted estimator; kept
+    in its cache, and in the model file, so that neither is recomputed)."""
     fit = as_fitted(model)
     cached = fit.cache.get("distributions")
     if cached is not None and cached[0] is fit.frames and (bins is None or cached[1].bins == _pair(bins)):
@@ -220,7 +220,8 @@ def pattern_positions(model: Any, k: int, psi: EmpiricalDistributions) -> Empiri
     if rows.sum() < MIN_OWN_POSITIONS:
         return psi
     frames = fit.frames[np.flatnonzero(fit.labels == k)]
-    return EmpiricalDistributions.from_frames(frames, roi=psi.roi, bins=psi.bins)
+    # only drawn from: the recorded form, no smoothing to set
+    return EmpiricalDistributions.from_frames(frames, roi=psi.roi, bins=psi.bins, pseudocount=0.0)
 
 
 def sample_scenarios(

@@ -35,7 +35,10 @@ readers that know nothing of them read the model as before, so they need no new 
 ``settings`` (``DPGP.get_params()``), ``params`` (the global GP parameters), ``alpha``,
 ``history`` (per-sweep lists), ``n_iter``, ``converged``, ``init_seconds``, ``timings``,
 ``log_joint``, ``frames_summary`` (what ``make_frames`` did, with ``dt`` and ``roi``, or null)
-and ``distributions`` (φ and ψ, ``EmpiricalDistributions.to_dict`` as lists); a model made by
+and ``distributions`` (φ and ψ, ``EmpiricalDistributions.to_dict`` as lists, with the
+pseudo-counts the scores smooth them by: ``count_pseudocount`` and ``position_pseudocount``,
+keys that files before issue 36 lack, which then load as the paper's unsmoothed form, flagged by
+``EmpiricalDistributions.is_paper_form``, and that older readers ignore); a model made by
 ``dpgp.Chains.best_model`` adds ``chain_summary`` (R̂, ESS, burn-in, the stopping verdict and the
 point estimate's expected loss; ``Chains.summary_dict``). From version 2, ``resolved`` holds the
 assignment, σ_n² and length-scale prior the fit ran with after ``"auto"`` and ``preset`` were
@@ -340,6 +343,7 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
 
     settings = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["settings"].items()}
     _check_counts(arrays)
+    _check_finite(arrays)
     labels_file = arrays.get("frame_labels")
     frames = Frames(
         arrays["frame_ids"],
@@ -439,12 +443,20 @@ def _check_counts(arrays: dict[str, np.ndarray]) -> None:
         raise ModelFileError(f"member 'label_trace' has {arrays['label_trace'].size} entries; the file is corrupted")
 
 
-def _check_numbers(frames: Any, length_scales: np.ndarray, alpha: Any) -> None:
-    """The numbers a fit would have refused (NaN, inf, magnitudes past 1e100, α or length
-    scales <= 0) mean a damaged file: refuse them here rather than load a model that gives NaN."""
-    for name, a in (("frame_v", frames.v), ("frame_xy", frames.xy)):
-        if not np.isfinite(a).all():
+def _check_finite(arrays: dict[str, np.ndarray]) -> None:
+    """NaN or inf among the stored positions or velocities means a damaged file (a fit refuses
+    them): say so before :class:`~dpgp.Frames` refuses them as bad input."""
+    for name in ("frame_v", "frame_xy"):
+        a = arrays[name]
+        if a.dtype.kind == "f" and not np.isfinite(a).all():
             raise ModelFileError(f"{name} holds NaN or inf; the file is corrupted")
+
+
+def _check_numbers(frames: Any, length_scales: np.ndarray, alpha: Any) -> None:
+    """The numbers a fit would have refused (magnitudes past 1e100, α or length scales <= 0;
+    NaN and inf: :func:`_check_finite`) mean a damaged file: refuse them here rather than load
+    a model that gives NaN."""
+    for name, a in (("frame_v", frames.v), ("frame_xy", frames.xy)):
         with np.errstate(over="ignore", invalid="ignore"):  # a mean of 1e308s overflows: also too large
             size = float(np.max(np.abs(a - a.mean(axis=0)) if name == "frame_xy" else np.abs(a))) if len(a) else 0.0
         if not size <= _MAX_MAGNITUDE:

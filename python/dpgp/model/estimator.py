@@ -823,14 +823,18 @@ class DPGP:
             return self.phases(phases)
         return self.phases(int(phases)) if isinstance(phases, (int, np.integer)) else phases
 
-    def training_log_likelihoods(self) -> np.ndarray:
+    def training_log_likelihoods(self) -> np.ma.MaskedArray:
         """(N, K): ``log p(V_i | X_i, D_k)`` of each training frame's velocities under each pattern
         (``labels_`` order), its own pattern's without the frame (the sweep's leave-one-out
-        score; ``-inf`` for a frame alone in its pattern). No prior weights: what each frame
-        says about each pattern."""
+        score). No prior weights: what each frame says about each pattern.
+
+        A numpy masked array: an entry is masked where there is no likelihood to give, a frame
+        alone in its pattern (without the frame the pattern holds no data). Sums, maxima and
+        ``np.exp`` skip masked entries; ``.filled()`` gives -inf there (a pattern that cannot
+        have the frame), ``.mask`` says where."""
         self._check_fitted()
         rows = np.asarray(self._sampler.training_log_likelihoods(), dtype=np.float64)
-        return rows.reshape(len(self.labels_), -1)[:, self._slot_order]
+        return _masked_where_impossible(rows.reshape(len(self.labels_), -1)[:, self._slot_order])
 
     def _log_joint_terms(self, frames: Frames) -> np.ndarray:
         """(N, K+1): log [prior weight × likelihood] of each pattern, then of a new pattern."""
@@ -878,11 +882,13 @@ class DPGP:
 
     def score_samples(self, frames: Frames | Any, positions: bool = True, average: bool = False) -> np.ndarray:
         """log p(frame | model) per frame, the paper's frame likelihood under the fitted mixture:
-        ``log φ(l) + Σ_j log ψ(x_j, y_j) + log Σ_k π_k p(V | X, D_k)`` with π the DP's predictive
-        weights (a new pattern included). φ and ψ are smoothed so that a frame with a count or
-        a position bin never seen in training scores finitely
-        (:meth:`~dpgp.EmpiricalDistributions.held_out_log_density`; -inf only outside the ROI).
-        ``positions=False`` leaves out the φ and ψ terms (the density of the velocities given
+        ``log φ̃(l) + Σ_j log ψ̃(x_j, y_j) + log Σ_k π_k p(V | X, D_k)`` with π the DP's predictive
+        weights (a new pattern included). φ̃ and ψ̃ are the paper's φ and ψ smoothed by
+        pseudo-counts set from the training frames (:class:`~dpgp.EmpiricalDistributions`,
+        :meth:`~dpgp.EmpiricalDistributions.for_scoring`), so every frame scores finitely: one
+        with a count or a position bin never seen in training, and one with a vehicle outside
+        the training ROI (a documented penalty that grows with the distance).
+        ``positions=False`` leaves out the φ̃ and ψ̃ terms (the density of the velocities given
         the positions). ``average=True``: the posterior
         predictive, the mixture density averaged over the kept posterior draws after burn-in and
         the final state (:mod:`dpgp.posterior`); ``False``: the final state only."""
@@ -896,8 +902,7 @@ class DPGP:
         if positions:
             from ..generate.scenarios import distributions
 
-            d = distributions(self._fitted())
-            out = out + np.array([d.held_out_log_density(f.xy) for f in frames])
+            out = out + distributions(self._fitted()).for_scoring().log_frame_densities(frames)
         return out
 
     def velocity_field(self, k: int, xy: object) -> tuple[np.ndarray, np.ndarray]:
@@ -911,14 +916,22 @@ class DPGP:
             )
         return self._sampler.posterior(int(self._slots[k]), as_pairs("xy", xy))
 
-    def conditional_log_probs(self, i: int) -> np.ndarray:
+    def conditional_log_probs(self, i: int) -> np.ma.MaskedArray:
         """Normalised log conditional of training frame ``i`` given every other frame's pattern:
-        (K+1,), patterns in ``labels_`` order (its own scored without it) and then "new"."""
+        (K+1,), patterns in ``labels_`` order (its own scored without it) and then "new".
+
+        A numpy masked array: an entry is masked where the conditional probability is exactly
+        zero, because the pattern's prior weight is: the frame's own pattern when the frame is
+        alone in it (without it the pattern is empty, ``n_k = 0``), and under
+        ``dynamics="sticky"`` a pattern that neither a link to a neighbour nor a fresh draw can
+        reach. ``np.exp(lp)`` then sums to 1 over the entries left, and ``lp.max()``,
+        ``lp.argmax()`` and ``lp.sum()`` skip the masked ones; ``.filled()`` gives -inf there
+        (log 0, the exact answer), ``.mask`` says where."""
         self._check_fitted()
         if not (_is_int(i) and 0 <= i < len(self.labels_)):
             raise InvalidInputError(f"frame {i!r} is not a training frame index (0..{len(self.labels_) - 1})")
         lp = np.asarray(self._sampler.conditional_log_probs(int(i)))
-        return np.r_[lp[:-1][self._slot_order], lp[-1]]
+        return _masked_where_impossible(np.r_[lp[:-1][self._slot_order], lp[-1]])
 
     # --- simulation, scenarios and model files (dpgp/simulation.py, scenarios.py, io.py) ----------
     def simulate(
@@ -1215,6 +1228,12 @@ def _sticky_prior(frames: Frames) -> tuple[list[int], tuple[float, float], None]
     except UnorderedFramesError as e:
         raise UnorderedFramesError(f"dynamics='sticky' needs frames in time order: {e}") from None
     return np.asarray(prev, dtype=np.int64).tolist(), STICKINESS_PRIOR, None
+
+
+def _masked_where_impossible(log_values: np.ndarray) -> np.ma.MaskedArray:
+    """``log_values`` with its -inf entries (probability exactly 0) masked; ``.filled()`` gives
+    them back as -inf."""
+    return np.ma.masked_array(log_values, mask=np.isneginf(log_values), fill_value=-np.inf)
 
 
 def _is_int(x: object) -> bool:

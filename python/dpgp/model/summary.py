@@ -41,6 +41,7 @@ def summary(model: Any, top: int = 10) -> str:
         f"GP: signal variance ({p.signal_var[0]:.4g}, {p.signal_var[1]:.4g}), noise variance ({p.noise_var[0]:.4g}, {p.noise_var[1]:.4g}), "
         f"mean ({p.mean[0]:.4g}, {p.mean[1]:.4g})"
     )
+    lines.append(_count_and_position_line(model))
     r = model.defaults_
     a, b = r.length_scale_prior
     if r.noise_var_source == "per_pattern":
@@ -61,6 +62,21 @@ def summary(model: Any, top: int = 10) -> str:
     settings = {k: v for k, v in model.get_params().items() if k not in ("progress",)}
     lines.append("settings: " + ", ".join(f"{k}={v!r}" for k, v in settings.items()))
     return "\n".join(lines)
+
+
+def _count_and_position_line(model: Any) -> str:
+    """How the scores smooth φ and ψ: the pseudo-counts, or the flag of the paper's form."""
+    from ..generate.distributions import HELD_OUT_PSEUDOCOUNT
+    from ..generate.scenarios import distributions
+
+    d = distributions(model)
+    grid = f"{d.bins[0]}x{d.bins[1]} bins"
+    if d.is_paper_form:
+        return (
+            f"φ, ψ: the paper's unsmoothed form ({grid}; a model file from before their smoothing), "
+            f"scored smoothed by a pseudo-count of {HELD_OUT_PSEUDOCOUNT:g}"
+        )
+    return f"φ, ψ: smoothed by pseudo-counts {d.count_pseudocount:.3g} (counts), {d.position_pseudocount:.3g} ({grid})"
 
 
 def _per_pattern(model: Any) -> bool:
