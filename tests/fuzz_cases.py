@@ -815,6 +815,8 @@ SETTINGS = {
     "store_labels": ([False, True], ["x", None]),
     "preset": ([None, "paper"], ["PAPER", 3, ""]),
     "proposal": (["informed", "full"], ["gibbs", None]),
+    "sampler": (["auto", "subcluster", "collapsed"], ["gibbs", None, 3, "SUBCLUSTER"]),
+    "init": (["sequential", "one", "many"], ["dispersed", None, 0, "random"]),
     "n_basis": ([None, (4, 4)], [(0, 0), (-1, 2), (10**9, 10**9), "x", (2.5, 3), 5]),
     "memory_budget": ([None], [0, -1, "x", 1, NAN, 2**70, "1 GB", 1e300, 5e-324]),
 }
