@@ -35,7 +35,6 @@ use rayon::prelude::*;
 
 use super::pass::{FieldBank, TILE};
 use super::{Fit, SubclusterSampler};
-use crate::basis::Basis;
 use crate::error::{Error, Result};
 use crate::frame::Point;
 use crate::gibbs::Assignment;
@@ -100,7 +99,15 @@ impl SubclusterSampler {
             return Ok(());
         };
         let frames = self.members(k);
-        let div = self.launch(&frames, i, j, [parent, theta_j], None, rng)?;
+        let div = self.launch(
+            &frames,
+            i,
+            j,
+            [parent, theta_j],
+            None,
+            &self.part(k).sums,
+            rng,
+        )?;
         let [nl, nr] = [div.sums[0].n_frames, div.sums[1].n_frames];
         let fit_l = self.fit_sums(&div.sums[0], parent)?;
         let fit_r = self.fit_sums(&div.sums[1], theta_j)?;
@@ -155,7 +162,7 @@ impl SubclusterSampler {
                 .collect();
             frames.sort_unstable();
             let side: Vec<bool> = frames.iter().map(|&f| self.labels[f] == ki).collect();
-            let div = self.launch(&frames, i, j, [pa, pb], Some(&side), rng)?;
+            let div = self.launch(&frames, i, j, [pa, pb], Some(&side), &merged, rng)?;
             if log_u >= log_target + q_over_prior + self.log_q(&div) {
                 return Ok(());
             }
@@ -212,6 +219,7 @@ impl SubclusterSampler {
         j: usize,
         theta: [GpParams; 2],
         forced: Option<&[bool]>,
+        whole: &Sums,
         rng: &mut impl rand::Rng,
     ) -> Result<Division> {
         let others: Vec<usize> = frames
@@ -260,7 +268,7 @@ impl SubclusterSampler {
             ];
             fields = self.draw_sides(&sums, theta, rng)?;
         }
-        self.final_division(frames, i, j, &fields, theta, forced, rng)
+        self.final_division(frames, i, j, &fields, theta, forced, whole, rng)
     }
 
     /// Draws of the two sub-patterns' fields from their posteriors given `sums`, on the basis's
@@ -316,7 +324,8 @@ impl SubclusterSampler {
     /// so far (the anchors count one each): an urn like the DP's own, so that `q` of a division
     /// whose frames the sub-fields cannot tell apart is `Γ(n_l) Γ(n_r) / Γ(n_S)`, which cancels the
     /// prior's ratio in a merge of two alike patterns. With `forced`, the given sides are scored.
-    /// Last, the sums of both sides, in parallel over tiles and added in tile order.
+    /// Last, the sums of the smaller side (in parallel over chunks of its frames), and of the
+    /// other as `whole` (the sums of `frames`) less them.
     #[allow(clippy::too_many_arguments)]
     fn final_division(
         &self,
@@ -326,6 +335,7 @@ impl SubclusterSampler {
         fields: &[[Vec<f64>; 2]; 2],
         theta: [GpParams; 2],
         forced: Option<&[bool]>,
+        whole: &Sums,
         rng: &mut impl rand::Rng,
     ) -> Result<Division> {
         let ll = self.side_logliks(frames, fields, theta)?;
@@ -357,17 +367,23 @@ impl SubclusterSampler {
         let sums = match forced {
             Some(_) => [Sums::zeros(&self.basis), Sums::zeros(&self.basis)],
             None => {
-                let tiles: Vec<[Sums; 2]> = frames
-                    .par_chunks(TILE)
-                    .zip(left.par_chunks(TILE))
-                    .map(|(tile, sides)| side_sums(&self.basis, &self.data, tile, sides))
+                // The smaller side's sums from its frames, the other's as the rest of `whole`.
+                let nl = left.iter().filter(|&&l| l).count();
+                let small_left = 2 * nl <= frames.len();
+                let small: Vec<usize> = frames
+                    .iter()
+                    .zip(&left)
+                    .filter(|&(_, &l)| l == small_left)
+                    .map(|(&f, _)| f)
                     .collect();
-                let mut out = [Sums::zeros(&self.basis), Sums::zeros(&self.basis)];
-                for [l, r] in &tiles {
-                    out[0].add(l);
-                    out[1].add(r);
+                let part = self.sums_of_sets(&[&small]).remove(0);
+                let mut rest = whole.clone();
+                rest.sub(&part);
+                if small_left {
+                    [part, rest]
+                } else {
+                    [rest, part]
                 }
-                out
             }
         };
         Ok(Division { left, sums, log_q })
@@ -390,23 +406,4 @@ fn gather(data: &crate::gibbs::Data, frames: &[usize]) -> (Vec<Point>, Vec<[f64;
         starts.push(xy.len());
     }
     (xy, v, starts)
-}
-
-/// The sums of the left and the right frames of a tile.
-fn side_sums(
-    basis: &Basis,
-    data: &crate::gibbs::Data,
-    tile: &[usize],
-    sides: &[bool],
-) -> [Sums; 2] {
-    [true, false].map(|want| {
-        let chosen: Vec<usize> = tile
-            .iter()
-            .zip(sides)
-            .filter(|(_, s)| **s == want)
-            .map(|(f, _)| *f)
-            .collect();
-        let (xy, v, _) = gather(data, &chosen);
-        Sums::of_points(basis, &xy, &v, chosen.len())
-    })
 }

@@ -1,10 +1,12 @@
 //! The sub-cluster sampler's assignment pass: draw the patterns' weights and fields, give every
 //! frame its label in parallel, and update the sums of the patterns frames moved between.
 //!
-//! **Fields at many points at once.** For a chunk of points, the features `Φ` (`n x M`, each
-//! `φ_jk = s_j(x) t_k(y)` from per-axis values by recurrence) times the stacked weights `W`
-//! (`M x 2K`: every pattern's two outputs) give every field at every point in one matrix product
-//! whose inner dimension is `M`: `2 n M K` flops at matrix-product speed.
+//! **Fields at many points at once.** A field is `φ(x)ᵀ a` with `φ_jk = s_j(x) t_k(y)`, so with the
+//! weights as an `m_x x m_y` matrix `A` it is `s(x)ᵀ A t(y)`. For a chunk of points with per-axis
+//! values `S` (`n x m_x`) and `T` (`n x m_y`), one matrix product `T [A_1ᵀ … A_Fᵀ]` (or
+//! `S [A_1 … A_F]`, whichever axis has more functions is the inner dimension) gives every field `f`
+//! as the row sums of `(T A_fᵀ) ∘ S`: `2 n M F` flops at matrix-product speed, and no `M`-long
+//! feature vector is formed (writing those cost as much as the product).
 
 use std::time::Instant;
 
@@ -22,16 +24,23 @@ use crate::special::log_sum_exp;
 
 /// Frames per parallel task of a pass.
 pub(super) const TILE: usize = 128;
-/// Doubles of a chunk's features held at once (a quarter of a core's L2 cache).
-const FEATURE_DOUBLES: usize = 32 * 1024;
+/// Points per matrix product.
+const CHUNK: usize = 256;
+/// Doubles of a product's output held at once (a quarter of a core's L2 cache).
+const PRODUCT_DOUBLES: usize = 32 * 1024;
 
 /// Several patterns' fields, stacked for one matrix product per chunk of points, with each
 /// pattern's noise: what a frame's log-likelihood under each pattern needs.
 pub(super) struct FieldBank {
     /// Patterns.
     k: usize,
-    m: usize,
-    /// `M x 2K`, column-major: field `2k + d` (pattern k, output d) in column `2k + d`.
+    /// Whether the product's inner dimension is the y axis (the axis with more functions).
+    inner_y: bool,
+    inner: usize,
+    outer: usize,
+    /// `inner x (2K outer)`, column-major: field `2k + d` (pattern k, output d) in columns
+    /// `(2k + d) outer ..`; the weights `A[j, k]` of `φ_jk` arranged so that the product with one
+    /// axis's values leaves a dot product with the other's.
     w: Vec<f64>,
     mean: [f64; 2],
     /// Per pattern: `1 / σ_n,d²`, and `−½ Σ_d log(2π σ_n,d²)` per point.
@@ -48,10 +57,25 @@ impl FieldBank {
         noise: &[[f64; 2]],
         mean: [f64; 2],
     ) -> Self {
+        let [mx, my] = basis.counts();
+        let inner_y = my >= mx;
+        let (inner, outer) = if inner_y { (my, mx) } else { (mx, my) };
+        let mut w = Vec::with_capacity(inner * outer * 2 * weights.len());
+        for a in weights.iter().flatten() {
+            for o in 0..outer {
+                if inner_y {
+                    w.extend((0..my).map(|k| a[o + mx * k])); // column j = o: A[j, ·]
+                } else {
+                    w.extend_from_slice(&a[mx * o..mx * (o + 1)]); // column k = o: A[·, k]
+                }
+            }
+        }
         Self {
             k: weights.len(),
-            m: basis.len(),
-            w: weights.iter().flatten().flatten().copied().collect(),
+            inner_y,
+            inner,
+            outer,
+            w,
             mean,
             inv_noise: noise.iter().map(|n| [1.0 / n[0], 1.0 / n[1]]).collect(),
             log_norm: noise
@@ -72,48 +96,64 @@ impl FieldBank {
         starts: &[usize],
         out: &mut [f64],
     ) {
-        let (kk, m) = (self.k, self.m);
+        let kk = self.k;
         let fields = 2 * kk;
-        let [mx, my] = basis.counts();
-        let chunk = (FEATURE_DOUBLES / m).clamp(16, 512);
+        let (inner, outer) = (self.inner, self.outer);
+        let group = (PRODUCT_DOUBLES / (CHUNK * outer)).clamp(1, fields);
         let mut frame_of = Vec::with_capacity(xy.len());
         for (f, w) in starts.windows(2).enumerate() {
             frame_of.extend(std::iter::repeat_n(f, w[1] - w[0]));
         }
-        let mut phi = vec![0.0; chunk * m];
-        let mut mean = vec![0.0; chunk * fields];
-        for c0 in (0..xy.len()).step_by(chunk) {
-            let c1 = (c0 + chunk).min(xy.len());
+        let mut prod = vec![0.0; CHUNK * outer * group];
+        let mut acc = vec![0.0; CHUNK];
+        for c0 in (0..xy.len()).step_by(CHUNK) {
+            let c1 = (c0 + CHUNK).min(xy.len());
             let n = c1 - c0;
             let vals = AxisValues::new(basis, &xy[c0..c1]);
-            for k in 0..my {
-                let t = &vals.sy[k * n..(k + 1) * n];
-                for j in 0..mx {
-                    let s = &vals.sx[j * n..(j + 1) * n];
-                    let col = &mut phi[(j + mx * k) * n..(j + mx * k + 1) * n];
-                    for ((c, s), t) in col.iter_mut().zip(s).zip(t) {
-                        *c = s * t;
-                    }
+            let (s_in, s_out) = if self.inner_y {
+                (&vals.sy, &vals.sx)
+            } else {
+                (&vals.sx, &vals.sy)
+            };
+            for p in c0..c1 {
+                let row = &mut out[frame_of[p] * kk..(frame_of[p] + 1) * kk];
+                for (r, l) in row.iter_mut().zip(&self.log_norm) {
+                    *r += l;
                 }
             }
-            let mean = &mut mean[..n * fields];
-            matmul(
-                MatMut::from_column_major_slice_mut(mean, n, fields),
-                Accum::Replace,
-                MatRef::from_column_major_slice(&phi[..n * m], n, m),
-                MatRef::from_column_major_slice(&self.w, m, fields),
-                1.0,
-                Par::Seq,
-            );
-            for (i, p) in (c0..c1).enumerate() {
-                let row = &mut out[frame_of[p] * kk..(frame_of[p] + 1) * kk];
-                for k in 0..kk {
-                    let mut ll = self.log_norm[k];
-                    for d in 0..2 {
-                        let r = v[p][d] - self.mean[d] - mean[(2 * k + d) * n + i];
-                        ll -= 0.5 * r * r * self.inv_noise[k][d];
+            for g0 in (0..fields).step_by(group) {
+                let g1 = (g0 + group).min(fields);
+                let cols = (g1 - g0) * outer;
+                let prod = &mut prod[..n * cols];
+                matmul(
+                    MatMut::from_column_major_slice_mut(prod, n, cols),
+                    Accum::Replace,
+                    MatRef::from_column_major_slice(s_in, n, inner),
+                    MatRef::from_column_major_slice(
+                        &self.w[g0 * outer * inner..g1 * outer * inner],
+                        inner,
+                        cols,
+                    ),
+                    1.0,
+                    Par::Seq,
+                );
+                for f in g0..g1 {
+                    let acc = &mut acc[..n];
+                    acc.fill(0.0);
+                    let base = (f - g0) * outer;
+                    for o in 0..outer {
+                        let u = &prod[(base + o) * n..(base + o + 1) * n];
+                        let t = &s_out[o * n..(o + 1) * n];
+                        for ((a, u), t) in acc.iter_mut().zip(u).zip(t) {
+                            *a += u * t;
+                        }
                     }
-                    row[k] += ll;
+                    let (k, d) = (f / 2, f % 2);
+                    let (mu, half_inv) = (self.mean[d], 0.5 * self.inv_noise[k][d]);
+                    for (i, a) in acc.iter().enumerate() {
+                        let r = v[c0 + i][d] - mu - a;
+                        out[frame_of[c0 + i] * kk + k] -= r * r * half_inv;
+                    }
                 }
             }
         }

@@ -211,3 +211,14 @@ fn restricted_sums_are_the_coarse_bases_sums() {
         assert!((a - c).abs() < 1e-12);
     }
 }
+
+#[test]
+fn sin_cos_on_zero_to_pi_matches_libm() {
+    let mut worst: f64 = 0.0;
+    for i in 0..=100_000 {
+        let th = std::f64::consts::PI * i as f64 / 100_000.0;
+        let (s, c) = crate::basis::sin_cos_0_pi(th);
+        worst = worst.max((s - th.sin()).abs()).max((c - th.cos()).abs());
+    }
+    assert!(worst < 1e-15, "{worst}");
+}
