@@ -9,6 +9,7 @@ __all__ = [
     "check_params",
     "check_length_scale_prior",
     "log_marginal_likelihood",
+    "nearest_neighbour_sq",
     "log_predictive",
     "log_predictive_frames",
     "posterior",
@@ -184,6 +185,7 @@ class _SamplerSettings(TypedDict):
     dynamics: NotRequired[tuple[list[int], tuple[float, float], float | None] | None]
     sampler: NotRequired[str]  # "collapsed" | "subcluster"
 
+def nearest_neighbour_sq(xy: NDArray[np.float64], offsets: NDArray[np.int64]) -> NDArray[np.float64]: ...
 def check_settings(settings: _SamplerSettings) -> None: ...
 def check_length_scale_prior(prior: tuple[float, float]) -> None: ...
 

@@ -31,6 +31,20 @@ def test_vehicle_spacing_is_the_median_nearest_neighbour_distance(small):
     assert defaults.vehicle_spacing(small) == pytest.approx(np.median(nearest), rel=1e-12)
 
 
+def test_each_vehicles_nearest_neighbour_in_the_core_is_numpys():
+    rng = np.random.default_rng(3)
+    sizes = [1, 5, 2, 1, 9, 3]  # frames of one vehicle have no neighbour and are left out
+    xy = rng.uniform(-50, 50, size=(sum(sizes), 2))
+    offsets = np.r_[0, np.cumsum(sizes)]
+    want = []
+    for a, b in zip(offsets[:-1], offsets[1:]):
+        if b - a >= 2:
+            d2 = ((xy[a:b, None] - xy[None, a:b]) ** 2).sum(-1) + np.diag(np.full(b - a, np.inf))
+            want.extend(d2.min(axis=1))
+    got = dpgp._core.nearest_neighbour_sq(xy, offsets.astype(np.int64))
+    np.testing.assert_allclose(got, want, rtol=1e-14)
+
+
 def test_vehicle_spacing_falls_back_to_area_per_vehicle():
     f = dpgp.Frames.from_arrays([0, 1, 2], [0.0, 4.0, 2.0], [0.0, 1.0, 9.0], [1.0, 1.0, 1.0], [0.0, 0.0, 0.0])
     assert defaults.vehicle_spacing(f) == pytest.approx(np.sqrt(4.0 * 9.0 / 1.0))

@@ -681,8 +681,9 @@ class DPGP:
         order = sorted(range(len(patterns)), key=lambda j: (-patterns[j][2], patterns[j][0]))
         self._slots = np.array([patterns[j][0] for j in order], dtype=np.int64)
         self._slot_order = np.array(order, dtype=np.int64)  # core slot-order index of each pattern
-        slot_to_label = {int(s): k for k, s in enumerate(self._slots)}
-        self.labels_ = np.array([slot_to_label[int(s)] for s in self._sampler.labels()], dtype=np.int64)
+        slot_to_label = np.full(int(self._slots.max(initial=-1)) + 1, -1, dtype=np.int64)
+        slot_to_label[self._slots] = np.arange(len(self._slots))
+        self.labels_ = slot_to_label[np.asarray(self._sampler.labels(), dtype=np.int64)]
         self.n_patterns_ = len(self._slots)
         counts = np.array([patterns[j][2] for j in order], dtype=np.float64)
         self.weights_ = counts / counts.sum()

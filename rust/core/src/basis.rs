@@ -342,11 +342,11 @@ impl AxisValues {
 /// from `cos θ` and `sin θ` of each point.
 fn sines(c1: &[f64], s1: &[f64], scale: f64, m: usize) -> Vec<f64> {
     let n = c1.len();
-    let mut out = vec![0.0; n * m];
+    let mut out = Vec::with_capacity(n * m);
     let mut prev = vec![0.0; n];
     let mut cur = s1.to_vec();
-    for j in 0..m {
-        step(&mut out[j * n..(j + 1) * n], &mut prev, &mut cur, c1, scale);
+    for _ in 0..m {
+        step(&mut out, &mut prev, &mut cur, c1, scale);
     }
     out
 }
@@ -354,22 +354,22 @@ fn sines(c1: &[f64], s1: &[f64], scale: f64, m: usize) -> Vec<f64> {
 /// `mask · cos(a θ)` for `a < m`, column by column over the points, from `cos θ`.
 fn cosine_columns(c1: &[f64], mask: &[f64], m: usize) -> Vec<f64> {
     let n = c1.len();
-    let mut out = vec![0.0; n * m];
+    let mut out = Vec::with_capacity(n * m);
     let mut prev: Vec<f64> = c1.iter().zip(mask).map(|(c, w)| c * w).collect(); // cos(−θ)
     let mut cur = mask.to_vec(); // cos 0
-    for a in 0..m {
-        step(&mut out[a * n..(a + 1) * n], &mut prev, &mut cur, c1, 1.0);
+    for _ in 0..m {
+        step(&mut out, &mut prev, &mut cur, c1, 1.0);
     }
     out
 }
 
-/// One step of the Chebyshev recurrence for every point: write `scale · cur`, then
-/// `(prev, cur) ← (cur, 2 cos θ · cur − prev)`.
-fn step(col: &mut [f64], prev: &mut [f64], cur: &mut [f64], c1: &[f64], scale: f64) {
-    let n = col.len();
-    let (prev, cur, c1) = (&mut prev[..n], &mut cur[..n], &c1[..n]);
+/// One step of the Chebyshev recurrence for every point: append the column `scale · cur` to
+/// `out` (no zeroed buffer first), then `(prev, cur) ← (cur, 2 cos θ · cur − prev)`.
+fn step(out: &mut Vec<f64>, prev: &mut [f64], cur: &mut [f64], c1: &[f64], scale: f64) {
+    let n = cur.len();
+    let (prev, c1) = (&mut prev[..n], &c1[..n]);
+    out.extend(cur.iter().map(|c| scale * c));
     for i in 0..n {
-        col[i] = scale * cur[i];
         let next = 2.0 * c1[i] * cur[i] - prev[i];
         prev[i] = cur[i];
         cur[i] = next;

@@ -38,3 +38,28 @@ impl LengthScales {
         (0.5 / (self.wx * self.wx), 0.5 / (self.wy * self.wy))
     }
 }
+
+/// For every vehicle of a frame of two or more (frames given by `offsets` into `xy`, in row
+/// order), the squared distance to its nearest neighbour in the same frame: what the
+/// length-scale prior's data spacing is the median of. In parallel over frames; the same numbers
+/// whatever the thread count.
+pub fn nearest_neighbour_sq(xy: &[Point], offsets: &[usize]) -> Vec<f64> {
+    use rayon::prelude::*;
+    let frames: Vec<&[Point]> = offsets
+        .windows(2)
+        .map(|w| &xy[w[0]..w[1]])
+        .filter(|f| f.len() >= 2)
+        .collect();
+    frames
+        .par_iter()
+        .flat_map_iter(|f| {
+            f.iter().enumerate().map(move |(i, p)| {
+                f.iter()
+                    .enumerate()
+                    .filter(|&(j, _)| j != i)
+                    .map(|(_, q)| (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2))
+                    .fold(f64::INFINITY, f64::min)
+            })
+        })
+        .collect()
+}

@@ -33,7 +33,7 @@ use crate::gp::{GpParams, LN_2PI};
 use crate::linalg::Chol;
 
 /// Points whose values are computed and summed in one block.
-const BLOCK: usize = 1024;
+const BLOCK: usize = 256;
 
 /// `buf` as a column-major `n x m` matrix.
 fn col(buf: &[f64], n: usize, m: usize) -> MatRef<'_, f64> {

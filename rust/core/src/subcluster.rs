@@ -393,22 +393,7 @@ impl SubclusterSampler {
         }
         let n = self.data.len();
         match start {
-            Start::Sequential => {
-                let settings = Settings {
-                    sampler: SamplerKind::Collapsed,
-                    ..self.settings.clone()
-                };
-                let mut s = Sampler::new_with_data(Arc::clone(&self.data), settings)?;
-                s.initialize(stop)?;
-                let infos = s.patterns();
-                let slot_to_group: std::collections::HashMap<usize, usize> =
-                    infos.iter().enumerate().map(|(g, p)| (p.slot, g)).collect();
-                let labels: Vec<usize> = s.labels().iter().map(|l| slot_to_group[l]).collect();
-                let ls: Vec<LengthScales> = infos.iter().map(|p| p.length_scales).collect();
-                let noise: Vec<[f64; 2]> = infos.iter().map(|p| p.noise_var).collect();
-                drop(s);
-                self.set_state(&labels, &ls, Some(&noise), self.alpha)
-            }
+            Start::Sequential => self.initialize_sequential(stop),
             Start::One | Start::Many => {
                 let groups = start_groups(start, n);
                 let k = groups.iter().max().map_or(0, |g| g + 1);
@@ -416,6 +401,45 @@ impl SubclusterSampler {
                 self.set_state(&groups, &ls, None, self.alpha)
             }
         }
+    }
+
+    /// The collapsed sampler's sequential initialisation of the first
+    /// [`INIT_SEQUENTIAL`](crate::gibbs::INIT_SEQUENTIAL) frames (all of them, when fewer), then
+    /// every later frame drawn (map: placed) by the instantiated conditional over those patterns,
+    /// in parallel: the collapsed sampler would place them by cheap score and build a pattern
+    /// holding a copy of every point, which on a million frames is most of the memory.
+    fn initialize_sequential(&mut self, stop: &dyn Fn() -> bool) -> Result<()> {
+        let n = self.data.len();
+        let n0 = n.min(crate::gibbs::INIT_SEQUENTIAL);
+        let first = if n0 == n {
+            Arc::clone(&self.data)
+        } else {
+            let (xy, v) = self.data.points();
+            let end = self.data.offsets()[n0];
+            Arc::new(Data::new(
+                xy[..end].to_vec(),
+                v[..end].to_vec(),
+                self.data.offsets()[..=n0].to_vec(),
+            )?)
+        };
+        let settings = Settings {
+            sampler: SamplerKind::Collapsed,
+            ..self.settings.clone()
+        };
+        let mut s = Sampler::new_with_data(first, settings)?;
+        s.initialize(stop)?;
+        let infos = s.patterns();
+        let slot_to_group: std::collections::HashMap<usize, usize> =
+            infos.iter().enumerate().map(|(g, p)| (p.slot, g)).collect();
+        let mut labels: Vec<usize> = s.labels().iter().map(|l| slot_to_group[l]).collect();
+        let ls: Vec<LengthScales> = infos.iter().map(|p| p.length_scales).collect();
+        let noise: Vec<[f64; 2]> = infos.iter().map(|p| p.noise_var).collect();
+        drop(s);
+        if n0 < n {
+            let later = self.place_later(&labels, &ls, &noise, stop)?;
+            labels.extend(later);
+        }
+        self.set_state(&labels, &ls, Some(&noise), self.alpha)
     }
 
     /// Set a state directly: `labels` as group numbers (equal numbers share a pattern), each

@@ -236,15 +236,40 @@ impl SubclusterSampler {
         slots: &[usize],
         stop: &dyn Fn() -> bool,
     ) -> Result<Vec<usize>> {
-        let n = self.data.len();
+        let out = self.draw_labels(
+            bank,
+            log_w,
+            slots,
+            0..self.data.len(),
+            (self.sweep, Phase::Labels),
+        );
+        // The pass is seconds at most: Ctrl-C is honoured after it, before anything changes.
+        if stop() {
+            return Err(Error::Interrupted);
+        }
+        Ok(out)
+    }
+
+    /// The drawn (map: most probable) entry of `targets` for each frame of `frames`, given the
+    /// bank and the log mixture weights, with the uniform of (seed, `key`, frame).
+    pub(super) fn draw_labels(
+        &self,
+        bank: &FieldBank,
+        log_w: &[f64],
+        targets: &[usize],
+        frames: std::ops::Range<usize>,
+        (sweep, phase): (u64, Phase),
+    ) -> Vec<usize> {
         let (xy, v) = self.data.points();
         let offsets = self.data.offsets();
-        let kk = slots.len();
-        let (seed, sweep, map) = (self.settings.seed, self.sweep, self.map());
-        let tiles: Vec<Vec<usize>> = (0..n.div_ceil(TILE))
+        let kk = targets.len();
+        let (seed, map) = (self.settings.seed, self.map());
+        let tiles: Vec<Vec<usize>> = (frames.start..frames.end)
+            .step_by(TILE)
+            .collect::<Vec<_>>()
             .into_par_iter()
-            .map(|t| {
-                let (f0, f1) = (t * TILE, ((t + 1) * TILE).min(n));
+            .map(|f0| {
+                let f1 = (f0 + TILE).min(frames.end);
                 let (a, b) = (offsets[f0], offsets[f1]);
                 let starts: Vec<usize> = offsets[f0..=f1].iter().map(|o| o - a).collect();
                 let mut ll = vec![0.0; (f1 - f0) * kk];
@@ -256,18 +281,70 @@ impl SubclusterSampler {
                         let pick = if map {
                             argmax(&lp)
                         } else {
-                            pick_log(&lp, uniform(seed, sweep, Phase::Labels, i as u64))
+                            pick_log(&lp, uniform(seed, sweep, phase, i as u64))
                         };
-                        slots[pick]
+                        targets[pick]
                     })
                     .collect()
             })
             .collect();
-        // The pass is seconds at most: Ctrl-C is honoured after it, before anything changes.
+        tiles.concat()
+    }
+
+    /// Groups of the frames after the first `groups.len()`, drawn by the instantiated conditional
+    /// over the groups the first frames form (their length scales `ls` and noise pairs `noise`):
+    /// the second half of [`Self::initialize_sequential`].
+    pub(super) fn place_later(
+        &self,
+        groups: &[usize],
+        ls: &[crate::frame::LengthScales],
+        noise: &[[f64; 2]],
+        stop: &dyn Fn() -> bool,
+    ) -> Result<Vec<usize>> {
+        let k = ls.len();
+        let mut members: Vec<Vec<usize>> = vec![Vec::new(); k];
+        for (i, &g) in groups.iter().enumerate() {
+            members[g].push(i);
+        }
+        let sums = self.sums_of_sets(&members.iter().map(|m| &m[..]).collect::<Vec<_>>());
+        let drawn: Vec<Result<(f64, [Vec<f64>; 2])>> = (0..k)
+            .into_par_iter()
+            .map(|g| {
+                let mut params = self.settings.pattern_params(ls[g]);
+                params.noise_var = noise[g];
+                let post = crate::hsgp_sums::Posterior::new(
+                    &self.basis,
+                    &sums[g],
+                    &sums[g].gram(&self.basis),
+                    params,
+                )?;
+                let n = sums[g].n_frames as f64;
+                if self.map() {
+                    return Ok((n.ln(), post.weights(None)));
+                }
+                let mut rng = stream(self.settings.seed, 0, Phase::Init, (1 << 40) + g as u64);
+                let lw = gamma(n, &mut rng)?.ln();
+                Ok((lw, post.weights(Some(&mut rng))))
+            })
+            .collect();
+        let (mut log_w, mut weights) = (Vec::new(), Vec::new());
+        for d in drawn {
+            let (lw, w) = d?;
+            log_w.push(lw);
+            weights.push(w);
+        }
+        let bank = FieldBank::new(&self.basis, &weights, noise, self.settings.base.mean);
         if stop() {
             return Err(Error::Interrupted);
         }
-        Ok(tiles.concat())
+        let targets: Vec<usize> = (0..k).collect();
+        Ok(self.draw_labels(
+            &bank,
+            &log_w,
+            &targets,
+            groups.len()..self.data.len(),
+            (0, Phase::Init),
+        ))
     }
 
     /// Move the sums of the `moved` frames `(frame, from, to)`: add each pattern's arrivals and

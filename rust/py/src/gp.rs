@@ -120,3 +120,18 @@ pub fn posterior<'py>(
     let (mean, var) = py.detach(|| -> CoreResult<_> { Ok(single(txy, tv, p)?.posterior(q)) })?;
     Ok((to_numpy(py, mean), to_numpy(py, var)))
 }
+
+/// For every vehicle of a frame of two or more, the squared distance to its nearest neighbour in
+/// the same frame (row order): the length-scale prior's data spacing.
+#[pyfunction]
+pub fn nearest_neighbour_sq<'py>(
+    py: Python<'py>,
+    xy: PyReadonlyArray2<'py, f64>,
+    offsets: PyReadonlyArray1<'py, i64>,
+) -> CoreResult<Bound<'py, PyArray1<f64>>> {
+    let xy = pairs("xy", &xy)?;
+    let offsets = offsets_vec("offsets", &offsets)?;
+    frame_refs(xy, xy, &offsets)?;
+    let d2 = py.detach(|| dpgp_core::frame::nearest_neighbour_sq(xy, &offsets));
+    Ok(d2.into_pyarray(py))
+}

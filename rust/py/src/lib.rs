@@ -24,7 +24,8 @@ mod _core {
 
     #[pymodule_export]
     use super::gp::{
-        check_params, log_marginal_likelihood, log_predictive, log_predictive_frames, posterior,
+        check_params, log_marginal_likelihood, log_predictive, log_predictive_frames,
+        nearest_neighbour_sq, posterior,
     };
     #[pymodule_export]
     use super::hsgp::{
