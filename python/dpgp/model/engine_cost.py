@@ -82,7 +82,7 @@ EXACT_FAST_ENOUGH = 0.05
 COEFFICIENTS: dict[str, tuple[float, ...]] = {
     "exact": (2.02e-6, 7.19e-7, 8.09e-10),
     "hsgp": (3.31e-10, 0.0, 2.84e-9, 4.17e-9),
-    "subcluster": (2.0e-10, 1.0e-9, 1.1e-9),
+    "subcluster": (1.85e-10, 1.9e-10, 1.58e-10),
 }
 
 
