@@ -232,8 +232,9 @@ def main() -> None:
             intro = (
                 'Synthetic highway scenes (`dpgp.datasets.synthetic("highway", n, seed=1)`, about 12 vehicles a\n'
                 "frame, three true patterns) fitted with every default, each configuration in its own process:\n"
-                "median and slowest seconds per sweep, the cores busy during the sweeps (CPU seconds over wall\n"
-                "seconds), initialisation, peak resident memory, K and the adjusted Rand index against the truth."
+                "median and slowest seconds per sweep, the whole fit's seconds, the cores busy over the fit (CPU\n"
+                "seconds over wall seconds), initialisation, the fit's peak resident memory (the data's generation\n"
+                "apart: data_rss_gb), K and the adjusted Rand index against the truth."
             )
             _markdown(a.markdown, "Scaling with every default", intro, rows, cols)
         return

@@ -20,7 +20,7 @@ from dpgp.gp import defaults
 
 import sampler_oracle as so
 
-SWEEPS, BURN_IN = 20_000, 1_000
+SWEEPS, BURN_IN = 30_000, 1_000
 VARIANTS = [("exact", "full"), ("exact", "informed"), ("hsgp", "full"), ("hsgp", "informed")]
 
 

@@ -142,6 +142,16 @@ def test_auto_runs_the_subcluster_sampler_on_hsgp_and_says_why():
     assert sticky.sampler_ == "collapsed"
 
 
+@pytest.mark.parametrize("n_frames,engine", [(60, "exact"), (150, "hsgp")])
+def test_likelihood_auto_keeps_the_sampler_and_its_reason_once_the_engine_is_settled(n_frames, engine):
+    # Both decided after hsgp's initialisation (the second step of likelihood="auto").
+    frames = dpgp.datasets.synthetic("highway", n_frames=n_frames, seed=2)
+    m = dpgp.DPGP(iterations=1, progress=False).fit(frames)
+    assert m.likelihood_ == engine and m.engine_choice_["sizes_from"] == "hsgp initialisation"
+    want = "subcluster" if engine == "hsgp" else "collapsed"
+    assert m.sampler_ == want and m.engine_choice_["sampler"]["sampler"] == want
+
+
 # --- (e) model files -------------------------------------------------------------------------------
 def test_a_saved_subcluster_model_loads_and_scores_the_same(tmp_path):
     frames = dpgp.datasets.synthetic("intersection", n_frames=120, seed=3)

@@ -43,7 +43,7 @@ _INITS = ("sequential", "one", "many")
 #: Why ``sampler="auto"`` runs the sub-cluster sampler where it can (engine_choice_["sampler"]).
 SUBCLUSTER_REASON = (
     "hsgp: the sub-cluster sampler sweeps every frame in parallel at O(N K M), where the collapsed "
-    "sampler's split-merge moves walk patterns frame by frame (100k frames: 0.33 s a sweep against "
+    "sampler's split-merge moves walk patterns frame by frame (100k frames: 0.25 s a sweep against "
     "3 sweeps unfinished in 600 s); on 1,000 US-101 frames its chains mix no worse "
     "(docs/subcluster.md#measured)"
 )
@@ -630,7 +630,8 @@ class DPGP:
                 for s in PROBE_SEEDS
             ]
             choice = check_accuracy(choice, float(np.median(gaps)), gaps)
-        self.engine_choice_ = choice.to_dict()
+        # The sampler's entry stays (hsgp kept) or is rewritten for exact below.
+        self.engine_choice_ = {**choice.to_dict(), "sampler": (self.engine_choice_ or {}).get("sampler")}
         if choice.engine == "exact":
             self.likelihood_, self.basis_ = "exact", None
             self._resolve_sampler()
