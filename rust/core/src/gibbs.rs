@@ -51,8 +51,9 @@ mod noise;
 mod split_merge;
 #[path = "sticky.rs"]
 mod sticky;
-pub(crate) use hyper::{Refit, length_scale_step, length_scale_width, noise_step};
-pub(crate) use noise::{MIN_RATIO as MIN_NOISE_RATIO, width as noise_width};
+pub(crate) use hyper::{
+    Refit, global_noise_step, length_scale_step, length_scale_width, noise_step,
+};
 pub use noise::{NoisePrior, NoiseScope};
 pub(crate) use split_merge::frame_means;
 pub use split_merge::{PairChoice, SplitMerge, SplitMergeStats};

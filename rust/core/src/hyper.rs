@@ -138,3 +138,42 @@ pub(crate) fn noise_step<P: Refit>(
 pub(crate) fn length_scale_width(points: usize) -> f64 {
     (0.5 * (1000.0 / points.max(1) as f64).sqrt()).clamp(0.02, 0.5)
 }
+
+/// One slice step of a noise pair shared by every pattern (`noise_var="global"`), on the log
+/// scale of component `d`: `refit(x)` refits every pattern at `log σ_n,d² = x` and gives their
+/// summed log marginal with the refits. Returns the accepted `x` and its refits, `None` if it
+/// stayed at `x0`. Written once for both samplers (their patterns differ, the step does not).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn global_noise_step<T>(
+    x0: f64,
+    f0: f64,
+    points: usize,
+    prior: NoisePrior,
+    scale: f64,
+    rng: &mut impl rand::Rng,
+    refit: impl Fn(f64) -> Result<(f64, T)>,
+) -> Result<Option<(f64, T)>> {
+    let mut last: Option<(f64, T)> = None;
+    let (x, _) = slice_step(x0, f0, width(points), rng, |x| {
+        let v = x.exp();
+        if !(v.is_finite() && v >= MIN_RATIO * scale) {
+            return f64::NEG_INFINITY;
+        }
+        match refit(x) {
+            Ok((lm, fits)) => {
+                last = Some((x, fits));
+                prior.log_density(x, scale) + lm
+            }
+            Err(_) => f64::NEG_INFINITY,
+        }
+    });
+    if x == x0 {
+        return Ok(None);
+    }
+    // The accepted point was not the last evaluated: refit there.
+    let fits = match last {
+        Some((lx, fits)) if lx == x => fits,
+        _ => refit(x)?.1,
+    };
+    Ok(Some((x, fits)))
+}

@@ -30,7 +30,6 @@ use crate::error::{Error, Result, unknown_option};
 use crate::gp::GpParams;
 use crate::pattern_model::PatternModel;
 use crate::rng::{Phase, stream};
-use crate::slice::slice_step;
 
 /// Prior of the noise: `log(σ_n,d² / s_d²) ~ N(log_mean, sd²)` for each component d.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -238,34 +237,22 @@ impl Sampler {
             let x0 = noise0[d].ln();
             let data_term: f64 = self.live().map(|(_, s)| s.pattern.log_marginal()).sum();
             let f0 = prior.log_density(x0, scale[d]) + data_term;
-            let mut last: Option<(f64, Vec<Box<dyn PatternModel>>)> = None;
-            let (x, _) = slice_step(x0, f0, width(self.data.xy.len()), &mut rng, |x| {
-                let v = x.exp();
-                if !(v.is_finite() && v >= MIN_RATIO * scale[d]) {
-                    return f64::NEG_INFINITY;
-                }
-                let mut noise = noise0;
-                noise[d] = v;
-                match self.with_noise(&slots, noise) {
-                    Ok(ps) => {
-                        let lm: f64 = ps.iter().map(|p| p.log_marginal()).sum();
-                        last = Some((x, ps));
-                        prior.log_density(x, scale[d]) + lm
-                    }
-                    Err(_) => f64::NEG_INFINITY,
-                }
-            });
-            if x == x0 {
-                continue;
-            }
-            let ps = match last {
-                Some((lx, ps)) if lx == x => ps,
-                // The accepted point was not the last evaluated: rebuild there.
-                _ => {
+            let step = crate::gibbs::global_noise_step(
+                x0,
+                f0,
+                self.data.xy.len(),
+                prior,
+                scale[d],
+                &mut rng,
+                |x| {
                     let mut noise = noise0;
                     noise[d] = x.exp();
-                    self.with_noise(&slots, noise)?
-                }
+                    let ps = self.with_noise(&slots, noise)?;
+                    Ok((ps.iter().map(|p| p.log_marginal()).sum(), ps))
+                },
+            )?;
+            let Some((x, ps)) = step else {
+                continue;
             };
             let mut noise = noise0;
             noise[d] = x.exp();

@@ -48,7 +48,6 @@ use crate::gp::GpParams;
 use crate::hsgp_sums::{Posterior, Sums};
 use crate::pattern_model::Likelihood;
 use crate::rng::{Phase, stream};
-use crate::slice::slice_step;
 use crate::special::{ln_gamma, ln_gamma_pdf};
 
 #[path = "subcluster_moves.rs"]
@@ -656,27 +655,13 @@ impl SubclusterSampler {
                     })
                     .collect()
             };
-            let mut last: Option<(f64, Vec<Fit>)> = None;
-            let (x, _) = slice_step(x0, f0, crate::gibbs::noise_width(points), &mut rng, |x| {
-                let v = x.exp();
-                if !(v.is_finite() && v >= crate::gibbs::MIN_NOISE_RATIO * scale[d]) {
-                    return f64::NEG_INFINITY;
-                }
-                match refit(x) {
-                    Ok(fits) => {
-                        let lm: f64 = fits.iter().map(|f| f.post.log_marginal).sum();
-                        last = Some((x, fits));
-                        prior.log_density(x, scale[d]) + lm
-                    }
-                    Err(_) => f64::NEG_INFINITY,
-                }
-            });
-            if x == x0 {
+            let step =
+                crate::gibbs::global_noise_step(x0, f0, points, prior, scale[d], &mut rng, |x| {
+                    let fits = refit(x)?;
+                    Ok((fits.iter().map(|f| f.post.log_marginal).sum(), fits))
+                })?;
+            let Some((x, fits)) = step else {
                 continue;
-            }
-            let fits = match last {
-                Some((lx, fits)) if lx == x => fits,
-                _ => refit(x)?,
             };
             self.settings.base.noise_var[d] = x.exp();
             for (&k, fit) in slots.iter().zip(fits) {
