@@ -54,6 +54,7 @@ mod sticky;
 pub(crate) use hyper::{
     Refit, global_noise_step, length_scale_step, length_scale_width, noise_step,
 };
+pub(crate) use noise::check_noise_pair;
 pub use noise::{NoisePrior, NoiseScope};
 pub(crate) use split_merge::frame_means;
 pub use split_merge::{PairChoice, SplitMerge, SplitMergeStats};
@@ -435,6 +436,22 @@ pub struct Timings {
     pub alpha: f64,
     pub split_merge: f64,
     pub noise: f64,
+}
+
+impl Timings {
+    /// Each part's name and seconds.
+    pub fn parts(&self) -> [(&'static str, f64); 8] {
+        [
+            ("refresh", self.refresh),
+            ("scoring", self.scoring),
+            ("moves", self.moves),
+            ("new_pattern", self.new_pattern),
+            ("length_scales", self.length_scales),
+            ("alpha", self.alpha),
+            ("split_merge", self.split_merge),
+            ("noise", self.noise),
+        ]
+    }
 }
 
 /// How often informed proposals led to an exact evaluation, and how often those were accepted.

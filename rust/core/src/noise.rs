@@ -122,6 +122,17 @@ pub(crate) fn width(points: usize) -> f64 {
     (4.0 * (2.0 / points.max(1) as f64).sqrt()).clamp(0.05, 1.0)
 }
 
+/// A noise pair a chain may be put at: two finite positive variances.
+pub(crate) fn check_noise_pair(noise: [f64; 2]) -> Result<()> {
+    if noise.iter().all(|v| v.is_finite() && *v > 0.0) {
+        Ok(())
+    } else {
+        Err(Error::InvalidInput(format!(
+            "noise_var must be two positive variances, got {noise:?}"
+        )))
+    }
+}
+
 impl Sampler {
     /// The noise pair the chain is at (fixed, or the last draw); per pattern, the pair new
     /// patterns' noise is not drawn from but the chain started at (see [`Sampler::patterns`]).
@@ -131,11 +142,7 @@ impl Sampler {
 
     /// Put the chain at the noise pair `noise` (a resumed chain): every pattern is refactored.
     pub fn set_noise_var(&mut self, noise: [f64; 2]) -> Result<()> {
-        if !noise.iter().all(|v| v.is_finite() && *v > 0.0) {
-            return Err(Error::InvalidInput(format!(
-                "noise_var must be two positive variances, got {noise:?}"
-            )));
-        }
+        check_noise_pair(noise)?;
         if noise == self.settings.base.noise_var {
             return Ok(());
         }

@@ -114,6 +114,21 @@ pub struct Timings {
     pub alpha: f64,
 }
 
+impl Timings {
+    /// Each part's name and seconds.
+    pub fn parts(&self) -> [(&'static str, f64); 7] {
+        [
+            ("fields", self.fields),
+            ("assign", self.assign),
+            ("sums", self.sums),
+            ("split_merge", self.split_merge),
+            ("length_scales", self.length_scales),
+            ("noise", self.noise),
+            ("alpha", self.alpha),
+        ]
+    }
+}
+
 /// Peel and absorb moves (`subcluster_peel.rs`) proposed and accepted, accumulated over the run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct PeelStats {
@@ -302,11 +317,7 @@ impl SubclusterSampler {
     /// Put the chain at the noise pair `noise` (a resumed chain): the chain's pair, and every
     /// pattern's when the noise is one for all.
     pub fn set_noise_var(&mut self, noise: [f64; 2]) -> Result<()> {
-        if !noise.iter().all(|v| v.is_finite() && *v > 0.0) {
-            return Err(Error::InvalidInput(format!(
-                "noise_var must be two positive variances, got {noise:?}"
-            )));
-        }
+        crate::gibbs::check_noise_pair(noise)?;
         self.settings.base.noise_var = noise;
         if self.settings.noise_scope == NoiseScope::Global {
             for p in self.slots.iter_mut().flatten() {

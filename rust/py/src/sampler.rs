@@ -434,28 +434,12 @@ impl PySampler {
     /// Seconds spent per part of the sweep so far (the parts depend on the sampler).
     fn timings<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let d = PyDict::new(py);
-        match &*self.lock() {
-            Engine::Collapsed(s) => {
-                let t = s.timings;
-                d.set_item("refresh", t.refresh)?;
-                d.set_item("scoring", t.scoring)?;
-                d.set_item("moves", t.moves)?;
-                d.set_item("new_pattern", t.new_pattern)?;
-                d.set_item("length_scales", t.length_scales)?;
-                d.set_item("alpha", t.alpha)?;
-                d.set_item("split_merge", t.split_merge)?;
-                d.set_item("noise", t.noise)?;
-            }
-            Engine::Subcluster(c, _) => {
-                let t = c.timings;
-                d.set_item("fields", t.fields)?;
-                d.set_item("assign", t.assign)?;
-                d.set_item("sums", t.sums)?;
-                d.set_item("split_merge", t.split_merge)?;
-                d.set_item("length_scales", t.length_scales)?;
-                d.set_item("noise", t.noise)?;
-                d.set_item("alpha", t.alpha)?;
-            }
+        let parts: Vec<(&str, f64)> = match &*self.lock() {
+            Engine::Collapsed(s) => s.timings.parts().to_vec(),
+            Engine::Subcluster(c, _) => c.timings.parts().to_vec(),
+        };
+        for (name, seconds) in parts {
+            d.set_item(name, seconds)?;
         }
         Ok(d)
     }
