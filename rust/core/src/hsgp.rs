@@ -31,6 +31,9 @@ use crate::gp::{GpParams, LN_2PI};
 use crate::hsgp_sums::{Group, Sums, VecSums, log_marginal, scaled_sqrt_spectrum};
 use crate::small;
 
+/// Points whose features [`HsgpPattern::score`] holds at once (M doubles each).
+const SCORE_POINTS: usize = 4096;
+
 /// A motion pattern under the reduced-rank GP: its frames, the additive statistics and the
 /// factors of each output group.
 #[derive(Clone, Debug)]
@@ -257,6 +260,24 @@ impl HsgpPattern {
     /// `log p(V_f | D_k)` for each frame: `N(r ; 0, σ_n² (I + UᵀU))`, one triangular solve for
     /// all the frames.
     pub fn score(&self, frames: &[FrameRef<'_>]) -> Result<Vec<f64>> {
+        // In blocks of frames of about SCORE_POINTS points: the features of every point at once
+        // would be 8 M bytes a point (27 GB for a million frames of a dozen vehicles).
+        let mut out = Vec::with_capacity(frames.len());
+        let mut start = 0;
+        while start < frames.len() {
+            let mut end = start + 1;
+            let mut points = frames[start].xy.len();
+            while end < frames.len() && points + frames[end].xy.len() <= SCORE_POINTS {
+                points += frames[end].xy.len();
+                end += 1;
+            }
+            out.extend(self.score_block(&frames[start..end])?);
+            start = end;
+        }
+        Ok(out)
+    }
+
+    fn score_block(&self, frames: &[FrameRef<'_>]) -> Result<Vec<f64>> {
         let m = self.m();
         let pts: Vec<Point> = frames.iter().flat_map(|f| f.xy.iter().copied()).collect();
         let phi_t = self.basis.features(&pts);

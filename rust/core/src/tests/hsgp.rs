@@ -147,3 +147,20 @@ fn sizing_rule_covers_the_data_and_respects_the_cap() {
     assert!(Basis::for_data(&xy, [5.0, 5.0], [10.0, 10.0], Some([100, 100])).is_err());
     assert!(Basis::new([0.0, 0.0], [0.0, 1.0], [2, 2]).is_err());
 }
+
+#[test]
+fn scoring_many_frames_in_blocks_equals_scoring_each_alone() {
+    // More points than one block holds, so the blocks' edges are crossed.
+    let b = basis([8, 12]);
+    let fs = frames(9, 8 + SCORE_POINTS);
+    let r = refs(&fs);
+    let members: Vec<(usize, FrameRef)> = (0..8).map(|i| (i, r[i])).collect();
+    let pat = HsgpPattern::new(Arc::clone(&b), params()[0], &members).unwrap();
+    let rest = &r[8..];
+    assert!(rest.iter().map(|f| f.xy.len()).sum::<usize>() > 2 * SCORE_POINTS);
+    let all = pat.score(rest).unwrap();
+    for (j, f) in rest.iter().enumerate().step_by(97) {
+        let one = pat.score(std::slice::from_ref(f)).unwrap()[0];
+        assert!(close(all[j], one, 1e-12), "frame {j}: {} vs {one}", all[j]);
+    }
+}
