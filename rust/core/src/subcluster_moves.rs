@@ -39,7 +39,7 @@ use crate::error::{Error, Result};
 use crate::frame::Point;
 use crate::gibbs::Assignment;
 use crate::gp::GpParams;
-use crate::hsgp_sums::{Posterior, Sums, embed};
+use crate::hsgp_sums::{Posterior, Sums};
 use crate::rng::{Phase, stream};
 use crate::special::ln_gamma;
 
@@ -286,14 +286,13 @@ impl SubclusterSampler {
             let sub = sums[s].restrict(&self.basis, coarse);
             let post = Posterior::new(coarse, &sub, &sub.gram(coarse), theta[s])?;
             let mut r = stream(rng.random::<u64>(), 0, Phase::Launch, s as u64);
-            out[s] = post
-                .weights(Some(&mut r))
-                .map(|w| embed(&self.basis, coarse, &w));
+            out[s] = post.weights(Some(&mut r));
         }
         Ok(out)
     }
 
-    /// `[log f(V_f | a_l), log f(V_f | a_r)]` of each of `frames`, in parallel over tiles.
+    /// `[log f(V_f | a_l), log f(V_f | a_r)]` of each of `frames`, in parallel over tiles, with
+    /// the sub-fields on the coarse basis (a quarter of the full one's work).
     fn side_logliks(
         &self,
         frames: &[usize],
@@ -301,7 +300,7 @@ impl SubclusterSampler {
         theta: [GpParams; 2],
     ) -> Result<Vec<f64>> {
         let bank = FieldBank::new(
-            &self.basis,
+            &self.coarse,
             fields,
             &[theta[0].noise_var, theta[1].noise_var],
             self.settings.base.mean,
@@ -311,7 +310,7 @@ impl SubclusterSampler {
             .map(|tile| {
                 let (xy, v, starts) = gather(&self.data, tile);
                 let mut ll = vec![0.0; 2 * tile.len()];
-                bank.frame_logliks(&self.basis, &xy, &v, &starts, &mut ll);
+                bank.frame_logliks(&self.coarse, &xy, &v, &starts, &mut ll);
                 ll
             })
             .collect();

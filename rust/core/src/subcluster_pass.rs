@@ -371,26 +371,22 @@ impl SubclusterSampler {
             }
             return;
         }
-        let mut arrive: Vec<Vec<usize>> = vec![Vec::new(); self.slots.len()];
-        let mut leave: Vec<Vec<usize>> = vec![Vec::new(); self.slots.len()];
+        // Each moved frame's sums are computed once, in a group per (from, to) pair, and added
+        // to one pattern and taken from the other.
+        let mut groups: std::collections::BTreeMap<(usize, usize), Vec<usize>> =
+            std::collections::BTreeMap::new();
         for &(i, from, to) in moved {
-            arrive[to].push(i);
-            leave[from].push(i);
+            groups.entry((from, to)).or_default().push(i);
         }
-        let touched: Vec<usize> = slots
-            .into_iter()
-            .filter(|&k| !arrive[k].is_empty() || !leave[k].is_empty())
-            .collect();
-        let sets: Vec<&[usize]> = touched
-            .iter()
-            .flat_map(|&k| [&arrive[k][..], &leave[k][..]])
-            .collect();
+        let sets: Vec<&[usize]> = groups.values().map(|g| &g[..]).collect();
         let sums = self.sums_of_sets(&sets);
-        for (j, &k) in touched.iter().enumerate() {
-            let p = self.part_mut(k);
-            p.sums.add(&sums[2 * j]);
-            p.sums.sub(&sums[2 * j + 1]);
-            p.fit = None;
+        for (&(from, to), s) in groups.keys().zip(&sums) {
+            self.part_mut(to).sums.add(s);
+            self.part_mut(from).sums.sub(s);
+        }
+        for (from, to) in groups.into_keys() {
+            self.part_mut(from).fit = None;
+            self.part_mut(to).fit = None;
         }
     }
 }
