@@ -9,6 +9,7 @@ segment boundary.
 
 from __future__ import annotations
 
+import os
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -16,6 +17,7 @@ import numpy as np
 from .._constants import DEFAULT_DT
 from .._validate import check_roi
 from ..exceptions import DataFormatError, InvalidInputError
+from ._shardfile import check_shards, check_target
 from .frames import Frames
 from .provenance import FramingSummary, describe_tracks
 
@@ -40,6 +42,9 @@ def make_frames(
     units: str | float | None = None,
     *,
     max_gap: float | None = None,
+    out: str | os.PathLike | None = None,
+    shards: int = 1,
+    overwrite: bool = False,
 ) -> Frames:
     """Frames from a tracks table: one frame per grid time with every vehicle in the ROI.
 
@@ -74,6 +79,11 @@ def make_frames(
         Longest time between two samples of a track that is still interpolated, in seconds.
         Default: twice the larger of ``dt`` and the table's typical (median) sampling step,
         so that a missing sample or two is bridged but not a vehicle's absence.
+    out, shards, overwrite
+        A directory to also write the frames into, as ``shards`` Parquet shards in time order
+        with a manifest (:meth:`Frames.to_parquet`, :mod:`dpgp.data.shards`; atomic, and an
+        existing non-empty directory only with ``overwrite=True``). The target is checked
+        before any framing; the framing's temporaries are freed before the shards are written.
 
     Returns
     -------
@@ -83,6 +93,19 @@ def make_frames(
         integer ids, else codes in the sorted order of its ids). ``frames.summary`` is a :class:`FramingSummary` that counts every
         vehicle-time left out and empty frame dropped.
     """
+    if out is None:
+        if shards != 1 or overwrite:
+            raise InvalidInputError("shards and overwrite say how to write the frames: give out=directory too")
+        return _frames(tracks, roi, dt, velocity, smoothing, units, max_gap)
+    check_shards(shards)
+    check_target(out, overwrite)
+    frames = _frames(tracks, roi, dt, velocity, smoothing, units, max_gap)
+    frames.to_parquet(out, shards, overwrite=overwrite)
+    return frames
+
+
+def _frames(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, units: Any, max_gap: Any) -> Frames:
+    """make_frames' frames (its temporaries go when this returns)."""
     res = _resample(tracks, roi, dt, velocity, smoothing, units, max_gap)
     k, scene = res["k"], res["scene"]
     # Frames in order of (scene, grid time); inside a frame, vehicles in track order.
