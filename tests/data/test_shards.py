@@ -173,9 +173,11 @@ def test_time_order_with_gaps_and_frames_out_of_order(tmp_path):
     assert m.dt == 1.0 and m.in_time_order and m.n_sequences == 3
     assert [(s.start, s.stop) for s in m.shards] == [(0, 2), (2, 4), (4, 6)]
     assert [s.continues for s in m.shards] == [False, True, True]  # 1 -> 2 and 5 -> 6 are one step
-    shuffled = frames[[3, 0, 1, 2, 4, 5]]
+    shuffled = frames[[0, 1, 2, 4, 3, 5]]  # ids 0, 1, 2, 6, 5, 10
     m = shuffled.to_parquet(tmp_path / "b", shards=2)
     assert not m.in_time_order  # kept in the order given, and said so
+    # the second shard starts at 6, whose predecessor 5 is not the first shard's last frame
+    assert [(s.start, s.continues) for s in m.shards] == [(0, False), (3, False)]
     assert_same_frames(shuffled, dpgp.read_frames(tmp_path / "b"))
     words = dpgp.Frames(np.array(["x", "y"]), np.arange(3), np.zeros((2, 2)), np.ones((2, 2)))
     m = words.to_parquet(tmp_path / "c", shards=2)

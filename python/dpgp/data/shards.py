@@ -10,7 +10,14 @@ process needs all frames.
     part, start = dpgp.data.shards.read_shard("frames/", 3)   # one shard, and its first frame's position
 
 ``part`` equals ``frames[start : start + len(part)]``; the shards in order make up the frames.
-The layout of the files is described in :mod:`dpgp.data._shardfile`.
+
+The directory holds ``manifest.json`` and ``shard-00000.parquet``, ``shard-00001.parquet``, ...:
+one row per vehicle (``frame_number`` — the frame's position among all frames —, ``frame``
+— its id; for ``(scene, time)`` ids the time, with ``scene`` beside it —, ``x, y, vx, vy``, and
+``track`` and ``label`` when the frames have them). The manifest lists each shard's frame range
+and vehicles, how ids and labels are stored, the units, the framing summary and the time order
+(the full description is in the source, ``dpgp/data/_shardfile.py``). The guide's "Sharded
+frames" section (Data and frames) shows the whole round.
 """
 
 from __future__ import annotations
