@@ -276,6 +276,15 @@ def test_overwrite_rules(highway, tmp_path):
         highway.to_parquet(tmp_path / "no" / "such", shards=2)
 
 
+def test_overwrite_through_a_symbolic_link_replaces_the_directory_it_names(highway, tmp_path):
+    highway[:50].to_parquet(tmp_path / "real", shards=2)
+    os.symlink(tmp_path / "real", tmp_path / "link")
+    highway.to_parquet(tmp_path / "link", shards=3, overwrite=True)
+    assert os.path.islink(tmp_path / "link") and sorted(os.listdir(tmp_path)) == ["link", "real"]
+    assert_same_frames(highway, dpgp.read_frames(tmp_path / "real"))
+    assert shards.read_manifest(tmp_path / "link").n_shards == 3
+
+
 # --- bad arguments -------------------------------------------------------------------------------
 
 

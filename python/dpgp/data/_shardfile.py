@@ -156,7 +156,7 @@ def check_target(directory: Any, overwrite: bool) -> str:
     if not isinstance(overwrite, (bool, np.bool_)):
         raise InvalidInputError(f"overwrite must be True or False, got {overwrite!r}")
     try:
-        path = os.path.abspath(as_path(directory))
+        path = os.path.realpath(as_path(directory))  # a symbolic link: the directory it names
     except TypeError:
         raise InvalidInputError(
             f"the directory for sharded frames must be a path, got {type(directory).__name__}"
@@ -436,7 +436,7 @@ def read_manifest(directory: Any) -> ShardManifest:
     """The manifest of a directory of sharded frames; :class:`~dpgp.DataFormatError` naming
     the file if it is missing, unreadable or inconsistent, ``FileNotFoundError`` if there is no
     such directory."""
-    path = os.path.abspath(as_path(directory))
+    path = os.path.realpath(as_path(directory))
     if not os.path.isdir(path):
         if not os.path.exists(path):
             raise FileNotFoundError(2, "no such directory of sharded frames", path)
@@ -608,13 +608,8 @@ def read_parts(manifest: ShardManifest, i: Any) -> StoredFrames:
         if table.column(c).null_count:
             raise bad(f"column {c!r} has {table.column(c).null_count} missing value(s)")
     number = table.column("frame_number").to_numpy()
-    step = np.diff(number)
-    if (
-        number.dtype.kind not in "iu"
-        or number[0] != info.start
-        or number[-1] != info.stop - 1
-        or not np.all((step == 0) | (step == 1))
-    ):
+    step = np.diff(number) if number.dtype.kind in "iu" else None
+    if step is None or number[0] != info.start or number[-1] != info.stop - 1 or not np.all((step == 0) | (step == 1)):
         raise bad(f"its frame_number column does not run through frames {info.start} to {info.stop - 1} in order")
     first = np.flatnonzero(np.r_[True, step != 0])
     offsets = np.r_[first, len(number)].astype(np.int64)
@@ -631,7 +626,10 @@ def read_parts(manifest: ShardManifest, i: Any) -> StoredFrames:
     del cols
     tracks = None
     if manifest.tracks:
-        tracks = np.array(table.column("track").to_numpy(), dtype=np.int64)
+        tracks = table.column("track").to_numpy()
+        if tracks.dtype.kind not in "iu":
+            raise bad(f"column 'track' holds {tracks.dtype}, not whole numbers")
+        tracks = np.array(tracks, dtype=np.int64)
     try:
         ids = _per_frame(manifest.ids, table, "frame", first)
         labels = None if manifest.labels is None else _per_frame(manifest.labels, table, "label", first)
