@@ -16,6 +16,7 @@ import numpy as np
 from .._arrays import as_path, as_vector, column_floats, is_path
 from .._validate import check_roi, inside_roi
 from ..exceptions import DataFormatError, InvalidInputError, ShapeError
+from . import _shardfile
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -275,6 +276,23 @@ class Frames:
             df["track"] = self.tracks
         return df
 
+    def to_parquet(
+        self, directory: str | os.PathLike, shards: int = 1, *, overwrite: bool = False
+    ) -> _shardfile.ShardManifest:
+        """Write the frames as a directory of ``shards`` Parquet files and a ``manifest.json``
+        (:mod:`dpgp.data.shards`), so that a worker can read its own shard alone.
+
+        Shards hold contiguous ranges of the frames in their order (recording order for frames
+        from :func:`dpgp.make_frames`), of about equal numbers of vehicles; the manifest keeps
+        the framing summary (units, provenance) and the time order. The write is atomic: into a
+        temporary directory beside ``directory``, then renamed onto it. An existing non-empty
+        directory is a ``FileExistsError`` unless ``overwrite=True`` (which replaces only
+        sharded frames). :class:`~dpgp.InvalidInputError` if ``shards`` is not a whole number
+        from 1 to the number of frames. Returns the manifest written; read the frames back with
+        :func:`dpgp.read_frames`.
+        """
+        return _shardfile.write_shards(self, directory, shards, overwrite=overwrite)
+
 
 def _check_finite_rows(ids: np.ndarray, offsets: np.ndarray, xy: np.ndarray, v: np.ndarray) -> None:
     """Refuse a NaN or infinite position or velocity, naming the first frame and vehicle that
@@ -359,9 +377,18 @@ def read_frames(
     ``source`` is a CSV/TSV/whitespace-separated text file, a Parquet file, or a pandas (or
     polars) DataFrame. Columns are found by name — ``frame``/``frame_idx``/``frame_id``,
     ``x``, ``y``, ``vx``/``vel_x``, ``vy``/``vel_y`` in any case — or named explicitly.
+
+    ``source`` may also be a directory of sharded frames (:meth:`Frames.to_parquet`): the
+    frames written, with their ids, labels, track ids and framing summary
+    (:class:`~dpgp.DataFormatError` naming the file if a shard or the manifest is missing or
+    damaged).
     """
     import pandas as pd
 
+    if _shardfile.is_sharded(source):
+        if any(name is not None for name in (frame, x, y, vx, vy)):
+            raise InvalidInputError("column names apply to a table, not to a directory of sharded frames")
+        return from_stored(_shardfile.read_all(source))
     if is_path(source):
         df = _read_table(source)
     elif hasattr(source, "to_pandas") and not isinstance(source, pd.DataFrame):
@@ -385,6 +412,13 @@ def read_frames(
             )
         values[role] = col
     return Frames.from_arrays(df[cols["frame"]].to_numpy(), values["x"], values["y"], values["vx"], values["vy"])
+
+
+def from_stored(parts: _shardfile.StoredFrames) -> Frames:
+    """:class:`Frames` from the arrays read from shards (:mod:`dpgp.data.shards`)."""
+    out = Frames(parts.ids, parts.offsets, parts.xy, parts.v, parts.labels, parts.tracks)
+    out.summary = parts.summary
+    return out
 
 
 def as_frames(frames: Any) -> Frames:

@@ -9,7 +9,7 @@ segment boundary.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+import os
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -17,8 +17,9 @@ import numpy as np
 from .._constants import DEFAULT_DT
 from .._validate import check_roi
 from ..exceptions import DataFormatError, InvalidInputError
+from ._shardfile import check_shards, check_target
 from .frames import Frames
-from .provenance import describe_tracks
+from .provenance import FramingSummary, describe_tracks
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -32,69 +33,6 @@ _MAX_GRID_NUMBER = 2.0**52  # grid numbers t / dt beyond this are not exact in f
 _MAX_RESAMPLED = 200_000_000  # vehicle-times on the grid (about 10 GB of temporaries beyond this)
 
 
-@dataclass(frozen=True)
-class FramingSummary:
-    """What :func:`make_frames` did, and every vehicle-time it left out and why.
-
-    Counts of *segments* refer to pieces of tracks between gaps longer than ``max_gap``.
-    ``roi`` is in the output units (after ``units`` conversion). ``print(summary)`` gives a
-    readable report.
-    """
-
-    dt: float
-    max_gap: float
-    roi: tuple[float, float, float, float] | None
-    units: str | None
-    velocity: str  # "columns" (the table's vx, vy) or "diff" (central differences)
-    smoothing: tuple[int, int] | None
-    n_rows: int  # input rows
-    n_tracks: int
-    n_segments: int
-    n_gaps: int  # gaps longer than max_gap, where a track was cut
-    n_gap_times: int  # grid times inside those gaps: not interpolated
-    n_segments_between_grid_times: int  # segments whose time span holds no grid time
-    n_rows_between_grid_times: int  # ... and their rows
-    n_single_sample_segments: int  # one sample, no velocity to difference: left out (diff only)
-    n_unsmoothed_segments: int  # shorter than the smoothing window: plain differences
-    n_resampled: int  # vehicle-times on the grid
-    n_outside_roi: int  # ... of which outside the ROI
-    n_points: int  # vehicle observations in the frames
-    n_frames: int
-    n_empty_frames: int  # grid times with no vehicle in the ROI: dropped
-    n_scenes: int
-    # What exports need (dpgp.provenance): "m"/"ft", "vehicle"/"pedestrian", (length, width)
-    length_unit: str | None = None
-    object_type: str | None = None
-    object_size: tuple[float, float] | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
-
-    def __str__(self) -> str:
-        roi = "none" if self.roi is None else "x [{:g}, {:g}], y [{:g}, {:g}]".format(*self.roi)
-        lines = [
-            f"{self.n_frames} frames, {self.n_points} vehicle observations "
-            f"(dt {self.dt:g} s, ROI {roi}, units {self.units or 'as in the table'}"
-            f"{' (' + self.length_unit + ')' if self.length_unit else ''}, "
-            f"velocity from {self.velocity}{', smoothed ' + str(self.smoothing) if self.smoothing else ''})",
-            f"input: {self.n_rows} rows, {self.n_tracks} tracks"
-            + (f", {self.n_scenes} scenes" if self.n_scenes > 1 else "")
-            + f"; cut at {self.n_gaps} gaps longer than {self.max_gap:g} s into {self.n_segments} segments",
-            f"resampled: {self.n_resampled} vehicle-times; {self.n_outside_roi} outside the ROI",
-            "left out:",
-            f"  {self.n_empty_frames} empty frames (grid times with no vehicle in the ROI)",
-            f"  {self.n_gap_times} vehicle-times inside gaps (not interpolated)",
-            f"  {self.n_segments_between_grid_times} segments ({self.n_rows_between_grid_times} rows) "
-            "too short to reach a grid time",
-            f"  {self.n_single_sample_segments} single-sample segments (no velocity to difference)",
-        ]
-        if self.n_unsmoothed_segments:
-            lines.append(
-                f"note: {self.n_unsmoothed_segments} segments shorter than the smoothing window were not smoothed"
-            )
-        return "\n".join(lines)
-
-
 def make_frames(
     tracks: Any,
     roi: tuple[float, float, float, float] | None = None,
@@ -104,6 +42,9 @@ def make_frames(
     units: str | float | None = None,
     *,
     max_gap: float | None = None,
+    out: str | os.PathLike | None = None,
+    shards: int = 1,
+    overwrite: bool = False,
 ) -> Frames:
     """Frames from a tracks table: one frame per grid time with every vehicle in the ROI.
 
@@ -138,6 +79,11 @@ def make_frames(
         Longest time between two samples of a track that is still interpolated, in seconds.
         Default: twice the larger of ``dt`` and the table's typical (median) sampling step,
         so that a missing sample or two is bridged but not a vehicle's absence.
+    out, shards, overwrite
+        A directory to also write the frames into, as ``shards`` Parquet shards in time order
+        with a manifest (:meth:`Frames.to_parquet`, :mod:`dpgp.data.shards`; atomic, and an
+        existing non-empty directory only with ``overwrite=True``). The target is checked
+        before any framing; the framing's temporaries are freed before the shards are written.
 
     Returns
     -------
@@ -147,6 +93,19 @@ def make_frames(
         integer ids, else codes in the sorted order of its ids). ``frames.summary`` is a :class:`FramingSummary` that counts every
         vehicle-time left out and empty frame dropped.
     """
+    if out is None:
+        if shards != 1 or overwrite:
+            raise InvalidInputError("shards and overwrite say how to write the frames: give out=directory too")
+        return _frames(tracks, roi, dt, velocity, smoothing, units, max_gap)
+    check_shards(shards)
+    check_target(out, overwrite)
+    frames = _frames(tracks, roi, dt, velocity, smoothing, units, max_gap)
+    frames.to_parquet(out, shards, overwrite=overwrite)
+    return frames
+
+
+def _frames(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, units: Any, max_gap: Any) -> Frames:
+    """make_frames' frames (its temporaries go when this returns)."""
     res = _resample(tracks, roi, dt, velocity, smoothing, units, max_gap)
     k, scene = res["k"], res["scene"]
     # Frames in order of (scene, grid time); inside a frame, vehicles in track order.

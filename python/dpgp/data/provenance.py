@@ -12,10 +12,14 @@ model file) that exports need and the numbers alone do not say:
                  table's size columns (NGSIM ``v_length``/``v_Width``; ``length``/``width``),
                  else ``None``. Generated vehicles are not tracked ones, so one typical size
                  is what a model can honestly keep.
+
+The summary class lives here, below :mod:`.frames` and :mod:`.framing`, so that a reader of
+stored frames (:mod:`.shards`) can rebuild it; :mod:`.framing` re-exports it.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -33,6 +37,80 @@ OBJECT_TYPES = {
 _SIZE_COLUMNS = (("v_length", "v_Width"), ("length", "width"))
 # What a units= conversion turns positions into, whatever they were.
 _CONVERTED = {"ft->m": "m", "feet->metres": "m", "feet->meters": "m", "m->ft": "ft"}
+
+
+@dataclass(frozen=True)
+class FramingSummary:
+    """What :func:`make_frames` did, and every vehicle-time it left out and why.
+
+    Counts of *segments* refer to pieces of tracks between gaps longer than ``max_gap``.
+    ``roi`` is in the output units (after ``units`` conversion). ``print(summary)`` gives a
+    readable report.
+    """
+
+    dt: float
+    max_gap: float
+    roi: tuple[float, float, float, float] | None
+    units: str | None
+    velocity: str  # "columns" (the table's vx, vy) or "diff" (central differences)
+    smoothing: tuple[int, int] | None
+    n_rows: int  # input rows
+    n_tracks: int
+    n_segments: int
+    n_gaps: int  # gaps longer than max_gap, where a track was cut
+    n_gap_times: int  # grid times inside those gaps: not interpolated
+    n_segments_between_grid_times: int  # segments whose time span holds no grid time
+    n_rows_between_grid_times: int  # ... and their rows
+    n_single_sample_segments: int  # one sample, no velocity to difference: left out (diff only)
+    n_unsmoothed_segments: int  # shorter than the smoothing window: plain differences
+    n_resampled: int  # vehicle-times on the grid
+    n_outside_roi: int  # ... of which outside the ROI
+    n_points: int  # vehicle observations in the frames
+    n_frames: int
+    n_empty_frames: int  # grid times with no vehicle in the ROI: dropped
+    n_scenes: int
+    # What exports need (dpgp.provenance): "m"/"ft", "vehicle"/"pedestrian", (length, width)
+    length_unit: str | None = None
+    object_type: str | None = None
+    object_size: tuple[float, float] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> FramingSummary:
+        """The summary :meth:`to_dict` gave, after a trip through JSON (lists back to tuples);
+        keys a newer writer added are ignored."""
+        known = {f.name for f in fields(cls)}
+        s = {k: v for k, v in d.items() if k in known}
+        for key in ("roi", "smoothing", "object_size"):
+            if s.get(key) is not None:
+                s[key] = tuple(s[key])
+        return cls(**s)
+
+    def __str__(self) -> str:
+        roi = "none" if self.roi is None else "x [{:g}, {:g}], y [{:g}, {:g}]".format(*self.roi)
+        lines = [
+            f"{self.n_frames} frames, {self.n_points} vehicle observations "
+            f"(dt {self.dt:g} s, ROI {roi}, units {self.units or 'as in the table'}"
+            f"{' (' + self.length_unit + ')' if self.length_unit else ''}, "
+            f"velocity from {self.velocity}{', smoothed ' + str(self.smoothing) if self.smoothing else ''})",
+            f"input: {self.n_rows} rows, {self.n_tracks} tracks"
+            + (f", {self.n_scenes} scenes" if self.n_scenes > 1 else "")
+            + f"; cut at {self.n_gaps} gaps longer than {self.max_gap:g} s into {self.n_segments} segments",
+            f"resampled: {self.n_resampled} vehicle-times; {self.n_outside_roi} outside the ROI",
+            "left out:",
+            f"  {self.n_empty_frames} empty frames (grid times with no vehicle in the ROI)",
+            f"  {self.n_gap_times} vehicle-times inside gaps (not interpolated)",
+            f"  {self.n_segments_between_grid_times} segments ({self.n_rows_between_grid_times} rows) "
+            "too short to reach a grid time",
+            f"  {self.n_single_sample_segments} single-sample segments (no velocity to difference)",
+        ]
+        if self.n_unsmoothed_segments:
+            lines.append(
+                f"note: {self.n_unsmoothed_segments} segments shorter than the smoothing window were not smoothed"
+            )
+        return "\n".join(lines)
 
 
 def describe_tracks(tracks: Any, units: str | None, scale: float) -> dict[str, Any]:
@@ -73,4 +151,4 @@ def _median_size(tracks: Any, scale: float) -> tuple[float, float] | None:
     return None
 
 
-__all__ = ["describe_tracks", "OBJECT_TYPES"]
+__all__ = ["FramingSummary", "describe_tracks", "OBJECT_TYPES"]

@@ -13,7 +13,8 @@ format         recognised by
 ``highd``      ``id, frame, x, y, xVelocity, yVelocity``
 ``ind``        ``trackId, frame, xCenter, yCenter`` (inD, rounD, exiD)
 ``eth_ucy``    no header, four numbers a row (``frame ped_id x y``)
-``frames``     a frame column (``frame``, ``frame_id``, ...) and no track id (``x, y, vx, vy`` besides)
+``frames``     a frame column (``frame``, ``frame_id``, ...) and no track id (``x, y, vx, vy`` besides),
+               or a directory of sharded frames (``Frames.to_parquet``)
 ``tracks``     a track id (``track_id``, ``id``, ``vehicle_id``, ...), ``t`` or ``time``, ``x``, ``y``
 =============  ==================================================================================
 
@@ -83,6 +84,8 @@ def detect_format(path: str | os.PathLike) -> str:
     path = as_path(path)
     if not os.path.exists(path):
         raise FileNotFoundError(f"no such file: {path}")
+    if os.path.isdir(path):
+        return "frames"  # sharded frames (Frames.to_parquet); read_frames names what is missing
     if path.lower().endswith((".xml", ".xml.gz")):
         return "sumo"
     cols = columns_of(path)
