@@ -457,3 +457,29 @@ def test_neither_writing_nor_reading_holds_a_second_copy(tmp_path):
     # arrays shard by shard: about one copy, never two (the numpy side; pyarrow's pool is apart)
     assert write_peak < 0.5 * size, (write_peak, size)
     assert read_peak < 1.5 * size, (read_peak, size)
+
+
+def test_a_fit_on_a_directory_of_shards_is_the_fit_on_its_frames(tmp_path):
+    frames = dpgp.datasets.synthetic("highway", 60, seed=3)
+    frames.to_parquet(tmp_path / "shards", shards=3)
+    a = dpgp.DPGP(iterations=3, seed=2, progress=False).fit(frames)
+    b = dpgp.DPGP(iterations=3, seed=2, progress=False).fit(tmp_path / "shards")
+    np.testing.assert_array_equal(a.labels_, b.labels_)
+    assert a.history_["log_joint"] == b.history_["log_joint"]
+    np.testing.assert_array_equal(b.predict(str(tmp_path / "shards")), a.predict(frames))
+
+
+def test_a_file_path_given_to_fit_says_how_to_read_it(tmp_path):
+    (tmp_path / "frames.csv").write_text("frame,x,y,vx,vy\n0,0,0,1,1\n")
+    with pytest.raises(dpgp.ShapeError, match="read_frames"):
+        dpgp.DPGP(iterations=1, progress=False).fit(tmp_path / "frames.csv")
+
+
+def test_the_command_line_fits_a_directory_of_shards(tmp_path):
+    from dpgp.cli import main
+
+    dpgp.datasets.synthetic("highway", 40, seed=4).to_parquet(tmp_path / "shards", shards=2)
+    argv = ["fit", str(tmp_path / "shards"), "-o", str(tmp_path / "model.npz"), "--iterations", "2", "--no-progress"]
+    assert main(argv) == 0
+    model = dpgp.DPGP.load(tmp_path / "model.npz")
+    assert len(model.labels_) == 40

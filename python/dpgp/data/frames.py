@@ -422,13 +422,21 @@ def from_stored(parts: _shardfile.StoredFrames) -> Frames:
 
 
 def as_frames(frames: Any) -> Frames:
-    """``frames`` as :class:`Frames`: a ``Frames`` as it is, a framed DataFrame read by
-    :func:`read_frames`; :class:`~dpgp.ShapeError` for anything else."""
+    """``frames`` as :class:`Frames`: a ``Frames`` as it is, a framed DataFrame or a directory of
+    frame shards (:meth:`Frames.to_parquet`) read by :func:`read_frames`;
+    :class:`~dpgp.ShapeError` for anything else."""
     if isinstance(frames, Frames):
         return frames
     if hasattr(frames, "columns"):
         return read_frames(frames)
-    raise ShapeError(f"expected dpgp.Frames or a framed DataFrame, got {type(frames).__name__}")
+    if isinstance(frames, (str, os.PathLike)):
+        if os.path.isdir(frames):
+            return read_frames(frames)
+        raise ShapeError(
+            f"{os.fspath(frames)!r} is not a directory of frame shards; read a file first with "
+            "dpgp.read_frames(path) (or dpgp.read(path) for tracks)"
+        )
+    raise ShapeError(f"expected dpgp.Frames, a framed DataFrame or a directory of shards, got {type(frames).__name__}")
 
 
 __all__ = ["Frame", "Frames", "read_frames", "as_frames"]

@@ -345,7 +345,8 @@ class DPGP:
         return settings
 
     def fit(self, frames: Frames | Any, y: None = None, *, warm_start: bool = False) -> DPGP:
-        """Fit the mixture to training frames (a :class:`~dpgp.Frames` or a framed DataFrame).
+        """Fit the mixture to training frames (a :class:`~dpgp.Frames`, a framed DataFrame, or a directory
+        of frame shards written by :meth:`~dpgp.Frames.to_parquet`).
 
         ``warm_start=True`` continues this fitted model's chain on the same frames for
         ``iterations`` more sweeps instead of starting afresh: the sampler, its random stream,
