@@ -13,7 +13,7 @@ use faer::{Accum, MatMut, MatRef, Par};
 
 use crate::correlation::Correlation;
 use crate::error::{Error, Result, check_finite};
-use crate::factor::GrowFactor;
+use crate::factor::{GrowFactor, capacity};
 pub use crate::frame::FrameRef;
 use crate::frame::{LengthScales, Point};
 use crate::gp::{GpParams, LN_2PI, centered};
@@ -137,15 +137,18 @@ impl Pattern {
         8 * cap + 56 * self.xy.len()
     }
 
-    /// Bytes after appending a frame of `l` points (the factors grow by doubling).
+    /// Bytes after appending a frame of `l` points (the factors grow by [`capacity`]).
     pub fn bytes_after_insert(&self, l: usize) -> usize {
         let n = self.xy.len() + l;
         let cap: usize = self
             .groups
             .iter()
-            .map(|g| g.factor.cap().max(n.next_power_of_two()).pow(2))
+            .map(|g| {
+                let cap = g.factor.cap();
+                if n > cap { capacity(n) } else { cap }.pow(2)
+            })
             .sum::<usize>()
-            .max(self.params.groups().len() * n.next_power_of_two().max(16).pow(2));
+            .max(self.params.groups().len() * capacity(n).pow(2));
         8 * cap + 56 * n
     }
 

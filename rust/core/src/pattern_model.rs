@@ -448,9 +448,10 @@ impl Likelihood {
         prior_scores_with(&self.correlation(), f, ps)
     }
 
-    /// Bytes a pattern of `n` points would hold (both likelihoods grow factors by doubling).
+    /// Bytes a pattern of `n` points would hold at most (both likelihoods grow factors by
+    /// [`crate::factor::capacity`]).
     pub fn pattern_bytes(&self, n: usize, groups: usize) -> usize {
-        let dense = 8 * groups * n.next_power_of_two().max(16).pow(2) + 56 * n;
+        let dense = 8 * groups * crate::factor::capacity(n).pow(2) + 56 * n;
         match self {
             Self::Exact => dense,
             Self::Hsgp(b) => {

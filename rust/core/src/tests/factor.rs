@@ -90,3 +90,16 @@ fn append_grows_past_capacity() {
     }
     assert!((f.log_det() - full.log_det()).abs() < 1e-10);
 }
+
+#[test]
+fn capacity_spares_a_quarter_in_multiples_of_sixteen() {
+    assert_eq!(capacity(0), 16);
+    assert_eq!(capacity(16), 32);
+    assert_eq!(capacity(1000), 1264);
+    assert_eq!(capacity(1024), 1280);
+    assert_eq!(capacity(1025), 1296);
+    for n in 1..3000 {
+        let c = capacity(n);
+        assert!(c >= n && c.is_multiple_of(16) && c <= n + n / 4 + 16, "{n}: {c}");
+    }
+}
