@@ -44,7 +44,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
-from .._arrays import as_path, column_floats, is_path
+from .._arrays import column_floats, is_path
 from .._constants import DEFAULT_DT
 from .._validate import check_roi
 from ..exceptions import DataFormatError, InvalidInputError
@@ -730,9 +730,7 @@ class _Tracks:
         return np.r_[self.base, self.n_keys]
 
 
-def _each_bucket(
-    scan: _Scan, groups: _Groups, tracks: _Tracks
-) -> Iterator[tuple[int, int, dict[str, np.ndarray]]]:
+def _each_bucket(scan: _Scan, groups: _Groups, tracks: _Tracks) -> Iterator[tuple[int, int, dict[str, np.ndarray]]]:
     """(group, window, rows in track order) of every non-empty bucket, in the frames' order."""
     tracks.reset()
     for g, (members, windows) in enumerate(zip(groups.members, groups.windows)):
@@ -804,7 +802,7 @@ class _Segments:
         self.lo_k = np.full(n_scenes, np.iinfo(np.int64).max)
         self.hi_k = np.full(n_scenes, np.iinfo(np.int64).min)
         self.used = np.zeros(n_scenes, dtype=bool)
-        self.c = dict(
+        self.c: dict[str, Any] = dict(
             n_segments=0, n_gaps=0, n_gap_times=0, n_segments_between_grid_times=0, n_rows_between_grid_times=0,
             n_single_sample_segments=0, n_unsmoothed_segments=0, n_resampled=0,
         )  # fmt: skip
@@ -941,7 +939,11 @@ def _frame_all(
     import pandas as pd
 
     dt, W = opts.dt, opts.window
-    mode = "columns" if (opts.velocity == "auto" and tracks.reader.has_velocity()) or opts.velocity == "columns" else "diff"
+    mode = (
+        "columns"
+        if (opts.velocity == "auto" and tracks.reader.has_velocity()) or opts.velocity == "columns"
+        else "diff"
+    )
     n_scenes = 1 if groups.labels is None else len(groups.labels)
     segs = _Segments(n_tracks, n_scenes, dt, max_gap, opts, mode)
     reach = (opts.smoothing[0] if opts.smoothing else 3) + 4

@@ -27,8 +27,8 @@ from collections.abc import Iterator
 from typing import NamedTuple
 
 from ._shardfile import MANIFEST, VERSION, ShardInfo, ShardManifest, read_parts
-from ._streamframing import frame_to_shards
 from ._shardfile import read_manifest as _read_manifest
+from ._streamframing import frame_to_shards
 from .frames import Frames, from_stored
 
 
