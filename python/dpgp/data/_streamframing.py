@@ -639,7 +639,8 @@ class _Tracks:
 
     def reset(self) -> None:
         n = self.n_keys
-        self.last = np.full(n, np.nan)  # NGSIM: last frame; else last time
+        self.last = np.full(n, np.nan)  # NGSIM's last frame
+        self.last_t = np.full(n, np.nan)
         self.last_row = np.full(n, -1, dtype=np.int64)
         self.trip = np.zeros(n, dtype=np.int64)
         self.n_dropped = 0
@@ -679,6 +680,8 @@ class _Tracks:
                 )
         last = np.r_[first[1:], True]
         self.last_row[key[last]] = row[last]
+        out["step"] = t - np.where(first, self.last_t[key], np.r_[np.nan, t[:-1]])
+        self.last_t[key[last]] = t[last]
         out["track"] = key
         return out
 
@@ -714,6 +717,9 @@ class _Tracks:
         last = np.r_[first[1:], True]
         self.last[key[last]] = frame[last]
         self.trip[key[last]] = trip[last]
+        t = out["t"]
+        out["step"] = np.where(jump, np.nan, t - np.where(first, self.last_t[key], np.r_[np.nan, t[:-1]]))
+        self.last_t[key[last]] = t[last]
         out["key"] = key
         out["trip"] = trip
         if self.base is not None:
@@ -740,10 +746,38 @@ def _each_bucket(scan: _Scan, groups: _Groups, tracks: _Tracks) -> Iterator[tupl
                 yield g, w, tracks.take(rows)
 
 
-def _check_and_count(scan: _Scan, groups: _Groups, tracks: _Tracks) -> tuple[np.ndarray, int]:
-    """Pass 2: checks every bucket; the rows of each track (by its number) and all rows kept."""
+class _Steps:
+    """The steps between consecutive samples of a track, kept as a histogram of 1/64 octave
+    bins (each bin's smallest and largest step), to bound the largest step below ``max_gap``."""
+
+    _FINE = 64
+    _SPAN = 64 * 64
+
+    def __init__(self) -> None:
+        self.lo = np.full(2 * self._SPAN + 1, np.inf)
+        self.hi = np.full(2 * self._SPAN + 1, -np.inf)
+
+    def add(self, steps: np.ndarray) -> None:
+        steps = steps[np.isfinite(steps) & (steps > 0)]
+        b = np.clip(np.floor(np.log2(steps) * self._FINE), -self._SPAN, self._SPAN).astype(np.int64) + self._SPAN
+        np.minimum.at(self.lo, b, steps)
+        np.maximum.at(self.hi, b, steps)
+
+    def largest_up_to(self, limit: float) -> float:
+        """At least the largest step not longer than ``limit`` (exactly it unless a bin holds
+        steps on both sides of ``limit``; then ``limit``)."""
+        below = self.hi <= limit
+        across = (self.lo <= limit) & ~below
+        best = float(self.hi[below].max()) if below.any() else 0.0
+        return limit if across.any() else best
+
+
+def _check_and_count(scan: _Scan, groups: _Groups, tracks: _Tracks, steps: _Steps) -> tuple[np.ndarray, int]:
+    """Pass 2: checks every bucket; the rows of each track (by its number) and all rows kept;
+    the steps between samples into ``steps``."""
     pairs = []
     for _, _, rows in _each_bucket(scan, groups, tracks):
+        steps.add(rows["step"])
         if "trip" in rows:
             combined = rows["key"].astype(np.int64) * (1 << 31) + rows["trip"]
             u, c = np.unique(combined, return_counts=True)
@@ -932,10 +966,18 @@ class _Part(NamedTuple):
 
 
 def _frame_all(
-    scan: _Scan, groups: _Groups, tracks: _Tracks, opts: _Options, max_gap: float, n_tracks: int, spool: _Spool
+    scan: _Scan,
+    groups: _Groups,
+    tracks: _Tracks,
+    opts: _Options,
+    max_gap: float,
+    step: float,
+    n_tracks: int,
+    spool: _Spool,
 ) -> tuple[_Segments, dict[int, tuple[float, float]], str]:
     """Pass 4: every window framed into the spool; the summary's segment counts, each track's
-    size (its first row's), and the velocity mode used."""
+    size (its first row's), and the velocity mode used. ``step``: at least the longest step
+    between consecutive samples of a segment."""
     import pandas as pd
 
     dt, W = opts.dt, opts.window
@@ -946,10 +988,13 @@ def _frame_all(
     )
     n_scenes = 1 if groups.labels is None else len(groups.labels)
     segs = _Segments(n_tracks, n_scenes, dt, max_gap, opts, mode)
-    reach = (opts.smoothing[0] if opts.smoothing else 3) + 4
-    margin = reach * max_gap * 1.01 + dt
-    nb = int(math.ceil(margin / W)) + 1
-    ng = int(math.ceil(max_gap / W)) + 1
+    # A grid point looks at samples up to w + 1 rows either side of its two neighbours (w: the
+    # smoothing window, or 3 for differences), each row at most `step` from the next: more than
+    # enough when the window's rows reach `margin` seconds beyond it on both sides.
+    rows_seen = (opts.smoothing[0] if opts.smoothing else 3) + 4
+    margin = rows_seen * step * 1.01 + dt
+    nb = int(math.ceil(margin / W))  # buckets of context either side
+    ng = int(math.ceil(step / W)) + 1  # windows beyond a bucket that may hold its grid points
     sizes: dict[int, tuple[float, float]] = {}
     with_v = tracks.reader.has_velocity()
     tracks.reset()
@@ -1020,7 +1065,8 @@ def _run(reader: _Reader, opts: _Options, n_shards: int, tmp: str, work: str) ->
         raise DataFormatError("velocity='columns' needs vx and vy columns in the table; use velocity='diff'")
     groups = _groups(reader, scan)
     tracks = _Tracks(reader, scan)
-    counts, n = _check_and_count(scan, groups, tracks)
+    steps = _Steps()
+    counts, n = _check_and_count(scan, groups, tracks, steps)
     n_tracks = len(counts)
     dt = opts.dt
     max_gap = opts.max_gap
@@ -1032,7 +1078,9 @@ def _run(reader: _Reader, opts: _Options, n_shards: int, tmp: str, work: str) ->
             "precision; use a larger dt, or subtract the start time from t"
         )
     spool = _Spool(work)
-    segs, sizes, mode = _frame_all(scan, groups, tracks, opts, max_gap, n_tracks, spool)
+    # the longest step inside a segment: how far apart (in time) the samples a point looks at can be
+    reach = steps.largest_up_to(max_gap * (1 + 1e-9))
+    segs, sizes, mode = _frame_all(scan, groups, tracks, opts, max_gap, reach, n_tracks, spool)
     c = segs.c
     if c["n_resampled"] == 0:
         raise InvalidInputError(
