@@ -794,26 +794,34 @@ def _check_and_count(scan: _Scan, groups: _Groups, tracks: _Tracks, steps: _Step
 
 def _typical_step(scan: _Scan, groups: _Groups, tracks: _Tracks, counts: np.ndarray, n: int) -> float:
     """Pass 3: make_frames' typical step, the median of the steps it samples (every
-    ``(n - 1) // 10^6``-th row of the table sorted by track, to the next row of its track)."""
+    ``(n - 1) // 10^6``-th row of the table sorted by track, to the next row of its track).
+
+    Exact, in memory that goes with the distinct steps sampled (at most a million), not with
+    the rows: each bucket's sampled steps are merged into sorted distinct values and counts."""
     stride = max(1, (n - 1) // _TYPICAL_SAMPLE)
     offsets = np.r_[0, np.cumsum(counts)[:-1]]
     seen = np.zeros(len(counts), dtype=np.int64)
     last_t = np.full(len(counts), np.nan)
-    steps = []
+    values, weights = np.zeros(0), np.zeros(0, dtype=np.int64)
     for _, _, rows in _each_bucket(scan, groups, tracks):
         tr, t = rows["track"], rows["t"]
         first = np.r_[True, tr[1:] != tr[:-1]]
         starts = np.flatnonzero(first)
-        run = np.cumsum(first) - 1
-        rank = np.arange(len(tr)) - starts[run] + seen[tr]
+        rank = np.arange(len(tr)) - starts[np.cumsum(first) - 1] + seen[tr]
         prev = np.where(first, last_t[tr], np.r_[np.nan, t[:-1]])
         pick = (rank > 0) & ((offsets[tr] + rank - 1) % stride == 0)
-        steps.append((t - prev)[pick])
         last = np.r_[first[1:], True]
         seen[tr[last]] = rank[last] + 1
         last_t[tr[last]] = t[last]
-    picked = np.concatenate(steps) if steps else np.zeros(0)
-    return float(np.median(picked)) if len(picked) else 0.0
+        u, c = np.unique((t - prev)[pick], return_counts=True)
+        values, inverse = np.unique(np.r_[values, u], return_inverse=True)
+        weights = np.bincount(inverse, weights=np.r_[weights, c], minlength=len(values)).astype(np.int64)
+    total = int(weights.sum())
+    if total == 0:
+        return 0.0
+    ranks = sorted({(total - 1) // 2, total // 2})  # the middle value, or the two middle values
+    middle = values[np.searchsorted(np.cumsum(weights), ranks, side="right")]
+    return float(np.median(middle))  # as np.median of all of them: the mean of the middle two
 
 
 # ---------------------------------------------------------------------------------------------
