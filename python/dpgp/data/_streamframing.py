@@ -541,7 +541,7 @@ class _Scan(NamedTuple):
 
 
 def _scan(reader: _Reader, opts: _Options, work: str) -> _Scan:
-    buckets = _Buckets(work, opts.window, 4 * opts.chunk_rows)
+    buckets = _Buckets(work, opts.window, opts.chunk_rows)
     keys, scenes = _Registry(), _Registry()
     n = 0
     t_abs = 0.0
@@ -948,7 +948,7 @@ class _Spool:
         import pyarrow as pa
         import pyarrow.parquet as pq
 
-        batches = pq.ParquetFile(self.file).iter_batches(batch_size=1 << 20)
+        batches = pq.ParquetFile(self.file).iter_batches(batch_size=1 << 16)
         held: list[Any] = []
         n_held = 0
         for want in sizes:
@@ -1026,14 +1026,19 @@ def _frame_all(
                 held[b] = rows
             for b in [b for b in held if b < w - nb]:
                 del held[b]
-            ctx = [held[b] for b in sorted(held) if b <= w + nb]
-            if not ctx:
+            # the window's rows and those within the margin: each track's rows over one time span
+            lo, hi = w * W - margin, (w + 1) * W + margin
+            names = ("track", "t", "x", "y", "vx", "vy") if with_v else ("track", "t", "x", "y")
+            ctx = []
+            for b in sorted(held):
+                r = held[b]
+                near = slice(None) if b == w else (r["t"] >= lo) & (r["t"] <= hi)
+                ctx.append({name: r[name][near] for name in names})
+            if not any(len(r["t"]) for r in ctx):
                 continue
             tr = np.concatenate([r["track"] for r in ctx])
             order = np.argsort(tr, kind="stable")
-            table = {"track": tr[order]}
-            for name in ("t", "x", "y", "vx", "vy") if with_v else ("t", "x", "y"):
-                table[name] = np.concatenate([r[name] for r in ctx])[order]
+            table = {name: np.concatenate([r[name] for r in ctx])[order] for name in names}
             res = _resample(
                 pd.DataFrame(table), opts.roi, dt, opts.velocity, opts.smoothing, opts.units, max_gap, partial=True
             )
