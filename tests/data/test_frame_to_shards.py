@@ -90,6 +90,13 @@ def test_sumo_differenced_and_smoothed_in_a_roi(tmp_path):
     check(tmp_path, path, tracks, {}, frame_kw, shards_n=5, window=7.0, chunk_rows=3000)
 
 
+def test_eth_ucy_headerless_text(tmp_path):
+    path = real("eth_ucy_biwi_eth.txt")
+    tracks = dpgp.read_tracks(path, preset="eth_ucy")
+    want = check(tmp_path, path, tracks, {"preset": "eth_ucy"}, {"dt": 0.4}, shards_n=2, window=30.0, chunk_rows=1000)
+    assert want.summary.object_type == "pedestrian"
+
+
 # --- synthetic, shuffled -------------------------------------------------------------------
 
 
@@ -137,6 +144,17 @@ def test_shuffled_file_smoothed_with_tiny_windows(tmp_path, shuffled):
     tracks = dpgp.read_tracks(shuffled / "tracks.csv", **read_kw)
     # windows of 0.7 s: the margin spans many of them
     check(tmp_path, shuffled / "tracks.csv", tracks, read_kw, {"dt": 0.25, "smoothing": (5, 3)}, window=0.7)
+
+
+def test_a_track_named_by_two_columns(tmp_path, shuffled):
+    df = pd.read_csv(shuffled / "tracks.csv")
+    number = df.pop("vehicle").str[1:].astype(int)
+    df["group"], df["member"] = number // 7, number % 7
+    df.to_csv(tmp_path / "two.csv", index=False)
+    read_kw = {"id": ["group", "member"], "t": "time", "sort": True}
+    tracks = dpgp.read_tracks(tmp_path / "two.csv", **read_kw)
+    (tmp_path / "run").mkdir()
+    check(tmp_path / "run", tmp_path / "two.csv", tracks, read_kw, {"dt": 0.3, "smoothing": (3, 1)}, window=1.5)
 
 
 def test_scenes_are_framed_scene_by_scene(tmp_path, shuffled):
