@@ -982,7 +982,7 @@ def _frame_all(
     step: float,
     n_tracks: int,
     spool: _Spool,
-) -> tuple[_Segments, dict[int, tuple[float, float]], str]:
+) -> tuple[_Segments, np.ndarray, str]:
     """Pass 4: every window framed into the spool; the summary's segment counts, each track's
     size (its first row's), and the velocity mode used. ``step``: at least the longest step
     between consecutive samples of a segment."""
@@ -1003,7 +1003,8 @@ def _frame_all(
     margin = rows_seen * step * 1.01 + dt
     nb = int(math.ceil(margin / W))  # buckets of context either side
     ng = int(math.ceil(step / W)) + 1  # windows beyond a bucket that may hold its grid points
-    sizes: dict[int, tuple[float, float]] = {}
+    sizes = np.full((n_tracks, 2), np.nan)
+    sized = np.zeros(n_tracks, dtype=bool)
     with_v = tracks.reader.has_velocity()
     tracks.reset()
     for members, code, windows in zip(groups.members, groups.codes, groups.windows):
@@ -1019,10 +1020,12 @@ def _frame_all(
                     continue
                 rows = tracks.take(loaded)
                 segs.add(rows["track"], rows["t"], code)
-                if "sl" in rows:
+                if "sl" in rows:  # each track's size is its first row's
                     firsts = np.flatnonzero(np.r_[True, rows["track"][1:] != rows["track"][:-1]])
-                    for i in firsts:
-                        sizes.setdefault(int(rows["track"][i]), (float(rows["sl"][i]), float(rows["sw"][i])))
+                    trk = rows["track"][firsts]
+                    new = ~sized[trk]
+                    sizes[trk[new]] = np.column_stack([rows["sl"][firsts[new]], rows["sw"][firsts[new]]])
+                    sized[trk[new]] = True
                 held[b] = rows
             for b in [b for b in held if b < w - nb]:
                 del held[b]
@@ -1110,17 +1113,9 @@ def _run(reader: _Reader, opts: _Options, n_shards: int, tmp: str, work: str) ->
         )
     n_frames = len(f_k)
     n_shards = sf.check_shards(n_shards, n_frames)
-    size_table = pd.DataFrame(
-        {"track": np.fromiter(sizes, dtype=np.int64, count=len(sizes))}
-        | (
-            {}
-            if reader.sizes is None or not reader.sizes_ok
-            else {
-                reader.sizes[0]: [v[0] for v in sizes.values()],
-                reader.sizes[1]: [v[1] for v in sizes.values()],
-            }
-        )
-    )
+    size_table = pd.DataFrame({"track": np.arange(n_tracks)})
+    if reader.sizes is not None and reader.sizes_ok:
+        size_table[reader.sizes[0]], size_table[reader.sizes[1]] = sizes[:, 0], sizes[:, 1]
     size_table.attrs["dpgp"] = {"units": reader.units, "format": reader.fmt}
     summary = FramingSummary(
         dt=dt,
