@@ -77,6 +77,34 @@ def test_ngsim_smoothed_converted_and_with_a_given_max_gap(tmp_path, peachtree):
     check(tmp_path, path, tracks, {"preset": "ngsim"}, frame_kw, shards_n=4, window=2.0, chunk_rows=1500)
 
 
+def test_ngsim_duplicates_trips_and_clashes_as_read_ngsim(tmp_path, peachtree):
+    """Repeated rows are dropped, a trip's long jump in Frame_ID splits it, rows in shuffled
+    order; a clashing row (same trip and frame, other values) is refused as read_ngsim does."""
+    path, _ = peachtree
+    lines = open(path, encoding="utf-8-sig").read().splitlines()
+    head, rows = lines[0], lines[1:3001]
+    rng = np.random.default_rng(5)
+    rows = rows + [rows[i] for i in rng.integers(0, len(rows), 40)]  # exact duplicates
+    jumped = [r.split(",", 2) for r in rows if r.startswith("352,")]  # one vehicle's trip, moved later
+    rows += [f"{v},{int(f) + 600},{rest}" for v, f, rest in jumped]
+    rows = [rows[i] for i in rng.permutation(len(rows))]
+    (tmp_path / "ngsim.csv").write_text("\n".join([head, *rows]) + "\n", encoding="utf-8")
+    tracks = dpgp.read_ngsim(tmp_path / "ngsim.csv")
+    report = tracks.attrs["dpgp"]["report"]
+    assert report["exact_duplicate_rows_dropped"] > 0 and report["trips_split_at_time_jumps"] > 0
+    (tmp_path / "run").mkdir()
+    check(tmp_path / "run", tmp_path / "ngsim.csv", tracks, {"preset": "ngsim"}, {"dt": 0.5}, window=4.0)
+
+    clash = rows[0].split(",")
+    clash[-2] = str(float(clash[-2]) + 1.0)  # Time_Headway changed; the trip and frame kept
+    (tmp_path / "clash.csv").write_text("\n".join([head, *rows, ",".join(clash)]) + "\n", encoding="utf-8")
+    with pytest.raises(dpgp.DataFormatError, match="same frame"):
+        dpgp.read_ngsim(tmp_path / "clash.csv")
+    with pytest.raises(dpgp.DataFormatError, match="same frame"):
+        shards.frame_to_shards(tmp_path / "clash.csv", tmp_path / "out", preset="ngsim", window=4.0)
+    assert not (tmp_path / "out").exists()
+
+
 def test_sumo_fcd_xml_streams(tmp_path):
     path = real("sumo_grid_intersection_fcd.xml.gz")
     tracks = dpgp.read_tracks(path, preset="sumo")
