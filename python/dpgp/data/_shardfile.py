@@ -207,8 +207,25 @@ def write_shards(frames: Any, directory: Any, shards: Any, *, overwrite: bool = 
     offsets = np.asarray(frames.offsets, dtype=np.int64)
     bounds = shard_bounds(offsets, n_shards)
     order, continues = _time_info(frames, bounds)
-    summary = getattr(frames, "summary", None)
-    infos = [
+    infos = shard_infos(offsets, bounds, continues)
+    doc = manifest_doc(
+        n_frames, infos, ids_spec, labels_spec, frames.tracks is not None, getattr(frames, "summary", None), order
+    )
+    parent = os.path.dirname(path)
+    tmp = tempfile.mkdtemp(prefix=temp_prefix(path), suffix=".tmp", dir=parent)
+    try:
+        for i, info in enumerate(infos):
+            _write_shard(os.path.join(tmp, info.file), frames, info, i, n_shards, ids_spec, labels_spec)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return commit(tmp, path, doc)
+
+
+def shard_infos(offsets: np.ndarray, bounds: np.ndarray, continues: list[bool | None]) -> list[ShardInfo]:
+    """The manifest's entries of shards cut at frame positions ``bounds`` (:func:`shard_bounds`)."""
+    n_shards = len(bounds) - 1
+    return [
         ShardInfo(
             file=f"shard-{i:0{max(5, len(str(n_shards - 1)))}d}.parquet",
             start=int(bounds[i]),
@@ -218,28 +235,43 @@ def write_shards(frames: Any, directory: Any, shards: Any, *, overwrite: bool = 
         )
         for i in range(n_shards)
     ]
-    doc = {
+
+
+def manifest_doc(
+    n_frames: int,
+    infos: list[ShardInfo],
+    ids_spec: dict[str, Any],
+    labels_spec: dict[str, Any] | None,
+    tracks: bool,
+    summary: FramingSummary | None,
+    order: dict[str, Any] | None,
+) -> dict[str, Any]:
+    """The manifest's JSON document (the module docstring lists its fields)."""
+    return {
         "format": FORMAT,
         "version": VERSION,
         "n_frames": n_frames,
-        "n_points": int(offsets[-1]),
-        "n_shards": n_shards,
+        "n_points": sum(s.points for s in infos),
+        "n_shards": len(infos),
         "shards": [
             {"file": s.file, "frames": [s.start, s.stop], "points": s.points, "continues": s.continues} for s in infos
         ],
         "ids": ids_spec,
         "labels": labels_spec,
-        "tracks": frames.tracks is not None,
+        "tracks": tracks,
         "units": None if summary is None else summary.length_unit,
         "summary": None if summary is None else summary.to_dict(),
         "time_order": order,
         "written_by": f"dpgp {_version()}",
     }
+
+
+def commit(tmp: str, path: str, doc: dict[str, Any]) -> ShardManifest:
+    """Finish a write: the manifest ``doc`` into the temporary directory ``tmp`` (which holds
+    the shards), synced, and ``tmp`` renamed onto ``path`` (the target ``check_target`` gave).
+    ``tmp`` is removed if this fails."""
     parent = os.path.dirname(path)
-    tmp = tempfile.mkdtemp(prefix=temp_prefix(path), suffix=".tmp", dir=parent)
     try:
-        for i, info in enumerate(infos):
-            _write_shard(os.path.join(tmp, info.file), frames, info, i, n_shards, ids_spec, labels_spec)
         with open(os.path.join(tmp, MANIFEST), "w", encoding="utf-8") as fh:
             json.dump(doc, fh, indent=1, default=_json_value)
             fh.write("\n")
@@ -304,15 +336,19 @@ def _write_shard(
     n_shards: int,
     ids_spec: dict[str, Any],
     labels_spec: dict[str, Any] | None,
+    first: int = 0,
 ) -> None:
-    """One shard file, built from the rows of its frames only (never a copy of all frames)."""
+    """One shard file, built from the rows of its frames only (never a copy of all frames).
+    ``frames`` may hold only some of the frames, from global position ``first`` on."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    a, b = info.start, info.stop
+    a, b = info.start - first, info.stop - first
     r0, r1 = int(frames.offsets[a]), int(frames.offsets[b])
     sizes: np.ndarray = np.diff(np.asarray(frames.offsets[a : b + 1], dtype=np.int64))
-    cols: dict[str, Any] = {"frame_number": pa.array(np.repeat(np.arange(a, b, dtype=np.int64), sizes))}
+    cols: dict[str, Any] = {
+        "frame_number": pa.array(np.repeat(np.arange(info.start, info.stop, dtype=np.int64), sizes))
+    }
     cols.update(_columns(ids_spec, np.asarray(frames.ids)[a:b], sizes, "frame", "frame ids"))
     xy, v = frames.xy[r0:r1], frames.v[r0:r1]
     for name, col in zip(_FLOATS, (xy[:, 0], xy[:, 1], v[:, 0], v[:, 1])):
@@ -321,7 +357,14 @@ def _write_shard(
         cols["track"] = pa.array(np.ascontiguousarray(frames.tracks[r0:r1], dtype=np.int64))
     if labels_spec is not None:
         cols.update(_columns(labels_spec, np.asarray(frames.labels)[a:b], sizes, "label", "labels"))
-    meta = {"format": FORMAT, "version": VERSION, "shard": i, "n_shards": n_shards, "frames": [a, b], "points": r1 - r0}
+    meta = {
+        "format": FORMAT,
+        "version": VERSION,
+        "shard": i,
+        "n_shards": n_shards,
+        "frames": [info.start, info.stop],
+        "points": r1 - r0,
+    }
     table = pa.table(cols).replace_schema_metadata({_META_KEY: json.dumps(meta).encode()})
     with open(file, "wb") as fh:
         pq.write_table(table, fh)
@@ -337,11 +380,18 @@ def _time_info(frames: Any, bounds: np.ndarray) -> tuple[dict[str, Any] | None, 
         order = time_order(frames)
     except UnorderedFramesError:
         return None, [None] * n_shards
-    scene, t = order.scene, order.time
+    return time_info(order.scene, order.time, order.dt, order.prev, bounds)
+
+
+def time_info(
+    scene: np.ndarray, t: np.ndarray, dt: float, prev: np.ndarray, bounds: np.ndarray
+) -> tuple[dict[str, Any], list[bool | None]]:
+    """The manifest's ``time_order`` and each shard's ``continues``, from the frames' scene codes,
+    times and the position of each one's predecessor in time (``-1``: none; :mod:`.timeorder`)."""
     forward = (scene[1:] > scene[:-1]) | ((scene[1:] == scene[:-1]) & (t[1:] > t[:-1]))
-    info = {"dt": order.dt, "in_time_order": bool(forward.all()), "n_sequences": int((order.prev < 0).sum())}
+    info = {"dt": dt, "in_time_order": bool(forward.all()), "n_sequences": int((prev < 0).sum())}
     continues: list[bool | None] = [False]
-    continues += [bool(order.prev[a] == a - 1) for a in bounds[1:-1]]
+    continues += [bool(prev[a] == a - 1) for a in bounds[1:-1]]
     return info, continues
 
 

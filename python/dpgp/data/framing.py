@@ -10,7 +10,7 @@ segment boundary.
 from __future__ import annotations
 
 import os
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal, overload
 
 import numpy as np
 
@@ -184,9 +184,41 @@ def resample_tracks(
 # ---------------------------------------------------------------------------------------------
 
 
+@overload
 def _resample(
     tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, units: Any, max_gap: Any
-) -> dict[str, Any]:
+) -> dict[str, Any]: ...
+
+
+@overload
+def _resample(
+    tracks: Any,
+    roi: Any,
+    dt: Any,
+    velocity: str,
+    smoothing: Any,
+    units: Any,
+    max_gap: Any,
+    *,
+    partial: Literal[True],
+) -> dict[str, Any] | None: ...
+
+
+def _resample(
+    tracks: Any,
+    roi: Any,
+    dt: Any,
+    velocity: str,
+    smoothing: Any,
+    units: Any,
+    max_gap: Any,
+    *,
+    partial: bool = False,
+) -> dict[str, Any] | None:
+    """The resampled vehicle-times of a tracks table, with the counts of the framing summary.
+
+    ``partial``: the table is one time window of a larger one (:mod:`._streamframing`), which
+    may hold no grid time or no vehicle in the ROI: None then, rather than an error."""
     dt = _positive("dt", dt, "seconds between frames")
     if max_gap is not None:
         max_gap = _positive("max_gap", max_gap, "seconds")
@@ -282,6 +314,8 @@ def _resample(
             "(or a smaller max_gap, which stops tracks being bridged across long gaps)"
         )
     if G == 0:
+        if partial:
+            return None
         raise InvalidInputError(
             f"no track reaches a grid time: dt={dt:g} s is longer than every track's time span "
             f"(and max_gap={max_gap:g} s cuts tracks at longer gaps); use a smaller dt or a larger max_gap"
@@ -318,6 +352,8 @@ def _resample(
     out = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
     seg_g = out.pop("seg")
     if len(seg_g) == 0:
+        if partial:
+            return None
         raise InvalidInputError(
             "no vehicle enters the ROI x [{:g}, {:g}], y [{:g}, {:g}]".format(*roi)
             + f": the data span x [{x.min():g}, {x.max():g}], y [{y.min():g}, {y.max():g}]"
@@ -446,6 +482,18 @@ def _resample_batch(
     j = np.searchsorted(key, shift[seg] + tg, side="right") - 1
     del key
     lo, hi = starts[seg], ends[seg]
+    # The shifted times round at the scale of the shift, which depends on the other segments of
+    # the batch: correct j to the last sample at or before tg in its own times, so that a grid
+    # point does not depend on how the table was cut into batches (or into time windows).
+    np.clip(j, lo, hi - 1, out=j)
+    while True:
+        down = (j > lo) & (t[j] > tg)
+        up = j + 1 < hi
+        up[up] = t[j[up] + 1] <= tg[up]
+        if not (down.any() or up.any()):
+            break
+        j[down] -= 1
+        j[up] += 1
     np.clip(j, lo, np.maximum(hi - 2, lo), out=j)
     j1 = np.minimum(j + 1, hi - 1)
     den = t[j1] - t[j]

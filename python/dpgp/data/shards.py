@@ -28,6 +28,7 @@ from typing import NamedTuple
 
 from ._shardfile import MANIFEST, VERSION, ShardInfo, ShardManifest, read_parts
 from ._shardfile import read_manifest as _read_manifest
+from ._streamframing import frame_to_shards
 from .frames import Frames, from_stored
 
 
@@ -76,6 +77,7 @@ __all__ = [
     "VERSION",
     "Shard",
     "ShardInfo",
+    "frame_to_shards",
     "ShardManifest",
     "iter_shards",
     "read_manifest",

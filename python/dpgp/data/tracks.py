@@ -21,7 +21,7 @@ import gzip
 import math
 import os
 import re
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -474,7 +474,7 @@ def _read_sumo(source: Any) -> pd.DataFrame:
 
     if is_path(source):
         path = _existing(source)
-        if path.lower().endswith((".xml", ".xml.gz")) or _first_line(path).lstrip().startswith("<"):
+        if is_sumo_xml(path):
             df = _read_sumo_xml(path)
         else:
             df = _read_sumo_csv(_read_table(path, None), path)
@@ -482,6 +482,16 @@ def _read_sumo(source: Any) -> pd.DataFrame:
         df = _read_sumo_csv(source, "DataFrame")
     else:
         raise DataFormatError(f"preset='sumo' takes a path or a DataFrame, got {type(source).__name__}")
+    return sumo_velocity(df)
+
+
+def is_sumo_xml(path: str) -> bool:
+    """Whether a SUMO file is FCD XML (else the CSV of ``xml2csv``)."""
+    return path.lower().endswith((".xml", ".xml.gz")) or _first_line(path).lstrip().startswith("<")
+
+
+def sumo_velocity(df: pd.DataFrame) -> pd.DataFrame:
+    """``vx, vy`` from SUMO's ``speed`` and ``angle`` (inserted after ``x, y``), when it has both."""
     if "speed" in df.columns and "angle" in df.columns:
         speed = _numeric(df["speed"], "speed", "SUMO").to_numpy(dtype=np.float64)
         heading = np.deg2rad(_numeric(df["angle"], "angle", "SUMO").to_numpy(dtype=np.float64))
@@ -492,12 +502,18 @@ def _read_sumo(source: Any) -> pd.DataFrame:
 
 
 def _read_sumo_xml(path: str) -> pd.DataFrame:
+    return next(sumo_xml_chunks(path, None))
+
+
+def sumo_xml_chunks(path: str, rows: int | None) -> Iterator[pd.DataFrame]:
+    """SUMO FCD XML as tables of up to ``rows`` rows each, in the file's order (``None``: one
+    table of every row); the parser frees each timestep once read, so a chunk at a time is all
+    that is held."""
     import xml.etree.ElementTree as ET
 
-    import pandas as pd
-
-    rows: list[dict[str, Any]] = []
+    buf: list[dict[str, Any]] = []
     time = math.nan
+    n = 0
     opener = gzip.open if path.lower().endswith(".gz") else open
     try:
         with opener(path, "rb") as fh:
@@ -515,9 +531,13 @@ def _read_sumo_xml(path: str) -> pd.DataFrame:
                 if elem.tag in ("vehicle", "person", "container"):
                     row = dict(elem.attrib)
                     row["time"], row["kind"] = time, elem.tag
-                    rows.append(row)
+                    buf.append(row)
                 elif elem.tag == "timestep":
                     root.clear()  # free what is parsed: FCD files run to gigabytes
+                    if rows is not None and len(buf) >= rows:
+                        n += len(buf)
+                        yield _sumo_table(buf, path)
+                        buf = []
     except DataFormatError:
         raise
     except ET.ParseError as e:
@@ -526,8 +546,15 @@ def _read_sumo_xml(path: str) -> pd.DataFrame:
         raise DataFormatError(f"{path} could not be read ({type(e).__name__}: {e}); is it complete?") from None
     except (TypeError, ValueError) as e:
         raise DataFormatError(f"{path}: unreadable timestep time: {e}") from None
-    if not rows:
+    if not buf and not n:
         raise DataFormatError(f"{path}: SUMO FCD output with no vehicle, person or container element")
+    if buf:
+        yield _sumo_table(buf, path)
+
+
+def _sumo_table(rows: list[dict[str, Any]], path: str) -> pd.DataFrame:
+    import pandas as pd
+
     df = pd.DataFrame(rows)
     front = ["time", "kind", "id", "x", "y"]
     missing = [c for c in ("id", "x", "y") if c not in df.columns]
