@@ -169,6 +169,20 @@ def test_auto_keeps_exact_where_hsgp_would_be_faster_but_inaccurate(monkeypatch)
     assert fine.likelihood_ == "hsgp" and fine.engine_choice_["resolution_gap"] < ec.PROBE_TOLERANCE
 
 
+def test_auto_over_budget_keeps_hsgp_but_warns_when_the_probe_finds_it_inaccurate(monkeypatch):
+    """The same too-coarse basis, with exact's worst case over the memory budget: auto cannot run
+    exact, still probes, records the gap and warns that held-out densities may suffer."""
+    frames = dpgp.datasets.synthetic("intersection", n_frames=40, seed=4)
+    monkeypatch.setattr(ec, "COEFFICIENTS", {"exact": (1.0, 0.0, 0.0), "hsgp": (1e-9, 0.0, 0.0, 0.0)})
+    budget = ec.exact_peak_bytes(int(frames.sizes.sum())) - 1
+    kw = dict(iterations=1, noise_var=0.5, length_scale_prior=(10.0, 1.0), seed=3, progress=False,
+              sampler="collapsed", memory_budget=budget)  # fmt: skip
+    with pytest.warns(UserWarning, match="cannot hold these data's length scales"):
+        auto = dpgp.DPGP(n_basis=(4, 4), **kw).fit(frames)
+    assert auto.likelihood_ == "hsgp" and not auto.engine_choice_["exact_fits"]
+    assert auto.engine_choice_["resolution_gap"] > ec.PROBE_TOLERANCE
+
+
 def test_partition_gap_is_the_points_weighted_gap_of_each_pattern():
     """The probe's gap on a partition: each pattern's gap on its every s-th frame (s from the
     whole data's points and the limit; a pattern shorter than s keeps its first frame), weighted by

@@ -608,7 +608,15 @@ class DPGP:
         """Step 2 of ``likelihood="auto"`` (:mod:`dpgp.engine_cost`), once hsgp has initialised:
         predict both engines' sweeps from its pattern sizes; if exact is faster, start the exact
         sampler afresh (its own initialisation: the chain is then ``likelihood="exact"``'s)."""
-        from .engine_cost import PROBE_SEEDS, check_accuracy, choose, partition_gap, pattern_points
+        from .engine_cost import (
+            PROBE_SEEDS,
+            PROBE_TOLERANCE,
+            check_accuracy,
+            choose,
+            exact_peak_bytes,
+            partition_gap,
+            pattern_points,
+        )
 
         self._auto_pending = False
         labels = np.asarray(self._sampler.labels(), dtype=np.int64)
@@ -617,7 +625,7 @@ class DPGP:
         choice = choose(
             points[points > 0], frames.sizes, self.basis_.size, self.memory_budget_, self.sampler_ == "subcluster"
         )
-        if choice.engine == "hsgp" and choice.exact_fits:  # faster: is it accurate on these data?
+        if choice.engine == "hsgp":  # faster, or exact over budget: is hsgp accurate on these data?
             # On the initialisations of fixed seeds, not this fit's: a decision about the data.
             cache: dict[bytes, float] = {}  # a pattern several initialisations share is probed once
             gaps = [
@@ -631,6 +639,16 @@ class DPGP:
                 for s in PROBE_SEEDS
             ]
             choice = check_accuracy(choice, float(np.median(gaps)), gaps)
+            gap, budget = choice.resolution_gap or 0.0, self.memory_budget_ or 0
+            if choice.engine == "hsgp" and not choice.exact_fits and gap > PROBE_TOLERANCE:
+                warnings.warn(
+                    f"the hsgp basis ({self.basis_.size} functions) cannot hold these data's length scales "
+                    f"(accuracy probe {gap:.2f} nats/point > {PROBE_TOLERANCE}), and exact's worst "
+                    f"case ({exact_peak_bytes(int(points.sum())) / 1e9:.1f} GB) is over the memory budget "
+                    f"({budget / 1e9:.1f} GB): held-out densities may be well below exact's. Pass "
+                    "likelihood='exact' with a larger memory_budget, or fit fewer frames",
+                    stacklevel=3,
+                )
         # The sampler's entry stays (hsgp kept) or is rewritten for exact below.
         self.engine_choice_ = {**choice.to_dict(), "sampler": (self.engine_choice_ or {}).get("sampler")}
         if choice.engine == "exact":
