@@ -626,7 +626,10 @@ class DPGP:
             points[points > 0], frames.sizes, self.basis_.size, self.memory_budget_, self.sampler_ == "subcluster"
         )
         if choice.engine == "hsgp":  # faster, or exact over budget: is hsgp accurate on these data?
-            # On the initialisations of fixed seeds, not this fit's: a decision about the data.
+            # Where exact fits: on the initialisations of fixed seeds, not this fit's, a decision
+            # about the data. Over budget the probe only informs a warning: this fit's own
+            # partition alone (more initialisations of data that large cost more than the fit).
+            seeds = PROBE_SEEDS if choice.exact_fits else (self.seed,)
             cache: dict[bytes, float] = {}  # a pattern several initialisations share is probed once
             gaps = [
                 partition_gap(
@@ -636,7 +639,7 @@ class DPGP:
                     self.basis_,
                     cache=cache,
                 )
-                for s in PROBE_SEEDS
+                for s in seeds
             ]
             choice = check_accuracy(choice, float(np.median(gaps)), gaps)
             gap, budget = choice.resolution_gap or 0.0, self.memory_budget_ or 0
