@@ -100,6 +100,9 @@ fn capacity_spares_a_quarter_in_multiples_of_sixteen() {
     assert_eq!(capacity(1025), 1296);
     for n in 1..3000 {
         let c = capacity(n);
-        assert!(c >= n && c.is_multiple_of(16) && c <= n + n / 4 + 16, "{n}: {c}");
+        assert!(
+            c >= n && c.is_multiple_of(16) && c <= n + n / 4 + 16,
+            "{n}: {c}"
+        );
     }
 }
