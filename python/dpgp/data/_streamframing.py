@@ -46,13 +46,11 @@ import numpy as np
 
 from .._arrays import column_floats, is_path
 from .._constants import DEFAULT_DT
-from .._validate import check_roi
 from ..exceptions import DataFormatError, InvalidInputError
 from . import _shardfile as sf
-from .framing import _GRID_EPS, _MAX_GRID_NUMBER, _check_smoothing, _check_units, _positive, _resample
+from .framing import _GRID_EPS, _MAX_GRID_NUMBER, _check_options, _positive, _resample
 from .provenance import FramingSummary, describe_tracks
 from .tracks import (
-    _NGSIM_TXT,
     _PRESET_ALIASES,
     _PRESETS,
     NGSIM_FRAME_SECONDS,
@@ -62,7 +60,7 @@ from .tracks import (
     _existing,
     _first_line,
     _is_number,
-    _ngsim_names,
+    _name_ngsim_columns,
     _numeric,
     _read_sumo_csv,
     _resolve_columns,
@@ -195,14 +193,7 @@ class _Options(NamedTuple):
     def check(
         cls, roi: Any, dt: Any, velocity: Any, smoothing: Any, units: Any, max_gap: Any, window: Any, chunk_rows: Any
     ) -> _Options:
-        dt = _positive("dt", dt, "seconds between frames")
-        if max_gap is not None:
-            max_gap = _positive("max_gap", max_gap, "seconds")
-        roi = None if roi is None else check_roi(roi)
-        scale, units_name = _check_units(units)
-        if velocity not in ("auto", "columns", "diff"):
-            raise InvalidInputError(f"velocity must be 'auto', 'columns' or 'diff', got {velocity!r}")
-        smoothing = _check_smoothing(smoothing)
+        roi, dt, smoothing, scale, units_name, max_gap = _check_options(roi, dt, velocity, smoothing, units, max_gap)
         window = _positive("window", window, "seconds of recording framed at a time")
         if isinstance(chunk_rows, (bool, np.bool_)) or not isinstance(chunk_rows, (int, np.integer)) or chunk_rows < 1:
             raise InvalidInputError(f"chunk_rows must be a whole number of rows (1 or more), got {chunk_rows!r}")
@@ -319,17 +310,7 @@ class _Reader:
                 chunksize=rows,
             ) as chunks:
                 for df in chunks:
-                    if header is None:
-                        names = _NGSIM_TXT.get(df.shape[1])
-                        if names is None:
-                            raise DataFormatError(
-                                f"{path} has no header and {df.shape[1]} columns; NGSIM text files have 18 "
-                                "(US-101, I-80), 24 (Lankershim, Peachtree) or 25 (CSV export) columns"
-                            )
-                        df.columns = names
-                    else:
-                        df = df.rename(columns=_ngsim_names(df.columns))
-                    yield df
+                    yield _name_ngsim_columns(df, path, header is None)
         except _damaged_file_errors() as e:
             raise DataFormatError(f"{path} is not a readable NGSIM file ({type(e).__name__}: {e})") from None
 

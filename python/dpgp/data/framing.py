@@ -184,6 +184,19 @@ def resample_tracks(
 # ---------------------------------------------------------------------------------------------
 
 
+def _check_options(roi: Any, dt: Any, velocity: Any, smoothing: Any, units: Any, max_gap: Any) -> tuple[Any, ...]:
+    """The framing options checked: ``(roi, dt, smoothing, unit scale, unit name, max_gap)``
+    (shared by :func:`_resample` and the windowed framing of :mod:`._streamframing`)."""
+    dt = _positive("dt", dt, "seconds between frames")
+    if max_gap is not None:
+        max_gap = _positive("max_gap", max_gap, "seconds")
+    roi = None if roi is None else check_roi(roi)
+    scale, units_name = _check_units(units)
+    if velocity not in ("auto", "columns", "diff"):
+        raise InvalidInputError(f"velocity must be 'auto', 'columns' or 'diff', got {velocity!r}")
+    return roi, dt, _check_smoothing(smoothing), scale, units_name, max_gap
+
+
 @overload
 def _resample(
     tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, units: Any, max_gap: Any
@@ -219,14 +232,7 @@ def _resample(
 
     ``partial``: the table is one time window of a larger one (:mod:`._streamframing`), which
     may hold no grid time or no vehicle in the ROI: None then, rather than an error."""
-    dt = _positive("dt", dt, "seconds between frames")
-    if max_gap is not None:
-        max_gap = _positive("max_gap", max_gap, "seconds")
-    roi = None if roi is None else check_roi(roi)
-    scale, units_name = _check_units(units)
-    if velocity not in ("auto", "columns", "diff"):
-        raise InvalidInputError(f"velocity must be 'auto', 'columns' or 'diff', got {velocity!r}")
-    smoothing = _check_smoothing(smoothing)
+    roi, dt, smoothing, scale, units_name, max_gap = _check_options(roi, dt, velocity, smoothing, units, max_gap)
 
     cols = _columns(tracks)
     has_v = "vx" in cols and "vy" in cols

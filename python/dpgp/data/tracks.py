@@ -110,16 +110,7 @@ def read_ngsim(path: str | os.PathLike, *, split_gap: float = 1.0) -> pd.DataFra
         )
     except _damaged_file_errors() as e:
         raise DataFormatError(f"{path} is not a readable NGSIM file ({type(e).__name__}: {e})") from None
-    if header is None:
-        names = _NGSIM_TXT.get(df.shape[1])
-        if names is None:
-            raise DataFormatError(
-                f"{path} has no header and {df.shape[1]} columns; NGSIM text files have 18 "
-                "(US-101, I-80), 24 (Lankershim, Peachtree) or 25 (CSV export) columns"
-            )
-        df.columns = names
-    else:
-        df = df.rename(columns=_ngsim_names(df.columns))
+    df = _name_ngsim_columns(df, path, header is None)
     missing = [c for c in ("Vehicle_ID", "Frame_ID", "Local_X", "Local_Y") if c not in df.columns]
     if missing:
         raise DataFormatError(
@@ -171,6 +162,21 @@ def read_ngsim(path: str | os.PathLike, *, split_gap: float = 1.0) -> pd.DataFra
     _check_finite_columns(out, ("x", "y", "t"), str(path))
     out.attrs["dpgp"] = {"source": str(path), "format": "ngsim", "units": "ft", "report": report}
     return out
+
+
+def _name_ngsim_columns(df: pd.DataFrame, path: Any, headerless: bool) -> pd.DataFrame:
+    """``df`` (all of an NGSIM file, or a chunk of it) with the standard column names: by column
+    count for a text file without a header, else its header's names normalised."""
+    if not headerless:
+        return df.rename(columns=_ngsim_names(df.columns))
+    names = _NGSIM_TXT.get(df.shape[1])
+    if names is None:
+        raise DataFormatError(
+            f"{path} has no header and {df.shape[1]} columns; NGSIM text files have 18 "
+            "(US-101, I-80), 24 (Lankershim, Peachtree) or 25 (CSV export) columns"
+        )
+    df.columns = names
+    return df
 
 
 def _ngsim_names(columns: Sequence[object]) -> dict[object, str]:

@@ -381,12 +381,12 @@ impl SubclusterSampler {
         let sets: Vec<&[usize]> = groups.values().map(|g| &g[..]).collect();
         let sums = self.sums_of_sets(&sets);
         for (&(from, to), s) in groups.keys().zip(&sums) {
-            self.part_mut(to).sums.add(s);
-            self.part_mut(from).sums.sub(s);
-        }
-        for (from, to) in groups.into_keys() {
-            self.part_mut(from).fit = None;
-            self.part_mut(to).fit = None;
+            let dest = self.part_mut(to);
+            dest.sums.add(s);
+            dest.fit = None;
+            let src = self.part_mut(from);
+            src.sums.sub(s);
+            src.fit = None;
         }
     }
 }
