@@ -344,9 +344,18 @@ class DPGP:
             settings["sampler"] = self.sampler
         return settings
 
-    def fit(self, frames: Frames | Any, y: None = None, *, warm_start: bool = False) -> DPGP:
+    def fit(self, frames: Frames | Any, y: None = None, *, warm_start: bool = False, client: Any = None) -> DPGP:
         """Fit the mixture to training frames (a :class:`~dpgp.Frames`, a framed DataFrame, or a directory
         of frame shards written by :meth:`~dpgp.Frames.to_parquet`).
+
+        **Shards.** A directory is fitted as its shards by one sub-cluster chain (the reduced-rank
+        engine), in this process or, with ``client`` (a ``dask.distributed.Client``), with each
+        shard read and served by a worker, so that no process holds all frames. The same seed and
+        shards give the same chain either way (:mod:`dpgp.model.sharded`). The data-dependent
+        settings then come from a sample of the frames
+        (:data:`~dpgp.model.sharded.SAMPLE_FRAMES`) and the positions' extent. Settings that need
+        every frame in one process (``likelihood="exact"``, ``sampler="collapsed"``, ``dynamics``,
+        ``pattern_moments``) read the directory into memory, and refuse a ``client``.
 
         ``warm_start=True`` continues this fitted model's chain on the same frames for
         ``iterations`` more sweeps instead of starting afresh: the sampler, its random stream,
@@ -355,12 +364,25 @@ class DPGP:
         10 sweeps continued by 10 is bitwise a fit of 20. The stopping rule
         (``n_iter_no_change``) counts afresh from the continuation. A model never fitted starts
         afresh, as scikit-learn's ``warm_start`` does."""
+        from .sharded import check_client, manifest_of, settings_sample
+
+        manifest = manifest_of(frames)
+        check_client(client, manifest)
         if warm_start and hasattr(self, "_sampler"):
             return self._continue(frames)
         self._check_settings()
+        sharded = manifest is not None and self._runs_on_shards(client)
+        if sharded and self.checkpoint is not None:
+            raise InvalidInputError("checkpoint is not available for a fit over shards yet; fit without checkpoint")
         if self.checkpoint is not None:
             ckpt.check_path(self.checkpoint)  # before the work, not after the initialisation
-        frames = as_frames(frames)
+        extent = None
+        if sharded:
+            assert manifest is not None
+            frames, extent, _ = settings_sample(manifest)
+            _check_magnitudes(Frames.from_arrays([0, 0], extent[:, 0], extent[:, 1], [0, 0], [0, 0]), "the training data")
+        else:
+            frames = as_frames(frames)
         _check_magnitudes(frames, "the training data")
         self._resolve_defaults(frames)
         signal_var = frames.v.var(axis=0) if self.signal_var is None else _pair("signal_var", self.signal_var)
@@ -379,13 +401,19 @@ class DPGP:
         ls0 = (a * b, a * b) if self.length_scales is None else _pair("length_scales", self.length_scales)
         self.params_ = GPParams(ls0, tuple(signal_var), self.noise_var_, tuple(mean))
         check_scales(frames.v, self.params_, "the training data")
-        self._resolve_engine(frames)
-        self._sampler = self._new_sampler(frames)
-        self.frames_ = frames
+        if sharded:
+            assert manifest is not None and extent is not None
+            self._resolve_sharded_engine(frames, extent)
+            self._sampler = self._new_sharded_sampler(manifest, client)
+            self._frames, self._frames_dir, self._n_train = None, manifest.directory, manifest.n_frames
+        else:
+            self._resolve_engine(frames)
+            self._sampler = self._new_sampler(frames)
+            self.frames_ = frames
         self.history_: dict[str, list] = {k: [] for k in ckpt.HISTORY_KEYS}
         if self.dynamics is not None:
             self.history_["stickiness"] = []
-        self.draws_ = Draws(len(frames))
+        self.draws_ = Draws(self._n_training())
         self.__dict__.pop("label_trace_", None)
         self.converged_ = False
         self.n_iter_ = 0
@@ -408,11 +436,86 @@ class DPGP:
         self._sweeps(stable=0, traces=[], checkpoint_now=True)
         return self
 
+    # --- frames held in shards ----------------------------------------------------------------------
+    @property
+    def frames_(self) -> Frames:
+        """The training frames. After a fit over shards they are read from the directory on first
+        use (the fit itself never holds them all)."""
+        f = self.__dict__.get("_frames")
+        if f is None and self.__dict__.get("_frames_dir") is not None:
+            f = self.__dict__["_frames"] = as_frames(self._frames_dir)
+        if f is None:
+            raise AttributeError("frames_")
+        return f
+
+    @frames_.setter
+    def frames_(self, frames: Frames) -> None:
+        self.__dict__["_frames"], self.__dict__["_frames_dir"] = frames, None
+        self.__dict__["_n_train"] = len(frames)
+
+    def _n_training(self) -> int:
+        """The number of training frames (without reading shards)."""
+        n = self.__dict__.get("_n_train")
+        return int(n) if n is not None else len(self.frames_)
+
+    def _runs_on_shards(self, client: Any) -> bool:
+        """Whether a directory of shards is fitted as shards (else read into memory); with a
+        ``client`` settings that cannot are refused."""
+        ok = (
+            self.likelihood in ("auto", "hsgp")
+            and self.sampler in ("auto", "subcluster")
+            and self.dynamics is None
+            and not self.pattern_moments
+        )
+        if client is not None and not ok:
+            raise InvalidInputError(
+                "a fit with client= runs the sub-cluster sampler on the reduced-rank engine over the shards; "
+                "likelihood must be 'auto' or 'hsgp', sampler 'auto' or 'subcluster', with no dynamics or pattern_moments"
+            )
+        return ok
+
+    def _resolve_sharded_engine(self, sample: Frames, extent: np.ndarray) -> None:
+        """``likelihood_``, ``basis_`` (over the sample and the positions' whole extent),
+        ``memory_budget_`` and ``sampler_`` of a fit over shards."""
+        budget = parse_bytes("memory_budget", self.memory_budget)
+        check_thread_reservations(self.n_threads)
+        self.memory_budget_ = budget if budget is not None else default_memory_budget(self.n_threads)
+        self._auto_pending = False
+        self.likelihood_ = "hsgp"
+        self.engine_choice_ = {
+            "engine": "hsgp",
+            "why": "frames in shards: the chain runs over them with the sub-cluster sampler on the reduced-rank engine",
+        }
+        self.basis_ = basis_for(
+            np.vstack([sample.xy, extent]),
+            self.length_scale_prior_,
+            None if self.length_scales is None else _pair("length_scales", self.length_scales),
+            None if self.n_basis is None else _basis_counts(self.n_basis),
+        )
+        self._resolve_sampler()
+
+    def _new_sharded_sampler(self, manifest: Any, client: Any) -> _core.Sampler:
+        """A sub-cluster chain over the shards of ``manifest``: read into this process, or served by
+        ``client``'s workers (:mod:`dpgp.model.sharded`)."""
+        from .sharded import DaskShards, local_shards
+
+        settings = self._core_settings(manifest.n_frames, None)
+        if client is None:
+            self._shard_link = None
+            return _core.Sampler.over_shards(local_shards(manifest), settings)
+        self._shard_link = DaskShards(client, manifest)
+        return _core.Sampler.over_link([s.n_frames for s in manifest.shards], self._shard_link, settings)
+
     def _continue(self, frames: Frames | Any) -> DPGP:
         """``fit(frames, warm_start=True)`` of a fitted model: ``iterations`` more sweeps of its chain."""
         self._check_settings()
-        frames = as_frames(frames)
-        if not (frames is self.frames_ or _same_frames(frames, self.frames_)):
+        directory = self.__dict__.get("_frames_dir")
+        if directory is not None and isinstance(frames, (str, os.PathLike)):
+            same = os.path.abspath(frames) == os.path.abspath(directory)
+        else:
+            frames = as_frames(frames)
+            same = frames is self.frames_ or _same_frames(frames, self.frames_)
+        if not same:
             raise InvalidInputError(
                 "warm_start continues the chain on the frames the model was fitted to; these frames differ "
                 "(fit without warm_start to start a chain on new data)"
@@ -486,7 +589,7 @@ class DPGP:
             if bar is not None:
                 bar.close()
         if self.store_labels:
-            self.label_trace_ = _trace_array(traces, len(self.frames_))
+            self.label_trace_ = _trace_array(traces, self._n_training())
         self._sync()
         # Refactor every pattern in canonical order (patterns by size, frames by index), which is
         # also what loading a saved model does: both then compute with identical factors.
@@ -499,7 +602,7 @@ class DPGP:
         """Keep the state after this sweep if the thinning asks for it (:mod:`dpgp.posterior`)."""
         from ..gp.draws import state_of
 
-        draws = self.__dict__.setdefault("draws_", Draws(len(self.frames_)))
+        draws = self.__dict__.setdefault("draws_", Draws(self._n_training()))
         per = self._per_pattern_noise()
         draws.record(self.n_iter_, lambda: state_of(self._sampler, per), int(self.posterior_draws))
 
@@ -544,7 +647,7 @@ class DPGP:
         from ..io.modelfile import save
 
         if self.store_labels:
-            self.label_trace_ = _trace_array(traces, len(self.frames_))
+            self.label_trace_ = _trace_array(traces, self._n_training())
         # Uncompressed: zlib would be most of a checkpoint's cost (the file is read once, if at all).
         assert self.checkpoint is not None
         save(self._file_state(), self.checkpoint, resume=self._resume_point, compress=False)
@@ -673,6 +776,14 @@ class DPGP:
         given ``seed`` instead of ``self.seed``, for auto's probe; ``collapsed``: the collapsed
         sampler whatever ``sampler_``); shared by ``fit`` and by loading a model file, so that
         both compute identically."""
+        settings = self._core_settings(len(frames), frames, seed=seed, collapsed=collapsed)
+        return _core.Sampler(frames.xy, frames.v, frames.offsets, settings)
+
+    def _core_settings(
+        self, n_frames: int, frames: Frames | None, seed: int | None = None, collapsed: bool = False
+    ) -> dict[str, Any]:
+        """The core sampler's settings for ``n_frames`` training frames (``frames``, when in this
+        process: the sticky prior's transitions)."""
         a, b = self.length_scale_prior_
         settings = self._sampler_settings()
         if seed is not None:
@@ -682,7 +793,7 @@ class DPGP:
         if sampler == "subcluster" and _is_auto(self.split_merge):
             from .engine_cost import subcluster_moves
 
-            settings["split_merge"] = subcluster_moves(len(frames))
+            settings["split_merge"] = subcluster_moves(n_frames)
         settings.update(
             {
                 "assignment": self.assignment_,
@@ -695,10 +806,10 @@ class DPGP:
                 if getattr(self.defaults_, "noise_var_source", None) in ("sampled", "per_pattern")
                 else None,
                 "noise_scope": "per_pattern" if self._per_pattern_noise() else "global",
-                "dynamics": _sticky_prior(frames) if self.dynamics == "sticky" else None,
+                "dynamics": _sticky_prior(frames) if self.dynamics == "sticky" and frames is not None else None,
             }
         )
-        return _core.Sampler(frames.xy, frames.v, frames.offsets, settings)
+        return settings
 
     def _sync(self) -> None:
         """Read the sampler's state into the public attributes, patterns by decreasing size."""

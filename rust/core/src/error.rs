@@ -39,6 +39,9 @@ pub enum Error {
     /// The caller asked the computation to stop (Ctrl-C).
     #[error("interrupted")]
     Interrupted,
+    /// Shards served elsewhere could not answer (a worker or the scheduler failed).
+    #[error("the frames' shards could not be reached: {0}")]
+    Link(String),
 }
 
 pub type Result<T> = std::result::Result<T, Error>;

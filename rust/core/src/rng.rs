@@ -43,6 +43,11 @@ pub fn stream(seed: u64, sweep: u64, phase: Phase, entity: u64) -> ChaCha8Rng {
 /// [`stream`] hashed once more: a few nanoseconds, where a stream costs a ChaCha set-up, for
 /// passes that draw one number for each of millions of frames.
 pub fn uniform(seed: u64, sweep: u64, phase: Phase, entity: u64) -> f64 {
-    let key = splitmix(splitmix(splitmix(splitmix(sweep) ^ phase as u64) ^ entity) ^ seed);
+    uniform_code(seed, sweep, phase as u64, entity)
+}
+
+/// [`uniform`] with the phase as its number (`phase as u64`), for requests that carry it.
+pub fn uniform_code(seed: u64, sweep: u64, phase: u64, entity: u64) -> f64 {
+    let key = splitmix(splitmix(splitmix(splitmix(sweep) ^ phase) ^ entity) ^ seed);
     (key >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
 }

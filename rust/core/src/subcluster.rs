@@ -39,7 +39,7 @@ use rayon::prelude::*;
 
 use crate::basis::Basis;
 use crate::error::{Error, Result};
-use crate::frame::{LengthScales, Point};
+use crate::frame::LengthScales;
 use crate::gibbs::{
     Assignment, Data, NoiseScope, PatternInfo, Sampler, SamplerKind, Settings, SplitMergeStats,
     SweepStats,
@@ -56,6 +56,10 @@ mod moves;
 mod pass;
 #[path = "subcluster_peel.rs"]
 mod peel;
+#[path = "subcluster_shard.rs"]
+pub mod shard;
+
+pub use shard::Store;
 
 /// Where a chain starts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -190,7 +194,8 @@ impl crate::gibbs::Refit for Candidate<'_> {
 #[derive(Clone, Debug)]
 pub struct SubclusterSampler {
     settings: Settings,
-    data: Arc<Data>,
+    /// The frames: in this process, or in shards served elsewhere (`subcluster_shard.rs`).
+    store: Store,
     basis: Arc<Basis>,
     /// The basis's lower half of frequencies per axis, for the launches' sub-fields.
     coarse: Arc<Basis>,
@@ -217,6 +222,11 @@ const NONE: usize = usize::MAX;
 impl SubclusterSampler {
     /// A sampler with every frame unassigned; call [`SubclusterSampler::initialize`] next.
     pub fn new(data: Arc<Data>, settings: Settings) -> Result<Self> {
+        Self::with_store(Store::local(data), settings)
+    }
+
+    /// A sampler over frames held by `store` (this process's, or shards served elsewhere).
+    pub fn with_store(store: Store, settings: Settings) -> Result<Self> {
         settings.validate()?;
         let Likelihood::Hsgp(basis) = &settings.likelihood else {
             unreachable!("validate() refuses the sub-cluster sampler without a basis");
@@ -230,10 +240,10 @@ impl SubclusterSampler {
         )?);
         // The same starting α as the collapsed sampler (the same stream).
         let alpha = crate::gibbs::initial_alpha(&settings)?;
-        let n = data.len();
+        let n = store.len();
         Ok(Self {
             settings,
-            data,
+            store,
             basis,
             coarse,
             slots: Vec::new(),
@@ -256,8 +266,14 @@ impl SubclusterSampler {
         &self.settings
     }
 
-    pub fn data(&self) -> &Arc<Data> {
-        &self.data
+    /// The frames, when they are all in this process (not a sharded chain).
+    pub fn data(&self) -> Option<&Arc<Data>> {
+        self.store.data()
+    }
+
+    /// The frames' store.
+    pub fn store(&self) -> &Store {
+        &self.store
     }
 
     pub fn alpha(&self) -> f64 {
@@ -401,7 +417,7 @@ impl SubclusterSampler {
         if !self.labels.contains(&NONE) {
             return Ok(());
         }
-        let n = self.data.len();
+        let n = self.store.len();
         match start {
             Start::Sequential => self.initialize_sequential(stop),
             Start::One | Start::Many => {
@@ -419,18 +435,11 @@ impl SubclusterSampler {
     /// in parallel: the collapsed sampler would place them by cheap score and build a pattern
     /// holding a copy of every point, which on a million frames is most of the memory.
     fn initialize_sequential(&mut self, stop: &dyn Fn() -> bool) -> Result<()> {
-        let n = self.data.len();
+        let n = self.store.len();
         let n0 = n.min(crate::gibbs::INIT_SEQUENTIAL);
-        let first = if n0 == n {
-            Arc::clone(&self.data)
-        } else {
-            let (xy, v) = self.data.points();
-            let end = self.data.offsets()[n0];
-            Arc::new(Data::new(
-                xy[..end].to_vec(),
-                v[..end].to_vec(),
-                self.data.offsets()[..=n0].to_vec(),
-            )?)
+        let first = match self.store.data() {
+            Some(d) if n0 == n => Arc::clone(d),
+            _ => Arc::new(self.store.frames(&(0..n0).collect::<Vec<_>>())?),
         };
         let settings = Settings {
             sampler: SamplerKind::Collapsed,
@@ -462,7 +471,7 @@ impl SubclusterSampler {
         noise_var: Option<&[[f64; 2]]>,
         alpha: f64,
     ) -> Result<()> {
-        crate::gibbs::check_state(self.data.len(), labels, length_scales, noise_var, alpha)?;
+        crate::gibbs::check_state(self.store.len(), labels, length_scales, noise_var, alpha)?;
         let mut members: Vec<Vec<usize>> = vec![Vec::new(); length_scales.len()];
         for (i, &g) in labels.iter().enumerate() {
             members[g].push(i);
@@ -474,9 +483,10 @@ impl SubclusterSampler {
         self.slots.clear();
         self.generations.clear();
         self.check_memory(groups.len() * 8 * (m * m * 3 + 8 * m))?;
-        let sums = self.sums_of_sets(&groups.iter().map(|&g| &members[g][..]).collect::<Vec<_>>());
+        let sums =
+            self.sums_of_sets(&groups.iter().map(|&g| &members[g][..]).collect::<Vec<_>>())?;
         self.alpha = alpha;
-        self.labels = vec![NONE; self.data.len()];
+        self.labels = vec![NONE; self.store.len()];
         for (&g, s) in groups.iter().zip(sums) {
             let mut params = self.settings.pattern_params(length_scales[g]);
             if let Some(nv) = noise_var {
@@ -490,32 +500,11 @@ impl SubclusterSampler {
         self.refresh_fits()
     }
 
-    /// The sums of each set of frames (each in frame order), in parallel over fixed chunks of
-    /// frames and added in chunk order: the same numbers for any thread count.
-    fn sums_of_sets(&self, sets: &[&[usize]]) -> Vec<Sums> {
-        const CHUNK: usize = 64;
-        let jobs: Vec<(usize, &[usize])> = sets
-            .iter()
-            .enumerate()
-            .flat_map(|(s, frames)| frames.chunks(CHUNK).map(move |c| (s, c)))
-            .collect();
-        let parts: Vec<Sums> = jobs
-            .par_iter()
-            .map(|(_, frames)| {
-                let (mut xy, mut v): (Vec<Point>, Vec<[f64; 2]>) = (Vec::new(), Vec::new());
-                for &f in *frames {
-                    let fr = self.data.frame(f);
-                    xy.extend_from_slice(fr.xy);
-                    v.extend_from_slice(fr.v);
-                }
-                Sums::of_points(&self.basis, &xy, &v, frames.len())
-            })
-            .collect();
-        let mut out: Vec<Sums> = sets.iter().map(|_| Sums::zeros(&self.basis)).collect();
-        for ((s, _), p) in jobs.iter().zip(&parts) {
-            out[*s].add(p);
-        }
-        out
+    /// The sums of each set of frames (each in frame order): in parallel over fixed chunks of
+    /// frames added in chunk order, shards added in shard order (the same numbers for any thread
+    /// count).
+    fn sums_of_sets(&self, sets: &[&[usize]]) -> Result<Vec<Sums>> {
+        self.store.sums_of_sets(&self.basis, sets)
     }
 
     /// One sweep: the parallel assignment pass, split–merge moves, the noise, the length scales
@@ -692,7 +681,7 @@ impl SubclusterSampler {
     }
 
     fn update_alpha(&mut self) {
-        let n = self.data.len();
+        let n = self.store.len();
         let k = self.live().count();
         let mut rng = stream(self.settings.seed, self.sweep, Phase::Alpha, 0);
         self.alpha = crate::gibbs::alpha_step(self.alpha, k, n, &mut rng);
@@ -701,7 +690,7 @@ impl SubclusterSampler {
     /// `log p(z, w, α, V)`: the collapsed sampler's log joint (CRP, priors of the length scales,
     /// of α and of the noise, and every pattern's marginal likelihood), from the sums.
     pub fn log_joint(&self) -> f64 {
-        let n = self.data.len() as f64;
+        let n = self.store.len() as f64;
         let a = self.alpha;
         let mut total = ln_gamma(a) - ln_gamma(n + a);
         if self.settings.alpha.is_none() {
@@ -730,11 +719,12 @@ impl SubclusterSampler {
         total
     }
 
-    fn frame_means(&self) -> Arc<Vec<[f64; 2]>> {
-        Arc::clone(
-            self.frame_means
-                .get_or_init(|| Arc::new(crate::gibbs::frame_means(&self.data))),
-        )
+    fn frame_means(&self) -> Result<Arc<Vec<[f64; 2]>>> {
+        if let Some(m) = self.frame_means.get() {
+            return Ok(Arc::clone(m));
+        }
+        let m = Arc::new(self.store.means()?);
+        Ok(Arc::clone(self.frame_means.get_or_init(|| m)))
     }
 
     /// Whether labels are drawn (Gibbs) or taken at the mode (map).

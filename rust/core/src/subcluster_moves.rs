@@ -31,12 +31,12 @@
 //! The moves per sweep are a setting of the data's size only, never of the state.
 
 use rand::RngExt;
-use rayon::prelude::*;
 
-use super::pass::{FieldBank, TILE};
+use std::sync::Arc;
+
+use super::shard::{Bank, Store};
 use super::{Fit, SubclusterSampler};
 use crate::error::{Error, Result};
-use crate::frame::Point;
 use crate::gibbs::Assignment;
 use crate::gp::GpParams;
 use crate::hsgp_sums::{Posterior, Sums};
@@ -59,7 +59,7 @@ struct Division {
 impl SubclusterSampler {
     /// Run the configured number of moves.
     pub(super) fn split_merge_moves(&mut self, stop: &dyn Fn() -> bool) -> Result<()> {
-        if self.data.len() < 2 {
+        if self.store.len() < 2 {
             return Ok(());
         }
         self.refresh_fits()?;
@@ -68,9 +68,11 @@ impl SubclusterSampler {
                 return Err(Error::Interrupted);
             }
             let mut rng = stream(self.settings.seed, self.sweep, Phase::Launch, m as u64);
-            let n = self.data.len();
+            let n = self.store.len();
             let i = ((rng.random::<f64>() * n as f64) as usize).min(n - 1);
-            let j = self.settings.pair_partner(i, &self.frame_means(), &mut rng);
+            let j = self
+                .settings
+                .pair_partner(i, &self.frame_means()?, &mut rng);
             let (ki, kj) = (self.labels[i], self.labels[j]);
             if ki == kj {
                 self.try_split(i, j, ki, &mut rng)?;
@@ -203,9 +205,8 @@ impl SubclusterSampler {
     }
 
     /// The sums of one frame.
-    pub(super) fn frame_sums(&self, f: usize) -> Sums {
-        let fr = self.data.frame(f);
-        Sums::of_points(&self.basis, fr.xy, fr.v, 1)
+    pub(super) fn frame_sums(&self, f: usize) -> Result<Sums> {
+        Ok(self.sums_of_sets(&[&[f]])?.remove(0))
     }
 
     /// Divide `frames` (sorted; holding the anchors `i`, `j`) between two sub-patterns with
@@ -239,11 +240,27 @@ impl SubclusterSampler {
         sample.truncate(take);
         sample.sort_unstable();
 
-        let mut sums = [self.frame_sums(i), self.frame_sums(j)];
+        // The scans read only the anchors and the sample: fetched once (one request per shard
+        // holding some), then numbered by their order among all frames.
+        let mut near_frames: Vec<usize> = sample.iter().copied().chain([i, j]).collect();
+        near_frames.sort_unstable();
+        let near = Store::local(Arc::new(self.store.frames(&near_frames)?));
+        let local = |set: &[usize]| -> Vec<usize> {
+            set.iter()
+                .map(|f| near_frames.binary_search(f).expect("a fetched frame"))
+                .collect()
+        };
+        let sums_near = |sets: [&[usize]; 2]| -> Result<Vec<Sums>> {
+            let (a, b) = (local(sets[0]), local(sets[1]));
+            near.sums_of_sets(&self.basis, &[&a, &b])
+        };
+        let [si, sj]: [Sums; 2] = sums_near([&[i], &[j]])?.try_into().expect("two sets");
+        let mut sums = [si, sj];
         let mut fields = self.draw_sides(&sums, theta, rng)?;
         let mut log_pi = [0.5f64.ln(); 2];
+        let sample_near = local(&sample);
         for _ in 0..LAUNCH_SCANS {
-            let lls = self.side_logliks(&sample, &fields, theta)?;
+            let lls = self.side_logliks(&near, &sample_near, &fields, theta)?;
             let mut left_set = vec![i];
             let mut right_set = vec![j];
             for (f, ll) in sample.iter().zip(lls.chunks(2)) {
@@ -256,8 +273,7 @@ impl SubclusterSampler {
             }
             left_set.sort_unstable();
             right_set.sort_unstable();
-            let [sl, sr]: [Sums; 2] = self
-                .sums_of_sets(&[&left_set, &right_set])
+            let [sl, sr]: [Sums; 2] = sums_near([&left_set, &right_set])?
                 .try_into()
                 .expect("two sets");
             sums = [sl, sr];
@@ -295,26 +311,17 @@ impl SubclusterSampler {
     /// the sub-fields on the coarse basis (a quarter of the full one's work).
     fn side_logliks(
         &self,
+        store: &Store,
         frames: &[usize],
         fields: &[[Vec<f64>; 2]; 2],
         theta: [GpParams; 2],
     ) -> Result<Vec<f64>> {
-        let bank = FieldBank::new(
-            &self.coarse,
-            fields,
-            &[theta[0].noise_var, theta[1].noise_var],
-            self.settings.base.mean,
-        );
-        let tiles: Vec<Vec<f64>> = frames
-            .par_chunks(TILE)
-            .map(|tile| {
-                let (xy, v, starts) = gather(&self.data, tile);
-                let mut ll = vec![0.0; 2 * tile.len()];
-                bank.frame_logliks(&self.coarse, &xy, &v, &starts, &mut ll);
-                ll
-            })
-            .collect();
-        Ok(tiles.concat())
+        let bank = Bank {
+            weights: fields.to_vec(),
+            noise: vec![theta[0].noise_var, theta[1].noise_var],
+            mean: self.settings.base.mean,
+        };
+        store.logliks(&self.coarse, &bank, frames)
     }
 
     /// The final step over every frame but the anchors. Their log-likelihoods under the two
@@ -337,7 +344,7 @@ impl SubclusterSampler {
         whole: &Sums,
         rng: &mut impl rand::Rng,
     ) -> Result<Division> {
-        let ll = self.side_logliks(frames, fields, theta)?;
+        let ll = self.side_logliks(&self.store, frames, fields, theta)?;
         let mut order: Vec<usize> = (0..frames.len())
             .filter(|&t| frames[t] != i && frames[t] != j)
             .collect();
@@ -375,7 +382,7 @@ impl SubclusterSampler {
                     .filter(|&(_, &l)| l == small_left)
                     .map(|(&f, _)| f)
                     .collect();
-                let part = self.sums_of_sets(&[&small]).remove(0);
+                let part = self.sums_of_sets(&[&small])?.remove(0);
                 let mut rest = whole.clone();
                 rest.sub(&part);
                 if small_left {
@@ -393,16 +400,4 @@ impl SubclusterSampler {
 fn side_prob(ll: &[f64], log_pi: [f64; 2]) -> f64 {
     let (a, b) = (ll[0] + log_pi[0], ll[1] + log_pi[1]);
     1.0 / (1.0 + (b - a).exp())
-}
-
-/// The points of `frames` one after another, and where each starts (ending with the total).
-fn gather(data: &crate::gibbs::Data, frames: &[usize]) -> (Vec<Point>, Vec<[f64; 2]>, Vec<usize>) {
-    let (mut xy, mut v, mut starts) = (Vec::new(), Vec::new(), vec![0]);
-    for &f in frames {
-        let fr = data.frame(f);
-        xy.extend_from_slice(fr.xy);
-        v.extend_from_slice(fr.v);
-        starts.push(xy.len());
-    }
-    (xy, v, starts)
 }

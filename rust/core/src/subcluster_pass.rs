@@ -14,12 +14,13 @@ use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 use rayon::prelude::*;
 
+use super::shard::{Bank, DrawKey};
 use super::{Fit, SubclusterSampler, gamma};
 use crate::basis::{AxisValues, Basis};
 use crate::error::{Error, Result};
 use crate::frame::Point;
 use crate::gp::LN_2PI;
-use crate::rng::{Phase, stream, uniform};
+use crate::rng::{Phase, stream};
 use crate::special::log_sum_exp;
 
 /// Frames per parallel task of a pass.
@@ -83,6 +84,11 @@ impl FieldBank {
                 .map(|n| -0.5 * (2.0 * LN_2PI + n[0].ln() + n[1].ln()))
                 .collect(),
         }
+    }
+
+    /// The number of fields' patterns.
+    pub(super) fn len(&self) -> usize {
+        self.k
     }
 
     /// Add to `out[f K + k]` the log-likelihood of frame `f`'s velocities under pattern `k`'s
@@ -180,7 +186,11 @@ impl SubclusterSampler {
             .iter()
             .map(|&k| self.part(k).params.noise_var)
             .collect();
-        let bank = FieldBank::new(&self.basis, &weights, &noise, self.settings.base.mean);
+        let bank = Bank {
+            weights,
+            noise,
+            mean: self.settings.base.mean,
+        };
         self.timings.fields += t.elapsed().as_secs_f64();
         if stop() {
             return Err(Error::Interrupted);
@@ -206,7 +216,7 @@ impl SubclusterSampler {
         self.timings.assign += t.elapsed().as_secs_f64();
 
         let t = Instant::now();
-        self.apply_moves(&moved);
+        self.apply_moves(&moved)?;
         self.timings.sums += t.elapsed().as_secs_f64();
         Ok(moved.len())
     }
@@ -231,7 +241,7 @@ impl SubclusterSampler {
     /// Every frame's drawn pattern (slots) given the bank, in parallel over tiles of frames.
     fn propose_labels(
         &self,
-        bank: &FieldBank,
+        bank: &Bank,
         log_w: &[f64],
         slots: &[usize],
         stop: &dyn Fn() -> bool,
@@ -240,9 +250,9 @@ impl SubclusterSampler {
             bank,
             log_w,
             slots,
-            0..self.data.len(),
+            0..self.store.len(),
             (self.sweep, Phase::Labels),
-        );
+        )?;
         // The pass is seconds at most: Ctrl-C is honoured after it, before anything changes.
         if stop() {
             return Err(Error::Interrupted);
@@ -254,41 +264,20 @@ impl SubclusterSampler {
     /// bank and the log mixture weights, with the uniform of (seed, `key`, frame).
     pub(super) fn draw_labels(
         &self,
-        bank: &FieldBank,
+        bank: &Bank,
         log_w: &[f64],
         targets: &[usize],
         frames: std::ops::Range<usize>,
         (sweep, phase): (u64, Phase),
-    ) -> Vec<usize> {
-        let (xy, v) = self.data.points();
-        let offsets = self.data.offsets();
-        let kk = targets.len();
-        let (seed, map) = (self.settings.seed, self.map());
-        let tiles: Vec<Vec<usize>> = (frames.start..frames.end)
-            .step_by(TILE)
-            .collect::<Vec<_>>()
-            .into_par_iter()
-            .map(|f0| {
-                let f1 = (f0 + TILE).min(frames.end);
-                let (a, b) = (offsets[f0], offsets[f1]);
-                let starts: Vec<usize> = offsets[f0..=f1].iter().map(|o| o - a).collect();
-                let mut ll = vec![0.0; (f1 - f0) * kk];
-                bank.frame_logliks(&self.basis, &xy[a..b], &v[a..b], &starts, &mut ll);
-                (f0..f1)
-                    .zip(ll.chunks(kk))
-                    .map(|(i, l)| {
-                        let lp: Vec<f64> = l.iter().zip(log_w).map(|(l, w)| l + w).collect();
-                        let pick = if map {
-                            argmax(&lp)
-                        } else {
-                            pick_log(&lp, uniform(seed, sweep, phase, i as u64))
-                        };
-                        targets[pick]
-                    })
-                    .collect()
-            })
-            .collect();
-        tiles.concat()
+    ) -> Result<Vec<usize>> {
+        let key = DrawKey {
+            seed: self.settings.seed,
+            sweep,
+            phase: phase as u64,
+            map: self.map(),
+        };
+        let picks = self.store.draw(&self.basis, bank, log_w, frames, key)?;
+        Ok(picks.into_iter().map(|p| targets[p as usize]).collect())
     }
 
     /// Groups of the frames after the first `groups.len()`, drawn by the instantiated conditional
@@ -306,7 +295,7 @@ impl SubclusterSampler {
         for (i, &g) in groups.iter().enumerate() {
             members[g].push(i);
         }
-        let sums = self.sums_of_sets(&members.iter().map(|m| &m[..]).collect::<Vec<_>>());
+        let sums = self.sums_of_sets(&members.iter().map(|m| &m[..]).collect::<Vec<_>>())?;
         let drawn: Vec<Result<(f64, [Vec<f64>; 2])>> = (0..k)
             .into_par_iter()
             .map(|g| {
@@ -333,28 +322,32 @@ impl SubclusterSampler {
             log_w.push(lw);
             weights.push(w);
         }
-        let bank = FieldBank::new(&self.basis, &weights, noise, self.settings.base.mean);
+        let bank = Bank {
+            weights,
+            noise: noise.to_vec(),
+            mean: self.settings.base.mean,
+        };
         if stop() {
             return Err(Error::Interrupted);
         }
         let targets: Vec<usize> = (0..k).collect();
-        Ok(self.draw_labels(
+        self.draw_labels(
             &bank,
             &log_w,
             &targets,
-            groups.len()..self.data.len(),
+            groups.len()..self.store.len(),
             (0, Phase::Init),
-        ))
+        )
     }
 
     /// Move the sums of the `moved` frames `(frame, from, to)`: add each pattern's arrivals and
     /// subtract its departures (or, when most frames moved, rebuild every pattern's sums).
-    fn apply_moves(&mut self, moved: &[(usize, usize, usize)]) {
+    fn apply_moves(&mut self, moved: &[(usize, usize, usize)]) -> Result<()> {
         if moved.is_empty() {
-            return;
+            return Ok(());
         }
         let slots: Vec<usize> = self.live().map(|(k, _)| k).collect();
-        if 2 * moved.len() > self.data.len() {
+        if 2 * moved.len() > self.store.len() {
             let sets: Vec<Vec<usize>> = slots
                 .iter()
                 .map(|&k| {
@@ -363,13 +356,13 @@ impl SubclusterSampler {
                         .collect()
                 })
                 .collect();
-            let sums = self.sums_of_sets(&sets.iter().map(|s| &s[..]).collect::<Vec<_>>());
+            let sums = self.sums_of_sets(&sets.iter().map(|s| &s[..]).collect::<Vec<_>>())?;
             for (&k, s) in slots.iter().zip(sums) {
                 let p = self.part_mut(k);
                 p.sums = s;
                 p.fit = None;
             }
-            return;
+            return Ok(());
         }
         // Each moved frame's sums are computed once, in a group per (from, to) pair, and added
         // to one pattern and taken from the other.
@@ -379,7 +372,7 @@ impl SubclusterSampler {
             groups.entry((from, to)).or_default().push(i);
         }
         let sets: Vec<&[usize]> = groups.values().map(|g| &g[..]).collect();
-        let sums = self.sums_of_sets(&sets);
+        let sums = self.sums_of_sets(&sets)?;
         for (&(from, to), s) in groups.keys().zip(&sums) {
             let dest = self.part_mut(to);
             dest.sums.add(s);
@@ -388,6 +381,7 @@ impl SubclusterSampler {
             src.sums.sub(s);
             src.fit = None;
         }
+        Ok(())
     }
 }
 

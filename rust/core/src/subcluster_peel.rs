@@ -56,8 +56,8 @@ impl SubclusterSampler {
         i: usize,
         skip: usize,
         sub: Option<(usize, &crate::hsgp_sums::Sums)>,
-    ) -> (Vec<usize>, Vec<f64>) {
-        let mi = self.frame_means()[i];
+    ) -> Result<(Vec<usize>, Vec<f64>)> {
+        let mi = self.frame_means()?[i];
         let sv = self.settings.base.signal_var;
         let mut slots = Vec::new();
         let mut w = Vec::new();
@@ -85,7 +85,7 @@ impl SubclusterSampler {
                 ((1.0 - UNIFORM_SHARE) * share + floor).ln()
             })
             .collect();
-        (slots, logq)
+        Ok((slots, logq))
     }
 
     fn singletons(&self) -> Vec<usize> {
@@ -109,7 +109,7 @@ impl SubclusterSampler {
             .iter()
             .position(|&l| l == s)
             .expect("a pattern holds a frame");
-        let (slots, logq) = self.affinity(i, s, None);
+        let (slots, logq) = self.affinity(i, s, None)?;
         let pick = super::pass::pick_log(&logq, rng.random::<f64>());
         let (k, log_qk) = (slots[pick], logq[pick]);
         let (pk, ps) = (self.part(k).params, self.part(s).params);
@@ -163,7 +163,7 @@ impl SubclusterSampler {
             return Ok(());
         };
         let nk = self.part(k).sums.n_frames;
-        let own = self.frame_sums(i);
+        let own = self.frame_sums(i)?;
         let mut rest = self.part(k).sums.clone();
         rest.sub(&own);
         let fit_rest = self.fit_sums(&rest, pk)?;
@@ -175,7 +175,7 @@ impl SubclusterSampler {
         // The reverse absorb: i's pattern among the patterns of one frame after the move, then
         // k by the affinity there.
         let singles_after = self.singletons().len() + 1 + usize::from(nk == 2);
-        let (slots, logq) = self.affinity(i, usize::MAX, Some((k, &own)));
+        let (slots, logq) = self.affinity(i, usize::MAX, Some((k, &own)))?;
         let log_qk = slots
             .iter()
             .zip(&logq)

@@ -28,6 +28,7 @@ impl From<CoreError> for PyErr {
             E::NotPositiveDefinite { .. } => NotPositiveDefiniteError::new_err(msg),
             E::MemoryBudget { .. } => MemoryBudgetError::new_err(msg),
             E::Interrupted => PyKeyboardInterrupt::new_err(msg),
+            E::Link(_) => pyo3::exceptions::PyRuntimeError::new_err(msg),
         }
     }
 }

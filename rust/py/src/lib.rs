@@ -16,6 +16,7 @@ mod gp;
 mod hsgp;
 mod sampler;
 mod settings;
+mod shard;
 mod simulate;
 
 #[pyo3::pymodule(gil_used = false)]
@@ -35,6 +36,8 @@ mod _core {
     use super::sampler::PySampler;
     #[pymodule_export]
     use super::settings::{check_length_scale_prior, check_settings};
+    #[pymodule_export]
+    use super::shard::PyShard;
     #[pymodule_export]
     use super::simulate::{
         field_means, integrate_affine, motion_rollouts, rollouts, scene_rollouts,

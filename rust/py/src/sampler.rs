@@ -19,12 +19,17 @@ use dpgp_core::Error;
 use dpgp_core::gibbs::{Data, Sampler, SamplerKind, Settings, SweepStats};
 use dpgp_core::kernel::LengthScales;
 use dpgp_core::pattern::FrameRef;
-use dpgp_core::subcluster::{Start, SubclusterSampler};
+use dpgp_core::subcluster::shard::{Link, Shard};
+use dpgp_core::subcluster::{Start, Store, SubclusterSampler};
+
+use crate::shard::{PyLink, PyShard};
 
 #[pyclass(module = "dpgp._core", name = "Sampler")]
 pub struct PySampler {
     inner: Mutex<Engine>,
     pool: Arc<rayon::ThreadPool>,
+    /// A sharded chain's link to shards served by Python, whose exceptions are raised again.
+    link: Option<Arc<PyLink>>,
 }
 
 /// The chain, by sampler.
@@ -74,7 +79,14 @@ fn collapsed_at(chain: &SubclusterSampler) -> dpgp_core::Result<Sampler> {
         sampler: SamplerKind::Collapsed,
         ..chain.settings().clone()
     };
-    let mut s = Sampler::new_with_data(Arc::clone(chain.data()), settings)?;
+    let data = chain.data().ok_or_else(|| {
+        Error::InvalidInput(
+            "this needs every training frame in this process; a sharded chain's frames are on \
+             its workers (read the frames and set the state on a local model instead)"
+                .into(),
+        )
+    })?;
+    let mut s = Sampler::new_with_data(Arc::clone(data), settings)?;
     let infos = chain.patterns();
     let group: std::collections::HashMap<usize, usize> =
         infos.iter().enumerate().map(|(g, p)| (p.slot, g)).collect();
@@ -203,11 +215,40 @@ impl PySampler {
             Ok(Err(Error::Interrupted)) => {
                 Err(interrupt.unwrap_or_else(|| CoreError(Error::Interrupted).into()))
             }
-            Ok(Err(e)) => Err(CoreError(e).into()),
+            Ok(Err(e)) => Err(self
+                .link
+                .as_ref()
+                .and_then(|l| l.take_error())
+                .unwrap_or_else(|| CoreError(e).into())),
             Err(_) => Err(pyo3::exceptions::PyRuntimeError::new_err(
                 "internal error: the sampler thread panicked",
             )),
         }
+    }
+}
+
+impl PySampler {
+    fn sharded(
+        py: Python<'_>,
+        store: Store,
+        settings: &Bound<'_, PyAny>,
+        link: Option<Arc<PyLink>>,
+    ) -> PyResult<Self> {
+        let (settings, n_threads) = SamplerSettings::extract(settings)?.into_core(false)?;
+        if settings.sampler != SamplerKind::Subcluster {
+            return Err(CoreError(Error::InvalidInput(
+                "sharded frames need sampler=\"subcluster\" (the collapsed sampler needs every frame in one process)".into(),
+            ))
+            .into());
+        }
+        let chain = py
+            .detach(|| SubclusterSampler::with_store(store, settings))
+            .map_err(CoreError)?;
+        Ok(Self {
+            inner: Mutex::new(Engine::Subcluster(chain, None)),
+            pool: shared_pool(n_threads)?,
+            link,
+        })
     }
 }
 
@@ -241,7 +282,43 @@ impl PySampler {
         Ok(Self {
             inner: Mutex::new(sampler),
             pool,
+            link: None,
         })
+    }
+
+    /// A sub-cluster chain over shards of frames served in this process, in shard order.
+    #[staticmethod]
+    fn over_shards(
+        py: Python<'_>,
+        shards: Vec<PyRef<'_, PyShard>>,
+        settings: &Bound<'_, PyAny>,
+    ) -> PyResult<Self> {
+        let datas: Vec<Shard> = shards.iter().map(|s| s.inner.clone()).collect();
+        let store = Store::in_process_shards(datas).map_err(CoreError)?;
+        Self::sharded(py, store, settings, None)
+    }
+
+    /// A sub-cluster chain over shards of `sizes[s]` frames served through `serve(jobs)`, a
+    /// callable taking `[(shard, request bytes)]` and returning the reply bytes in order.
+    #[staticmethod]
+    fn over_link(
+        py: Python<'_>,
+        sizes: Vec<usize>,
+        serve: Py<PyAny>,
+        settings: &Bound<'_, PyAny>,
+    ) -> PyResult<Self> {
+        let link = Arc::new(PyLink::new(serve));
+        let store =
+            Store::sharded(&sizes, Arc::clone(&link) as Arc<dyn Link>).map_err(CoreError)?;
+        Self::sharded(py, store, settings, Some(link))
+    }
+
+    /// How many shards hold the chain's frames (1: all in this process).
+    fn n_shards(&self) -> usize {
+        match &*self.lock() {
+            Engine::Collapsed(_) => 1,
+            Engine::Subcluster(c, _) => c.store().n_shards(),
+        }
     }
 
     /// Which sampler runs the chain: "collapsed" or "subcluster".

@@ -1,0 +1,141 @@
+"""One sub-cluster chain over frames stored as shards (issue 33): in this process, or with each
+shard served by a Dask worker.
+
+The chain's leader (this process) holds the labels, the patterns' sums and parameters and runs
+every global step; the frames stay in their shards. Each sweep it sends requests to the shards
+(draw every frame's label given the drawn fields, sum these frames, score those), and a shard
+answers from its frames alone (the protocol: ``rust/core/src/subcluster_shard.rs``). A shard's
+answer depends only on its frames and the request, and answers are added up in shard order, so
+the same seed and the same shards give the same chain in this process and on any cluster, and a
+worker that is lost is replaced by reading its shard again (Dask recomputes the lost load).
+
+The settings that the estimator resolves from data (``"auto"`` defaults, the basis, mean and
+variance of the velocities) come from :func:`settings_sample`: every frame up to
+:data:`SAMPLE_FRAMES`, else that many evenly spaced, with the positions' full extent, read one
+shard at a time by the leader, so that both ways of serving the shards start from one setting.
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+from typing import Any
+
+import numpy as np
+
+from .. import _core
+from ..data._shardfile import ShardManifest, read_manifest
+from ..data.frames import Frames
+from ..data.shards import read_shard
+from ..exceptions import InvalidInputError
+
+#: Frames from which a sharded fit resolves its data-dependent settings.
+SAMPLE_FRAMES = 20_000
+
+
+def settings_sample(manifest: ShardManifest) -> tuple[Frames, np.ndarray, int]:
+    """The frames a sharded fit resolves its settings from (all up to :data:`SAMPLE_FRAMES`,
+    else as many evenly spaced), the corners ``[[x_min, y_min], [x_max, y_max]]`` of every
+    position, and the most vehicles in a frame; one shard in memory at a time."""
+    n = manifest.n_frames
+    take = np.arange(n) if n <= SAMPLE_FRAMES else (np.arange(SAMPLE_FRAMES) * n) // SAMPLE_FRAMES
+    lo, hi, most = np.full(2, np.inf), np.full(2, -np.inf), 0
+    rows: list[tuple[np.ndarray, ...]] = []
+    for i, info in enumerate(manifest.shards):
+        part, start = read_shard(manifest, i)
+        lo, hi = np.minimum(lo, part.xy.min(axis=0)), np.maximum(hi, part.xy.max(axis=0))
+        most = max(most, int(part.sizes.max(initial=0)))
+        mine = take[(take >= start) & (take < info.stop)] - start
+        sub = part[mine]
+        rows.append((np.repeat(mine + start, sub.sizes), sub.xy, sub.v))
+    frame, xy, v = (np.concatenate(c) for c in zip(*rows))
+    sample = Frames.from_arrays(frame, xy[:, 0], xy[:, 1], v[:, 0], v[:, 1])
+    return sample, np.array([lo, hi]), most
+
+
+def local_shards(manifest: ShardManifest) -> list[Any]:
+    """Every shard read into this process as the core's ``Shard``, in order."""
+    out = []
+    for i in range(manifest.n_shards):
+        part, start = read_shard(manifest, i)
+        out.append(_core.Shard(part.xy, part.v, part.offsets, start))
+    return out
+
+
+# --- served by Dask workers ------------------------------------------------------------------
+#: This worker process's shards, by (directory, shard number): loaded once, kept.
+_LOADED: dict[tuple[str, int], Any] = {}
+
+
+def load_shard(directory: str, i: int) -> tuple[str, int]:
+    """A worker's task: read shard ``i`` of ``directory`` into this process (once); returns the
+    key the requests name it by."""
+    key = (directory, int(i))
+    if key not in _LOADED:
+        part, start = read_shard(directory, i)
+        _LOADED[key] = _core.Shard(part.xy, part.v, part.offsets, start)
+    return key
+
+
+def serve_request(key: tuple[str, int], request: bytes) -> bytes:
+    """A worker's task: the shard's reply to one request (the shard is read here if this worker
+    has not loaded it: a task that moved, or a worker that replaced a lost one)."""
+    return _LOADED[load_shard(*key)].handle(request)
+
+
+class DaskShards:
+    """The shards of ``manifest`` served by the workers of a Dask ``client``: each shard is
+    loaded by one worker and kept there (a future per shard, held for the life of the chain);
+    each request runs beside it. Counts the bytes sent and received."""
+
+    def __init__(self, client: Any, manifest: ShardManifest):
+        self._client = client
+        directory = os.path.abspath(manifest.directory)
+        tag = uuid.uuid4().hex[:8]
+        self._loads = [
+            client.submit(load_shard, directory, i, key=f"dpgp-shard-{tag}-{i}") for i in range(manifest.n_shards)
+        ]
+        client.gather(self._loads)  # every shard read once, before the chain starts
+        self.bytes_sent = 0
+        self.bytes_received = 0
+        self.requests = 0
+
+    def __call__(self, jobs: list[tuple[int, bytes]]) -> list[bytes]:
+        # Beside its shard: the load's worker (any other if that one is gone; it reads the shard).
+        where = self._client.who_has(self._loads)
+        futures = []
+        for s, request in jobs:
+            near = list(where.get(self._loads[s].key, ()))
+            pin: dict[str, Any] = {"workers": near, "allow_other_workers": True} if near else {}
+            futures.append(self._client.submit(serve_request, self._loads[s], request, pure=False, retries=2, **pin))
+        replies = self._client.gather(futures)
+        self.bytes_sent += sum(len(r) for _, r in jobs)
+        self.bytes_received += sum(len(r) for r in replies)
+        self.requests += len(jobs)
+        return list(replies)
+
+    def close(self) -> None:
+        """Let the workers drop the shards."""
+        for f in self._loads:
+            f.release()
+        self._loads = []
+
+
+def manifest_of(frames: Any) -> ShardManifest | None:
+    """The manifest when ``frames`` is a directory of shards, else ``None``."""
+    if isinstance(frames, (str, os.PathLike)) and os.path.isdir(frames):
+        return read_manifest(frames)
+    return None
+
+
+def check_client(client: Any, manifest: ShardManifest | None) -> None:
+    """Refuse a client without a directory of shards to serve, before any work."""
+    if client is None:
+        return
+    if manifest is None:
+        raise InvalidInputError(
+            "fit(..., client=) fits frames stored as shards: write them first with "
+            "frames.to_parquet(directory, shards=n) and pass the directory"
+        )
+    if not hasattr(client, "submit") or not hasattr(client, "gather"):
+        raise InvalidInputError(f"client must be a dask.distributed Client, got {type(client).__name__}")
