@@ -32,14 +32,16 @@ def load_frames(path: str, fmt: str = "auto", roi: Any = None, dt: float | None 
 def _fit(args: argparse.Namespace) -> int:
     from . import DPGP
 
+    if args.scheduler is not None and args.chains is None:
+        return _fit_on_scheduler(args)
     frames = load_frames(args.data, args.format, args.roi, args.dt, args.units)
     if args.max_frames is not None:
         frames = frames[: args.max_frames]  # a selection keeps dt and ROI for simulations
     print(f"{args.data}: {frames!r}")
     if args.chains is not None:
         return _fit_chains(args, frames)
-    if args.scheduler is not None or args.until_converged:
-        raise ValueError("--scheduler and --until-converged go with --chains N")
+    if args.until_converged:
+        raise ValueError("--until-converged goes with --chains N")
     model = DPGP(
         iterations=args.iterations, assignment=args.assignment, seed=args.seed, alpha=args.alpha,
         n_threads=args.threads, progress=args.progress, preset=args.preset, checkpoint=args.checkpoint,
@@ -62,13 +64,7 @@ def _fit_chains(args: argparse.Namespace, frames: Any) -> int:
 
     if args.checkpoint is not None:
         raise ValueError("--checkpoint goes with a single chain, not with --chains N")
-    client = None
-    if args.scheduler is not None:
-        try:
-            from distributed import Client
-        except ImportError:
-            raise DpgpError("--scheduler needs Dask: pip install 'dpgp[distributed]'") from None
-        client = Client(args.scheduler)
+    client = None if args.scheduler is None else _connect(args.scheduler)
     t = time.perf_counter()
     try:
         chains = fit_chains(
@@ -88,6 +84,59 @@ def _fit_chains(args: argparse.Namespace, frames: Any) -> int:
     s = model.chain_summary_["point_estimate"]
     print(
         f"point estimate ({s['loss']}): {model.n_patterns_} patterns, posterior expected loss {s['expected_loss']:.4g}"
+    )
+    model.save(args.output)
+    print(f"wrote {args.output}")
+    return 0
+
+
+def _connect(address: str) -> Any:
+    """A ``dask.distributed`` client of the scheduler at ``address`` (``--scheduler``)."""
+    try:
+        from distributed import Client
+    except ImportError:
+        raise DpgpError("--scheduler needs Dask: pip install 'dpgp[distributed]'") from None
+    return Client(address)
+
+
+def _fit_on_scheduler(args: argparse.Namespace) -> int:
+    """``dpgp fit DIR --scheduler ADDRESS``: one chain over a directory of frame shards, each shard
+    read and served by a worker of the Dask scheduler (``DPGP.fit(DIR, client=...)``)."""
+    from . import DPGP
+    from .model.sharded import manifest_of
+
+    framing = {"--roi": args.roi, "--dt": args.dt, "--units": args.units, "--max-frames": args.max_frames}
+    given = [flag for flag, value in framing.items() if value is not None]
+    if args.format not in ("auto", "frames"):
+        given.append("--format")
+    if given or args.until_converged:
+        raise ValueError(
+            f"{', '.join(given) or '--until-converged'} cannot go with --scheduler without --chains: "
+            "the shards are fitted as they were written"
+        )
+    manifest = manifest_of(args.data)  # before connecting
+    if manifest is None:
+        raise InvalidInputError(
+            f"--scheduler without --chains fits a directory of frame shards, and {args.data} is not one: write "
+            "the frames as shards first (Frames.to_parquet(DIR, shards=n) or make_frames(..., out=DIR, shards=n)) "
+            "and pass DIR"
+        )
+    print(f"{args.data}: {manifest.n_frames} frames in {manifest.n_shards} shards")
+    client = _connect(args.scheduler)
+    try:
+        model = DPGP(
+            iterations=args.iterations, assignment=args.assignment, seed=args.seed, alpha=args.alpha,
+            n_threads=args.threads, progress=args.progress, preset=args.preset, checkpoint=args.checkpoint,
+            checkpoint_every=args.checkpoint_every, sampler=args.sampler, init=args.init,
+        )  # fmt: skip
+        t = time.perf_counter()
+        model.fit(args.data, client=client)
+        elapsed = time.perf_counter() - t
+    finally:
+        client.close()
+    print(
+        f"fitted {model.n_patterns_} patterns over {manifest.n_shards} shards on {args.scheduler} "
+        f"in {elapsed:.1f} s ({model.n_iter_} sweeps, α = {model.alpha_:.3g})"
     )
     model.save(args.output)
     print(f"wrote {args.output}")
@@ -357,12 +406,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="write the chain's state to PATH as it runs ('dpgp resume PATH' continues a fit that was "
                    "killed); PATH is also a model file")  # fmt: skip
     p.add_argument("--checkpoint-every", type=int, default=10, metavar="N", help="sweeps between checkpoints")
-    g = p.add_argument_group("many chains (dpgp.fit_chains)")
+    g = p.add_argument_group("many chains (dpgp.fit_chains) and clusters")
     g.add_argument("--chains", type=int, metavar="N",
                    help="run N independent chains and save the point-estimate model with R̂ and ESS")  # fmt: skip
     g.add_argument("--scheduler", metavar="ADDRESS",
-                   help="run the chains on this Dask scheduler (e.g. tcp://host:8786; needs dpgp[distributed]); "
-                   "default: local worker processes")  # fmt: skip
+                   help="a Dask scheduler (e.g. tcp://host:8786; needs dpgp[distributed]). With --chains: run "
+                   "the chains there (default: local worker processes). Without: DATA is a directory of frame "
+                   "shards (Frames.to_parquet) and one chain runs over them, each shard served by a worker")  # fmt: skip
     g.add_argument("--until-converged", action="store_true",
                    help="advance the chains until R̂ <= --rhat and ESS >= --min-ess (at most --max-iterations "
                    "sweeps) instead of --iterations sweeps")  # fmt: skip

@@ -899,3 +899,7 @@ impl Reply {
         Ok(reply)
     }
 }
+
+#[cfg(test)]
+#[path = "tests/subcluster_shard.rs"]
+mod tests;

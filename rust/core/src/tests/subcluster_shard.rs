@@ -1,0 +1,266 @@
+//! Shards: every request and reply survives the trip through bytes (and damaged bytes are an
+//! error, not a panic); a chain over shards samples the enumerated posterior, is the same served
+//! in process or through bytes and for any thread count, and one shard is the chain over all
+//! frames.
+
+use std::collections::HashMap;
+
+use super::*;
+use crate::gibbs::enumeration::{canonical, enumerated_by, tiny, tiny_hsgp, tiny_settings};
+use crate::gibbs::{SamplerKind, Settings};
+use crate::subcluster::{Start, SubclusterSampler};
+use crate::test_util::tv;
+
+/// Shards served through bytes both ways, as a link to other processes serves them.
+#[derive(Debug)]
+struct Bytes(Vec<Shard>);
+
+impl Link for Bytes {
+    fn run(&self, jobs: Vec<(usize, Request)>) -> Result<Vec<Reply>> {
+        jobs.iter()
+            .map(|(s, r)| {
+                let req = Request::decode(&r.encode())?;
+                Reply::decode(&self.0[*s].handle(&req)?.encode())
+            })
+            .collect()
+    }
+}
+
+/// `data` cut into consecutive shards of `sizes` frames.
+fn cut(data: &Data, sizes: &[usize]) -> Vec<Shard> {
+    let (xy, v) = data.points();
+    let o = data.offsets();
+    let mut first = 0;
+    sizes
+        .iter()
+        .map(|&n| {
+            let (a, b) = (o[first], o[first + n]);
+            let offsets = o[first..=first + n].iter().map(|x| x - a).collect();
+            let d = Data::new(xy[a..b].to_vec(), v[a..b].to_vec(), offsets).unwrap();
+            let s = Shard::new(Arc::new(d), first);
+            first += n;
+            s
+        })
+        .collect()
+}
+
+fn settings(seed: u64) -> Settings {
+    let mut st = tiny_settings(tiny_hsgp(), seed);
+    st.sampler = SamplerKind::Subcluster;
+    st.split_merge.moves_per_sweep = 2;
+    st
+}
+
+fn basis() -> Basis {
+    Basis::new([1.0, -2.0], [5.0, 7.5], [3, 2]).unwrap()
+}
+
+#[test]
+fn requests_and_replies_cross_as_bytes() {
+    let bank = Bank {
+        weights: vec![[vec![0.5; 6], vec![-1.25; 6]], [vec![2.0; 6], vec![0.0; 6]]],
+        noise: vec![[0.1, 0.2], [0.3, 0.4]],
+        mean: [1.5, -0.5],
+    };
+    let requests = [
+        Request::Sums {
+            basis: basis(),
+            sets: vec![vec![0, 3], vec![], vec![7]],
+        },
+        Request::Logliks {
+            basis: basis(),
+            bank: bank.clone(),
+            frames: vec![4, 1],
+        },
+        Request::Draw {
+            basis: basis(),
+            bank,
+            log_w: vec![-0.7, -1.2],
+            frames: 2..9,
+            key: DrawKey {
+                seed: 17,
+                sweep: 3,
+                phase: 12,
+                map: true,
+            },
+        },
+        Request::Means,
+        Request::Points { frames: vec![5] },
+    ];
+    let data = tiny();
+    let shard = Shard::new(Arc::new(data), 0);
+    let mut sums = Sums::zeros(&basis());
+    sums.h[1] = 3.25;
+    sums.vecs.phi_v[2] = -1.0;
+    sums.vecs.v_sq = [2.0, 9.0];
+    sums.vecs.n_points = 11;
+    sums.n_frames = 4;
+    let replies = [
+        Reply::Sums(vec![sums]),
+        Reply::Logliks(vec![-1.0, f64::NEG_INFINITY]),
+        Reply::Draw(vec![0, 1, 1]),
+        Reply::Means(vec![[1.0, 2.0]]),
+        shard
+            .handle(&Request::Points { frames: vec![4, 0] })
+            .unwrap(),
+    ];
+    for r in &requests {
+        let bytes = r.encode();
+        assert_eq!(&Request::decode(&bytes).unwrap(), r);
+        // Damaged: cut short, one byte too many, another magic. An error each, never a panic.
+        assert!(Request::decode(&bytes[..bytes.len() - 1]).is_err());
+        let mut long = bytes.clone();
+        long.push(0);
+        assert!(Request::decode(&long).is_err());
+        let mut bad = bytes.clone();
+        bad[0] ^= 1;
+        assert!(Request::decode(&bad).is_err());
+    }
+    for r in &replies {
+        let bytes = r.encode();
+        assert_eq!(&Reply::decode(&bytes).unwrap(), r);
+        assert!(Reply::decode(&bytes[..bytes.len() - 1]).is_err());
+    }
+    // A length that claims more than the message holds.
+    let mut huge = Request::Points { frames: vec![1] }.encode();
+    huge[12..20].copy_from_slice(&u64::MAX.to_le_bytes());
+    assert!(Request::decode(&huge).is_err());
+}
+
+#[test]
+fn a_shard_refuses_frames_it_does_not_hold() {
+    let shard = Shard::new(Arc::new(tiny()), 10);
+    let err = shard
+        .handle(&Request::Points { frames: vec![0, 5] })
+        .unwrap_err();
+    assert!(err.to_string().contains("frame 5"), "{err}");
+    let err = shard
+        .handle(&Request::Sums {
+            basis: basis(),
+            sets: vec![vec![9]],
+        })
+        .unwrap_err();
+    assert!(err.to_string().contains("frame 9"), "{err}");
+}
+
+#[test]
+fn the_store_answers_as_all_frames_in_one_place() {
+    let data = Arc::new(tiny());
+    let one = Store::local(Arc::clone(&data));
+    let many = Store::sharded(&[2, 1, 2], Arc::new(Bytes(cut(&data, &[2, 1, 2])))).unwrap();
+    let b = basis();
+    let sets: [&[usize]; 3] = [&[4, 0, 2], &[1], &[]];
+    for (x, y) in one
+        .sums_of_sets(&b, &sets)
+        .unwrap()
+        .iter()
+        .zip(many.sums_of_sets(&b, &sets).unwrap())
+    {
+        assert_eq!(x.n_frames, y.n_frames);
+        assert_eq!(x.vecs.n_points, y.vecs.n_points);
+        for (p, q) in x.h.iter().zip(&y.h) {
+            assert!((p - q).abs() <= 1e-12 * (1.0 + p.abs()), "{p} {q}");
+        }
+    }
+    let bank = Bank {
+        weights: vec![[vec![0.1; 6], vec![0.2; 6]], [vec![-0.3; 6], vec![0.0; 6]]],
+        noise: vec![[0.5, 0.5], [1.0, 2.0]],
+        mean: [0.0, 0.0],
+    };
+    let order = [3, 0, 4, 1];
+    assert_eq!(
+        one.logliks(&b, &bank, &order).unwrap(),
+        many.logliks(&b, &bank, &order).unwrap()
+    );
+    let key = DrawKey {
+        seed: 4,
+        sweep: 2,
+        phase: 12,
+        map: false,
+    };
+    assert_eq!(
+        one.draw(&b, &bank, &[0.0, -0.5], 1..5, key).unwrap(),
+        many.draw(&b, &bank, &[0.0, -0.5], 1..5, key).unwrap()
+    );
+    assert_eq!(one.means().unwrap(), many.means().unwrap());
+    let (f1, f2) = (one.frames(&order).unwrap(), many.frames(&order).unwrap());
+    assert_eq!(f1.points(), f2.points());
+    assert_eq!(f1.offsets(), f2.offsets());
+}
+
+/// The labels, log joint and α of 150 sweeps from the sequential start.
+fn trace(store: Store, threads: usize) -> Vec<(Vec<usize>, u64, u64)> {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap();
+    pool.install(|| {
+        let mut st = settings(5);
+        st.fixed_length_scales = false;
+        st.alpha = None;
+        let mut s = SubclusterSampler::with_store(store, st).unwrap();
+        s.initialize(Start::Sequential, &|| false).unwrap();
+        (0..150)
+            .map(|_| {
+                let r = s.sweep(&|| false).unwrap();
+                (
+                    canonical(s.labels()),
+                    r.log_joint.to_bits(),
+                    r.alpha.to_bits(),
+                )
+            })
+            .collect()
+    })
+}
+
+#[test]
+fn a_sharded_chain_is_the_same_in_process_through_bytes_and_for_any_thread_count() {
+    let data = tiny();
+    let sizes = [2, 3];
+    let in_process = || Store::in_process_shards(cut(&data, &sizes)).unwrap();
+    let bytes = || Store::sharded(&sizes, Arc::new(Bytes(cut(&data, &sizes)))).unwrap();
+    let reference = trace(in_process(), 1);
+    assert_eq!(reference, trace(bytes(), 1));
+    assert_eq!(reference, trace(bytes(), 3));
+    assert_eq!(reference, trace(in_process(), 2));
+    // One shard is the chain over all frames in one place.
+    let whole = trace(Store::local(Arc::new(tiny())), 1);
+    assert_eq!(
+        whole,
+        trace(Store::in_process_shards(cut(&data, &[5])).unwrap(), 2)
+    );
+}
+
+#[test]
+fn a_sharded_chain_samples_the_enumerated_posterior() {
+    let data = tiny();
+    let st = settings(8);
+    let exact = enumerated_by(data.len(), st.alpha.unwrap(), |members| {
+        let m: Vec<(usize, crate::frame::FrameRef)> =
+            members.iter().map(|&i| (i, data.frame(i))).collect();
+        st.likelihood.pattern(st.base, &m).unwrap().log_marginal()
+    });
+    let store = Store::in_process_shards(cut(&data, &[1, 2, 2])).unwrap();
+    let mut s = SubclusterSampler::with_store(store, st).unwrap();
+    let ls = s.settings().base.length_scales;
+    s.set_state(&[0, 1, 2, 3, 4], &[ls; 5], None, 1.0).unwrap();
+    let sweeps = 60_000;
+    let mut freq: HashMap<Vec<usize>, f64> = HashMap::new();
+    for _ in 0..sweeps {
+        s.sweep(&|| false).unwrap();
+        *freq.entry(canonical(s.labels())).or_default() += 1.0 / sweeps as f64;
+    }
+    let d = tv(&freq, &exact);
+    eprintln!("three shards: TV {d:.4}");
+    assert!(d <= 0.03, "TV {d:.4} > 0.03");
+}
+
+#[test]
+fn shards_out_of_order_are_refused() {
+    let data = tiny();
+    let mut shards = cut(&data, &[2, 3]);
+    shards.swap(0, 1);
+    let err = Store::in_process_shards(shards).unwrap_err();
+    assert!(err.to_string().contains("in order"), "{err}");
+    assert!(Store::sharded(&[2, 0], Arc::new(InProcess(Vec::new()))).is_err());
+}
