@@ -59,8 +59,9 @@ def _peak_gb() -> float:
 
 
 def cluster(directory: str, sweeps: int, workers: int) -> dict:
-    import dpgp
     from distributed import Client, LocalCluster
+
+    import dpgp
 
     with (
         LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0") as lc,
@@ -79,15 +80,17 @@ def cluster(directory: str, sweeps: int, workers: int) -> dict:
             "frames": len(truth), "workers": workers, "sweeps": sweeps, "wall_s": wall, "init_s": m.init_seconds_,
             "median_sweep_s": float(np.median(sec)), "max_sweep_s": float(sec.max()),
             "sent_mb_per_sweep": link.bytes_sent / 1e6 / sweeps, "received_mb_per_sweep": link.bytes_received / 1e6 / sweeps,
-            "requests_per_sweep": link.requests / sweeps, "leader_peak_gb": _peak_gb(),
+            "requests_per_sweep": link.requests / sweeps, "calls_per_sweep": link.calls / sweeps,
+            "waiting_s": link.seconds, "leader_parts_s": dict(m._sampler.timings()), "leader_peak_gb": _peak_gb(),
             "worker_peak_gb": sorted(worker_peak.values()), "K": int(m.n_patterns_),
             "ari": float(adjusted_rand_index(truth, m.labels_)), "basis": m.basis_.size,
         }  # fmt: skip
 
 
 def identity(directory: str, sweeps: int, workers: int) -> dict:
-    import dpgp
     from distributed import Client, LocalCluster
+
+    import dpgp
 
     fits = {}
     t = time.perf_counter()

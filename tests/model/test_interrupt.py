@@ -56,3 +56,40 @@ def test_ctrl_c_during_the_noise_pilots_stops_the_fit():
     assert proc.returncode != 0 and "KeyboardInterrupt" in err, (out, err)
     assert "sweeps" not in out
     assert time.perf_counter() - t < 30
+
+
+SHARDED = """
+import signal, sys
+import dpgp
+signal.signal(signal.SIGINT, signal.default_int_handler)
+frames = dpgp.datasets.synthetic("highway", n_frames=400, seed=0)
+frames.to_parquet(sys.argv[1], shards=3)
+model = dpgp.DPGP(iterations=100000, progress=False, noise_var=0.5)
+print("fitting", flush=True)
+model.fit(sys.argv[1])
+print("sweeps", model.n_iter_, "patterns", model.n_patterns_, flush=True)
+print("predict", model.predict(frames[:3]).tolist(), flush=True)
+"""
+
+
+def test_ctrl_c_keeps_the_state_reached_over_shards(tmp_path):
+    """A chain over shards (in this process) stops at Ctrl-C as a local one does, and the model
+    it keeps predicts (its frames gathered from the shards)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", SHARDED, str(tmp_path / "shards")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout.readline().strip() == "fitting"
+        time.sleep(6)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert "fit interrupted after" in err and "keeps the state reached" in err
+    sweeps = int(out.split("sweeps")[1].split()[0])
+    assert 1 <= sweeps < 100000
+    assert "predict [" in out

@@ -380,7 +380,9 @@ class DPGP:
         if sharded:
             assert manifest is not None
             frames, extent, _ = settings_sample(manifest)
-            _check_magnitudes(Frames.from_arrays([0, 0], extent[:, 0], extent[:, 1], [0, 0], [0, 0]), "the training data")
+            _check_magnitudes(
+                Frames.from_arrays([0, 0], extent[:, 0], extent[:, 1], [0, 0], [0, 0]), "the training data"
+            )
         else:
             frames = as_frames(frames)
         _check_magnitudes(frames, "the training data")
@@ -473,38 +475,6 @@ class DPGP:
                 "likelihood must be 'auto' or 'hsgp', sampler 'auto' or 'subcluster', with no dynamics or pattern_moments"
             )
         return ok
-
-    def _resolve_sharded_engine(self, sample: Frames, extent: np.ndarray) -> None:
-        """``likelihood_``, ``basis_`` (over the sample and the positions' whole extent),
-        ``memory_budget_`` and ``sampler_`` of a fit over shards."""
-        budget = parse_bytes("memory_budget", self.memory_budget)
-        check_thread_reservations(self.n_threads)
-        self.memory_budget_ = budget if budget is not None else default_memory_budget(self.n_threads)
-        self._auto_pending = False
-        self.likelihood_ = "hsgp"
-        self.engine_choice_ = {
-            "engine": "hsgp",
-            "why": "frames in shards: the chain runs over them with the sub-cluster sampler on the reduced-rank engine",
-        }
-        self.basis_ = basis_for(
-            np.vstack([sample.xy, extent]),
-            self.length_scale_prior_,
-            None if self.length_scales is None else _pair("length_scales", self.length_scales),
-            None if self.n_basis is None else _basis_counts(self.n_basis),
-        )
-        self._resolve_sampler()
-
-    def _new_sharded_sampler(self, manifest: Any, client: Any) -> _core.Sampler:
-        """A sub-cluster chain over the shards of ``manifest``: read into this process, or served by
-        ``client``'s workers (:mod:`dpgp.model.sharded`)."""
-        from .sharded import DaskShards, local_shards
-
-        settings = self._core_settings(manifest.n_frames, None)
-        if client is None:
-            self._shard_link = None
-            return _core.Sampler.over_shards(local_shards(manifest), settings)
-        self._shard_link = DaskShards(client, manifest)
-        return _core.Sampler.over_link([s.n_frames for s in manifest.shards], self._shard_link, settings)
 
     def _continue(self, frames: Frames | Any) -> DPGP:
         """``fit(frames, warm_start=True)`` of a fitted model: ``iterations`` more sweeps of its chain."""
@@ -678,6 +648,38 @@ class DPGP:
             self.basis_ = basis or self._basis(frames)
         self._resolve_sampler()
 
+    def _resolve_sharded_engine(self, sample: Frames, extent: np.ndarray) -> None:
+        """``likelihood_``, ``basis_`` (over the sample and the positions' whole extent),
+        ``memory_budget_`` and ``sampler_`` of a fit over shards."""
+        budget = parse_bytes("memory_budget", self.memory_budget)
+        check_thread_reservations(self.n_threads)
+        self.memory_budget_ = budget if budget is not None else default_memory_budget(self.n_threads)
+        self._auto_pending = False
+        self.likelihood_ = "hsgp"
+        self.engine_choice_ = {
+            "engine": "hsgp",
+            "why": "frames in shards: the chain runs over them with the sub-cluster sampler on the reduced-rank engine",
+        }
+        self.basis_ = basis_for(
+            np.vstack([sample.xy, extent]),
+            self.length_scale_prior_,
+            None if self.length_scales is None else _pair("length_scales", self.length_scales),
+            None if self.n_basis is None else _basis_counts(self.n_basis),
+        )
+        self._resolve_sampler()
+
+    def _new_sharded_sampler(self, manifest: Any, client: Any) -> _core.Sampler:
+        """A sub-cluster chain over the shards of ``manifest``: read into this process, or served by
+        ``client``'s workers (:mod:`dpgp.model.sharded`)."""
+        from .sharded import DaskShards, local_shards
+
+        settings = self._core_settings(manifest.n_frames, None)
+        if client is None:
+            self._shard_link = None
+            return _core.Sampler.over_shards(local_shards(manifest), settings)
+        self._shard_link = DaskShards(client, manifest)
+        return _core.Sampler.over_link([s.n_frames for s in manifest.shards], self._shard_link, settings)
+
     def _subcluster_possible(self) -> bool:
         """Whether settings other than the likelihood let the sub-cluster sampler run."""
         return self.sampler != "collapsed" and self.dynamics is None and not self.pattern_moments
@@ -781,7 +783,7 @@ class DPGP:
 
     def _core_settings(
         self, n_frames: int, frames: Frames | None, seed: int | None = None, collapsed: bool = False
-    ) -> dict[str, Any]:
+    ) -> Any:
         """The core sampler's settings for ``n_frames`` training frames (``frames``, when in this
         process: the sticky prior's transitions)."""
         a, b = self.length_scale_prior_

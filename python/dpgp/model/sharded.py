@@ -18,6 +18,7 @@ shard at a time by the leader, so that both ways of serving the shards start fro
 from __future__ import annotations
 
 import os
+import time
 import uuid
 from typing import Any
 
@@ -86,7 +87,8 @@ def serve_request(key: tuple[str, int], request: bytes) -> bytes:
 class DaskShards:
     """The shards of ``manifest`` served by the workers of a Dask ``client``: each shard is
     loaded by one worker and kept there (a future per shard, held for the life of the chain);
-    each request runs beside it. Counts the bytes sent and received."""
+    each request runs beside it. Counts the requests, the bytes sent and received, and the
+    seconds spent waiting for replies."""
 
     def __init__(self, client: Any, manifest: ShardManifest):
         self._client = client
@@ -99,8 +101,11 @@ class DaskShards:
         self.bytes_sent = 0
         self.bytes_received = 0
         self.requests = 0
+        self.calls = 0
+        self.seconds = 0.0  # waiting for the workers (the rest of a sweep is the leader's)
 
     def __call__(self, jobs: list[tuple[int, bytes]]) -> list[bytes]:
+        t = time.perf_counter()
         # Beside its shard: the load's worker (any other if that one is gone; it reads the shard).
         where = self._client.who_has(self._loads)
         futures = []
@@ -112,6 +117,8 @@ class DaskShards:
         self.bytes_sent += sum(len(r) for _, r in jobs)
         self.bytes_received += sum(len(r) for r in replies)
         self.requests += len(jobs)
+        self.calls += 1
+        self.seconds += time.perf_counter() - t
         return list(replies)
 
     def close(self) -> None:

@@ -79,14 +79,16 @@ fn collapsed_at(chain: &SubclusterSampler) -> dpgp_core::Result<Sampler> {
         sampler: SamplerKind::Collapsed,
         ..chain.settings().clone()
     };
-    let data = chain.data().ok_or_else(|| {
-        Error::InvalidInput(
-            "this needs every training frame in this process; a sharded chain's frames are on \
-             its workers (read the frames and set the state on a local model instead)"
-                .into(),
-        )
-    })?;
-    let mut s = Sampler::new_with_data(Arc::clone(data), settings)?;
+    // A sharded chain's frames are gathered from its shards: what is asked of the view (scores,
+    // fields, rollouts over the training frames) needs them all in one place.
+    let data = match chain.data() {
+        Some(d) => Arc::clone(d),
+        None => {
+            let store = chain.store();
+            Arc::new(store.frames(&(0..store.len()).collect::<Vec<_>>())?)
+        }
+    };
+    let mut s = Sampler::new_with_data(data, settings)?;
     let infos = chain.patterns();
     let group: std::collections::HashMap<usize, usize> =
         infos.iter().enumerate().map(|(g, p)| (p.slot, g)).collect();
