@@ -131,14 +131,13 @@ def _fit_on_scheduler(args: argparse.Namespace) -> int:
         )  # fmt: skip
         t = time.perf_counter()
         model.fit(args.data, client=client)
-        elapsed = time.perf_counter() - t
+        print(
+            f"fitted {model.n_patterns_} patterns over {manifest.n_shards} shards on {args.scheduler} "
+            f"in {time.perf_counter() - t:.1f} s ({model.n_iter_} sweeps, α = {model.alpha_:.3g})"
+        )
+        model.save(args.output)  # with the client open: the model file's parts may ask the shards
     finally:
         client.close()
-    print(
-        f"fitted {model.n_patterns_} patterns over {manifest.n_shards} shards on {args.scheduler} "
-        f"in {elapsed:.1f} s ({model.n_iter_} sweeps, α = {model.alpha_:.3g})"
-    )
-    model.save(args.output)
     print(f"wrote {args.output}")
     return 0
 

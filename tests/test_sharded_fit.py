@@ -1,0 +1,203 @@
+"""One chain over frames stored as shards (``DPGP.fit(directory, client=...)``): in this process
+and on a real ``distributed.LocalCluster`` with 2 worker processes the same seed and shards give
+the same chain, also when a worker process is killed mid-fit; the settings that cannot run over
+shards are refused with a client; ``dpgp fit DIR --scheduler ADDRESS`` runs the fit on a cluster."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+import warnings
+from typing import Any
+
+import numpy as np
+import pytest
+
+import dpgp
+from dpgp import InvalidInputError
+
+N_FRAMES, N_SHARDS, ITERATIONS, SEED = 600, 3, 3, 5
+
+
+@pytest.fixture(scope="module")
+def shard_dir(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("sharded") / "frames"
+    dpgp.datasets.synthetic("highway", N_FRAMES, seed=3).to_parquet(directory, shards=N_SHARDS)
+    return directory
+
+
+_IN_PROCESS: dict[int, dpgp.DPGP] = {}
+
+
+def in_process(directory, iterations: int) -> dpgp.DPGP:
+    """The in-process sharded fit of ``directory`` (one per sweep count for the module)."""
+    if iterations not in _IN_PROCESS:
+        _IN_PROCESS[iterations] = dpgp.DPGP(iterations=iterations, seed=SEED, progress=False).fit(directory)
+    return _IN_PROCESS[iterations]
+
+
+def assert_same_chain(a: dpgp.DPGP, b: dpgp.DPGP) -> None:
+    np.testing.assert_array_equal(a.labels_, b.labels_)
+    np.testing.assert_array_equal(a.length_scales_, b.length_scales_)
+    assert a.alpha_ == b.alpha_
+    assert a.history_["log_joint"] == b.history_["log_joint"]
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    distributed = pytest.importorskip("distributed")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cluster = distributed.LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=50
+        )
+    client = distributed.Client(cluster)
+    yield cluster, client
+    client.close()
+    cluster.close()
+
+
+class _NoWorkClient:
+    """A stand-in client that fails the test if the fit sends it any work."""
+
+    def submit(self, *args: Any, **kwargs: Any) -> Any:
+        raise AssertionError("the fit submitted work before refusing its settings")
+
+    def gather(self, *args: Any, **kwargs: Any) -> Any:
+        raise AssertionError("the fit gathered work before refusing its settings")
+
+
+# --- in this process ---------------------------------------------------------------------------
+def test_in_process_sharded_fit_is_reproducible(shard_dir):
+    a = in_process(shard_dir, ITERATIONS)
+    b = dpgp.DPGP(iterations=ITERATIONS, seed=SEED, progress=False).fit(shard_dir)
+    assert_same_chain(a, b)
+    assert a._shard_link is None
+    assert len(a.labels_) == N_FRAMES and a.labels_.min() >= 0
+    assert a.n_patterns_ >= 1 and a.labels_.max() < a.n_patterns_
+    assert len(a.history_["log_joint"]) == ITERATIONS and a.n_iter_ == ITERATIONS
+    assert a.likelihood_ == "hsgp"
+
+
+def test_frames_of_a_sharded_fit_are_read_lazily_from_the_directory(shard_dir):
+    model = dpgp.DPGP(iterations=1, seed=SEED, progress=False).fit(shard_dir)
+    assert model.__dict__["_frames"] is None  # the fit never held them all
+    expected = dpgp.read_frames(shard_dir)
+    np.testing.assert_array_equal(model.frames_.xy, expected.xy)
+    np.testing.assert_array_equal(model.frames_.v, expected.v)
+    assert len(model.frames_) == N_FRAMES
+
+
+def test_a_sampler_that_cannot_run_over_shards_reads_the_directory(tmp_path):
+    directory = tmp_path / "small"
+    frames = dpgp.datasets.synthetic("highway", 150, seed=3)
+    frames.to_parquet(directory, shards=2)
+    model = dpgp.DPGP(iterations=1, seed=SEED, progress=False, sampler="collapsed").fit(directory)
+    assert len(model.labels_) == len(frames) and model.n_patterns_ >= 1
+    assert model.__dict__["_frames"] is not None  # read into memory
+    np.testing.assert_array_equal(model.frames_.xy, frames.xy)
+
+
+# --- refusals ----------------------------------------------------------------------------------
+def test_client_with_frames_not_in_shards_is_refused():
+    frames = dpgp.datasets.synthetic("highway", 50, seed=1)
+    with pytest.raises(InvalidInputError, match="to_parquet"):
+        dpgp.DPGP(iterations=1, progress=False).fit(frames, client=_NoWorkClient())
+
+
+@pytest.mark.parametrize(
+    "setting", [{"likelihood": "exact"}, {"sampler": "collapsed"}, {"pattern_moments": True}], ids=str
+)
+def test_client_with_settings_that_need_every_frame_is_refused_before_any_work(shard_dir, setting):
+    model = dpgp.DPGP(iterations=1, progress=False, **setting)
+    with pytest.raises(InvalidInputError, match="client="):
+        model.fit(shard_dir, client=_NoWorkClient())
+    assert not hasattr(model, "labels_")
+
+
+def test_checkpoint_with_a_sharded_fit_is_refused(shard_dir, tmp_path):
+    model = dpgp.DPGP(iterations=1, progress=False, checkpoint=tmp_path / "c.npz")
+    with pytest.raises(InvalidInputError, match="checkpoint"):
+        model.fit(shard_dir)
+    assert not (tmp_path / "c.npz").exists()
+
+
+def test_cli_scheduler_refuses_frames_not_in_shards(tmp_path, capsys):
+    from dpgp.cli import main
+
+    data = tmp_path / "frames.csv"
+    dpgp.datasets.synthetic("highway", 20, seed=1).to_pandas().to_csv(data, index=False)
+    # No scheduler listens there: the input is refused before connecting.
+    assert main(["fit", str(data), "-o", str(tmp_path / "m.npz"), "--scheduler", "tcp://127.0.0.1:9"]) == 1
+    assert "directory of frame shards" in capsys.readouterr().err
+
+
+def test_cli_scheduler_without_dask_says_what_to_install(shard_dir, tmp_path, capsys, monkeypatch):
+    import sys
+
+    from dpgp.cli import main
+
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed raises ImportError
+    assert main(["fit", str(shard_dir), "-o", str(tmp_path / "m.npz"), "--scheduler", "tcp://127.0.0.1:9"]) == 1
+    assert "pip install 'dpgp[distributed]'" in capsys.readouterr().err
+
+
+# --- on a LocalCluster -------------------------------------------------------------------------
+def test_cluster_fit_is_the_in_process_chain(shard_dir, cluster):
+    _, client = cluster
+    on_cluster = dpgp.DPGP(iterations=ITERATIONS, seed=SEED, progress=False).fit(shard_dir, client=client)
+    assert_same_chain(on_cluster, in_process(shard_dir, ITERATIONS))
+    link = on_cluster._shard_link
+    assert link is not None and link.requests > 0
+    assert link.bytes_sent > 0 and link.bytes_received > 0
+
+
+def test_cli_fits_shards_on_a_scheduler_address(shard_dir, cluster, tmp_path, capsys):
+    from dpgp.cli import main
+
+    out = tmp_path / "m.npz"
+    args = ["fit", str(shard_dir), "-o", str(out), "--iterations", "1", "--seed", str(SEED), "--no-progress"]
+    code = main([*args, "--scheduler", cluster[0].scheduler_address])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    assert f"{N_FRAMES} frames in {N_SHARDS} shards" in printed.out and f"wrote {out}" in printed.out
+    np.testing.assert_array_equal(dpgp.DPGP.load(out).labels_, in_process(shard_dir, 1).labels_)
+
+
+def test_a_worker_killed_mid_fit_is_replaced_and_the_chain_is_unchanged(shard_dir, cluster):
+    _, client = cluster
+    iterations = 4
+    model = dpgp.DPGP(iterations=iterations, seed=SEED, progress=False)
+    killed: dict[str, Any] = {}
+    done = threading.Event()
+
+    def kill_after_the_first_sweep() -> None:
+        # history_ is made afresh by fit; wait until this fit's first sweep is recorded.
+        while not done.is_set():
+            history = model.__dict__.get("history_")
+            if history is not None and len(history["log_joint"]) >= 1:
+                break
+            time.sleep(0.02)
+        else:
+            return
+        link = model._shard_link
+        holder = next(iter(client.who_has([link._loads[0]])[link._loads[0].key]))
+        pid = client.run(os.getpid)[holder]
+        before = len(model.history_["log_joint"])
+        os.kill(pid, signal.SIGKILL)
+        killed.update(pid=pid, worker=holder, sweeps=(before, len(model.history_["log_joint"])))
+
+    killer = threading.Thread(target=kill_after_the_first_sweep, daemon=True)
+    killer.start()
+    try:
+        model.fit(shard_dir, client=client)
+    finally:
+        done.set()
+        killer.join(timeout=30)
+    assert "pid" in killed, "the worker was not killed during the fit"
+    assert 1 <= killed["sweeps"][0] and killed["sweeps"][1] < iterations, killed  # mid-fit
+    client.wait_for_workers(2, timeout=60)
+    assert killed["pid"] not in client.run(os.getpid).values()  # the nanny started a new process
+    assert_same_chain(model, in_process(shard_dir, iterations))
