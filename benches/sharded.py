@@ -49,9 +49,19 @@ def write(directory: str, n: int, shards: int) -> None:
 
 
 def _truth(directory: str) -> np.ndarray:
-    from dpgp.data.shards import iter_shards
+    """The true labels stored in the shards (the label column alone, one value per frame)."""
+    import pyarrow.parquet as pq
 
-    return np.concatenate([np.asarray(s.frames.labels) for s in iter_shards(directory)])
+    from dpgp.data.shards import read_manifest
+
+    m = read_manifest(directory)
+    out = []
+    for i in range(m.n_shards):
+        t = pq.read_table(m.path(i), columns=["frame_number", "label"])
+        number = t.column("frame_number").to_numpy()
+        first = np.flatnonzero(np.r_[True, np.diff(number) != 0])
+        out.append(t.column("label").take(first).to_numpy())
+    return np.concatenate(out)
 
 
 def _peak_gb() -> float:
@@ -67,9 +77,26 @@ def cluster(directory: str, sweeps: int, workers: int) -> dict:
         LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0") as lc,
         Client(lc) as client,
     ):
+        import threading
+
+        import psutil
+
+        trace: list[tuple[float, float]] = []
+        done = threading.Event()
+
+        def watch() -> None:  # the leader's resident memory over the fit, every half second
+            me = psutil.Process()
+            while not done.wait(0.5):
+                trace.append((time.perf_counter() - t, me.memory_info().rss / 1e9))
+
         t = time.perf_counter()
+        watcher = threading.Thread(target=watch, daemon=True)
+        watcher.start()
         m = dpgp.DPGP(iterations=sweeps, seed=1, progress=False).fit(directory, client=client)
         wall = time.perf_counter() - t
+        done.set()
+        leader_peak = _peak_gb()  # before the true labels are read here
+        at, most = max(trace, key=lambda r: r[1]) if trace else (0.0, 0.0)
         link = m._shard_link
         worker_peak = client.run(lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6)
         sec = np.asarray(m.history_["seconds"])
@@ -81,7 +108,9 @@ def cluster(directory: str, sweeps: int, workers: int) -> dict:
             "median_sweep_s": float(np.median(sec)), "max_sweep_s": float(sec.max()),
             "sent_mb_per_sweep": link.bytes_sent / 1e6 / sweeps, "received_mb_per_sweep": link.bytes_received / 1e6 / sweeps,
             "requests_per_sweep": link.requests / sweeps, "calls_per_sweep": link.calls / sweeps,
-            "waiting_s": link.seconds, "leader_parts_s": dict(m._sampler.timings()), "leader_peak_gb": _peak_gb(),
+            "waiting_s": link.seconds, "leader_parts_s": dict(m._sampler.timings()), "leader_peak_gb": leader_peak,
+            "leader_rss_peak_at_s": at, "leader_rss_sampled_peak_gb": most,
+            "sweep_s": [float(x) for x in sec],
             "worker_peak_gb": sorted(worker_peak.values()), "K": int(m.n_patterns_),
             "ari": float(adjusted_rand_index(truth, m.labels_)), "basis": m.basis_.size,
         }  # fmt: skip

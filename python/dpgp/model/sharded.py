@@ -34,24 +34,49 @@ from ..exceptions import InvalidInputError
 SAMPLE_FRAMES = 20_000
 
 
-def settings_sample(manifest: ShardManifest) -> tuple[Frames, np.ndarray, int]:
+def settings_sample(manifest: ShardManifest, client: Any = None) -> tuple[Frames, np.ndarray, int]:
     """The frames a sharded fit resolves its settings from (all up to :data:`SAMPLE_FRAMES`,
     else as many evenly spaced), the corners ``[[x_min, y_min], [x_max, y_max]]`` of every
-    position, and the most vehicles in a frame; one shard in memory at a time."""
+    position, and the most vehicles in a frame. Each shard is read alone (by ``client``'s workers
+    when given, so that the leader never holds one) and gives its part (:func:`shard_digest`)."""
     n = manifest.n_frames
-    take = np.arange(n) if n <= SAMPLE_FRAMES else (np.arange(SAMPLE_FRAMES) * n) // SAMPLE_FRAMES
-    lo, hi, most = np.full(2, np.inf), np.full(2, -np.inf), 0
-    rows: list[tuple[np.ndarray, ...]] = []
-    for i, info in enumerate(manifest.shards):
-        part, start = read_shard(manifest, i)
-        lo, hi = np.minimum(lo, part.xy.min(axis=0)), np.maximum(hi, part.xy.max(axis=0))
-        most = max(most, int(part.sizes.max(initial=0)))
-        mine = take[(take >= start) & (take < info.stop)] - start
-        sub = part[mine]
-        rows.append((np.repeat(mine + start, sub.sizes), sub.xy, sub.v))
-    frame, xy, v = (np.concatenate(c) for c in zip(*rows))
+    args = (os.path.abspath(manifest.directory), n)
+    if client is None:
+        digests = [shard_digest(*args, i) for i in range(manifest.n_shards)]
+    else:
+        digests = client.gather([client.submit(shard_digest, *args, i, pure=False) for i in range(manifest.n_shards)])
+    lo = np.min([d[0] for d in digests], axis=0)
+    hi = np.max([d[1] for d in digests], axis=0)
+    most = max(d[2] for d in digests)
+    frame, xy, v = (np.concatenate([d[k] for d in digests]) for k in (3, 4, 5))
     sample = Frames.from_arrays(frame, xy[:, 0], xy[:, 1], v[:, 0], v[:, 1])
     return sample, np.array([lo, hi]), most
+
+
+def shard_digest(
+    directory: str, n_frames: int, i: int
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray, np.ndarray]:
+    """Shard ``i``'s part of :func:`settings_sample`: its positions' least and greatest
+    coordinates, its most vehicles in a frame, and the rows (frame number, position, velocity)
+    of its frames among the evenly spaced sample of all ``n_frames``."""
+    part, start = read_shard(directory, i)
+    take = np.arange(n_frames) if n_frames <= SAMPLE_FRAMES else (np.arange(SAMPLE_FRAMES) * n_frames) // SAMPLE_FRAMES
+    mine = take[(take >= start) & (take < start + len(part))] - start
+    sub = part[mine]
+    out = (
+        part.xy.min(axis=0), part.xy.max(axis=0), int(part.sizes.max(initial=0)),
+        np.repeat(mine + start, sub.sizes), np.array(sub.xy), np.array(sub.v),
+    )  # fmt: skip
+    del part, sub
+    _release_arrow_memory()
+    return out
+
+
+def _release_arrow_memory() -> None:
+    """Give back what Arrow's pool kept from reading a shard (it keeps freed memory otherwise)."""
+    import pyarrow as pa
+
+    pa.default_memory_pool().release_unused()
 
 
 def local_shards(manifest: ShardManifest) -> list[Any]:
@@ -75,6 +100,8 @@ def load_shard(directory: str, i: int) -> tuple[str, int]:
     if key not in _LOADED:
         part, start = read_shard(directory, i)
         _LOADED[key] = _core.Shard(part.xy, part.v, part.offsets, start)
+        del part
+        _release_arrow_memory()
     return key
 
 
