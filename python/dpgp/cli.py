@@ -30,8 +30,6 @@ def load_frames(path: str, fmt: str = "auto", roi: Any = None, dt: float | None 
 
 # --- commands ----------------------------------------------------------------------------------
 def _fit(args: argparse.Namespace) -> int:
-    from . import DPGP
-
     if args.scheduler is not None and args.chains is None:
         return _fit_on_scheduler(args)
     frames = load_frames(args.data, args.format, args.roi, args.dt, args.units)
@@ -42,11 +40,7 @@ def _fit(args: argparse.Namespace) -> int:
         return _fit_chains(args, frames)
     if args.until_converged:
         raise ValueError("--until-converged goes with --chains N")
-    model = DPGP(
-        iterations=args.iterations, assignment=args.assignment, seed=args.seed, alpha=args.alpha,
-        n_threads=args.threads, progress=args.progress, preset=args.preset, checkpoint=args.checkpoint,
-        checkpoint_every=args.checkpoint_every, sampler=args.sampler, init=args.init,
-    )  # fmt: skip
+    model = _model_of(args)
     t = time.perf_counter()
     model.fit(frames)
     print(
@@ -99,10 +93,20 @@ def _connect(address: str) -> Any:
     return Client(address)
 
 
+def _model_of(args: argparse.Namespace) -> Any:
+    """The estimator ``dpgp fit``'s options describe."""
+    from . import DPGP
+
+    return DPGP(
+        iterations=args.iterations, assignment=args.assignment, seed=args.seed, alpha=args.alpha,
+        n_threads=args.threads, progress=args.progress, preset=args.preset, checkpoint=args.checkpoint,
+        checkpoint_every=args.checkpoint_every, sampler=args.sampler, init=args.init,
+    )  # fmt: skip
+
+
 def _fit_on_scheduler(args: argparse.Namespace) -> int:
     """``dpgp fit DIR --scheduler ADDRESS``: one chain over a directory of frame shards, each shard
     read and served by a worker of the Dask scheduler (``DPGP.fit(DIR, client=...)``)."""
-    from . import DPGP
     from .model.sharded import manifest_of
 
     framing = {"--roi": args.roi, "--dt": args.dt, "--units": args.units, "--max-frames": args.max_frames}
@@ -124,11 +128,7 @@ def _fit_on_scheduler(args: argparse.Namespace) -> int:
     print(f"{args.data}: {manifest.n_frames} frames in {manifest.n_shards} shards")
     client = _connect(args.scheduler)
     try:
-        model = DPGP(
-            iterations=args.iterations, assignment=args.assignment, seed=args.seed, alpha=args.alpha,
-            n_threads=args.threads, progress=args.progress, preset=args.preset, checkpoint=args.checkpoint,
-            checkpoint_every=args.checkpoint_every, sampler=args.sampler, init=args.init,
-        )  # fmt: skip
+        model = _model_of(args)
         t = time.perf_counter()
         model.fit(args.data, client=client)
         print(
