@@ -79,6 +79,9 @@ def test_adjusted_rand_index_matches_sklearn():
         a, b = rng.integers(0, rng.integers(1, 6), n), rng.integers(0, rng.integers(1, 6), n)
         assert so.adjusted_rand_index(a, b) == pytest.approx(adjusted_rand_score(a, b), abs=1e-12)
         assert dpgp.adjusted_rand_index(a, b) == pytest.approx(adjusted_rand_score(a, b), abs=1e-12)
+        # Numbers with gaps, past the no-sort range, and far apart: the same index.
+        for x, y in ((a * 7, b), (a * 5000 + 3, b * 900_001), (a.astype(str), b)):
+            assert dpgp.adjusted_rand_index(x, y) == pytest.approx(adjusted_rand_score(a, b), abs=1e-12)
 
 
 @pytest.mark.parametrize("n", [4, 5])

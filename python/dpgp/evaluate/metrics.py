@@ -6,12 +6,17 @@ import numpy as np
 
 from ..exceptions import InvalidInputError
 
+#: Labels that are non-negative integers below this are their own group numbers (no sort).
+_SMALL_CODES = 4096
+
 
 def _codes(name: str, labels: object) -> np.ndarray:
     """Group numbers 0.. of a 1-D labeling; any hashable labels (None, mixed types) work."""
     arr = np.asarray(labels, dtype=object) if isinstance(labels, (list, tuple)) else np.asarray(labels)
     if arr.ndim != 1:
         raise InvalidInputError(f"labeling {name} must be one-dimensional, got shape {arr.shape}")
+    if arr.dtype.kind in "iu" and len(arr) and 0 <= arr.min() and arr.max() < _SMALL_CODES:
+        return arr.astype(np.int64, copy=False)  # already group numbers (gaps are empty groups): no sort
     try:
         return np.unique(arr, return_inverse=True)[1].reshape(-1)
     except TypeError:  # labels that cannot be ordered: number them by first appearance
@@ -30,8 +35,11 @@ def adjusted_rand_index(a: object, b: object) -> float:
     n = len(a)
     if n < 2:
         return 1.0
-    table = np.zeros((a.max() + 1, b.max() + 1), dtype=np.int64)
-    np.add.at(table, (a, b), 1)
+    if (int(a.max()) + 1) * (int(b.max()) + 1) > 4 * n + _SMALL_CODES**2 // 4:  # sparse numbers: pack them
+        a, b = np.unique(a, return_inverse=True)[1], np.unique(b, return_inverse=True)[1]
+    nb = int(b.max()) + 1
+    table = np.bincount(a * nb + b, minlength=(int(a.max()) + 1) * nb).reshape(-1, nb)
+    # Groups that are empty in one labeling (gaps in its numbers) add no pairs.
 
     def pairs(x: np.ndarray) -> float:
         return float((x * (x - 1) // 2).sum())
