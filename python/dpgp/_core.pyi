@@ -19,6 +19,7 @@ __all__ = [
     "hsgp_log_predictive",
     "hsgp_posterior",
     "Sampler",
+    "Shard",
     "check_settings",
     "MAX_THREADS",
     "MAX_NEW_PATTERN_SAMPLES",
@@ -201,6 +202,7 @@ class Shard:
     def __len__(self) -> int: ...
     def handle(self, request: bytes) -> bytes: ...
 
+@final
 class Sampler:
     """A DP-GP chain, the collapsed Gibbs sampler or the sub-cluster sampler (settings key
     "sampler"; rust/py/src/sampler.rs); dpgp.DPGP wraps it."""

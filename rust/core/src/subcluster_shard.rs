@@ -318,8 +318,11 @@ impl Store {
                 "sharded frames need at least one shard and no empty shard".into(),
             ));
         }
-        if sizes.iter().sum::<usize>() > u32::MAX as usize * sizes.len() {
-            return Err(Error::InvalidInput("a shard holds too many frames".into()));
+        if let Some(n) = sizes.iter().find(|&&n| n > u32::MAX as usize) {
+            return Err(Error::InvalidInput(format!(
+                "a shard of {n} frames is too large (at most {}); write more shards",
+                u32::MAX
+            )));
         }
         let mut starts = vec![0];
         for s in sizes {
