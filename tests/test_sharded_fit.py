@@ -201,3 +201,22 @@ def test_a_worker_killed_mid_fit_is_replaced_and_the_chain_is_unchanged(shard_di
     client.wait_for_workers(2, timeout=60)
     assert killed["pid"] not in client.run(os.getpid).values()  # the nanny started a new process
     assert_same_chain(model, in_process(shard_dir, iterations))
+
+
+def _loaded(client: Any, directory: Any) -> int:
+    """Shards of ``directory`` the cluster's worker processes hold."""
+    from dpgp.model import sharded
+
+    where = os.path.abspath(directory)
+    return sum(client.run(lambda: sum(k[0] == where for k in sharded._LOADED)).values())
+
+
+def test_fitting_again_lets_the_workers_drop_the_last_fits_shards(shard_dir, cluster):
+    _, client = cluster
+    model = dpgp.DPGP(iterations=1, seed=SEED, progress=False).fit(shard_dir, client=client)
+    first = model._shard_link
+    assert _loaded(client, shard_dir) >= N_SHARDS  # each shard read by a worker and kept
+    model.fit(shard_dir, client=client)  # a new chain: the first link is closed
+    assert first._loads == [] and model._shard_link is not first
+    model._shard_link.close()
+    assert _loaded(client, shard_dir) == 0

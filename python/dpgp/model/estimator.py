@@ -674,6 +674,9 @@ class DPGP:
         from .sharded import DaskShards, local_shards
 
         settings = self._core_settings(manifest.n_frames, None)
+        previous = self.__dict__.get("_shard_link")
+        if previous is not None:  # a fit again: the last fit's shards are no longer needed
+            previous.close()
         if client is None:
             self._shard_link = None
             return _core.Sampler.over_shards(local_shards(manifest), settings)

@@ -111,6 +111,15 @@ def serve_request(key: tuple[str, int], request: bytes) -> bytes:
     return _LOADED[load_shard(*key)].handle(request)
 
 
+def forget_shards(directory: str) -> int:
+    """Run on every worker by :meth:`DaskShards.close`: drop the shards of ``directory`` this
+    process loaded; returns how many."""
+    keys = [k for k in _LOADED if k[0] == directory]
+    for k in keys:
+        del _LOADED[k]
+    return len(keys)
+
+
 class DaskShards:
     """The shards of ``manifest`` served by the workers of a Dask ``client``: each shard is
     loaded by one worker and kept there (a future per shard, held for the life of the chain);
@@ -119,7 +128,7 @@ class DaskShards:
 
     def __init__(self, client: Any, manifest: ShardManifest):
         self._client = client
-        directory = os.path.abspath(manifest.directory)
+        directory = self._directory = os.path.abspath(manifest.directory)
         tag = uuid.uuid4().hex[:8]
         self._loads = [
             client.submit(load_shard, directory, i, key=f"dpgp-shard-{tag}-{i}") for i in range(manifest.n_shards)
@@ -149,10 +158,17 @@ class DaskShards:
         return list(replies)
 
     def close(self) -> None:
-        """Let the workers drop the shards."""
+        """Let the workers drop the shards (a fitted model then can no longer gather its frames
+        from them; the estimator closes its link when it fits again)."""
+        if not self._loads:
+            return
         for f in self._loads:
             f.release()
         self._loads = []
+        try:
+            self._client.run(forget_shards, self._directory)
+        except Exception:  # noqa: BLE001 - a closed client or a gone cluster has nothing to drop
+            pass
 
 
 def manifest_of(frames: Any) -> ShardManifest | None:
