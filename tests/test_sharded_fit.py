@@ -220,3 +220,53 @@ def test_fitting_again_lets_the_workers_drop_the_last_fits_shards(shard_dir, clu
     assert first._loads == [] and model._shard_link is not first
     model._shard_link.close()
     assert _loaded(client, shard_dir) == 0
+
+
+_CTRL_C = """
+import signal, sys
+import dpgp
+
+def main():
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    from distributed import Client, LocalCluster
+    frames = dpgp.datasets.synthetic("highway", n_frames=400, seed=0)
+    frames.to_parquet(sys.argv[1], shards=3)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
+                      silence_logs=50) as lc, Client(lc) as client:
+        model = dpgp.DPGP(iterations=100000, progress=False, noise_var=0.5)
+        print("fitting", flush=True)
+        model.fit(sys.argv[1], client=client)
+        print("sweeps", model.n_iter_, flush=True)
+        print("predict", model.predict(frames[:3]).tolist(), flush=True)
+
+if __name__ == "__main__":
+    main()
+"""
+
+
+def test_ctrl_c_keeps_the_state_reached_on_a_cluster(tmp_path):
+    """Ctrl-C during a fit on a cluster stops it as a local fit stops (between steps, the state
+    reached kept), and the model it keeps predicts (its frames gathered from the workers)."""
+    pytest.importorskip("distributed")
+    import subprocess
+    import sys
+
+    script = tmp_path / "fit.py"
+    script.write_text(_CTRL_C)
+    proc = subprocess.Popen(
+        [sys.executable, str(script), str(tmp_path / "shards")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "fitting"
+        time.sleep(12)  # the cluster's start and the fit's: sweeps under way
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=180)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert "fit interrupted after" in err and "keeps the state reached" in err
+    assert 1 <= int(out.split("sweeps")[1].split()[0]) < 100000
+    assert "predict [" in out
