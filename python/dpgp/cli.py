@@ -39,7 +39,7 @@ def _fit(args: argparse.Namespace) -> int:
     if args.chains is not None:
         return _fit_chains(args, frames)
     if args.until_converged:
-        raise ValueError("--until-converged goes with --chains N")
+        raise ValueError("--until-converged and its thresholds go with --chains N")
     model = _model_of(args)
     t = time.perf_counter()
     model.fit(frames)

@@ -459,14 +459,23 @@ def test_neither_writing_nor_reading_holds_a_second_copy(tmp_path):
     assert read_peak < 1.5 * size, (read_peak, size)
 
 
-def test_a_fit_on_a_directory_of_shards_is_the_fit_on_its_frames(tmp_path):
+def test_a_fit_on_a_directory_of_one_shard_is_the_fit_on_its_frames(tmp_path):
+    """A directory is fitted as its shards (docs/guide/cluster.md): one shard is the fit on the
+    frames in memory, number for number; several shards are a chain of their own, the same for
+    the same seed."""
     frames = dpgp.datasets.synthetic("highway", 60, seed=3)
-    frames.to_parquet(tmp_path / "shards", shards=3)
-    a = dpgp.DPGP(iterations=3, seed=2, progress=False).fit(frames)
-    b = dpgp.DPGP(iterations=3, seed=2, progress=False).fit(tmp_path / "shards")
+    frames.to_parquet(tmp_path / "one", shards=1)
+    frames.to_parquet(tmp_path / "three", shards=3)
+    # The settings a directory's fit resolves from a sample given, and its engine and sampler.
+    given = dict(iterations=3, seed=2, progress=False, likelihood="hsgp", sampler="subcluster", noise_var=0.5)
+    a = dpgp.DPGP(**given).fit(frames)
+    b = dpgp.DPGP(**given).fit(tmp_path / "one")
     np.testing.assert_array_equal(a.labels_, b.labels_)
     assert a.history_["log_joint"] == b.history_["log_joint"]
-    np.testing.assert_array_equal(b.predict(str(tmp_path / "shards")), a.predict(frames))
+    np.testing.assert_array_equal(b.predict(str(tmp_path / "one")), a.predict(frames))
+    c, d = (dpgp.DPGP(iterations=3, seed=2, progress=False).fit(tmp_path / "three") for _ in range(2))
+    np.testing.assert_array_equal(c.labels_, d.labels_)
+    assert len(c.labels_) == len(frames) and c.n_patterns_ >= 1
 
 
 def test_a_file_path_given_to_fit_says_how_to_read_it(tmp_path):
