@@ -379,7 +379,7 @@ class DPGP:
         extent = None
         if sharded:
             assert manifest is not None
-            frames, extent, _ = settings_sample(manifest, client)
+            frames, extent = settings_sample(manifest, client)
             _check_magnitudes(
                 Frames.from_arrays([0, 0], extent[:, 0], extent[:, 1], [0, 0], [0, 0]), "the training data"
             )

@@ -34,10 +34,10 @@ from ..exceptions import InvalidInputError
 SAMPLE_FRAMES = 20_000
 
 
-def settings_sample(manifest: ShardManifest, client: Any = None) -> tuple[Frames, np.ndarray, int]:
+def settings_sample(manifest: ShardManifest, client: Any = None) -> tuple[Frames, np.ndarray]:
     """The frames a sharded fit resolves its settings from (all up to :data:`SAMPLE_FRAMES`,
-    else as many evenly spaced), the corners ``[[x_min, y_min], [x_max, y_max]]`` of every
-    position, and the most vehicles in a frame. Each shard is read alone (by ``client``'s workers
+    else as many evenly spaced) and the corners ``[[x_min, y_min], [x_max, y_max]]`` of every
+    position. Each shard is read alone (by ``client``'s workers
     when given, so that the leader never holds one) and gives its part (:func:`shard_digest`)."""
     n = manifest.n_frames
     args = (os.path.abspath(manifest.directory), n)
@@ -47,25 +47,23 @@ def settings_sample(manifest: ShardManifest, client: Any = None) -> tuple[Frames
         digests = client.gather([client.submit(shard_digest, *args, i, pure=False) for i in range(manifest.n_shards)])
     lo = np.min([d[0] for d in digests], axis=0)
     hi = np.max([d[1] for d in digests], axis=0)
-    most = max(d[2] for d in digests)
-    frame, xy, v = (np.concatenate([d[k] for d in digests]) for k in (3, 4, 5))
+    frame, xy, v = (np.concatenate([d[k] for d in digests]) for k in (2, 3, 4))
     sample = Frames.from_arrays(frame, xy[:, 0], xy[:, 1], v[:, 0], v[:, 1])
-    return sample, np.array([lo, hi]), most
+    return sample, np.array([lo, hi])
 
 
 def shard_digest(
     directory: str, n_frames: int, i: int
-) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Shard ``i``'s part of :func:`settings_sample`: its positions' least and greatest
-    coordinates, its most vehicles in a frame, and the rows (frame number, position, velocity)
+    coordinates, and the rows (frame number, position, velocity)
     of its frames among the evenly spaced sample of all ``n_frames``."""
     part, start = read_shard(directory, i)
     take = np.arange(n_frames) if n_frames <= SAMPLE_FRAMES else (np.arange(SAMPLE_FRAMES) * n_frames) // SAMPLE_FRAMES
     mine = take[(take >= start) & (take < start + len(part))] - start
     sub = part[mine]
     out = (
-        part.xy.min(axis=0), part.xy.max(axis=0), int(part.sizes.max(initial=0)),
-        np.repeat(mine + start, sub.sizes), np.array(sub.xy), np.array(sub.v),
+        part.xy.min(axis=0), part.xy.max(axis=0), np.repeat(mine + start, sub.sizes), np.array(sub.xy), np.array(sub.v),
     )  # fmt: skip
     del part, sub
     _release_arrow_memory()
@@ -79,13 +77,18 @@ def _release_arrow_memory() -> None:
     pa.default_memory_pool().release_unused()
 
 
+def core_shard(directory: str | ShardManifest, i: int) -> Any:
+    """Shard ``i`` read as the core's ``Shard`` (what answers the chain's requests)."""
+    part, start = read_shard(directory, i)
+    shard = _core.Shard(part.xy, part.v, part.offsets, start)
+    del part
+    _release_arrow_memory()
+    return shard
+
+
 def local_shards(manifest: ShardManifest) -> list[Any]:
     """Every shard read into this process as the core's ``Shard``, in order."""
-    out = []
-    for i in range(manifest.n_shards):
-        part, start = read_shard(manifest, i)
-        out.append(_core.Shard(part.xy, part.v, part.offsets, start))
-    return out
+    return [core_shard(manifest, i) for i in range(manifest.n_shards)]
 
 
 # --- served by Dask workers ------------------------------------------------------------------
@@ -98,10 +101,7 @@ def load_shard(directory: str, i: int) -> tuple[str, int]:
     key the requests name it by."""
     key = (directory, int(i))
     if key not in _LOADED:
-        part, start = read_shard(directory, i)
-        _LOADED[key] = _core.Shard(part.xy, part.v, part.offsets, start)
-        del part
-        _release_arrow_memory()
+        _LOADED[key] = core_shard(directory, i)
     return key
 
 
