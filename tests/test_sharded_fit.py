@@ -117,11 +117,107 @@ def test_client_with_settings_that_need_every_frame_is_refused_before_any_work(s
     assert not hasattr(model, "labels_")
 
 
-def test_checkpoint_with_a_sharded_fit_is_refused(shard_dir, tmp_path):
-    model = dpgp.DPGP(iterations=1, progress=False, checkpoint=tmp_path / "c.npz")
-    with pytest.raises(InvalidInputError, match="checkpoint"):
-        model.fit(shard_dir)
-    assert not (tmp_path / "c.npz").exists()
+# --- checkpoints of a fit over shards ----------------------------------------------------------
+CKPT = dict(iterations=5, checkpoint_every=2, seed=SEED, progress=False, store_labels=True)
+
+
+class _Recording(dpgp.DPGP):
+    """A fit that keeps a copy of every checkpoint it writes."""
+
+    def _write_checkpoint(self, traces):  # noqa: ANN001
+        super()._write_checkpoint(traces)
+        copies = self.__dict__.setdefault("copies", [])
+        copy = f"{self.checkpoint}.{len(copies)}"
+        with open(self.checkpoint, "rb") as src, open(copy, "wb") as dst:
+            dst.write(src.read())
+        copies.append(copy)
+
+
+def same_fit(a: dpgp.DPGP, b: dpgp.DPGP) -> None:
+    assert_same_chain(a, b)
+    np.testing.assert_array_equal(a.label_trace_, b.label_trace_)
+    strip = lambda h: {k: v for k, v in h.items() if k != "seconds"}  # noqa: E731
+    assert strip(a.history_) == strip(b.history_) and a.n_iter_ == b.n_iter_
+
+
+@pytest.fixture(scope="module")
+def checkpointed(shard_dir, tmp_path_factory):
+    """A 5-sweep fit over the shards checkpointing every 2 sweeps, and the same fit without."""
+    path = tmp_path_factory.mktemp("ckpt") / "fit.ckpt"
+    return _Recording(**CKPT, checkpoint=str(path)).fit(shard_dir), dpgp.DPGP(**CKPT).fit(shard_dir)
+
+
+def test_a_sharded_checkpoint_holds_the_state_and_names_the_shards(shard_dir, checkpointed):
+    fit, plain = checkpointed
+    same_fit(fit, plain)  # writing checkpoints changes nothing
+    with np.load(fit.copies[-1]) as archive:
+        members = set(archive.files)
+    assert not {m for m in members if m.startswith("frame_")}  # the frames stay in their shards
+    assert {"labels", "resume_labels", "length_scales"} <= members
+    meta = dpgp.io.read_metadata(fit.copies[-1])
+    assert meta["format_version"] == 3
+    assert meta["shards"]["directory"] == os.path.abspath(shard_dir)
+    assert sum(meta["shards"]["sizes"]) == N_FRAMES and len(meta["shards"]["sizes"]) == N_SHARDS
+
+
+def fresh(copy: str, tmp_path) -> str:
+    """A copy of a recorded checkpoint to resume (resuming writes on to the file it resumes)."""
+    path = tmp_path / os.path.basename(copy)
+    with open(copy, "rb") as src, open(path, "wb") as dst:
+        dst.write(src.read())
+    return str(path)
+
+
+def test_resuming_from_every_sharded_checkpoint_gives_the_uninterrupted_fit(checkpointed, tmp_path):
+    fit, _ = checkpointed
+    assert [dpgp.io.read_metadata(c)["resume"]["sweeps_done"] for c in fit.copies] == [0, 2, 4, 4]
+    for copy in fit.copies:
+        resumed = dpgp.DPGP.resume(fresh(copy, tmp_path))
+        same_fit(resumed, fit)
+        assert resumed._frames is None  # continued over the shards, not from frames in the file
+
+
+def test_load_reads_a_sharded_checkpoint_over_its_shards(checkpointed):
+    fit, _ = checkpointed
+    model = dpgp.DPGP.load(fit.copies[-1])
+    np.testing.assert_array_equal(model.labels_, fit.labels_)
+    np.testing.assert_array_equal(model.predict(fit.frames_[:50]), fit.predict(fit.frames_[:50]))
+
+
+def test_a_sharded_checkpoint_refuses_shards_that_changed(shard_dir, checkpointed, tmp_path):
+    fit, _ = checkpointed
+    other = tmp_path / "other"
+    frames = dpgp.read_frames(shard_dir)
+    moved = frames.v.copy()
+    moved[0, 0] += 0.5  # one velocity of one vehicle
+    dpgp.Frames(frames.ids, frames.offsets, frames.xy, moved).to_parquet(other, shards=N_SHARDS)
+    ckpt = tmp_path / "edited.ckpt"
+    _repoint(fit.copies[1], ckpt, other)
+    with pytest.raises(dpgp.ModelFileError, match="not the frames"):
+        dpgp.DPGP.resume(ckpt)
+    _repoint(fit.copies[1], ckpt, tmp_path / "gone")
+    with pytest.raises(dpgp.ModelFileError, match="cannot be read"):
+        dpgp.DPGP.resume(ckpt)
+
+
+def _repoint(src, dst, directory) -> None:
+    """Copy the checkpoint ``src`` to ``dst`` naming another directory of shards."""
+    import json
+
+    with np.load(src) as archive:
+        arrays = {k: archive[k] for k in archive.files}
+    meta = json.loads(str(arrays["metadata"]))
+    meta["shards"]["directory"] = str(directory)
+    arrays["metadata"] = np.array(json.dumps(meta))
+    with open(dst, "wb") as fh:
+        np.savez(fh, **arrays)
+
+
+def test_client_resumes_only_a_checkpoint_over_shards(tmp_path):
+    path = tmp_path / "plain.ckpt"
+    dpgp.DPGP(iterations=1, progress=False, checkpoint=path).fit(dpgp.datasets.synthetic("highway", 30, seed=1))
+    with pytest.raises(InvalidInputError, match="client="):
+        dpgp.DPGP.resume(path, client=_NoWorkClient())
 
 
 def test_cli_scheduler_refuses_frames_not_in_shards(tmp_path, capsys):
@@ -164,6 +260,27 @@ def test_cli_fits_shards_on_a_scheduler_address(shard_dir, cluster, tmp_path, ca
     assert code == 0, printed.err
     assert f"{N_FRAMES} frames in {N_SHARDS} shards" in printed.out and f"wrote {out}" in printed.out
     np.testing.assert_array_equal(dpgp.DPGP.load(out).labels_, in_process(shard_dir, 1).labels_)
+
+
+def test_a_sharded_checkpoint_resumes_on_a_cluster(checkpointed, cluster, tmp_path, capsys):
+    from dpgp.cli import main
+
+    fit, _ = checkpointed
+    same_fit(dpgp.DPGP.resume(fresh(fit.copies[1], tmp_path), client=cluster[1]), fit)
+    out = tmp_path / "m.npz"
+    code = main(
+        [
+            "resume",
+            fresh(fit.copies[0], tmp_path),
+            "-o",
+            str(out),
+            "--no-progress",
+            "--scheduler",
+            cluster[0].scheduler_address,
+        ]
+    )
+    assert code == 0, capsys.readouterr().err
+    np.testing.assert_array_equal(dpgp.DPGP.load(out).labels_, fit.labels_)
 
 
 def test_a_worker_killed_mid_fit_is_replaced_and_the_chain_is_unchanged(shard_dir, cluster):

@@ -146,17 +146,22 @@ def _resume(args: argparse.Namespace) -> int:
     """``dpgp resume CHECKPOINT``: continue a fit's chain from its checkpoint."""
     from . import DPGP
 
-    t = time.perf_counter()
-    model = DPGP.resume(args.checkpoint, iterations=args.iterations, progress=args.progress)
-    print(
-        f"resumed {args.checkpoint} at sweep {model.resumed_from_}: {model.n_patterns_} patterns after "
-        f"{model.n_iter_} sweeps in {time.perf_counter() - t:.1f} s (α = {model.alpha_:.3g})"
-    )
-    if args.output is not None:
-        model.save(args.output)
-        print(f"wrote {args.output}")
-    else:
-        print(f"the model is in {args.checkpoint} (a model file: dpgp info, plot and simulate read it)")
+    client = None if args.scheduler is None else _connect(args.scheduler)
+    try:
+        t = time.perf_counter()
+        model = DPGP.resume(args.checkpoint, iterations=args.iterations, progress=args.progress, client=client)
+        print(
+            f"resumed {args.checkpoint} at sweep {model.resumed_from_}: {model.n_patterns_} patterns after "
+            f"{model.n_iter_} sweeps in {time.perf_counter() - t:.1f} s (α = {model.alpha_:.3g})"
+        )
+        if args.output is not None:
+            model.save(args.output)  # with the client open: a fit over shards gathers its frames
+            print(f"wrote {args.output}")
+        else:
+            print(f"the model is in {args.checkpoint} (a model file: dpgp info, plot and simulate read it)")
+    finally:
+        if client is not None:
+            client.close()
     return 0
 
 
@@ -430,6 +435,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="total sweeps of the chain (default: the original fit's); more extends it")  # fmt: skip
     p.add_argument("-o", "--output", help="also write the final model here (.npz)")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True, help="show a progress bar")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="a checkpoint of a fit over shards: continue on this Dask scheduler's workers")  # fmt: skip
     p.set_defaults(func=_resume)
 
     p = sub.add_parser("info", help="summarise a model file", formatter_class=fmt,

@@ -13,6 +13,12 @@ metadata ``resume``         JSON object         ``sweeps_done``, ``alpha``, ``st
                                                 stopping rule's counter) and ``data_sha256``
 ==========================  ==================  ============================================
 
+A checkpoint of a fit over a directory of shards (:mod:`dpgp.model.sharded`) leaves the frames
+there: its ``data_sha256`` is over each shard's fingerprint and frame range
+(:func:`dpgp.model.sharded.combined_fingerprint`), recorded with the directory in the file's
+``shards`` entry (format version 3, :mod:`dpgp.io`), and checked against the directory before a
+chain continues on it.
+
 The model the file holds is the resume point itself while the fit runs, and the fit's final
 state once it has finished (its history and ``label_trace`` then run past the resume point;
 resuming truncates them to it).
@@ -129,9 +135,11 @@ def remove_stale_temps(path: str) -> list[str]:
     return stale
 
 
-def parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], frames: Any) -> ResumePoint | None:
+def parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], frames: Any, n_frames: int) -> ResumePoint | None:
     """The resume point of a checkpoint (None for a plain model file), checked against the
-    file's model part and data; :class:`~dpgp.ModelFileError` on any inconsistency."""
+    file's model part and data (``frames``; None for frames left in shards, whose fingerprint
+    the file records and the reader checks against the directory);
+    :class:`~dpgp.ModelFileError` on any inconsistency."""
     r = meta.get(META_KEY)
     if r is None:
         return None
@@ -159,7 +167,7 @@ def parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], frames: Any) -> R
         raise ModelFileError("the checkpoint of a fit with store_labels=True lacks its label_trace")
     if trace is not None and (trace.ndim != 2 or len(trace) != n_iter):
         raise ModelFileError(f"the checkpoint's label_trace has shape {trace.shape} for {n_iter} sweeps")
-    labels, ls = _resume_arrays(arrays, len(frames))
+    labels, ls = _resume_arrays(arrays, n_frames)
     same = (
         alpha == meta.get("alpha")
         and np.array_equal(labels, arrays["labels"])
@@ -167,7 +175,8 @@ def parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], frames: Any) -> R
     )
     if done == n_iter and not same:
         raise ModelFileError("the checkpoint's resume point is at the model's sweep but holds another state")
-    if r.get("data_sha256") != fingerprint(frames):
+    recorded = fingerprint(frames) if frames is not None else (meta.get("shards") or {}).get("data_sha256")
+    if r.get("data_sha256") != recorded:
         raise ModelFileError(
             "the training data in the checkpoint do not match its fingerprint (data_sha256): the file was edited "
             "or damaged, and the chain cannot be resumed"

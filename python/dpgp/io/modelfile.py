@@ -49,6 +49,13 @@ A *checkpoint* (``DPGP(checkpoint=PATH)``) is a model file with a resume point b
 metadata key ``resume`` and the arrays ``resume_labels`` and ``resume_length_scales``
 (:mod:`dpgp.checkpoint`). Readers that know nothing of them read the model it holds.
 
+Version 3 (written only for a checkpoint of a fit over a directory of shards): the frames stay in
+their shards. The file has no ``frame_*`` members; the metadata key ``shards`` names the
+directory, the frames per shard (``sizes``; ``labels`` and ``resume_labels`` are the shards'
+labels one after another, in shard order) and the frames' fingerprint (``data_sha256``), which
+the reader checks against the directory before it rebuilds the chain there. A version-2 reader
+refuses such a file as newer rather than misreading it.
+
 Reading (:func:`read_model_file`) checks the file and returns a :class:`ModelFile`;
 :meth:`dpgp.DPGP.load` then rebuilds the sampler from the frames, labels, length scales and α
 exactly as ``fit`` leaves it (every pattern factored in canonical order), so a loaded model predicts, simulates and
@@ -77,9 +84,12 @@ from .checkpoint import META_KEY as RESUME_KEY
 from .checkpoint import parse as parse_resume
 
 FORMAT = "dpgp-model"
-FORMAT_VERSION = 2  # 2: "resolved" (what the "auto" settings and the preset resolved to)
+# 2: "resolved" (what the "auto" settings and the preset resolved to); 3: frames left in shards
+FORMAT_VERSION = 3
+_BY_REFERENCE = 3  # the version a file of frames left in shards needs; every other file is 2
 
-_REQUIRED = ("metadata", "frame_ids", "frame_offsets", "frame_xy", "frame_v", "labels", "length_scales")
+_REQUIRED = ("metadata", "labels", "length_scales")
+_FRAME_MEMBERS = ("frame_ids", "frame_offsets", "frame_xy", "frame_v")
 
 
 def _jsonable(value: Any) -> Any:
@@ -115,8 +125,8 @@ class ModelState:
     labels: np.ndarray
     length_scales: np.ndarray
     pattern_ids: np.ndarray
-    distributions: dict[str, Any]
-    motion: dict[str, Any]
+    distributions: dict[str, Any] | None  # None: frames left in shards
+    motion: dict[str, Any] | None
     resolved: dict[str, Any]
     engine: dict[str, Any]
     history: dict[str, Any]
@@ -131,6 +141,9 @@ class ModelState:
     transitions: dict[str, Any] | None = None  # dpgp.evaluate.transitions.Transitions.to_dict (issue 20)
     sticky: dict[str, Any] | None = None  # dynamics="sticky": {"rho": ρ, "links": frames linked to their predecessor}
     pattern_noise_var: np.ndarray | None = None  # (K, 2) under per-pattern noise
+    # Frames left in their shards (a checkpoint of a fit over shards): {"directory", "sizes",
+    # "data_sha256"}, and ``frames`` is None.
+    shards: dict[str, Any] | None = None
 
 
 def save(state: ModelState, path: str | os.PathLike, resume: Any = None, compress: bool = True) -> None:
@@ -143,7 +156,7 @@ def save(state: ModelState, path: str | os.PathLike, resume: Any = None, compres
     params = state.params
     meta = {
         "format": FORMAT,
-        "format_version": FORMAT_VERSION,
+        "format_version": 2 if state.shards is None else _BY_REFERENCE,
         "dpgp_version": __version__,
         "settings": state.settings,
         "params": {
@@ -174,22 +187,27 @@ def save(state: ModelState, path: str | os.PathLike, resume: Any = None, compres
         meta["sticky"] = state.sticky  # optional: only fits with dynamics="sticky" have it
     if resume is not None:
         meta[RESUME_KEY] = resume.meta()  # a checkpoint
+    if state.shards is not None:
+        meta["shards"] = state.shards
     arrays: dict[str, np.ndarray] = {
         "metadata": np.array(json.dumps(_jsonable(meta))),
-        "frame_ids": _ids_array(frames.ids),
-        "frame_offsets": np.asarray(frames.offsets, dtype=np.int64),
-        "frame_xy": frames.xy,
-        "frame_v": frames.v,
         "labels": np.asarray(state.labels, dtype=np.int64),
         "length_scales": np.asarray(state.length_scales, dtype=np.float64),
         "pattern_ids": np.asarray(state.pattern_ids, dtype=np.uint64),
     }
+    if frames is not None:
+        arrays.update({
+            "frame_ids": _ids_array(frames.ids),
+            "frame_offsets": np.asarray(frames.offsets, dtype=np.int64),
+            "frame_xy": frames.xy,
+            "frame_v": frames.v,
+        })  # fmt: skip
+        if frames.labels is not None:
+            arrays["frame_labels"] = _ids_array(frames.labels)
+        if frames.tracks is not None:  # what generation learns motion from (issue 15)
+            arrays["frame_tracks"] = np.asarray(frames.tracks, dtype=np.int64)
     if state.pattern_noise_var is not None:
         arrays["pattern_noise_var"] = np.asarray(state.pattern_noise_var, dtype=np.float64).reshape(-1, 2)
-    if frames.labels is not None:
-        arrays["frame_labels"] = _ids_array(frames.labels)
-    if frames.tracks is not None:  # what generation learns motion from (issue 15)
-        arrays["frame_tracks"] = np.asarray(frames.tracks, dtype=np.int64)
     if state.label_trace is not None:
         arrays["label_trace"] = np.asarray(state.label_trace, dtype=np.int64)
     if state.draws is not None:
@@ -312,6 +330,7 @@ class ModelFile:
     sticky: dict[str, Any] | None = None  # ρ and the linked frames under dynamics="sticky"
     pattern_noise_var: np.ndarray | None = None  # (K, 2): each pattern's noise pair (per-pattern noise)
     sampler: str = "collapsed"  # the sampler that ran the chain; files before issue 32 ran the collapsed one
+    shards: dict[str, Any] | None = None  # frames left in shards: directory, sizes, data_sha256 (frames is None)
 
 
 def read_model_file(path: str | os.PathLike) -> ModelFile:
@@ -334,15 +353,15 @@ def parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str = "mode
 
 def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> ModelFile:
     from ..data.frames import Frames
-    from ..data.framing import FramingSummary
-    from ..evaluate.transitions import Transitions
-    from ..generate.distributions import EmpiricalDistributions
-    from ..generate.motion import MotionModel
-    from ..gp.draws import Draws
-    from ..gp.exact import GPParams, check_scales
 
     settings = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["settings"].items()}
-    _check_counts(arrays)
+    shards = _shards(meta)
+    if shards is not None:
+        return _parse_rest(meta, arrays, path, settings, None, sum(shards["sizes"]), shards)
+    missing = [k for k in _FRAME_MEMBERS if k not in arrays]
+    if missing:
+        raise ModelFileError(f"{path} is not a dpgp model file: it lacks {missing}")
+    _check_counts(arrays, arrays["frame_xy"].size // 2)
     _check_finite(arrays)
     labels_file = arrays.get("frame_labels")
     frames = Frames(
@@ -353,7 +372,30 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
         labels_file,
         arrays.get("frame_tracks"),
     )
-    if meta.get("frames_summary") is not None:
+    return _parse_rest(meta, arrays, path, settings, frames, len(frames), None)
+
+
+def _parse_rest(
+    meta: dict[str, Any],
+    arrays: dict[str, np.ndarray],
+    path: str,
+    settings: dict[str, Any],
+    frames: Any,
+    n_frames: int,
+    shards: dict[str, Any] | None,
+) -> ModelFile:
+    """The model part of a model file, over ``frames`` (None: ``n_frames`` frames left in
+    ``shards``)."""
+    from ..data.framing import FramingSummary
+    from ..evaluate.transitions import Transitions
+    from ..generate.distributions import EmpiricalDistributions
+    from ..generate.motion import MotionModel
+    from ..gp.draws import Draws
+    from ..gp.exact import GPParams, check_scales
+
+    if frames is None:
+        _check_counts(arrays, n_frames)
+    elif meta.get("frames_summary") is not None:
         known = {f.name for f in fields(FramingSummary)}  # a newer writer's extra keys are ignored
         s = {k: v for k, v in meta["frames_summary"].items() if k in known}
         for key in ("roi", "smoothing", "object_size"):
@@ -362,15 +404,17 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
         frames.summary = FramingSummary(**s)
     labels = np.asarray(arrays["labels"], dtype=np.int64)
     ls = np.asarray(arrays["length_scales"], dtype=np.float64)
-    if labels.shape != (len(frames),) or ls.ndim != 2 or ls.shape[1] != 2:
-        raise ModelFileError(f"labels {labels.shape} and length_scales {ls.shape} do not fit {len(frames)} frames")
+    if labels.shape != (n_frames,) or ls.ndim != 2 or ls.shape[1] != 2:
+        raise ModelFileError(f"labels {labels.shape} and length_scales {ls.shape} do not fit {n_frames} frames")
     if len(labels) and (labels.min() < 0 or labels.max() >= len(ls) or len(np.unique(labels)) != len(ls)):
         raise ModelFileError("labels do not name exactly the patterns the file holds")
     _check_numbers(frames, ls, meta["alpha"])
     p = meta["params"]
     params = GPParams(tuple(p["length_scales"]), tuple(p["signal_var"]), p["noise_var"], tuple(p["mean"]))
     try:
-        check_scales(frames.v, params, "frame_v")
+        # Frames left in shards: the velocities' scale is checked where they are (the shards are
+        # fingerprinted against the file before a chain runs on them).
+        check_scales(np.zeros((0, 2)) if frames is None else frames.v, params, "frame_v")
     except DpgpError as e:
         raise ModelFileError(
             f"the model's numbers are beyond what a fit accepts ({e}); the file is corrupted"
@@ -393,7 +437,7 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
         state["label_trace_"] = np.asarray(arrays["label_trace"], dtype=np.int64)
     if meta.get("chain_summary") is not None:
         state["chain_summary_"] = meta["chain_summary"]
-    draws = Draws.from_arrays(arrays, len(frames), MIN_LENGTH_SCALE, _MAX_MAGNITUDE)  # None: a file before them
+    draws = Draws.from_arrays(arrays, n_frames, MIN_LENGTH_SCALE, _MAX_MAGNITUDE)  # None: a file before them
     if draws is not None:
         state["draws_"] = draws
     if isinstance((meta.get("engine") or {}).get("choice"), dict):
@@ -403,10 +447,31 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
     transitions = None if tr is None else Transitions.from_dict(tr, len(ls))
     return ModelFile(
         path, settings, frames, labels, ls, float(meta["alpha"]), params, _resolved(meta), likelihood, basis, state,
-        None if d is None else EmpiricalDistributions.from_dict(d), parse_resume(meta, arrays, frames),
+        None if d is None else EmpiricalDistributions.from_dict(d), parse_resume(meta, arrays, frames, n_frames),
         None if meta.get("motion") is None else MotionModel.from_dict(meta["motion"]), transitions,
-        _sticky(meta.get("sticky"), len(frames)), _pattern_noise(arrays, len(ls)), _sampler(meta),
+        _sticky(meta.get("sticky"), n_frames), _pattern_noise(arrays, len(ls)), _sampler(meta), shards,
     )  # fmt: skip
+
+
+def _shards(meta: dict[str, Any]) -> dict[str, Any] | None:
+    """The ``shards`` entry of a file whose frames were left in shards, checked (None if absent)."""
+    s = meta.get("shards")
+    if s is None:
+        return None
+    ok = (
+        isinstance(s, dict)
+        and isinstance(s.get("directory"), str)
+        and isinstance(s.get("sizes"), list)
+        and len(s["sizes"]) >= 1
+        and all(isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in s["sizes"])
+        and isinstance(s.get("data_sha256"), str)
+        and len(s["data_sha256"]) == 64
+    )
+    if not ok:
+        raise ModelFileError("the 'shards' entry needs a directory, the frames per shard (sizes) and data_sha256")
+    if meta.get("format_version", 0) < _BY_REFERENCE:
+        raise ModelFileError(f"a file of frames left in shards needs format_version {_BY_REFERENCE}; it is corrupted")
+    return {"directory": s["directory"], "sizes": list(s["sizes"]), "data_sha256": s["data_sha256"]}
 
 
 def _pattern_noise(arrays: dict[str, np.ndarray], k: int) -> np.ndarray | None:
@@ -427,15 +492,15 @@ def _sticky(value: Any, n_frames: int) -> dict[str, Any] | None:
     return {"rho": rho, "links": links}
 
 
-def _check_counts(arrays: dict[str, np.ndarray]) -> None:
+def _check_counts(arrays: dict[str, np.ndarray], n_rows: int) -> None:
     """Refuse, before any conversion allocates, arrays whose items are not numbers or text or
-    take no bytes (a declared shape of 1e11 empty items converts to 745 GiB of int64)."""
+    take no bytes (a declared shape of 1e11 empty items converts to 745 GiB of int64), and
+    per-frame members longer than the ``n_rows`` vehicle observations (frames in shards: frames)."""
     for name, a in arrays.items():
         if not isinstance(a, np.ndarray) or a.dtype.kind not in "biufU" or (a.size and a.dtype.itemsize == 0):
             raise ModelFileError(
                 f"member {name!r} holds {getattr(a, 'dtype', type(a).__name__)} items, not numbers or text"
             )
-    n_rows = arrays["frame_xy"].size // 2 if "frame_xy" in arrays else 0
     for name in ("frame_ids", "frame_offsets", "labels", "frame_labels", "resume_labels"):
         if name in arrays and arrays[name].size > n_rows + 1:
             raise ModelFileError(f"member {name!r} has {arrays[name].size} entries for {n_rows} vehicle observations")
@@ -456,7 +521,7 @@ def _check_numbers(frames: Any, length_scales: np.ndarray, alpha: Any) -> None:
     """The numbers a fit would have refused (magnitudes past 1e100, α or length scales <= 0;
     NaN and inf: :func:`_check_finite`) mean a damaged file: refuse them here rather than load
     a model that gives NaN."""
-    for name, a in (("frame_v", frames.v), ("frame_xy", frames.xy)):
+    for name, a in () if frames is None else (("frame_v", frames.v), ("frame_xy", frames.xy)):
         with np.errstate(over="ignore", invalid="ignore"):  # a mean of 1e308s overflows: also too large
             size = float(np.max(np.abs(a - a.mean(axis=0)) if name == "frame_xy" else np.abs(a))) if len(a) else 0.0
         if not size <= _MAX_MAGNITUDE:

@@ -372,14 +372,12 @@ class DPGP:
             return self._continue(frames)
         self._check_settings()
         sharded = manifest is not None and self._runs_on_shards(client)
-        if sharded and self.checkpoint is not None:
-            raise InvalidInputError("checkpoint is not available for a fit over shards yet; fit without checkpoint")
         if self.checkpoint is not None:
             ckpt.check_path(self.checkpoint)  # before the work, not after the initialisation
-        extent = None
+        extent, data_sha256 = None, None
         if sharded:
             assert manifest is not None
-            frames, extent = settings_sample(manifest, client)
+            frames, extent, data_sha256 = settings_sample(manifest, client, fingerprint=self.checkpoint is not None)
             _check_magnitudes(
                 Frames.from_arrays([0, 0], extent[:, 0], extent[:, 1], [0, 0], [0, 0]), "the training data"
             )
@@ -408,6 +406,7 @@ class DPGP:
             self._resolve_sharded_engine(frames, extent)
             self._sampler = self._new_sharded_sampler(manifest, client)
             self._frames, self._frames_dir, self._n_train = None, manifest.directory, manifest.n_frames
+            self._shard_sizes = [s.n_frames for s in manifest.shards]
         else:
             self._resolve_engine(frames)
             self._sampler = self._new_sampler(frames)
@@ -434,7 +433,7 @@ class DPGP:
         self.init_seconds_ = time.perf_counter() - t
         self.checkpoint_seconds_: dict[str, list[float]] = {"reset": [], "write": []}
         if self.checkpoint is not None:
-            self._data_sha256 = ckpt.fingerprint(frames)
+            self._data_sha256 = ckpt.fingerprint(frames) if data_sha256 is None else data_sha256  # over shards: from the sample pass
         self._sweeps(stable=0, traces=[], checkpoint_now=True)
         return self
 
@@ -459,6 +458,37 @@ class DPGP:
         """The number of training frames (without reading shards)."""
         n = self.__dict__.get("_n_train")
         return int(n) if n is not None else len(self.frames_)
+
+    def _fingerprint(self) -> str:
+        """The training data's fingerprint as a checkpoint records it (frames in shards: each
+        shard read and hashed alone, :func:`dpgp.model.sharded.shards_fingerprint`)."""
+        directory = self.__dict__.get("_frames_dir")
+        if directory is None:
+            return ckpt.fingerprint(self.frames_)
+        from ..data._shardfile import read_manifest
+        from .sharded import shards_fingerprint
+
+        return shards_fingerprint(read_manifest(directory))
+
+    def _over_shards_of(self, file: Any, client: Any) -> None:
+        """The sampler over the shards a file of frames left in shards names (``_from_file``),
+        after checking that they hold the frames it was written for."""
+        from ..data._shardfile import read_manifest
+        from .sharded import shards_fingerprint
+
+        directory, sizes, sha = file.shards["directory"], file.shards["sizes"], file.shards["data_sha256"]
+        try:
+            manifest = read_manifest(directory)
+        except (OSError, DpgpError) as e:
+            raise ModelFileError(f"{file.path} needs the shards in {directory}, which cannot be read: {e}") from None
+        if [s.n_frames for s in manifest.shards] != sizes or shards_fingerprint(manifest, client) != sha:
+            raise ModelFileError(
+                f"the shards in {directory} are not the frames {file.path} was written for (their frames per shard or "
+                "fingerprint differ); the chain cannot continue on them"
+            )
+        self._sampler = self._new_sharded_sampler(manifest, client)
+        self._frames, self._frames_dir, self._n_train = None, manifest.directory, manifest.n_frames
+        self._shard_sizes, self._data_sha256 = sizes, sha
 
     def _runs_on_shards(self, client: Any) -> bool:
         """Whether a directory of shards is fitted as shards (else read into memory); with a
@@ -492,7 +522,7 @@ class DPGP:
             )
         if self.checkpoint is not None:
             ckpt.check_path(self.checkpoint)
-            self._data_sha256 = getattr(self, "_data_sha256", None) or ckpt.fingerprint(self.frames_)
+            self._data_sha256 = getattr(self, "_data_sha256", None) or self._fingerprint()
         history = self.__dict__.setdefault("history_", {})
         for key in ckpt.HISTORY_KEYS:
             history.setdefault(key, [])
@@ -620,7 +650,10 @@ class DPGP:
             self.label_trace_ = _trace_array(traces, self._n_training())
         # Uncompressed: zlib would be most of a checkpoint's cost (the file is read once, if at all).
         assert self.checkpoint is not None
-        save(self._file_state(), self.checkpoint, resume=self._resume_point, compress=False)
+        # A fit over shards checkpoints its state and a reference to the shards (format version
+        # 3); gathering every frame into this process at each checkpoint is what it avoids.
+        by_reference = self.__dict__.get("_frames_dir") is not None
+        save(self._file_state(by_reference), self.checkpoint, resume=self._resume_point, compress=False)
 
     def _resolve_engine(self, frames: Frames) -> None:
         """Choose the likelihood (``likelihood_``), its basis (``basis_``) and the memory budget
@@ -1163,24 +1196,33 @@ class DPGP:
         self._check_fitted()
         save(self._file_state(), path)
 
-    def _file_state(self) -> ModelState:
+    def _file_state(self, by_reference: bool = False) -> ModelState:
         """What a model file stores of this fitted model, as plain values (:mod:`dpgp.io` takes
-        nothing else from the estimator)."""
+        nothing else from the estimator). ``by_reference`` (a fit over shards): the frames stay
+        in their shards, and what is learned from them (φ, ψ, motion, transitions) is left out."""
         from ..generate.motion import motion_model
         from ..generate.scenarios import distributions
         from ..io.modelfile import ModelState
 
-        return ModelState(
+        common: dict[str, Any] = dict(
             settings=self.get_params(), params=self.params_, alpha=self.alpha_, n_patterns=self.n_patterns_,
-            frames=self.frames_, labels=self.labels_, length_scales=self.length_scales_,
+            labels=self.labels_, length_scales=self.length_scales_,
             pattern_noise_var=self.pattern_noise_var_ if self._per_pattern_noise() else None,
-            pattern_ids=self.pattern_ids_, distributions=distributions(self).to_dict(),
-            motion=motion_model(self._fitted()).to_dict(), resolved=self._resolved_dict(),
+            pattern_ids=self.pattern_ids_, resolved=self._resolved_dict(),
             engine=self.engine_info(), history=getattr(self, "history_", {}), n_iter=getattr(self, "n_iter_", None),
             converged=getattr(self, "converged_", None), init_seconds=getattr(self, "init_seconds_", None),
             timings=getattr(self, "timings_", {}), log_joint=getattr(self, "log_joint_", None),
             chain_summary=getattr(self, "chain_summary_", None), label_trace=getattr(self, "label_trace_", None),
-            draws=getattr(self, "draws_", None), transitions=self._transitions_dict(), sticky=self._sticky_dict(),
+            draws=getattr(self, "draws_", None),
+        )  # fmt: skip
+        if by_reference:
+            shards = {"directory": os.path.abspath(self._frames_dir), "sizes": list(self._shard_sizes),
+                      "data_sha256": self._data_sha256}  # fmt: skip
+            return ModelState(**common, frames=None, distributions=None, motion=None, shards=shards)
+        return ModelState(
+            **common, frames=self.frames_, distributions=distributions(self).to_dict(),
+            motion=motion_model(self._fitted()).to_dict(), transitions=self._transitions_dict(),
+            sticky=self._sticky_dict(),
         )  # fmt: skip
 
     def _sticky_dict(self) -> dict[str, Any] | None:
@@ -1229,7 +1271,9 @@ class DPGP:
         return cls._checked_from_file(read_model_file(path))
 
     @classmethod
-    def resume(cls, path: Any, iterations: int | None = None, progress: bool | None = None) -> DPGP:
+    def resume(
+        cls, path: Any, iterations: int | None = None, progress: bool | None = None, *, client: Any = None
+    ) -> DPGP:
         """Continue the chain of a checkpoint that ``fit`` wrote with ``checkpoint=path``, and keep
         checkpointing to ``path``. The result is bitwise the model of the same fit run without
         interruption (but the seconds of its sweeps and timings).
@@ -1239,6 +1283,10 @@ class DPGP:
         equals a fit with that ``iterations``). A fit that has finished or stopped early
         (``n_iter_no_change``) comes back as it is. ``progress``: show a progress bar (``None``: as
         the fit did). ``resumed_from_`` is the sweep the chain continued from.
+
+        The checkpoint of a fit over a directory of shards names the directory: the chain
+        continues over its shards, in this process or, with ``client``, on that Dask cluster's
+        workers (the same chain either way, as for ``fit``).
         :class:`~dpgp.ModelFileError` if ``path`` is not a checkpoint, is damaged, or its data do not
         match the fingerprint it was written with."""
         from ..io.modelfile import read_model_file
@@ -1249,10 +1297,12 @@ class DPGP:
                 f"{file.path} is a model file without a resume point, not a checkpoint; checkpoints are written by "
                 "DPGP(checkpoint=PATH).fit or 'dpgp fit --checkpoint PATH'"
             )
+        if client is not None and file.shards is None:
+            raise InvalidInputError(f"{file.path} holds its frames; client= resumes a checkpoint of a fit over shards")
         target = _resume_target(file, iterations)
         finished = file.state["converged_"] or target == file.state["n_iter_"]
         ckpt.check_path(file.path)
-        model = cls._checked_from_file(file if finished else ckpt.at_resume_point(file))
+        model = cls._checked_from_file(file if finished else ckpt.at_resume_point(file), client)
         model.checkpoint, model.iterations = file.path, target
         if progress is not None:
             model.progress = bool(progress)
@@ -1273,20 +1323,22 @@ class DPGP:
         return cls._checked_from_file(file)
 
     @classmethod
-    def _checked_from_file(cls, file: Any) -> DPGP:
+    def _checked_from_file(cls, file: Any, client: Any = None) -> DPGP:
         """:meth:`_from_file`, with every inconsistency it meets a :class:`~dpgp.ModelFileError`."""
         try:
-            return cls._from_file(file)
+            return cls._from_file(file, client)
         except ModelFileError:
             raise
         except (DpgpError, KeyError, TypeError, ValueError, IndexError) as e:
             raise ModelFileError(f"{file.path}: inconsistent model file ({type(e).__name__}: {e})") from None
 
     @classmethod
-    def _from_file(cls, file: Any) -> DPGP:
+    def _from_file(cls, file: Any, client: Any = None) -> DPGP:
         """The estimator a :class:`dpgp.io.ModelFile` describes: the sampler ``fit`` builds, then
         ``set_state`` factors every pattern in the canonical order ``fit`` ends with, so every
-        later computation is bitwise the same as the saved model's."""
+        later computation is bitwise the same as the saved model's. Frames left in shards: the
+        chain over them (served by ``client``'s workers when given), once their fingerprint
+        matches the file's."""
         model = cls(**file.settings)
         model._check_settings()
         model.params_ = file.params
@@ -1298,8 +1350,11 @@ class DPGP:
         model.sampler_ = file.sampler
         budget = parse_bytes("memory_budget", model.memory_budget)  # this machine's budget
         model.memory_budget_ = budget if budget is not None else default_memory_budget(model.n_threads)
-        model._sampler = model._new_sampler(file.frames)
-        model.frames_ = file.frames
+        if file.shards is None:
+            model._sampler = model._new_sampler(file.frames)
+            model.frames_ = file.frames
+        else:
+            model._over_shards_of(file, client)
         model._set_state(file.labels, file.length_scales, file.alpha, file.pattern_noise_var)
         if file.sticky is not None and model.dynamics == "sticky":
             links = np.zeros(len(file.frames), dtype=bool)

@@ -17,6 +17,7 @@ shard at a time by the leader, so that both ways of serving the shards start fro
 
 from __future__ import annotations
 
+import hashlib
 import os
 import time
 import uuid
@@ -34,36 +35,75 @@ from ..exceptions import InvalidInputError
 SAMPLE_FRAMES = 20_000
 
 
-def settings_sample(manifest: ShardManifest, client: Any = None) -> tuple[Frames, np.ndarray]:
+def settings_sample(
+    manifest: ShardManifest, client: Any = None, fingerprint: bool = False
+) -> tuple[Frames, np.ndarray, str | None]:
     """The frames a sharded fit resolves its settings from (all up to :data:`SAMPLE_FRAMES`,
-    else as many evenly spaced) and the corners ``[[x_min, y_min], [x_max, y_max]]`` of every
-    position. Each shard is read alone (by ``client``'s workers
-    when given, so that the leader never holds one) and gives its part (:func:`shard_digest`)."""
+    else as many evenly spaced), the corners ``[[x_min, y_min], [x_max, y_max]]`` of every
+    position and, with ``fingerprint``, the frames' :func:`combined_fingerprint`. Each shard is
+    read alone (by ``client``'s workers when given, so that the leader never holds one) and gives
+    its part (:func:`shard_digest`)."""
     n = manifest.n_frames
     args = (os.path.abspath(manifest.directory), n)
-    if client is None:
-        digests = [shard_digest(*args, i) for i in range(manifest.n_shards)]
-    else:
-        digests = client.gather([client.submit(shard_digest, *args, i, pure=False) for i in range(manifest.n_shards)])
+    digests = _per_shard(manifest, client, shard_digest, *args, fingerprint)
     lo = np.min([d[0] for d in digests], axis=0)
     hi = np.max([d[1] for d in digests], axis=0)
     frame, xy, v = (np.concatenate([d[k] for d in digests]) for k in (2, 3, 4))
     sample = Frames.from_arrays(frame, xy[:, 0], xy[:, 1], v[:, 0], v[:, 1])
-    return sample, np.array([lo, hi])
+    sha = combined_fingerprint(manifest, [d[5] for d in digests]) if fingerprint else None
+    return sample, np.array([lo, hi]), sha
+
+
+def shards_fingerprint(manifest: ShardManifest, client: Any = None) -> str:
+    """The :func:`combined_fingerprint` of the frames in ``manifest``'s shards, each shard read
+    and hashed alone (by ``client``'s workers when given)."""
+    return combined_fingerprint(manifest, _per_shard(manifest, client, shard_sha256, manifest.directory))
+
+
+def combined_fingerprint(manifest: ShardManifest, shard_hashes: list[Any]) -> str:
+    """SHA-256 over each shard's frame range and :func:`shard_sha256`, in shard order: what a
+    checkpoint of a sharded fit records, so that a resumed chain runs on exactly its shards."""
+    h = hashlib.sha256()
+    for info, digest in zip(manifest.shards, shard_hashes):
+        h.update(f"{info.start}:{info.stop}:{digest};".encode())
+    return h.hexdigest()
+
+
+def shard_sha256(directory: str, i: int) -> str:
+    """A worker's task: the fingerprint (:func:`dpgp.io.checkpoint.fingerprint`) of shard ``i``'s
+    frames."""
+    from ..io.checkpoint import fingerprint
+
+    part, _ = read_shard(directory, i)
+    out = fingerprint(part)
+    del part
+    _release_arrow_memory()
+    return out
+
+
+def _per_shard(manifest: ShardManifest, client: Any, task: Any, *args: Any) -> list[Any]:
+    """``task(*args, i)`` for every shard ``i``, in this process or on ``client``'s workers (the
+    results in shard order)."""
+    if client is None:
+        return [task(*args, i) for i in range(manifest.n_shards)]
+    return list(client.gather([client.submit(task, *args, i, pure=False) for i in range(manifest.n_shards)]))
 
 
 def shard_digest(
-    directory: str, n_frames: int, i: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    directory: str, n_frames: int, fingerprint: bool, i: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, str | None]:
     """Shard ``i``'s part of :func:`settings_sample`: its positions' least and greatest
-    coordinates, and the rows (frame number, position, velocity)
-    of its frames among the evenly spaced sample of all ``n_frames``."""
+    coordinates, the rows (frame number, position, velocity) of its frames among the evenly
+    spaced sample of all ``n_frames`` and, with ``fingerprint``, its :func:`shard_sha256`."""
+    from ..io.checkpoint import fingerprint as sha256_of
+
     part, start = read_shard(directory, i)
     take = np.arange(n_frames) if n_frames <= SAMPLE_FRAMES else (np.arange(SAMPLE_FRAMES) * n_frames) // SAMPLE_FRAMES
     mine = take[(take >= start) & (take < start + len(part))] - start
     sub = part[mine]
     out = (
         part.xy.min(axis=0), part.xy.max(axis=0), np.repeat(mine + start, sub.sizes), np.array(sub.xy), np.array(sub.v),
+        sha256_of(part) if fingerprint else None,
     )  # fmt: skip
     del part, sub
     _release_arrow_memory()
