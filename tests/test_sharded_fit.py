@@ -17,6 +17,7 @@ import pytest
 
 import dpgp
 from dpgp import InvalidInputError
+from dpgp.evaluate.metrics import canonical_labels
 
 N_FRAMES, N_SHARDS, ITERATIONS, SEED = 600, 3, 3, 5
 
@@ -240,6 +241,38 @@ def test_cli_scheduler_without_dask_says_what_to_install(shard_dir, tmp_path, ca
     assert "pip install 'dpgp[distributed]'" in capsys.readouterr().err
 
 
+# --- many chains over shards (fit_chains) ---------------------------------------------------------
+CHAINS = dict(iterations=4, block=2, seed=SEED, progress=False, init="dispersed")
+_CHAINS: dict[str, Any] = {}
+
+
+def chains_in_process(directory) -> Any:
+    if "in process" not in _CHAINS:
+        _CHAINS["in process"] = dpgp.fit_chains(directory, 2, **CHAINS)
+    return _CHAINS["in process"]
+
+
+def test_chains_over_shards_are_reproducible_and_summarised(shard_dir):
+    chains = chains_in_process(shard_dir)
+    again = dpgp.fit_chains(shard_dir, 2, **CHAINS)
+    np.testing.assert_array_equal(chains.labels, again.labels)
+    assert chains.traces["log_joint"].tolist() == again.traces["log_joint"].tolist()
+    assert chains.labels.shape == (2, 4, N_FRAMES)
+    # dispersed: chain 0 starts from one pattern, chain 1 from many (their first sweeps differ)
+    assert chains.traces["n_patterns"][0, 0] != chains.traces["n_patterns"][1, 0]
+    assert "partition_ari" in chains.summary().index
+    model = chains.best_model()
+    assert model._frames is None and model._frames_dir is not None  # a model over the shards
+    np.testing.assert_array_equal(model.labels_, chains.point_estimate().labels)
+    assert model.predict(model.frames_[:5]).shape == (5,)
+
+
+def test_a_chains_model_over_shards_is_the_last_state_of_its_chain(shard_dir):
+    chains = chains_in_process(shard_dir)
+    for c, model in enumerate(chains.models):
+        np.testing.assert_array_equal(canonical_labels(model.labels_), chains.labels[c, -1])
+
+
 # --- on a LocalCluster -------------------------------------------------------------------------
 def test_cluster_fit_is_the_in_process_chain(shard_dir, cluster):
     _, client = cluster
@@ -281,6 +314,22 @@ def test_a_sharded_checkpoint_resumes_on_a_cluster(checkpointed, cluster, tmp_pa
     )
     assert code == 0, capsys.readouterr().err
     np.testing.assert_array_equal(dpgp.DPGP.load(out).labels_, fit.labels_)
+
+
+def test_chains_over_shards_on_a_cluster_are_the_in_process_chains(shard_dir, cluster, tmp_path, capsys):
+    from dpgp.cli import main
+
+    on_cluster = dpgp.fit_chains(shard_dir, 2, cluster[1], **CHAINS)
+    here = chains_in_process(shard_dir)
+    np.testing.assert_array_equal(on_cluster.labels, here.labels)
+    assert on_cluster.traces["log_joint"].tolist() == here.traces["log_joint"].tolist()
+    out = tmp_path / "m.npz"
+    args = ["fit", str(shard_dir), "-o", str(out), "--chains", "2", "--iterations", "2", "--no-progress"]
+    code = main([*args, "--scheduler", cluster[0].scheduler_address])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    assert f"{N_FRAMES} frames in {N_SHARDS} shards" in printed.out and f"wrote {out}" in printed.out
+    assert len(dpgp.DPGP.load(out).labels_) == N_FRAMES
 
 
 def test_a_worker_killed_mid_fit_is_replaced_and_the_chain_is_unchanged(shard_dir, cluster):
@@ -387,3 +436,46 @@ def test_ctrl_c_keeps_the_state_reached_on_a_cluster(tmp_path):
     assert "fit interrupted after" in err and "keeps the state reached" in err
     assert 1 <= int(out.split("sweeps")[1].split()[0]) < 100000
     assert "predict [" in out
+
+
+_CHAINS_CTRL_C = """
+import signal, sys, time
+import dpgp
+
+signal.signal(signal.SIGINT, signal.default_int_handler)
+dpgp.datasets.synthetic("highway", n_frames=400, seed=0).to_parquet(sys.argv[1], shards=3)
+print("fitting", flush=True)
+t = time.perf_counter()
+chains = dpgp.fit_chains(sys.argv[1], 2, iterations=100000, block=2, progress=False, noise_var=0.5)
+print("sweeps", chains.n_sweeps, "stopped in", time.perf_counter() - t, flush=True)
+print("patterns", chains.best_model().n_patterns_, flush=True)
+"""
+
+
+def test_ctrl_c_stops_chains_over_shards_and_keeps_their_blocks(tmp_path):
+    """Ctrl-C during fit_chains over shards (the chains' leaders in threads of this process)
+    stops every chain before its next sweep and keeps the blocks that had finished."""
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _CHAINS_CTRL_C, str(tmp_path / "shards")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "fitting"
+        time.sleep(10)  # several 2-sweep blocks of each chain finished
+        sent = time.perf_counter()
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=120)
+        waited = time.perf_counter() - sent
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert "fit_chains interrupted (Ctrl-C)" in err and "keep every finished block" in err
+    sweeps = int(out.split("sweeps")[1].split()[0])
+    assert sweeps >= 2 and sweeps % 2 == 0  # whole blocks only
+    assert "patterns" in out
+    print(f"Ctrl-C to exit: {waited:.1f} s")

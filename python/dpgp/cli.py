@@ -32,6 +32,8 @@ def load_frames(path: str, fmt: str = "auto", roi: Any = None, dt: float | None 
 def _fit(args: argparse.Namespace) -> int:
     if args.scheduler is not None and args.chains is None:
         return _fit_on_scheduler(args)
+    if args.chains is not None and _as_shards(args) is not None:
+        return _fit_chains(args, args.data)  # every chain over the directory's shards
     frames = load_frames(args.data, args.format, args.roi, args.dt, args.units)
     if args.max_frames is not None:
         frames = frames[: args.max_frames]  # a selection keeps dt and ROI for simulations
@@ -51,6 +53,20 @@ def _fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _as_shards(args: argparse.Namespace) -> Any:
+    """The manifest when ``dpgp fit``'s data are a directory of frame shards to fit as they
+    were written (no framing option given), else None."""
+    from .model.sharded import manifest_of
+
+    framing = (args.roi, args.dt, args.units, args.max_frames)
+    if args.format not in ("auto", "frames") or any(v is not None for v in framing):
+        return None
+    manifest = manifest_of(args.data)
+    if manifest is not None:
+        print(f"{args.data}: {manifest.n_frames} frames in {manifest.n_shards} shards")
+    return manifest
+
+
 def _fit_chains(args: argparse.Namespace, frames: Any) -> int:
     """``dpgp fit --chains N``: independent chains (locally or on a Dask scheduler), then the
     point-estimate model, saved with the chain summary."""
@@ -67,19 +83,19 @@ def _fit_chains(args: argparse.Namespace, frames: Any) -> int:
             progress=args.progress, assignment=args.assignment, alpha=args.alpha, n_threads=args.threads or 1,
             sampler=args.sampler, init=args.init,
         )  # fmt: skip
+        print(f"{chains!r} in {time.perf_counter() - t:.1f} s: {chains.stop_reason_}")
+        for name, error in chains.failures_.items():
+            print(f"  {name} failed: {error}")
+        print(chains.summary().to_string(float_format=lambda v: f"{v:.4g}"))
+        model = chains.best_model(args.loss)  # chains over shards: with the client open (it serves them)
+        s = model.chain_summary_["point_estimate"]
+        print(
+            f"point estimate ({s['loss']}): {model.n_patterns_} patterns, posterior expected loss {s['expected_loss']:.4g}"
+        )
+        model.save(args.output)
     finally:
         if client is not None:
             client.close()
-    print(f"{chains!r} in {time.perf_counter() - t:.1f} s: {chains.stop_reason_}")
-    for name, error in chains.failures_.items():
-        print(f"  {name} failed: {error}")
-    print(chains.summary().to_string(float_format=lambda v: f"{v:.4g}"))
-    model = chains.best_model(args.loss)
-    s = model.chain_summary_["point_estimate"]
-    print(
-        f"point estimate ({s['loss']}): {model.n_patterns_} patterns, posterior expected loss {s['expected_loss']:.4g}"
-    )
-    model.save(args.output)
     print(f"wrote {args.output}")
     return 0
 

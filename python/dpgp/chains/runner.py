@@ -110,11 +110,16 @@ def _state_of(model: Any) -> _State:
     )
 
 
-def _model_at(frames: Frames, settings: dict[str, Any], state: _State, extra_meta: dict[str, Any] | None = None) -> Any:
+def _model_at(frames: Any, settings: dict[str, Any], state: _State, extra_meta: dict[str, Any] | None = None) -> Any:
     """A fitted DPGP at ``state``, rebuilt the way a model file is loaded (dpgp.io), so that it
-    predicts, simulates and saves like any fitted model."""
+    predicts, simulates and saves like any fitted model; over the shards of ``frames`` when it is
+    the chains' :class:`~dpgp.model.sharded.ShardSource`."""
     from .. import io
     from ..model.estimator import DPGP
+    from ..model.sharded import ShardSource
+
+    if isinstance(frames, ShardSource):
+        return _model_over_shards(frames, settings, state, extra_meta)
 
     summary = getattr(frames, "summary", None)
     meta = {
@@ -131,17 +136,39 @@ def _model_at(frames: Frames, settings: dict[str, Any], state: _State, extra_met
         "frame_offsets": frames.offsets,
         "frame_xy": frames.xy,
         "frame_v": frames.v,
-        "labels": np.asarray(state.labels, dtype=np.int64),
-        "length_scales": np.asarray(state.length_scales, dtype=np.float64).reshape(-1, 2),
+        **_state_arrays(state),
     }
     if frames.labels is not None:
         arrays["frame_labels"] = frames.labels
-    if state.pattern_noise_var is not None:
-        arrays["pattern_noise_var"] = np.asarray(state.pattern_noise_var, dtype=np.float64).reshape(-1, 2)
     return DPGP.from_model_file(io.parse(meta, arrays))
 
 
-def _run_block(frames: Frames | None, settings: dict[str, Any], seed: int, state: _State | None, sweeps: int) -> _Block:
+def _state_arrays(state: _State) -> dict[str, np.ndarray]:
+    """The model-file members of a chain's state (labels, length scales, per-pattern noise)."""
+    arrays = {
+        "labels": np.asarray(state.labels, dtype=np.int64),
+        "length_scales": np.asarray(state.length_scales, dtype=np.float64).reshape(-1, 2),
+    }
+    if state.pattern_noise_var is not None:
+        arrays["pattern_noise_var"] = np.asarray(state.pattern_noise_var, dtype=np.float64).reshape(-1, 2)
+    return arrays
+
+
+def _model_over_shards(source: Any, settings: dict[str, Any], state: _State, extra: dict[str, Any] | None) -> Any:
+    """:func:`_model_at` for chains over shards: a file of frames left in shards (dpgp.io, version
+    3) whose chain runs over the chains' shared ``source``."""
+    from .. import io
+    from ..model.estimator import DPGP
+
+    shards = {"directory": source.directory, "sizes": source.sizes, "data_sha256": source.sample(fingerprint=True)[2]}
+    meta = {
+        "format_version": 3, "settings": settings, "resolved": state.resolved, "params": state.params,
+        "alpha": state.alpha, "engine": state.engine, "shards": shards, **(extra or {}),
+    }  # fmt: skip
+    return DPGP.from_model_file(io.parse(meta, _state_arrays(state)), source=source)
+
+
+def _run_block(frames: Any, settings: dict[str, Any], seed: int, state: _State | None, sweeps: int) -> _Block:
     """Run ``sweeps`` sweeps of a chain from ``state`` (None: initialise) with ``seed``: a fit,
     or the model at ``state`` continued by ``fit(warm_start=True)`` (the one sweep loop)."""
     from ..model.estimator import DPGP
@@ -149,10 +176,9 @@ def _run_block(frames: Frames | None, settings: dict[str, Any], seed: int, state
     frames = _WORKER_FRAMES if frames is None else frames
     assert frames is not None
     run = {**settings, "seed": seed, "progress": False, "iterations": sweeps, "store_labels": True}
-    if state is None:
-        model = DPGP(**run).fit(frames)
-    else:
-        model = _model_at(frames, run, state).fit(frames, warm_start=True)
+    model = DPGP(**run) if state is None else _model_at(frames, run, state)
+    model._keep_state_on_interrupt = False  # a block stopped part-way is no block (fit_chains' threads)
+    model.fit(frames, warm_start=state is not None)
     h = model.history_
     traces = {name: np.asarray(h[name][-sweeps:], dtype=float) for name in _TRACES}
     return _Block(traces, model.label_trace_[-sweeps:].astype(np.int32), _state_of(model))
@@ -192,7 +218,19 @@ def block_seed(seed: int, chain: int, block: int) -> int:
 
 
 # --- engines: where the blocks run -------------------------------------------------------------
-class _LocalEngine:
+class _Futures:
+    """Waiting on ``concurrent.futures`` (the local engines' futures)."""
+
+    def wait(self, futures: list[Any], timeout: float) -> set[Any]:
+        return cf.wait(futures, timeout=timeout, return_when=cf.FIRST_COMPLETED)[0]
+
+    def finished(self, future: cf.Future) -> Any:
+        """The result of a task that has finished without error, else None."""
+        ok = future.done() and not future.cancelled() and future.exception() is None
+        return future.result() if ok else None
+
+
+class _LocalEngine(_Futures):
     """Spawned worker processes (fork is unsafe once the core's thread pool exists)."""
 
     def __init__(self, frames: Frames, n_workers: int) -> None:
@@ -205,14 +243,6 @@ class _LocalEngine:
 
     def submit(self, key: str, fn: Any, *args: Any) -> cf.Future:
         return self.pool.submit(_task, key, fn, None, *args)
-
-    def wait(self, futures: list[Any], timeout: float) -> set[Any]:
-        return cf.wait(futures, timeout=timeout, return_when=cf.FIRST_COMPLETED)[0]
-
-    def finished(self, future: cf.Future) -> Any:
-        """The result of a task that has finished without error, else None."""
-        ok = future.done() and not future.cancelled() and future.exception() is None
-        return future.result() if ok else None
 
     def broken(self, error: BaseException) -> bool:
         """A worker process died: every block in flight failed with it; start a fresh pool."""
@@ -285,6 +315,33 @@ class _DaskEngine:
         self.client.cancel([self.frames])
 
 
+class _ThreadEngine(_Futures):
+    """Chains over shards (:class:`~dpgp.model.sharded.ShardSource`): each block runs in a thread
+    of this process, the chain's leader, and its frames' work goes to the shards (read into this
+    process once, or served by a Dask client's workers), shared by every chain. The leaders'
+    sweeps run with the GIL released and wait on the shards, so the chains overlap."""
+
+    def __init__(self, source: Any, n_chains: int) -> None:
+        self.source = source
+        self.pool = cf.ThreadPoolExecutor(max(1, n_chains), thread_name_prefix="dpgp-chain")
+
+    def submit(self, key: str, fn: Any, *args: Any) -> cf.Future:
+        return self.pool.submit(_task, key, fn, self.source, *args)
+
+    def broken(self, error: BaseException) -> bool:
+        return False  # no worker process to lose here; a shard's worker is Dask's to replace
+
+    def cancel(self, futures: list[Any]) -> None:
+        for f in futures:
+            f.cancel()
+        self.source.stopping.set()  # running blocks stop before their next sweep
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=True, cancel_futures=True)
+        self.source.stopping.clear()
+        self.source.close()  # the workers drop the shards; the chains' models load them again if asked
+
+
 # --- the driver --------------------------------------------------------------------------------
 def fit_chains(
     frames: Frames | Any,
@@ -309,10 +366,16 @@ def fit_chains(
 
     Parameters
     ----------
-    frames : training frames (:class:`dpgp.Frames` or a framed DataFrame).
+    frames : training frames (:class:`dpgp.Frames` or a framed DataFrame), or a directory of
+        shards (:meth:`dpgp.Frames.to_parquet`). With a directory and settings that run over
+        shards (as :meth:`dpgp.DPGP.fit` decides) every chain runs over the shards: its leader in
+        a thread of this process, the shards read into this process once (``client=None``) or
+        each loaded once by a worker of ``client``'s cluster and shared by the chains (chains ×
+        shards tasks a round of requests). The same seed and shards give the same chains either
+        way. Other settings read the directory into memory.
     client : ``None`` runs the chains on local worker processes (``n_workers``, default one per
         chain up to the number of cores); a ``dask.distributed.Client`` runs one task per chain
-        and block on its cluster (``pip install dpgp[distributed]``).
+        and block on its cluster (``pip install dpgp[distributed]``), or serves the shards.
     iterations : sweeps per chain when ``until`` is None.
     until : ``"converged"`` advances all chains ``block`` sweeps at a time until, over the
         second half of the sweeps, the rank-normalised split-R̂ of the log joint, K and α is at
@@ -332,8 +395,9 @@ def fit_chains(
         defaults to 1 (one core per chain).
     """
     from ..model.estimator import DPGP
+    from ..model.sharded import ShardSource, check_client, manifest_of
 
-    frames = as_frames(frames)
+    manifest = manifest_of(frames)
     if not (isinstance(n_chains, (int, np.integer)) and n_chains >= 1):
         raise InvalidInputError(f"n_chains must be a positive integer, got {n_chains!r}")
     if until not in (None, "converged"):
@@ -365,6 +429,12 @@ def fit_chains(
         DPGP(**settings)._check_settings()
     except TypeError as e:
         raise InvalidInputError(f"unknown DPGP setting: {e}") from None
+    source = None
+    if manifest is not None and DPGP(**settings)._runs_on_shards(None):
+        check_client(client, manifest)
+        source = ShardSource(manifest, client, fingerprint=True)  # the chains' models name the shards by it
+    else:
+        frames = as_frames(frames)
     target = iterations if until is None else max_iterations
     block = min(20 if block is None else int(block), target)
     if block < 1:
@@ -372,9 +442,12 @@ def fit_chains(
     mark("chains start")
     with Interrupts() as interrupts:
         with interrupts.interruptible():  # scattering the frames waits for the cluster
-            if client is None:
+            if source is not None:
+                engine: Any = _ThreadEngine(source, n_chains)
+                frames = source
+            elif client is None:
                 workers = n_workers if n_workers is not None else min(n_chains, os.cpu_count() or 1)
-                engine: Any = _LocalEngine(frames, max(1, int(workers)))
+                engine = _LocalEngine(frames, max(1, int(workers)))
             else:
                 engine = _DaskEngine(client, frames)
         runner = _Runner(engine, frames, settings, n_chains, seed, block, progress, interrupts, init)
@@ -392,7 +465,7 @@ class _Runner:
     def __init__(
         self,
         engine: Any,
-        frames: Frames,
+        frames: Any,
         settings: dict[str, Any],
         n_chains: int,
         seed: int,
@@ -662,7 +735,7 @@ class Chains:
 
     def __init__(
         self,
-        frames: Frames,
+        frames: Any,  # Frames, or the chains' ShardSource
         settings: dict[str, Any],
         seed: int,
         names: list[str],

@@ -229,6 +229,7 @@ class DPGP:
     resumed_from_: int
     _cache: dict[str, Any]
     _keep_state_on_interrupt: bool
+    _resume_point: ckpt.ResumePoint  # the last checkpoint's state (with checkpoint=)
 
     # --- scikit-learn conventions ---------------------------------------------------------------
     def get_params(self, deep: bool = True) -> dict[str, Any]:
@@ -364,25 +365,29 @@ class DPGP:
         10 sweeps continued by 10 is bitwise a fit of 20. The stopping rule
         (``n_iter_no_change``) counts afresh from the continuation. A model never fitted starts
         afresh, as scikit-learn's ``warm_start`` does."""
-        from .sharded import check_client, manifest_of, settings_sample
+        from .sharded import ShardSource, check_client, manifest_of
 
         manifest = manifest_of(frames)
         check_client(client, manifest)
+        given = frames if isinstance(frames, ShardSource) else None  # shared by fit_chains' chains
+        if given is not None:
+            client = given.client
         if warm_start and hasattr(self, "_sampler"):
             return self._continue(frames)
         self._check_settings()
         sharded = manifest is not None and self._runs_on_shards(client)
         if self.checkpoint is not None:
             ckpt.check_path(self.checkpoint)  # before the work, not after the initialisation
-        extent, data_sha256 = None, None
+        extent, data_sha256, source = None, None, None
         if sharded:
             assert manifest is not None
-            frames, extent, data_sha256 = settings_sample(manifest, client, fingerprint=self.checkpoint is not None)
+            source = given or ShardSource(manifest, client)
+            frames, extent, data_sha256 = source.sample(fingerprint=self.checkpoint is not None)
             _check_magnitudes(
                 Frames.from_arrays([0, 0], extent[:, 0], extent[:, 1], [0, 0], [0, 0]), "the training data"
             )
         else:
-            frames = as_frames(frames)
+            frames = as_frames(frames if given is None else given.directory)
         _check_magnitudes(frames, "the training data")
         self._resolve_defaults(frames)
         signal_var = frames.v.var(axis=0) if self.signal_var is None else _pair("signal_var", self.signal_var)
@@ -402,11 +407,9 @@ class DPGP:
         self.params_ = GPParams(ls0, tuple(signal_var), self.noise_var_, tuple(mean))
         check_scales(frames.v, self.params_, "the training data")
         if sharded:
-            assert manifest is not None and extent is not None
+            assert source is not None and extent is not None
             self._resolve_sharded_engine(frames, extent)
-            self._sampler = self._new_sharded_sampler(manifest, client)
-            self._frames, self._frames_dir, self._n_train = None, manifest.directory, manifest.n_frames
-            self._shard_sizes = [s.n_frames for s in manifest.shards]
+            self._sampler = self._new_sharded_sampler(source, owned=given is None)
         else:
             self._resolve_engine(frames)
             self._sampler = self._new_sampler(frames)
@@ -433,7 +436,9 @@ class DPGP:
         self.init_seconds_ = time.perf_counter() - t
         self.checkpoint_seconds_: dict[str, list[float]] = {"reset": [], "write": []}
         if self.checkpoint is not None:
-            self._data_sha256 = ckpt.fingerprint(frames) if data_sha256 is None else data_sha256  # over shards: from the sample pass
+            self._data_sha256 = (
+                ckpt.fingerprint(frames) if data_sha256 is None else data_sha256
+            )  # over shards: from the sample pass
         self._sweeps(stable=0, traces=[], checkpoint_now=True)
         return self
 
@@ -470,25 +475,30 @@ class DPGP:
 
         return shards_fingerprint(read_manifest(directory))
 
-    def _over_shards_of(self, file: Any, client: Any) -> None:
+    def _over_shards_of(self, file: Any, client: Any, source: Any = None) -> None:
         """The sampler over the shards a file of frames left in shards names (``_from_file``),
         after checking that they hold the frames it was written for."""
         from ..data._shardfile import read_manifest
-        from .sharded import shards_fingerprint
+        from .sharded import ShardSource, shards_fingerprint
 
         directory, sizes, sha = file.shards["directory"], file.shards["sizes"], file.shards["data_sha256"]
-        try:
-            manifest = read_manifest(directory)
-        except (OSError, DpgpError) as e:
-            raise ModelFileError(f"{file.path} needs the shards in {directory}, which cannot be read: {e}") from None
-        if [s.n_frames for s in manifest.shards] != sizes or shards_fingerprint(manifest, client) != sha:
-            raise ModelFileError(
-                f"the shards in {directory} are not the frames {file.path} was written for (their frames per shard or "
-                "fingerprint differ); the chain cannot continue on them"
-            )
-        self._sampler = self._new_sharded_sampler(manifest, client)
-        self._frames, self._frames_dir, self._n_train = None, manifest.directory, manifest.n_frames
-        self._shard_sizes, self._data_sha256 = sizes, sha
+        if source is not None:  # fit_chains' own chains: the shards they ran on
+            if source.directory != os.path.abspath(directory) or source.sample(fingerprint=True)[2] != sha:
+                raise ModelFileError(f"{file.path}: these shards are not the ones the chain ran on")
+        else:
+            try:
+                manifest = read_manifest(directory)
+            except (OSError, DpgpError) as e:
+                raise ModelFileError(
+                    f"{file.path} needs the shards in {directory}, which cannot be read: {e}"
+                ) from None
+            if [s.n_frames for s in manifest.shards] != sizes or shards_fingerprint(manifest, client) != sha:
+                raise ModelFileError(
+                    f"the shards in {directory} are not the frames {file.path} was written for (their frames per shard "
+                    "or fingerprint differ); the chain cannot continue on them"
+                )
+        self._sampler = self._new_sharded_sampler(source or ShardSource(manifest, client), owned=source is None)
+        self._data_sha256 = sha
 
     def _runs_on_shards(self, client: Any) -> bool:
         """Whether a directory of shards is fitted as shards (else read into memory); with a
@@ -509,7 +519,11 @@ class DPGP:
     def _continue(self, frames: Frames | Any) -> DPGP:
         """``fit(frames, warm_start=True)`` of a fitted model: ``iterations`` more sweeps of its chain."""
         self._check_settings()
+        from .sharded import ShardSource
+
         directory = self.__dict__.get("_frames_dir")
+        if isinstance(frames, ShardSource):
+            frames = frames.directory
         if directory is not None and isinstance(frames, (str, os.PathLike)):
             same = os.path.abspath(frames) == os.path.abspath(directory)
         else:
@@ -545,6 +559,9 @@ class DPGP:
             previous = self._save_checkpoint(stable, traces) if checkpoint_now else np.asarray(self._sampler.labels())
             bar = _progress(total, self.progress, initial=self.n_iter_)
             while self.n_iter_ < total and not self.converged_:
+                source = self.__dict__.get("_shard_source")
+                if source is not None and source.stopping.is_set():  # fit_chains stops its chains' threads
+                    raise KeyboardInterrupt
                 t = time.perf_counter()
                 counts = self._sampler.split_merge_counts()
                 moves, k, alpha, log_joint = self._sampler.sweep()
@@ -701,20 +718,21 @@ class DPGP:
         )
         self._resolve_sampler()
 
-    def _new_sharded_sampler(self, manifest: Any, client: Any) -> _core.Sampler:
-        """A sub-cluster chain over the shards of ``manifest``: read into this process, or served by
-        ``client``'s workers (:mod:`dpgp.model.sharded`)."""
-        from .sharded import DaskShards, local_shards
-
+    def _new_sharded_sampler(self, source: Any, owned: bool) -> _core.Sampler:
+        """A sub-cluster chain over the shards of ``source`` (:class:`dpgp.model.sharded.ShardSource`:
+        read into this process, or served by a client's workers); this model's training frames
+        are then those shards. ``owned``: the model made the source and lets its workers drop the
+        shards when it fits again (fit_chains' chains share one it keeps)."""
+        manifest = source.manifest
         settings = self._core_settings(manifest.n_frames, None)
-        previous = self.__dict__.get("_shard_link")
-        if previous is not None:  # a fit again: the last fit's shards are no longer needed
-            previous.close()
-        if client is None:
-            self._shard_link = None
-            return _core.Sampler.over_shards(local_shards(manifest), settings)
-        self._shard_link = DaskShards(client, manifest)
-        return _core.Sampler.over_link([s.n_frames for s in manifest.shards], self._shard_link, settings)
+        previous = self.__dict__.get("_shard_source")
+        if previous is not None and previous is not source and self.__dict__.get("_owns_source"):
+            previous.close()  # a fit again: the last fit's shards are no longer needed
+        sampler = source.sampler(settings)
+        self._shard_source, self._owns_source, self._shard_link = source, owned, source.link
+        self._frames, self._frames_dir, self._n_train = None, manifest.directory, manifest.n_frames
+        self._shard_sizes = source.sizes
+        return sampler
 
     def _subcluster_possible(self) -> bool:
         """Whether settings other than the likelihood let the sub-cluster sampler run."""
@@ -1316,24 +1334,25 @@ class DPGP:
         return model
 
     @classmethod
-    def from_model_file(cls, file: Any) -> DPGP:
+    def from_model_file(cls, file: Any, source: Any = None) -> DPGP:
         """The fitted estimator a :class:`dpgp.io.ModelFile` describes (what :meth:`load` returns
-        for a file; :mod:`dpgp.chains` builds a chain's state this way). Every inconsistency is a
+        for a file; :mod:`dpgp.chains` builds a chain's state this way, over the chains' shared
+        ``source`` of shards when the frames are in shards). Every inconsistency is a
         :class:`~dpgp.ModelFileError`."""
-        return cls._checked_from_file(file)
+        return cls._checked_from_file(file, source=source)
 
     @classmethod
-    def _checked_from_file(cls, file: Any, client: Any = None) -> DPGP:
+    def _checked_from_file(cls, file: Any, client: Any = None, source: Any = None) -> DPGP:
         """:meth:`_from_file`, with every inconsistency it meets a :class:`~dpgp.ModelFileError`."""
         try:
-            return cls._from_file(file, client)
+            return cls._from_file(file, client, source)
         except ModelFileError:
             raise
         except (DpgpError, KeyError, TypeError, ValueError, IndexError) as e:
             raise ModelFileError(f"{file.path}: inconsistent model file ({type(e).__name__}: {e})") from None
 
     @classmethod
-    def _from_file(cls, file: Any, client: Any = None) -> DPGP:
+    def _from_file(cls, file: Any, client: Any = None, source: Any = None) -> DPGP:
         """The estimator a :class:`dpgp.io.ModelFile` describes: the sampler ``fit`` builds, then
         ``set_state`` factors every pattern in the canonical order ``fit`` ends with, so every
         later computation is bitwise the same as the saved model's. Frames left in shards: the
@@ -1354,7 +1373,7 @@ class DPGP:
             model._sampler = model._new_sampler(file.frames)
             model.frames_ = file.frames
         else:
-            model._over_shards_of(file, client)
+            model._over_shards_of(file, client, source)
         model._set_state(file.labels, file.length_scales, file.alpha, file.pattern_noise_var)
         if file.sticky is not None and model.dynamics == "sticky":
             links = np.zeros(len(file.frames), dtype=bool)

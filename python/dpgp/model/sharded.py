@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import threading
 import time
 import uuid
 from typing import Any
@@ -160,11 +161,57 @@ def forget_shards(directory: str) -> int:
     return len(keys)
 
 
+class ShardSource:
+    """Where chains over a directory of shards find their frames: read into this process once,
+    or served by the workers of a Dask ``client`` through one :class:`DaskShards` link. A fit
+    makes its own; :func:`dpgp.fit_chains` shares one among its chains, so that the shards are
+    read once and every chain's requests go to the same workers. The settings sample
+    (:func:`settings_sample`) is read once too, with the shards' fingerprint when
+    ``fingerprint``."""
+
+    def __init__(self, manifest: ShardManifest, client: Any = None, fingerprint: bool = False):
+        self.manifest, self.client, self._fingerprint = manifest, client, fingerprint
+        self.directory = os.path.abspath(manifest.directory)
+        self._sample: tuple[Frames, np.ndarray, str | None] | None = None
+        self._local: list[Any] | None = None
+        self.link: DaskShards | None = None
+        self._lock = threading.Lock()  # chains in threads ask for samplers at once
+        self.stopping = threading.Event()  # set: the chains over it stop before their next sweep
+
+    @property
+    def sizes(self) -> list[int]:
+        return [s.n_frames for s in self.manifest.shards]
+
+    def sample(self, fingerprint: bool = False) -> tuple[Frames, np.ndarray, str | None]:
+        """:func:`settings_sample` of the shards (read once; again only for a fingerprint the
+        first read did not take)."""
+        with self._lock:
+            if self._sample is None or (fingerprint and self._sample[2] is None):
+                self._sample = settings_sample(self.manifest, self.client, fingerprint or self._fingerprint)
+            return self._sample
+
+    def sampler(self, settings: Any) -> Any:
+        """A sub-cluster chain with ``settings`` over these shards."""
+        with self._lock:
+            if self.client is None:
+                if self._local is None:
+                    self._local = local_shards(self.manifest)
+                return _core.Sampler.over_shards(self._local, settings)
+            if self.link is None or self.link.closed:
+                self.link = DaskShards(self.client, self.manifest)
+            return _core.Sampler.over_link(self.sizes, self.link, settings)
+
+    def close(self) -> None:
+        """Let the workers drop the shards (a later sampler loads them again)."""
+        if self.link is not None:
+            self.link.close()
+
+
 class DaskShards:
     """The shards of ``manifest`` served by the workers of a Dask ``client``: each shard is
     loaded by one worker and kept there (a future per shard, held for the life of the chain);
     each request runs beside it. Counts the requests, the bytes sent and received, and the
-    seconds spent waiting for replies."""
+    seconds spent waiting for replies (chains in several threads may share it)."""
 
     def __init__(self, client: Any, manifest: ShardManifest):
         self._client = client
@@ -174,13 +221,20 @@ class DaskShards:
             client.submit(load_shard, directory, i, key=f"dpgp-shard-{tag}-{i}") for i in range(manifest.n_shards)
         ]
         client.gather(self._loads)  # every shard read once, before the chain starts
+        self._count = threading.Lock()
         self.bytes_sent = 0
         self.bytes_received = 0
         self.requests = 0
         self.calls = 0
         self.seconds = 0.0  # waiting for the workers (the rest of a sweep is the leader's)
 
+    @property
+    def closed(self) -> bool:
+        return not self._loads
+
     def __call__(self, jobs: list[tuple[int, bytes]]) -> list[bytes]:
+        if self.closed:
+            raise RuntimeError("the shards' link is closed: the workers have dropped the shards")
         t = time.perf_counter()
         # Beside its shard: the load's worker (any other if that one is gone; it reads the shard).
         where = self._client.who_has(self._loads)
@@ -190,11 +244,12 @@ class DaskShards:
             pin: dict[str, Any] = {"workers": near, "allow_other_workers": True} if near else {}
             futures.append(self._client.submit(serve_request, self._loads[s], request, pure=False, retries=2, **pin))
         replies = self._client.gather(futures)
-        self.bytes_sent += sum(len(r) for _, r in jobs)
-        self.bytes_received += sum(len(r) for r in replies)
-        self.requests += len(jobs)
-        self.calls += 1
-        self.seconds += time.perf_counter() - t
+        with self._count:
+            self.bytes_sent += sum(len(r) for _, r in jobs)
+            self.bytes_received += sum(len(r) for r in replies)
+            self.requests += len(jobs)
+            self.calls += 1
+            self.seconds += time.perf_counter() - t
         return list(replies)
 
     def close(self) -> None:
@@ -212,7 +267,9 @@ class DaskShards:
 
 
 def manifest_of(frames: Any) -> ShardManifest | None:
-    """The manifest when ``frames`` is a directory of shards, else ``None``."""
+    """The manifest when ``frames`` is a directory of shards (or a :class:`ShardSource`), else ``None``."""
+    if isinstance(frames, ShardSource):
+        return frames.manifest
     if isinstance(frames, (str, os.PathLike)) and os.path.isdir(frames):
         return read_manifest(frames)
     return None
