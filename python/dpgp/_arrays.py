@@ -105,3 +105,11 @@ def column_floats(values: object, name: object, where: str = "") -> np.ndarray:
         except (TypeError, ValueError):
             out[i] = np.nan  # reported by the caller's check of missing values
     return out
+
+
+def compact_labels(labels: object) -> np.ndarray:
+    """Non-negative integer labels in the smallest unsigned type that holds them (a copy): 10
+    million frames' patterns, under 256 of them, take 10 MB rather than 80."""
+    a = np.asarray(labels)
+    top = int(a.max()) if a.size else 0
+    return a.astype(np.min_scalar_type(max(top, 0)))

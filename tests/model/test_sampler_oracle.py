@@ -84,6 +84,33 @@ def test_adjusted_rand_index_matches_sklearn():
             assert dpgp.adjusted_rand_index(x, y) == pytest.approx(adjusted_rand_score(a, b), abs=1e-12)
 
 
+def test_adjusted_rand_index_counted_in_chunks_and_in_small_types_matches_sklearn(monkeypatch):
+    # The contingency table is counted a chunk at a time, from labels in whatever integer type
+    # they come (a fit passes them as uint8): chunks of 7 items and mixed types give sklearn's index.
+    from sklearn.metrics import adjusted_rand_score
+
+    import dpgp
+    from dpgp.evaluate import metrics
+
+    monkeypatch.setattr(metrics, "_CHUNK", 7)
+    rng = np.random.default_rng(1)
+    for _ in range(50):
+        n = int(rng.integers(2, 200))
+        a, b = rng.integers(0, 5, n), rng.integers(0, 300, n)
+        want = adjusted_rand_score(a, b)
+        for x, y in ((a, b), (a.astype(np.uint8), b.astype(np.uint16)), (a.astype(np.uint64), b.astype(np.int32))):
+            assert dpgp.adjusted_rand_index(x, y) == pytest.approx(want, abs=1e-12)
+
+
+def test_compact_labels_keep_the_numbers_in_the_smallest_unsigned_type():
+    from dpgp._arrays import compact_labels
+
+    for top, dtype in ((0, np.uint8), (255, np.uint8), (256, np.uint16), (70_000, np.uint32)):
+        labels = np.array([top, 0, top // 2], dtype=np.uintp)
+        out = compact_labels(labels)
+        assert out.dtype == dtype and out.tolist() == labels.tolist()
+
+
 @pytest.mark.parametrize("n", [4, 5])
 def test_partition_posterior_is_normalised_and_spread(n):
     frames, p, alpha = so.tiny_problem(n)

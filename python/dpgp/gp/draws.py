@@ -10,7 +10,9 @@ from them (``Sampler.set_state``), as loading a model file does.
 kept sweeps are the multiples of ``thin(t)``, the least power of two with ``t // thin ≤ max_draws``;
 as ``t`` grows past the bound, every other draw is dropped and the step doubles. What is kept is a
 function of ``t`` alone, so a resumed chain keeps what the uninterrupted one would. Memory:
-``max_draws · (4 N + 16 K + 16)`` bytes for ``N`` frames and ``K`` patterns a draw.
+``max_draws · (b N + 16 K + 16)`` bytes for ``N`` frames and ``K`` patterns a draw, with each
+draw's labels in the smallest unsigned type that holds them (``b = 1`` byte below 256 patterns;
+model files store them as int32).
 
 **Averaging.** Scores use the kept draws after a burn-in of the first half of the sweeps, and
 the final state (itself a draw); ``S`` states in all. For a test frame ``V`` and state ``s``,
@@ -35,6 +37,8 @@ from typing import Any
 
 import numpy as np
 
+from .._arrays import compact_labels
+
 #: Default bound on the states a fit keeps (``DPGP(posterior_draws=...)``).
 MAX_DRAWS = 40
 
@@ -52,7 +56,8 @@ def thin_for(sweeps: int, max_draws: int) -> int:
 
 @dataclass
 class Draws:
-    """Kept states: ``sweeps`` (D,), ``labels`` (D, N) int32 (patterns by decreasing size),
+    """Kept states: ``sweeps`` (D,), ``labels`` (one (N,) array a draw, patterns by decreasing
+    size, in the smallest unsigned type that holds them),
     ``length_scales`` (one (K_d, 2) array a draw), ``alpha`` (D,), ``noise_var`` (one
     ``(σ_n,x², σ_n,y²)`` a draw: the noise is sampled in the chain; ``None`` for draws read from a
     file written before it was, which are scored with the model's final noise)."""
@@ -82,7 +87,7 @@ class Draws:
         if step and sweep % step == 0 and (not self.sweeps or self.sweeps[-1] != sweep):
             labels, length_scales, alpha, noise = state()
             self.sweeps.append(int(sweep))
-            self.labels.append(np.asarray(labels, dtype=np.int32).copy())
+            self.labels.append(compact_labels(labels))
             self.length_scales.append(np.asarray(length_scales, dtype=np.float64).reshape(-1, 2).copy())
             self.alpha.append(float(alpha))
             self.noise_var.append(_noise_entry(noise))
@@ -169,7 +174,7 @@ class Draws:
             if pn.shape != ls.shape or pn.dtype.kind != "f" or not (np.isfinite(pn).all() and (pn > 0).all()):
                 raise ValueError("the posterior draws' per-pattern noise must be positive, one pair per pattern")
             noise = list(np.split(pn.astype(np.float64), np.cumsum(counts)[:-1])) if d else []
-        return cls(n_frames, [int(s) for s in sweeps], [np.asarray(x, dtype=np.int32) for x in labels], list(parts),
+        return cls(n_frames, [int(s) for s in sweeps], [compact_labels(x) for x in labels], list(parts),
                    [float(a) for a in alpha], noise)  # fmt: skip
 
 
@@ -192,8 +197,10 @@ def state_of(sampler: Any, per_pattern: bool = False) -> State:
     patterns = sampler.patterns()  # (slot, id, n_frames, wx, wy)
     order = sorted(range(len(patterns)), key=lambda j: (-patterns[j][2], patterns[j][0]))
     slots = np.array([patterns[j][0] for j in order], dtype=np.int64)
-    raw = np.asarray(sampler.labels(), dtype=np.int64)
-    lookup = np.zeros(int(slots.max()) + 1 if len(slots) else 1, dtype=np.int64)
+    raw = np.asarray(sampler.labels())
+    # Patterns numbered in the smallest type that holds them: at millions of frames the labels
+    # are most of a draw's memory.
+    lookup = np.zeros(int(slots.max()) + 1 if len(slots) else 1, dtype=np.min_scalar_type(max(len(slots) - 1, 0)))
     lookup[slots] = np.arange(len(slots))
     ls = np.array([[patterns[j][3], patterns[j][4]] for j in order], dtype=np.float64).reshape(-1, 2)
     if per_pattern:

@@ -14,6 +14,7 @@ import numpy as np
 
 from .. import _core
 from .._arrays import MAX_MAGNITUDE as _MAX_MAGNITUDE
+from .._arrays import compact_labels
 from .._constants import LOW_DATA_THRESHOLD
 from .._resources import check_thread_reservations, default_memory_budget, parse_bytes
 from ..data.frames import Frames, as_frames
@@ -157,7 +158,8 @@ class DPGP:
     posterior_draws : the most posterior states (labels, length scales, α of a sweep) the fit
         keeps, thinned evenly over the chain, for posterior-averaged scores (``average=True`` of
         :meth:`score_samples` and :meth:`predict_proba`; :meth:`evaluate` by default). Memory:
-        ``posterior_draws · (4 N + 16 K + 16)`` bytes (:mod:`dpgp.posterior`). 0 keeps none.
+        ``posterior_draws · (b N + 16 K + 16)`` bytes, ``b = 1`` below 256 patterns
+        (:mod:`dpgp.posterior`). 0 keeps none.
     """
 
     def __init__(
@@ -556,7 +558,9 @@ class DPGP:
         interrupted, bar = False, None
         total = self.iterations if until is None else until
         try:
-            previous = self._save_checkpoint(stable, traces) if checkpoint_now else np.asarray(self._sampler.labels())
+            previous = (
+                self._save_checkpoint(stable, traces) if checkpoint_now else compact_labels(self._sampler.labels())
+            )
             bar = _progress(total, self.progress, initial=self.n_iter_)
             while self.n_iter_ < total and not self.converged_:
                 source = self.__dict__.get("_shard_source")
@@ -566,7 +570,7 @@ class DPGP:
                 counts = self._sampler.split_merge_counts()
                 moves, k, alpha, log_joint = self._sampler.sweep()
                 seconds = time.perf_counter() - t
-                labels = np.asarray(self._sampler.labels())
+                labels = compact_labels(self._sampler.labels())  # 1 byte a frame: N can be 10M
                 ari = adjusted_rand_index(previous, labels)
                 extra: tuple[float, ...] = tuple(b - a for a, b in zip(counts, self._sampler.split_merge_counts()))
                 extra += _noise_summary(self._sampler, self._per_pattern_noise())
@@ -646,7 +650,7 @@ class DPGP:
         reset = time.perf_counter()
         self.checkpoint_seconds_["reset"].append(reset - t)
         if self.checkpoint is None:
-            return np.asarray(self._sampler.labels())
+            return compact_labels(self._sampler.labels())
         self._resume_point = ckpt.ResumePoint(
             self.n_iter_,
             self.labels_,
@@ -658,7 +662,7 @@ class DPGP:
         )
         self._write_checkpoint(traces)
         self.checkpoint_seconds_["write"].append(time.perf_counter() - reset)
-        return np.asarray(self._sampler.labels())
+        return compact_labels(self._sampler.labels())
 
     def _write_checkpoint(self, traces: list[np.ndarray]) -> None:
         from ..io.modelfile import save
@@ -875,7 +879,8 @@ class DPGP:
         self._slot_order = np.array(order, dtype=np.int64)  # core slot-order index of each pattern
         slot_to_label = np.full(int(self._slots.max(initial=-1)) + 1, -1, dtype=np.int64)
         slot_to_label[self._slots] = np.arange(len(self._slots))
-        self.labels_ = slot_to_label[np.asarray(self._sampler.labels(), dtype=np.int64)]
+        # Indexed by the core's own unsigned labels (no int64 copy: at 10M frames each is 80 MB).
+        self.labels_ = slot_to_label[np.asarray(self._sampler.labels())]
         self.n_patterns_ = len(self._slots)
         counts = np.array([patterns[j][2] for j in order], dtype=np.float64)
         self.weights_ = counts / counts.sum()
