@@ -58,8 +58,7 @@ def _as_shards(args: argparse.Namespace) -> Any:
     were written (no framing option given), else None."""
     from .model.sharded import manifest_of
 
-    framing = (args.roi, args.dt, args.units, args.max_frames)
-    if args.format not in ("auto", "frames") or any(v is not None for v in framing):
+    if _framing_flags(args):
         return None
     manifest = manifest_of(args.data)
     if manifest is not None:
@@ -120,15 +119,19 @@ def _model_of(args: argparse.Namespace) -> Any:
     )  # fmt: skip
 
 
+def _framing_flags(args: argparse.Namespace) -> list[str]:
+    """The framing options ``dpgp fit`` was given (a directory of shards is fitted as written)."""
+    framing = {"--roi": args.roi, "--dt": args.dt, "--units": args.units, "--max-frames": args.max_frames}
+    given = [flag for flag, value in framing.items() if value is not None]
+    return given + (["--format"] if args.format not in ("auto", "frames") else [])
+
+
 def _fit_on_scheduler(args: argparse.Namespace) -> int:
     """``dpgp fit DIR --scheduler ADDRESS``: one chain over a directory of frame shards, each shard
     read and served by a worker of the Dask scheduler (``DPGP.fit(DIR, client=...)``)."""
     from .model.sharded import manifest_of
 
-    framing = {"--roi": args.roi, "--dt": args.dt, "--units": args.units, "--max-frames": args.max_frames}
-    given = [flag for flag, value in framing.items() if value is not None]
-    if args.format not in ("auto", "frames"):
-        given.append("--format")
+    given = _framing_flags(args)
     if given or args.until_converged:
         raise ValueError(
             f"{', '.join(given) or '--until-converged'} cannot go with --scheduler without --chains: "
