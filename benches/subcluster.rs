@@ -6,12 +6,14 @@
 //!   weights' draws, every frame's label in parallel, the moved frames' sums;
 //! - `subcluster/sweep`: one sweep with every step (length scales, per-pattern noise, α, one
 //!   split–merge move);
-//! - `subcluster/sums`: the sums of every frame (what a state set from labels costs).
+//! - `subcluster/sums`: the sums of every frame (what a state set from labels costs);
+//! - `subcluster/fields`: ten fields at 12,000 points on one thread (the pass's kernel: 67 Mflop).
 
 use std::hint::black_box;
 use std::sync::Arc;
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use dpgp_core::field_blocks::FieldBlocks;
 use dpgp_core::gibbs::{Data, NoisePrior, NoiseScope, SamplerKind, Settings, SplitMerge};
 use dpgp_core::gp::GpParams;
 use dpgp_core::hsgp::Basis;
@@ -86,6 +88,23 @@ fn bench(c: &mut Criterion) {
     let (xy, v) = data.points();
     g.bench_function("sums", |b| {
         b.iter(|| black_box(Sums::of_points(&basis, xy, v, FRAMES)))
+    });
+    // Ten fields (five patterns' two outputs) at 12,000 points on one thread: the pass's kernel.
+    let weights: Vec<Vec<f64>> = (0..10)
+        .map(|f| {
+            (0..basis.len())
+                .map(|i| ((i * 7 + f) % 13) as f64 - 6.0)
+                .collect()
+        })
+        .collect();
+    let fields = FieldBlocks::new(&basis, weights.iter().map(|w| &w[..]));
+    let pts = &xy[..12_000];
+    g.bench_function("fields", |b| {
+        b.iter(|| {
+            let mut total = 0.0;
+            fields.for_blocks(pts, &mut |_, vals| total += vals[9][0]);
+            black_box(total)
+        })
     });
     g.finish();
 }

@@ -25,6 +25,7 @@
 pub mod basis;
 pub mod correlation;
 pub mod error;
+pub mod field_blocks;
 pub mod frame;
 pub mod free_speed;
 pub mod gp;

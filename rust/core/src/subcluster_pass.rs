@@ -1,23 +1,18 @@
 //! The sub-cluster sampler's assignment pass: draw the patterns' weights and fields, give every
 //! frame its label in parallel, and update the sums of the patterns frames moved between.
 //!
-//! **Fields at many points at once.** A field is `φ(x)ᵀ a` with `φ_jk = s_j(x) t_k(y)`, so with the
-//! weights as an `m_x x m_y` matrix `A` it is `s(x)ᵀ A t(y)`. For a chunk of points with per-axis
-//! values `S` (`n x m_x`) and `T` (`n x m_y`), one matrix product `T [A_1ᵀ … A_Fᵀ]` (or
-//! `S [A_1 … A_F]`, whichever axis has more functions is the inner dimension) gives every field `f`
-//! as the row sums of `(T A_fᵀ) ∘ S`: `2 n M F` flops at matrix-product speed, and no `M`-long
-//! feature vector is formed (writing those cost as much as the product).
+//! Every pattern's two fields are evaluated at a frame's points by the fused kernel of
+//! [`crate::field_blocks`] (`2 M` multiply–adds per field and point).
 
 use std::time::Instant;
 
-use faer::linalg::matmul::matmul;
-use faer::{Accum, MatMut, MatRef, Par};
 use rayon::prelude::*;
 
 use super::shard::{Bank, DrawKey};
 use super::{Fit, SubclusterSampler, gamma};
-use crate::basis::{AxisValues, Basis};
+use crate::basis::Basis;
 use crate::error::{Error, Result};
+use crate::field_blocks::{FieldBlocks, LANES};
 use crate::frame::Point;
 use crate::gp::LN_2PI;
 use crate::rng::{Phase, stream};
@@ -25,24 +20,14 @@ use crate::special::log_sum_exp;
 
 /// Frames per parallel task of a pass.
 pub(super) const TILE: usize = 128;
-/// Points per matrix product.
-const CHUNK: usize = 256;
-/// Doubles of a product's output held at once (a quarter of a core's L2 cache).
-const PRODUCT_DOUBLES: usize = 32 * 1024;
 
-/// Several patterns' fields, stacked for one matrix product per chunk of points, with each
-/// pattern's noise: what a frame's log-likelihood under each pattern needs.
+/// Several patterns' fields, with each pattern's noise: what a frame's log-likelihood under each
+/// pattern needs.
 pub(super) struct FieldBank {
     /// Patterns.
     k: usize,
-    /// Whether the product's inner dimension is the y axis (the axis with more functions).
-    inner_y: bool,
-    inner: usize,
-    outer: usize,
-    /// `inner x (2K outer)`, column-major: field `2k + d` (pattern k, output d) in columns
-    /// `(2k + d) outer ..`; the weights `A[j, k]` of `φ_jk` arranged so that the product with one
-    /// axis's values leaves a dot product with the other's.
-    w: Vec<f64>,
+    /// Field `2k + d`: pattern k's output d.
+    blocks: FieldBlocks,
     mean: [f64; 2],
     /// Per pattern: `1 / σ_n,d²`, and `−½ Σ_d log(2π σ_n,d²)` per point.
     inv_noise: Vec<[f64; 2]>,
@@ -58,25 +43,9 @@ impl FieldBank {
         noise: &[[f64; 2]],
         mean: [f64; 2],
     ) -> Self {
-        let [mx, my] = basis.counts();
-        let inner_y = my >= mx;
-        let (inner, outer) = if inner_y { (my, mx) } else { (mx, my) };
-        let mut w = Vec::with_capacity(inner * outer * 2 * weights.len());
-        for a in weights.iter().flatten() {
-            for o in 0..outer {
-                if inner_y {
-                    w.extend((0..my).map(|k| a[o + mx * k])); // column j = o: A[j, ·]
-                } else {
-                    w.extend_from_slice(&a[mx * o..mx * (o + 1)]); // column k = o: A[·, k]
-                }
-            }
-        }
         Self {
             k: weights.len(),
-            inner_y,
-            inner,
-            outer,
-            w,
+            blocks: FieldBlocks::new(basis, weights.iter().flatten().map(|a| &a[..])),
             mean,
             inv_noise: noise.iter().map(|n| [1.0 / n[0], 1.0 / n[1]]).collect(),
             log_norm: noise
@@ -96,73 +65,32 @@ impl FieldBank {
     /// `starts[f]` (`starts` ends with `xy.len()`).
     pub(super) fn frame_logliks(
         &self,
-        basis: &Basis,
         xy: &[Point],
         v: &[[f64; 2]],
         starts: &[usize],
         out: &mut [f64],
     ) {
         let kk = self.k;
-        let fields = 2 * kk;
-        let (inner, outer) = (self.inner, self.outer);
-        let group = (PRODUCT_DOUBLES / (CHUNK * outer)).clamp(1, fields);
         let mut frame_of = Vec::with_capacity(xy.len());
         for (f, w) in starts.windows(2).enumerate() {
             frame_of.extend(std::iter::repeat_n(f, w[1] - w[0]));
         }
-        let mut prod = vec![0.0; CHUNK * outer * group];
-        let mut acc = vec![0.0; CHUNK];
-        for c0 in (0..xy.len()).step_by(CHUNK) {
-            let c1 = (c0 + CHUNK).min(xy.len());
-            let n = c1 - c0;
-            let vals = AxisValues::new(basis, &xy[c0..c1]);
-            let (s_in, s_out) = if self.inner_y {
-                (&vals.sy, &vals.sx)
-            } else {
-                (&vals.sx, &vals.sy)
-            };
-            for p in c0..c1 {
+        let half_inv: Vec<[f64; 2]> = self
+            .inv_noise
+            .iter()
+            .map(|i| [0.5 * i[0], 0.5 * i[1]])
+            .collect();
+        self.blocks.for_blocks(xy, &mut |b0, vals| {
+            for (l, p) in (b0..(b0 + LANES).min(xy.len())).enumerate() {
                 let row = &mut out[frame_of[p] * kk..(frame_of[p] + 1) * kk];
-                for (r, l) in row.iter_mut().zip(&self.log_norm) {
-                    *r += l;
+                let r0 = v[p][0] - self.mean[0];
+                let r1 = v[p][1] - self.mean[1];
+                for (k, r) in row.iter_mut().enumerate() {
+                    let (e0, e1) = (r0 - vals[2 * k][l], r1 - vals[2 * k + 1][l]);
+                    *r += self.log_norm[k] - e0 * e0 * half_inv[k][0] - e1 * e1 * half_inv[k][1];
                 }
             }
-            for g0 in (0..fields).step_by(group) {
-                let g1 = (g0 + group).min(fields);
-                let cols = (g1 - g0) * outer;
-                let prod = &mut prod[..n * cols];
-                matmul(
-                    MatMut::from_column_major_slice_mut(prod, n, cols),
-                    Accum::Replace,
-                    MatRef::from_column_major_slice(s_in, n, inner),
-                    MatRef::from_column_major_slice(
-                        &self.w[g0 * outer * inner..g1 * outer * inner],
-                        inner,
-                        cols,
-                    ),
-                    1.0,
-                    Par::Seq,
-                );
-                for f in g0..g1 {
-                    let acc = &mut acc[..n];
-                    acc.fill(0.0);
-                    let base = (f - g0) * outer;
-                    for o in 0..outer {
-                        let u = &prod[(base + o) * n..(base + o + 1) * n];
-                        let t = &s_out[o * n..(o + 1) * n];
-                        for ((a, u), t) in acc.iter_mut().zip(u).zip(t) {
-                            *a += u * t;
-                        }
-                    }
-                    let (k, d) = (f / 2, f % 2);
-                    let (mu, half_inv) = (self.mean[d], 0.5 * self.inv_noise[k][d]);
-                    for (i, a) in acc.iter().enumerate() {
-                        let r = v[c0 + i][d] - mu - a;
-                        out[frame_of[c0 + i] * kk + k] -= r * r * half_inv;
-                    }
-                }
-            }
-        }
+        });
     }
 }
 

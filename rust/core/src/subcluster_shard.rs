@@ -194,7 +194,7 @@ impl Shard {
             .map(|tile| {
                 let (xy, v, starts) = gather(&self.data, tile);
                 let mut ll = vec![0.0; kk * tile.len()];
-                bank.frame_logliks(basis, &xy, &v, &starts, &mut ll);
+                bank.frame_logliks(&xy, &v, &starts, &mut ll);
                 ll
             })
             .collect();
@@ -229,7 +229,7 @@ impl Shard {
                 let (a, b) = (offsets[f0], offsets[f1]);
                 let starts: Vec<usize> = offsets[f0..=f1].iter().map(|o| o - a).collect();
                 let mut ll = vec![0.0; (f1 - f0) * kk];
-                fields.frame_logliks(basis, &xy[a..b], &v[a..b], &starts, &mut ll);
+                fields.frame_logliks(&xy[a..b], &v[a..b], &starts, &mut ll);
                 (f0..f1)
                     .zip(ll.chunks(kk))
                     .map(|(i, l)| {
