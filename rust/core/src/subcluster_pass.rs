@@ -81,13 +81,23 @@ impl FieldBank {
             .map(|i| [0.5 * i[0], 0.5 * i[1]])
             .collect();
         self.blocks.for_blocks(xy, &mut |b0, vals| {
-            for (l, p) in (b0..(b0 + LANES).min(xy.len())).enumerate() {
-                let row = &mut out[frame_of[p] * kk..(frame_of[p] + 1) * kk];
-                let r0 = v[p][0] - self.mean[0];
-                let r1 = v[p][1] - self.mean[1];
-                for (k, r) in row.iter_mut().enumerate() {
-                    let (e0, e1) = (r0 - vals[2 * k][l], r1 - vals[2 * k + 1][l]);
-                    *r += self.log_norm[k] - e0 * e0 * half_inv[k][0] - e1 * e1 * half_inv[k][1];
+            // Per pattern, the block's points' terms as 8-lane arithmetic, then each added to its
+            // frame in point order (the same sums as point after point).
+            let n = (xy.len() - b0).min(LANES);
+            let mut r = [[0.0; LANES]; 2];
+            for l in 0..n {
+                r[0][l] = v[b0 + l][0] - self.mean[0];
+                r[1][l] = v[b0 + l][1] - self.mean[1];
+            }
+            for (k, h) in half_inv.iter().enumerate() {
+                let (fx, fy) = (&vals[2 * k], &vals[2 * k + 1]);
+                let mut ll = [0.0; LANES];
+                for l in 0..LANES {
+                    let (e0, e1) = (r[0][l] - fx[l], r[1][l] - fy[l]);
+                    ll[l] = self.log_norm[k] - e0 * e0 * h[0] - e1 * e1 * h[1];
+                }
+                for (l, t) in ll[..n].iter().enumerate() {
+                    out[frame_of[b0 + l] * kk + k] += t;
                 }
             }
         });
