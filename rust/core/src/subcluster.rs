@@ -472,31 +472,35 @@ impl SubclusterSampler {
         alpha: f64,
     ) -> Result<()> {
         crate::gibbs::check_state(self.store.len(), labels, length_scales, noise_var, alpha)?;
-        let mut members: Vec<Vec<usize>> = vec![Vec::new(); length_scales.len()];
-        for (i, &g) in labels.iter().enumerate() {
-            members[g].push(i);
+        // The non-empty groups, numbered in order; each frame's number among them.
+        let mut size = vec![0usize; length_scales.len()];
+        for &g in labels {
+            size[g] += 1;
         }
-        let groups: Vec<usize> = (0..members.len())
-            .filter(|&g| !members[g].is_empty())
-            .collect();
+        let groups: Vec<usize> = (0..size.len()).filter(|&g| size[g] > 0).collect();
+        let mut index = vec![usize::MAX; size.len()];
+        for (j, &g) in groups.iter().enumerate() {
+            index[g] = j;
+        }
         let m = self.basis.len();
         self.slots.clear();
         self.generations.clear();
         self.check_memory(groups.len() * 8 * (m * m * 3 + 8 * m))?;
-        let sums =
-            self.sums_of_sets(&groups.iter().map(|&g| &members[g][..]).collect::<Vec<_>>())?;
+        let sums = self
+            .store
+            .sums_of_groups(&self.basis, labels, &index, groups.len())?;
         self.alpha = alpha;
-        self.labels = vec![NONE; self.store.len()];
+        let mut slot = Vec::with_capacity(groups.len());
         for (&g, s) in groups.iter().zip(sums) {
             let mut params = self.settings.pattern_params(length_scales[g]);
             if let Some(nv) = noise_var {
                 params.noise_var = nv[g];
             }
-            let k = self.add_part(s, params, None);
-            for &i in &members[g] {
-                self.labels[i] = k;
-            }
+            slot.push(self.add_part(s, params, None));
         }
+        // In place: a second label vector would be the largest transient of a rebuild.
+        self.labels.clear();
+        self.labels.extend(labels.iter().map(|&g| slot[index[g]]));
         self.refresh_fits()
     }
 

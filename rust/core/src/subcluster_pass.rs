@@ -286,15 +286,13 @@ impl SubclusterSampler {
         }
         let slots: Vec<usize> = self.live().map(|(k, _)| k).collect();
         if 2 * moved.len() > self.store.len() {
-            let sets: Vec<Vec<usize>> = slots
-                .iter()
-                .map(|&k| {
-                    (0..self.labels.len())
-                        .filter(|&i| self.labels[i] == k)
-                        .collect()
-                })
-                .collect();
-            let sums = self.sums_of_sets(&sets.iter().map(|s| &s[..]).collect::<Vec<_>>())?;
+            let mut index = vec![usize::MAX; self.slots.len()];
+            for (j, &k) in slots.iter().enumerate() {
+                index[k] = j;
+            }
+            let sums = self
+                .store
+                .sums_of_groups(&self.basis, &self.labels, &index, slots.len())?;
             for (&k, s) in slots.iter().zip(sums) {
                 let p = self.part_mut(k);
                 p.sums = s;

@@ -407,6 +407,49 @@ impl Store {
                 per_shard[s][k] = local;
             }
         }
+        self.sums_per_shard(basis, per_shard, sets.len())
+    }
+
+    /// The sums of `n_groups` groups of frames, frame `i` in group `group[labels[i]]` (none if
+    /// that is `n_groups` or more): [`Self::sums_of_sets`] of the groups' members in frame order,
+    /// without a list of every frame's number (a fit's canonical rebuild at 10M frames).
+    pub fn sums_of_groups(
+        &self,
+        basis: &Basis,
+        labels: &[usize],
+        group: &[usize],
+        n_groups: usize,
+    ) -> Result<Vec<Sums>> {
+        if labels.len() != self.len() {
+            return Err(Error::Shape(format!(
+                "{} labels for {} frames",
+                labels.len(),
+                self.len()
+            )));
+        }
+        let per_shard: Vec<Vec<Vec<u32>>> = (0..self.n_shards())
+            .map(|s| {
+                let mut sets = vec![Vec::new(); n_groups];
+                let first = self.starts[s];
+                for (i, &l) in labels[first..self.starts[s + 1]].iter().enumerate() {
+                    let g = group.get(l).copied().unwrap_or(usize::MAX);
+                    if g < n_groups {
+                        sets[g].push(i as u32);
+                    }
+                }
+                sets
+            })
+            .collect();
+        self.sums_per_shard(basis, per_shard, n_groups)
+    }
+
+    /// Each shard's sums of its sets (local frame numbers), added over shards in shard order.
+    fn sums_per_shard(
+        &self,
+        basis: &Basis,
+        per_shard: Vec<Vec<Vec<u32>>>,
+        n_sets: usize,
+    ) -> Result<Vec<Sums>> {
         let jobs: Vec<(usize, Request)> = per_shard
             .into_iter()
             .enumerate()
@@ -416,7 +459,7 @@ impl Store {
                 (s, Request::Sums { basis, sets })
             })
             .collect();
-        let mut out: Vec<Sums> = sets.iter().map(|_| Sums::zeros(basis)).collect();
+        let mut out: Vec<Sums> = (0..n_sets).map(|_| Sums::zeros(basis)).collect();
         for reply in self.link.run(jobs)? {
             let Reply::Sums(parts) = reply else {
                 return Err(wrong_reply("sums"));

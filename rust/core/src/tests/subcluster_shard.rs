@@ -162,6 +162,14 @@ fn the_store_answers_as_all_frames_in_one_place() {
             assert!((p - q).abs() <= 1e-12 * (1.0 + p.abs()), "{p} {q}");
         }
     }
+    // The groups of labels (label 7 in none) give the sums of their member lists, bit for bit.
+    let (labels, group) = ([2, 5, 2, 7, 2], [9, 9, 0, 9, 9, 1]);
+    for store in [&one, &many] {
+        let by_group = store.sums_of_groups(&b, &labels, &group, 2).unwrap();
+        let by_sets = store.sums_of_sets(&b, &[&[0, 2, 4], &[1]]).unwrap();
+        assert_eq!(by_group, by_sets);
+    }
+    assert!(one.sums_of_groups(&b, &labels[..4], &group, 2).is_err());
     let bank = Bank {
         weights: vec![[vec![0.1; 6], vec![0.2; 6]], [vec![-0.3; 6], vec![0.0; 6]]],
         noise: vec![[0.5, 0.5], [1.0, 2.0]],
