@@ -135,15 +135,15 @@ impl SubclusterSampler {
         }
 
         let t = Instant::now();
-        let proposed = self.propose_labels(&bank, &log_w, &slots, stop)?;
+        let proposed = self.propose_labels(&bank, &log_w, stop)?;
         // In frame order: a frame moves to its draw unless it is the last of its pattern.
         let mut counts = vec![0usize; self.slots.len()];
         for &k in &slots {
             counts[k] = self.part(k).sums.n_frames;
         }
         let mut moved: Vec<(usize, usize, usize)> = Vec::new();
-        for (i, &to) in proposed.iter().enumerate() {
-            let from = self.labels[i];
+        for (i, &pick) in proposed.iter().enumerate() {
+            let (from, to) = (self.labels[i], slots[pick as usize]);
             if to != from && counts[from] > 1 {
                 counts[from] -= 1;
                 counts[to] += 1;
@@ -176,18 +176,18 @@ impl SubclusterSampler {
         Ok((lw, fit.post.weights(Some(&mut rng))))
     }
 
-    /// Every frame's drawn pattern (slots) given the bank, in parallel over tiles of frames.
+    /// Every frame's drawn pattern (an index into the bank's patterns) given the bank, in
+    /// parallel over tiles of frames. Kept as 4-byte indices: at 10M frames, slot numbers would
+    /// double the largest transient of a sweep.
     fn propose_labels(
         &self,
         bank: &Bank,
         log_w: &[f64],
-        slots: &[usize],
         stop: &dyn Fn() -> bool,
-    ) -> Result<Vec<usize>> {
-        let out = self.draw_labels(
+    ) -> Result<Vec<u32>> {
+        let out = self.draw_picks(
             bank,
             log_w,
-            slots,
             0..self.store.len(),
             (self.sweep, Phase::Labels),
         )?;
@@ -198,24 +198,22 @@ impl SubclusterSampler {
         Ok(out)
     }
 
-    /// The drawn (map: most probable) entry of `targets` for each frame of `frames`, given the
+    /// The drawn (map: most probable) entry of the bank for each frame of `frames`, given the
     /// bank and the log mixture weights, with the uniform of (seed, `key`, frame).
-    pub(super) fn draw_labels(
+    pub(super) fn draw_picks(
         &self,
         bank: &Bank,
         log_w: &[f64],
-        targets: &[usize],
         frames: std::ops::Range<usize>,
         (sweep, phase): (u64, Phase),
-    ) -> Result<Vec<usize>> {
+    ) -> Result<Vec<u32>> {
         let key = DrawKey {
             seed: self.settings.seed,
             sweep,
             phase: phase as u64,
             map: self.map(),
         };
-        let picks = self.store.draw(&self.basis, bank, log_w, frames, key)?;
-        Ok(picks.into_iter().map(|p| targets[p as usize]).collect())
+        self.store.draw(&self.basis, bank, log_w, frames, key)
     }
 
     /// Groups of the frames after the first `groups.len()`, drawn by the instantiated conditional
@@ -268,14 +266,13 @@ impl SubclusterSampler {
         if stop() {
             return Err(Error::Interrupted);
         }
-        let targets: Vec<usize> = (0..k).collect();
-        self.draw_labels(
+        let picks = self.draw_picks(
             &bank,
             &log_w,
-            &targets,
             groups.len()..self.store.len(),
             (0, Phase::Init),
-        )
+        )?;
+        Ok(picks.into_iter().map(|p| p as usize).collect())
     }
 
     /// Move the sums of the `moved` frames `(frame, from, to)`: add each pattern's arrivals and
