@@ -112,16 +112,7 @@ impl FieldBlocks {
 
     /// [`Self::for_blocks`] without SIMD intrinsics (the same values).
     fn blocks_plain(&self, xy: &[Point], each: &mut dyn FnMut(usize, &[V])) {
-        self.blocks(xy, each, |a, vin, vout| {
-            let mut acc = [0.0; LANES];
-            for (a, out) in a
-                .chunks_exact(WIDE * vin.len())
-                .zip(vout.chunks_exact(WIDE))
-            {
-                group(&mut acc, a, vin, out.try_into().expect("chunks of WIDE"));
-            }
-            acc
-        });
+        self.blocks(xy, each, |a, vin, vout| field(a, vin, vout, group));
     }
 
     #[cfg(target_arch = "x86_64")]
@@ -129,14 +120,9 @@ impl FieldBlocks {
     fn blocks_avx2(&self, xy: &[Point], each: &mut dyn FnMut(usize, &[V])) {
         // The closure inherits this function's features, so the calls need no `unsafe`.
         self.blocks(xy, each, |a, vin, vout| {
-            let mut acc = [0.0; LANES];
-            for (a, out) in a
-                .chunks_exact(WIDE * vin.len())
-                .zip(vout.chunks_exact(WIDE))
-            {
-                avx2::group(&mut acc, a, vin, out.try_into().expect("chunks of WIDE"));
-            }
-            acc
+            field(a, vin, vout, |acc, a, vin, out| {
+                avx2::group(acc, a, vin, out)
+            })
         });
     }
 
@@ -200,6 +186,20 @@ impl FieldBlocks {
             }
         }
     }
+}
+
+/// One field at the block's points, `Σ_o out_o · (Σ_i in_i a[o, i])`: WIDE outer functions at a
+/// time by `group`, in order.
+#[inline(always)]
+fn field(a: &[f64], vin: &[V], vout: &[V], group: impl Fn(&mut V, &[f64], &[V], &[V; WIDE])) -> V {
+    let mut acc = [0.0; LANES];
+    for (a, out) in a
+        .chunks_exact(WIDE * vin.len())
+        .zip(vout.chunks_exact(WIDE))
+    {
+        group(&mut acc, a, vin, out.try_into().expect("chunks of WIDE"));
+    }
+    acc
 }
 
 /// Add to `acc` the terms of WIDE outer functions with coefficients `a` (for each inner function,

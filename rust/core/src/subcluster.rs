@@ -8,7 +8,7 @@
 //!    patterns, `(π_1..π_K, π_rest) ~ Dir(n_1..n_K, α)`, and each pattern's basis weights from
 //!    their Gaussian posterior given its sums (one `M x M` factor per output group).
 //! 2. *Assign*, in parallel over frames: `p(z_i = k) ∝ π_k Π_j N(v_j; μ + φ(x_j)ᵀ a_k, σ_n,k²)`,
-//!    `O(l M)` per frame and pattern as one matrix product per chunk of points, a counter-based
+//!    `O(l M)` per frame and pattern by the fused kernel of `field_blocks.rs`, a counter-based
 //!    uniform per frame (the same labels for any thread count).
 //! 3. *Sum* the statistics of the frames that moved into and out of each pattern.
 //! 4. *Split and merge* (`subcluster_moves.rs`), then slice-sample each pattern's length scales
