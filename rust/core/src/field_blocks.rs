@@ -43,7 +43,6 @@ pub struct FieldBlocks {
     /// Field `f`'s coefficients at `f · inner · outer`, in groups of WIDE outer functions: for
     /// each group, for each inner function, the group's WIDE coefficients (zeros for padding).
     w: Vec<f64>,
-    fields: usize,
 }
 
 impl FieldBlocks {
@@ -63,10 +62,8 @@ impl FieldBlocks {
             (true, false) => a[i + mx * o],
         };
         let mut w = Vec::new();
-        let mut count = 0;
         for a in fields {
             debug_assert_eq!(a.len(), mx * my);
-            count += 1;
             for g in (0..padded).step_by(WIDE) {
                 for i in 0..inner {
                     w.extend((g..g + WIDE).map(|o| coef(a, i, o)));
@@ -83,17 +80,16 @@ impl FieldBlocks {
             outer: padded,
             n_outer: outer,
             w,
-            fields: count,
         }
     }
 
     /// The number of fields.
     pub fn len(&self) -> usize {
-        self.fields
+        self.w.len() / (self.inner * self.outer)
     }
 
     pub fn is_empty(&self) -> bool {
-        self.fields == 0
+        self.w.is_empty()
     }
 
     /// For each block of up to eight consecutive points of `xy`, call `each(first, values)` with
@@ -136,7 +132,7 @@ impl FieldBlocks {
         let (n_in, n_out) = (self.inner, self.outer);
         let mut vin = vec![[0.0; LANES]; n_in];
         let mut vout = vec![[0.0; LANES]; n_out];
-        let mut vals = vec![[0.0; LANES]; self.fields];
+        let mut vals = vec![[0.0; LANES]; self.len()];
         let (ax_in, ax_out) = if self.inner_y { (1, 0) } else { (0, 1) };
         for b0 in (0..xy.len()).step_by(LANES) {
             let b1 = (b0 + LANES).min(xy.len());

@@ -29,8 +29,8 @@ pub(super) struct FieldBank {
     /// Field `2k + d`: pattern k's output d.
     blocks: FieldBlocks,
     mean: [f64; 2],
-    /// Per pattern: `1 / σ_n,d²`, and `−½ Σ_d log(2π σ_n,d²)` per point.
-    inv_noise: Vec<[f64; 2]>,
+    /// Per pattern: `½ / σ_n,d²`, and `−½ Σ_d log(2π σ_n,d²)` per point.
+    half_inv: Vec<[f64; 2]>,
     log_norm: Vec<f64>,
 }
 
@@ -47,7 +47,10 @@ impl FieldBank {
             k: weights.len(),
             blocks: FieldBlocks::new(basis, weights.iter().flatten().map(|a| &a[..])),
             mean,
-            inv_noise: noise.iter().map(|n| [1.0 / n[0], 1.0 / n[1]]).collect(),
+            half_inv: noise
+                .iter()
+                .map(|n| [0.5 * (1.0 / n[0]), 0.5 * (1.0 / n[1])])
+                .collect(),
             log_norm: noise
                 .iter()
                 .map(|n| -0.5 * (2.0 * LN_2PI + n[0].ln() + n[1].ln()))
@@ -75,11 +78,6 @@ impl FieldBank {
         for (f, w) in starts.windows(2).enumerate() {
             frame_of.extend(std::iter::repeat_n(f, w[1] - w[0]));
         }
-        let half_inv: Vec<[f64; 2]> = self
-            .inv_noise
-            .iter()
-            .map(|i| [0.5 * i[0], 0.5 * i[1]])
-            .collect();
         self.blocks.for_blocks(xy, &mut |b0, vals| {
             // Per pattern, the block's points' terms as 8-lane arithmetic, then each added to its
             // frame in point order (the same sums as point after point).
@@ -89,7 +87,7 @@ impl FieldBank {
                 r[0][l] = v[b0 + l][0] - self.mean[0];
                 r[1][l] = v[b0 + l][1] - self.mean[1];
             }
-            for (k, h) in half_inv.iter().enumerate() {
+            for (k, h) in self.half_inv.iter().enumerate() {
                 let (fx, fy) = (&vals[2 * k], &vals[2 * k + 1]);
                 let mut ll = [0.0; LANES];
                 for l in 0..LANES {
