@@ -13,14 +13,17 @@ pub struct FrameRef<'a> {
     pub v: &'a [[f64; 2]],
 }
 
-/// The per-pattern length scales `(w_x, w_y)`.
+/// The per-pattern length scales `(w_x, w_y)` in position and `w_h` in the previous heading
+/// (radians; `∞`, the default, is the paper's field over position alone: see `heading`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LengthScales {
     pub wx: f64,
     pub wy: f64,
+    pub wh: f64,
 }
 
 impl LengthScales {
+    /// Position length scales of a field that does not depend on heading.
     pub fn new(wx: f64, wy: f64) -> Result<Self> {
         for (name, w) in [("w_x", wx), ("w_y", wy)] {
             if !(w.is_finite() && w > 0.0) {
@@ -29,7 +32,22 @@ impl LengthScales {
                 )));
             }
         }
-        Ok(Self { wx, wy })
+        Ok(Self {
+            wx,
+            wy,
+            wh: f64::INFINITY,
+        })
+    }
+
+    /// The same position length scales with heading length scale `wh` (positive; `∞` for none).
+    pub fn with_heading(self, wh: f64) -> Result<Self> {
+        if !(wh > 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "the heading length scale w_h must be positive (radians; inf for a field over \
+                 position only), got {wh}"
+            )));
+        }
+        Ok(Self { wh, ..self })
     }
 
     /// `(1 / (2 wx^2), 1 / (2 wy^2))`: the factors the squared distances are scaled by.

@@ -229,7 +229,11 @@ impl Default for Settings {
         Self {
             assignment: Assignment::Gibbs,
             base: GpParams {
-                length_scales: LengthScales { wx: 1.0, wy: 1.0 },
+                length_scales: LengthScales {
+                    wx: 1.0,
+                    wy: 1.0,
+                    wh: f64::INFINITY,
+                },
                 signal_var: [1.0, 1.0],
                 noise_var: [1.0, 1.0],
                 mean: [0.0, 0.0],
@@ -1045,6 +1049,7 @@ impl Sampler {
                         LengthScales {
                             wx: gamma.sample(rng).max(1e-12),
                             wy: gamma.sample(rng).max(1e-12),
+                            wh: f64::INFINITY,
                         }
                     };
                     let noise = self.settings.new_noise(rng);

@@ -1,5 +1,6 @@
 //! Assembly of the anisotropic squared-exponential kernel
-//! `k(p, q) = s * exp(-(px-qx)^2 / (2 wx^2) - (py-qy)^2 / (2 wy^2))`.
+//! `k(p, q) = s * exp(-(px-qx)^2 / (2 wx^2) - (py-qy)^2 / (2 wy^2))`, and of its product with
+//! the periodic kernel over the vehicles' previous headings (`heading`).
 //!
 //! Matrices are column-major `Vec<f64>` buffers so that faer views them without copying and the
 //! sampler can grow them in place. Columns are filled as arguments first, then exponentiated in
@@ -8,6 +9,7 @@
 use rayon::prelude::*;
 
 pub use crate::frame::{LengthScales, Point};
+use crate::heading;
 use crate::vexp::exp_nonpos;
 
 /// Below this many kernel entries, threads cost more than they save.
@@ -67,6 +69,46 @@ pub fn cross(a: &[Point], b: &[Point], ls: LengthScales, scale: f64, parallel: b
     } else {
         for (col, &q) in out.chunks_mut(n).zip(b) {
             fill_column(a, q, ls, scale, col);
+        }
+    }
+    out
+}
+
+/// `scale * R(a, b)` for the field over position and previous heading (`heading`): the squared
+/// exponential times `k_h(ha_i, hb_j)`, with `ha`, `hb` the points' headings (`NaN` where a
+/// vehicle has none). With `ls.wh = ∞` the headings are not read and this is [`cross`], bit for
+/// bit.
+pub fn cross_headed(
+    a: &[Point],
+    ha: &[f64],
+    b: &[Point],
+    hb: &[f64],
+    ls: LengthScales,
+    scale: f64,
+    parallel: bool,
+) -> Vec<f64> {
+    let mut out = cross(a, b, ls, scale, parallel);
+    if !heading::is_headed(ls.wh) || a.is_empty() {
+        return out;
+    }
+    assert!(
+        ha.len() == a.len() && hb.len() == b.len(),
+        "one heading per point"
+    );
+    let k = heading::HeadingKernel::new(ls.wh);
+    let apply = |col: &mut [f64], h: f64| {
+        for (c, &g) in col.iter_mut().zip(ha) {
+            *c *= k.eval(g, h);
+        }
+    };
+    let n = a.len();
+    if parallel && n * b.len() >= PAR_MIN_ENTRIES {
+        out.par_chunks_mut(n)
+            .zip(hb.par_iter())
+            .for_each(|(col, &h)| apply(col, h));
+    } else {
+        for (col, &h) in out.chunks_mut(n).zip(hb) {
+            apply(col, h);
         }
     }
     out

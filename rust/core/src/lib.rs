@@ -13,7 +13,8 @@
 // Module layers, bottom to top; a module uses only modules of a lower layer (checked by
 // tests/test_layout_rust.py, which fails on any circle):
 //   1. error, special, vexp, rng, slice        (no crate imports but error)
-//   2. frame                                   (Point, LengthScales, FrameRef)
+//   2. frame, heading                          (Point, LengthScales, FrameRef; the periodic
+//                                              kernel over the previous heading)
 //   3. linalg, small, factor, kernel           (dense algebra, the squared-exponential kernel)
 //   4. gp                                      (a pattern's GP parameters)
 //   5. basis, hsgp_sums, hsgp                  (the reduced-rank basis, its sums, its patterns)
@@ -29,6 +30,7 @@ pub mod field_blocks;
 pub mod frame;
 pub mod free_speed;
 pub mod gp;
+pub mod heading;
 pub mod kernel;
 pub mod linalg;
 pub mod motion;

@@ -219,7 +219,11 @@ impl Pattern {
     pub fn empty() -> Self {
         Self {
             params: GpParams {
-                length_scales: LengthScales { wx: 1.0, wy: 1.0 },
+                length_scales: LengthScales {
+                    wx: 1.0,
+                    wy: 1.0,
+                    wh: f64::INFINITY,
+                },
                 signal_var: [1.0; 2],
                 noise_var: [1.0; 2],
                 mean: [0.0; 2],

@@ -184,6 +184,7 @@ impl Settings {
             LengthScales {
                 wx: g.sample(rng).max(1e-12),
                 wy: g.sample(rng).max(1e-12),
+                wh: f64::INFINITY,
             }
         };
         let noise = self.new_noise(rng);
@@ -214,6 +215,7 @@ impl Settings {
                 LengthScales {
                     wx: jitter(parent.length_scales.wx, LOCAL_LS_SD),
                     wy: jitter(parent.length_scales.wy, LOCAL_LS_SD),
+                    ..parent.length_scales
                 }
             } else {
                 self.base.length_scales

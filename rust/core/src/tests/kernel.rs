@@ -41,3 +41,35 @@ fn rejects_bad_length_scales() {
     assert!(LengthScales::new(1.0, -2.0).is_err());
     assert!(LengthScales::new(f64::NAN, 1.0).is_err());
 }
+
+#[test]
+fn headed_cross_is_the_product_kernel_and_blind_without_a_heading_scale() {
+    let a: Vec<Point> = (0..40).map(|i| [i as f64 * 0.7, (i % 5) as f64]).collect();
+    let b: Vec<Point> = (0..30).map(|i| [i as f64 * 0.9 - 3.0, (i % 3) as f64]).collect();
+    let ha: Vec<f64> = (0..40)
+        .map(|i| if i % 7 == 0 { f64::NAN } else { i as f64 * 0.37 })
+        .collect();
+    let hb: Vec<f64> = (0..30)
+        .map(|i| if i % 11 == 3 { f64::NAN } else { -(i as f64) * 0.21 })
+        .collect();
+    let blind = LengthScales::new(2.0, 1.5).unwrap();
+    let plain = cross(&a, &b, blind, 1.3, false);
+    assert_eq!(cross_headed(&a, &ha, &b, &hb, blind, 1.3, false), plain);
+    let ls = blind.with_heading(0.8).unwrap();
+    let q0 = crate::heading::spectrum(0.8, 0)[0];
+    for parallel in [false, true] {
+        let k = cross_headed(&a, &ha, &b, &hb, ls, 1.3, parallel);
+        for j in 0..b.len() {
+            for i in 0..a.len() {
+                let d = ha[i] - hb[j];
+                let per = if d.is_nan() {
+                    q0
+                } else {
+                    (-2.0 * (d / 2.0).sin().powi(2) / 0.64).exp()
+                };
+                let want = plain[j * a.len() + i] * per;
+                assert!((k[j * a.len() + i] - want).abs() < 1e-14, "{i} {j}");
+            }
+        }
+    }
+}

@@ -266,7 +266,11 @@ fn length_scales_integrated(data: &Data, st: &Settings, members: &[usize]) -> f6
                 centre - half + step * t as f64,
             );
             let (wx, wy) = (ux.exp(), uy.exp());
-            let p = st.base.with_length_scales(LengthScales { wx, wy });
+            let p = st.base.with_length_scales(LengthScales {
+                wx,
+                wy,
+                wh: f64::INFINITY,
+            });
             // the Gamma densities of w times w (the grid is on log w)
             let prior = crate::special::ln_gamma_pdf(wx, a, b)
                 + crate::special::ln_gamma_pdf(wy, a, b)

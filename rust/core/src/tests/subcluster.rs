@@ -144,7 +144,11 @@ fn ls_integrated(data: &Data, st: &Settings, members: &[usize]) -> f64 {
     for &ux in &grid {
         for &uy in &grid {
             let (wx, wy) = (ux.exp(), uy.exp());
-            let p = st.base.with_length_scales(LengthScales { wx, wy });
+            let p = st.base.with_length_scales(LengthScales {
+                wx,
+                wy,
+                wh: f64::INFINITY,
+            });
             let lm = st.likelihood.pattern(p, &m).unwrap().log_marginal();
             lp.push(ln_gamma_pdf(wx, a, b) + ln_gamma_pdf(wy, a, b) + ux + uy + lm);
         }
