@@ -79,7 +79,7 @@ fn bench(c: &mut Criterion) {
     g.sample_size(10);
     for (name, full) in [("pass", false), ("sweep", true)] {
         let mut s = SubclusterSampler::new(Arc::clone(&data), settings(full)).unwrap();
-        let ls = [LengthScales { wx: 8.0, wy: 8.0 }; 3];
+        let ls = [LengthScales::new(8.0, 8.0).unwrap(); 3];
         s.set_state(&labels, &ls, None, 1.0).unwrap();
         s.sweep(&|| false).unwrap();
         g.bench_function(name, |b| b.iter(|| black_box(s.sweep(&|| false).unwrap())));

@@ -45,12 +45,26 @@ fn rejects_bad_length_scales() {
 #[test]
 fn headed_cross_is_the_product_kernel_and_blind_without_a_heading_scale() {
     let a: Vec<Point> = (0..40).map(|i| [i as f64 * 0.7, (i % 5) as f64]).collect();
-    let b: Vec<Point> = (0..30).map(|i| [i as f64 * 0.9 - 3.0, (i % 3) as f64]).collect();
+    let b: Vec<Point> = (0..30)
+        .map(|i| [i as f64 * 0.9 - 3.0, (i % 3) as f64])
+        .collect();
     let ha: Vec<f64> = (0..40)
-        .map(|i| if i % 7 == 0 { f64::NAN } else { i as f64 * 0.37 })
+        .map(|i| {
+            if i % 7 == 0 {
+                f64::NAN
+            } else {
+                i as f64 * 0.37
+            }
+        })
         .collect();
     let hb: Vec<f64> = (0..30)
-        .map(|i| if i % 11 == 3 { f64::NAN } else { -(i as f64) * 0.21 })
+        .map(|i| {
+            if i % 11 == 3 {
+                f64::NAN
+            } else {
+                -(i as f64) * 0.21
+            }
+        })
         .collect();
     let blind = LengthScales::new(2.0, 1.5).unwrap();
     let plain = cross(&a, &b, blind, 1.3, false);
