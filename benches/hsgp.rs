@@ -45,7 +45,7 @@ fn frames(count: usize, l: usize) -> Vec<(Vec<Point>, Vec<[f64; 2]>)> {
 
 fn bench(c: &mut Criterion) {
     let fs = frames(1001, 15);
-    let refs: Vec<FrameRef> = fs.iter().map(|(xy, v)| FrameRef { xy, v }).collect();
+    let refs: Vec<FrameRef> = fs.iter().map(|(xy, v)| FrameRef::new(xy, v)).collect();
     let members: Vec<(usize, FrameRef)> = (0..1000).map(|i| (i, refs[i])).collect();
     let p = GpParams::new((10.0, 10.0), (1.0, 30.0), (1.0, 1.0), (0.5, 38.0)).unwrap();
     let mut score = c.benchmark_group("hsgp_score");

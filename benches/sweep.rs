@@ -57,11 +57,11 @@ fn bench(c: &mut Criterion) {
         let members: Vec<(usize, FrameRef)> = train
             .iter()
             .enumerate()
-            .map(|(i, (xy, v))| (i, FrameRef { xy, v }))
+            .map(|(i, (xy, v))| (i, FrameRef::new(xy, v)))
             .collect();
         let pattern = Pattern::new(params(), &members).unwrap();
         let test = frames(32, l, 2);
-        let refs: Vec<FrameRef> = test.iter().map(|(xy, v)| FrameRef { xy, v }).collect();
+        let refs: Vec<FrameRef> = test.iter().map(|(xy, v)| FrameRef::new(xy, v)).collect();
         let n = pattern.n_points();
         g.throughput(Throughput::Elements(
             (2 * 32 * (n * n * l + n * l * l)) as u64,

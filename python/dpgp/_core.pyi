@@ -46,13 +46,24 @@ LENGTH_SCALE_MEAN_RANGE: tuple[float, float]
 _ParamTuple = tuple[float, float, float, float, float, float, float, float]
 
 def check_params(p: _ParamTuple) -> None: ...
-def log_marginal_likelihood(xy: NDArray[np.float64], v: NDArray[np.float64], p: _ParamTuple) -> float: ...
+
+# Headings (radians, NaN: unknown) are optional; wh is the heading length scale (inf: position only).
+def log_marginal_likelihood(
+    xy: NDArray[np.float64],
+    v: NDArray[np.float64],
+    p: _ParamTuple,
+    h: NDArray[np.float64] | None = None,
+    wh: float = ...,
+) -> float: ...
 def log_predictive(
     train_xy: NDArray[np.float64],
     train_v: NDArray[np.float64],
     test_xy: NDArray[np.float64],
     test_v: NDArray[np.float64],
     p: _ParamTuple,
+    train_h: NDArray[np.float64] | None = None,
+    test_h: NDArray[np.float64] | None = None,
+    wh: float = ...,
 ) -> float: ...
 def log_predictive_frames(
     train_xy: NDArray[np.float64],
@@ -63,7 +74,13 @@ def log_predictive_frames(
     p: _ParamTuple,
 ) -> NDArray[np.float64]: ...
 def posterior(
-    train_xy: NDArray[np.float64], train_v: NDArray[np.float64], query_xy: NDArray[np.float64], p: _ParamTuple
+    train_xy: NDArray[np.float64],
+    train_v: NDArray[np.float64],
+    query_xy: NDArray[np.float64],
+    p: _ParamTuple,
+    train_h: NDArray[np.float64] | None = None,
+    query_h: NDArray[np.float64] | None = None,
+    wh: float = ...,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
 
 # Rollouts (rust/py/src/simulate.rs). Each returns (positions (R, 2), velocities (R, 2),
@@ -142,7 +159,13 @@ def hsgp_basis(
     n_basis: tuple[int, int] | None = None,
 ) -> _BasisTuple: ...
 def hsgp_log_marginal_likelihood(
-    xy: NDArray[np.float64], v: NDArray[np.float64], p: _ParamTuple, b: _BasisTuple
+    xy: NDArray[np.float64],
+    v: NDArray[np.float64],
+    p: _ParamTuple,
+    b: _BasisTuple,
+    h: NDArray[np.float64] | None = None,
+    wh: float = ...,
+    harmonics: int = 0,
 ) -> float: ...
 def hsgp_log_predictive(
     train_xy: NDArray[np.float64],
@@ -151,6 +174,10 @@ def hsgp_log_predictive(
     test_v: NDArray[np.float64],
     p: _ParamTuple,
     b: _BasisTuple,
+    train_h: NDArray[np.float64] | None = None,
+    test_h: NDArray[np.float64] | None = None,
+    wh: float = ...,
+    harmonics: int = 0,
 ) -> float: ...
 def hsgp_posterior(
     train_xy: NDArray[np.float64],
@@ -158,6 +185,10 @@ def hsgp_posterior(
     query_xy: NDArray[np.float64],
     p: _ParamTuple,
     b: _BasisTuple,
+    train_h: NDArray[np.float64] | None = None,
+    query_h: NDArray[np.float64] | None = None,
+    wh: float = ...,
+    harmonics: int = 0,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
 
 class _SamplerSettings(TypedDict):

@@ -4,6 +4,11 @@ A motion pattern's velocity field has two independent outputs ``vx`` and ``vy``;
 with constant mean ``mean[η]`` and covariance ``signal_var[η] * R + noise_var[η] * I``, where
 ``R`` is the anisotropic squared-exponential correlation with ``length_scales = (w_x, w_y)``.
 These functions are what the sampler evaluates millions of times; they run in Rust.
+
+A field over position and the vehicle's previous heading ``h`` (radians) multiplies ``R`` by the
+periodic kernel ``exp(-2 sin²((h - h') / 2) / w_h²)``, ``w_h = GPParams.heading_scale``; pass each
+point's heading (``NaN`` where a vehicle has no previous step: such a point observes the field
+averaged over heading). ``heading_scale = inf``, the default, is the paper's field over position.
 """
 
 from __future__ import annotations
@@ -41,8 +46,16 @@ class GPParams:
     signal_var: tuple[float, float] = (1.0, 1.0)
     noise_var: tuple[float, float] = (1.0, 1.0)
     mean: tuple[float, float] = (0.0, 0.0)
+    #: ``w_h``, the length scale in the previous heading (radians); ``inf``: position only.
+    heading_scale: float = float("inf")
 
     def __post_init__(self) -> None:
+        wh = float(as_float_array("heading_scale", self.heading_scale))
+        if not wh > 0:
+            raise InvalidInputError(
+                f"heading_scale must be positive (radians; inf for a field over position only), got {wh}"
+            )
+        object.__setattr__(self, "heading_scale", wh)
         object.__setattr__(self, "length_scales", _pair("length_scales", self.length_scales))
         object.__setattr__(self, "signal_var", _pair("signal_var", self.signal_var))
         object.__setattr__(self, "noise_var", _pair("noise_var", self.noise_var))
@@ -77,16 +90,40 @@ def check_scales(v: np.ndarray, params: GPParams, what: str = "v") -> None:
             )
 
 
-def log_marginal_likelihood(xy: object, v: object, params: GPParams) -> float:
-    """``log p(v | xy)`` summed over both outputs; ``xy`` and ``v`` have shape ``(n, 2)``.
-    Velocities too far from the mean for a finite log density raise :class:`~dpgp.InvalidInputError`
-    (:func:`check_scales`)."""
+def as_headings(name: str, h: object, n: int) -> np.ndarray | None:
+    """``None``, or one heading per point as contiguous float64 (``NaN``: unknown; an infinite
+    heading is an :class:`~dpgp.InvalidInputError`, a wrong length a :class:`~dpgp.ShapeError`)."""
+    if h is None:
+        return None
+    arr = np.ascontiguousarray(as_float_array(name, h), dtype=np.float64)
+    if arr.shape != (n,):
+        raise ShapeError(f"{name} must hold one heading per point, shape ({n},), got {arr.shape}")
+    if np.isinf(arr).any():
+        raise InvalidInputError(
+            f"{name} holds an infinite heading; give radians, or NaN where a vehicle has no previous step"
+        )
+    return arr
+
+
+def log_marginal_likelihood(xy: object, v: object, params: GPParams, h: object = None) -> float:
+    """``log p(v | xy, h)`` summed over both outputs; ``xy`` and ``v`` have shape ``(n, 2)``, ``h``
+    (optional) the previous headings, shape ``(n,)``. Velocities too far from the mean for a
+    finite log density raise :class:`~dpgp.InvalidInputError` (:func:`check_scales`)."""
     v = as_pairs("v", v)
     check_scales(v, params, "v")
-    return _core.log_marginal_likelihood(as_pairs("xy", xy), v, params.as_tuple())
+    xy = as_pairs("xy", xy)
+    return _core.log_marginal_likelihood(xy, v, params.as_tuple(), as_headings("h", h, len(xy)), params.heading_scale)
 
 
-def log_predictive(train_xy: object, train_v: object, test_xy: object, test_v: object, params: GPParams) -> float:
+def log_predictive(
+    train_xy: object,
+    train_v: object,
+    test_xy: object,
+    test_v: object,
+    params: GPParams,
+    train_h: object = None,
+    test_h: object = None,
+) -> float:
     """Joint log density of the test velocities given the training data (both outputs).
 
     Equals ``log_marginal_likelihood(train ∪ test) - log_marginal_likelihood(train)``: the score
@@ -95,9 +132,12 @@ def log_predictive(train_xy: object, train_v: object, test_xy: object, test_v: o
     train_v, test_v = as_pairs("train_v", train_v), as_pairs("test_v", test_v)
     check_scales(train_v, params, "train_v")
     check_scales(test_v, params, "test_v")
+    train_xy, test_xy = as_pairs("train_xy", train_xy), as_pairs("test_xy", test_xy)
     return _core.log_predictive(
-        as_pairs("train_xy", train_xy), train_v, as_pairs("test_xy", test_xy), test_v, params.as_tuple()
-    )
+        train_xy, train_v, test_xy, test_v, params.as_tuple(),
+        as_headings("train_h", train_h, len(train_xy)), as_headings("test_h", test_h, len(test_xy)),
+        params.heading_scale,
+    )  # fmt: skip
 
 
 def log_predictive_frames(
@@ -116,15 +156,28 @@ def log_predictive_frames(
     )
 
 
-def posterior(train_xy: object, train_v: object, query_xy: object, params: GPParams) -> tuple[np.ndarray, np.ndarray]:
-    """Posterior mean and variance of the noise-free velocity field at ``query_xy``.
+def posterior(
+    train_xy: object,
+    train_v: object,
+    query_xy: object,
+    params: GPParams,
+    train_h: object = None,
+    query_h: object = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Posterior mean and variance of the noise-free velocity field at ``query_xy`` (and the
+    previous headings ``query_h``, for a field over heading).
 
     Returns ``(mean, var)``, each of shape ``(m, 2)`` (columns ``vx``, ``vy``). Add
     ``params.noise_var`` to ``var`` for the variance of a new observed velocity.
     """
     train_v = as_pairs("train_v", train_v)
     check_scales(train_v, params, "train_v")
-    return _core.posterior(as_pairs("train_xy", train_xy), train_v, as_pairs("query_xy", query_xy), params.as_tuple())
+    train_xy, query_xy = as_pairs("train_xy", train_xy), as_pairs("query_xy", query_xy)
+    return _core.posterior(
+        train_xy, train_v, query_xy, params.as_tuple(),
+        as_headings("train_h", train_h, len(train_xy)), as_headings("query_h", query_h, len(query_xy)),
+        params.heading_scale,
+    )  # fmt: skip
 
 
 __all__ = [

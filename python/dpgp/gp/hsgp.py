@@ -17,6 +17,11 @@ within about two length scales of it) and ``m = ceil(2 L / w_lo)``, so that the 
 frequency is ``π / w_lo``, where the spectral density of ``w_lo`` has fallen to ``e^{−π²/2}``
 (0.7%) of its peak and that of typical length scales to far less. At most 4096 basis functions
 (both counts shrink in proportion past that).
+
+**Heading.** For a field over position and previous heading (``GPParams.heading_scale`` finite),
+a basis with ``harmonics = J`` multiplies each position function by ``1, cos h, sin h, …,
+cos Jh, sin Jh`` with prior weights ``q_0² = I_0(z) e^{-z}``, ``q_j² = 2 I_j(z) e^{-z}``,
+``z = w_h⁻²``: the periodic kernel's Fourier series, truncated (``M = (2J + 1) m_x m_y``).
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ import numpy as np
 from .. import _core
 from .._arrays import as_pairs
 from ..exceptions import InvalidInputError
-from .exact import GPParams, _pair
+from .exact import GPParams, _pair, as_headings
 
 #: Most basis functions (M x M matrices of 8-byte floats: 128 MiB each at the cap).
 MAX_BASIS = 4096
@@ -42,17 +47,22 @@ class Basis:
     center: tuple[float, float]
     half_widths: tuple[float, float]
     counts: tuple[int, int]
+    #: Heading harmonics ``J`` (0: a field over position only).
+    harmonics: int = 0
 
     @property
     def size(self) -> int:
-        """``M = m_x m_y``."""
-        return self.counts[0] * self.counts[1]
+        """``M = (2J + 1) m_x m_y``."""
+        return self.counts[0] * self.counts[1] * (2 * self.harmonics + 1)
 
     def as_tuple(self) -> tuple[tuple[float, float], tuple[float, float], tuple[int, int]]:
         return (tuple(self.center), tuple(self.half_widths), tuple(self.counts))  # type: ignore[return-value]
 
     def to_dict(self) -> dict:
-        return {"center": list(self.center), "half_widths": list(self.half_widths), "counts": list(self.counts)}
+        d = {"center": list(self.center), "half_widths": list(self.half_widths), "counts": list(self.counts)}
+        if self.harmonics:
+            d["harmonics"] = self.harmonics
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> Basis:
@@ -60,7 +70,10 @@ class Basis:
         half = tuple(float(x) for x in d["half_widths"])
         if len(center) != 2 or len(half) != 2 or not (np.all(np.isfinite(center)) and all(h > 0 for h in half)):
             raise InvalidInputError(f"a basis needs a finite centre and two positive half-widths, got {d!r}")
-        return cls(center, half, _basis_counts(tuple(d["counts"])))
+        harmonics = d.get("harmonics", 0)
+        if not isinstance(harmonics, (int, np.integer)) or isinstance(harmonics, bool) or harmonics < 0:
+            raise InvalidInputError(f"a basis's heading harmonics must be a non-negative integer, got {harmonics!r}")
+        return cls(center, half, _basis_counts(tuple(d["counts"])), int(harmonics))
 
 
 def _basis_counts(n_basis: Any) -> tuple[int, int]:
@@ -90,29 +103,50 @@ def basis_for(
     return Basis(tuple(c), tuple(h), tuple(m))  # type: ignore[arg-type]
 
 
-def log_marginal_likelihood(xy: object, v: object, params: GPParams, basis: Basis) -> float:
-    """``log p(v | xy)`` under the reduced-rank GP, summed over both outputs."""
-    return _core.hsgp_log_marginal_likelihood(as_pairs("xy", xy), as_pairs("v", v), params.as_tuple(), basis.as_tuple())
+def log_marginal_likelihood(xy: object, v: object, params: GPParams, basis: Basis, h: object = None) -> float:
+    """``log p(v | xy, h)`` under the reduced-rank GP, summed over both outputs."""
+    xy = as_pairs("xy", xy)
+    return _core.hsgp_log_marginal_likelihood(
+        xy, as_pairs("v", v), params.as_tuple(), basis.as_tuple(),
+        as_headings("h", h, len(xy)), params.heading_scale, basis.harmonics,
+    )  # fmt: skip
 
 
 def log_predictive(
-    train_xy: object, train_v: object, test_xy: object, test_v: object, params: GPParams, basis: Basis
+    train_xy: object,
+    train_v: object,
+    test_xy: object,
+    test_v: object,
+    params: GPParams,
+    basis: Basis,
+    train_h: object = None,
+    test_h: object = None,
 ) -> float:
     """Joint log density of the test velocities given the training data, reduced-rank GP."""
+    train_xy, test_xy = as_pairs("train_xy", train_xy), as_pairs("test_xy", test_xy)
     return _core.hsgp_log_predictive(
-        as_pairs("train_xy", train_xy), as_pairs("train_v", train_v), as_pairs("test_xy", test_xy),
-        as_pairs("test_v", test_v), params.as_tuple(), basis.as_tuple(),
+        train_xy, as_pairs("train_v", train_v), test_xy, as_pairs("test_v", test_v), params.as_tuple(),
+        basis.as_tuple(), as_headings("train_h", train_h, len(train_xy)),
+        as_headings("test_h", test_h, len(test_xy)), params.heading_scale, basis.harmonics,
     )  # fmt: skip
 
 
 def posterior(
-    train_xy: object, train_v: object, query_xy: object, params: GPParams, basis: Basis
+    train_xy: object,
+    train_v: object,
+    query_xy: object,
+    params: GPParams,
+    basis: Basis,
+    train_h: object = None,
+    query_h: object = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Posterior mean and latent variance ``(m, 2)`` each at ``query_xy`` (outside the box: the
     mean and the prior variance ``signal_var``)."""
+    train_xy, query_xy = as_pairs("train_xy", train_xy), as_pairs("query_xy", query_xy)
     return _core.hsgp_posterior(
-        as_pairs("train_xy", train_xy), as_pairs("train_v", train_v), as_pairs("query_xy", query_xy),
-        params.as_tuple(), basis.as_tuple(),
+        train_xy, as_pairs("train_v", train_v), query_xy, params.as_tuple(), basis.as_tuple(),
+        as_headings("train_h", train_h, len(train_xy)), as_headings("query_h", query_h, len(query_xy)),
+        params.heading_scale, basis.harmonics,
     )  # fmt: skip
 
 

@@ -13,17 +13,21 @@ use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 
 use crate::error::{Error, Result};
-use crate::frame::{LengthScales, Point};
+use crate::frame::{Inputs, LengthScales, Point};
+use crate::heading;
 
 /// Most basis functions a fit may use (M x M matrices of 8 bytes: 128 MiB each at the cap).
 pub const MAX_BASIS: usize = 4096;
 
-/// The basis: a box per axis and the number of eigenfunctions along each.
+/// The basis: a box per axis and the number of eigenfunctions along each; for a field over
+/// position and heading, also the harmonics in heading (`heading`): each position function
+/// times `1, cos h, sin h, …, cos Jh, sin Jh`, heading-major (index `c M_p + j + m_x k`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Basis {
     center: [f64; 2],
     half: [f64; 2],
     m: [usize; 2],
+    harmonics: usize,
 }
 
 impl Basis {
@@ -39,7 +43,41 @@ impl Basis {
                 "n_basis must be two positive counts with a product of at most {MAX_BASIS}, got {m:?}"
             )));
         }
-        Ok(Self { center, half, m })
+        Ok(Self {
+            center,
+            half,
+            m,
+            harmonics: 0,
+        })
+    }
+
+    /// The same position basis times `2 harmonics + 1` functions of heading (0: position only).
+    pub fn with_harmonics(self, harmonics: usize) -> Result<Self> {
+        let total = (self.m[0] * self.m[1]).saturating_mul(2 * harmonics + 1);
+        if total > MAX_BASIS {
+            return Err(Error::InvalidInput(format!(
+                "{} position functions times {} heading functions make {total} basis functions, \
+                 more than {MAX_BASIS}: use fewer heading harmonics or a smaller n_basis",
+                self.m[0] * self.m[1],
+                2 * harmonics + 1
+            )));
+        }
+        Ok(Self { harmonics, ..self })
+    }
+
+    /// Heading harmonics `J` (0: the field does not depend on heading).
+    pub fn harmonics(&self) -> usize {
+        self.harmonics
+    }
+
+    /// Position functions `m_x m_y`.
+    pub fn positions_len(&self) -> usize {
+        self.m[0] * self.m[1]
+    }
+
+    /// Whether the basis has heading functions and `ls` a finite heading length scale.
+    fn headed(&self, ls: LengthScales) -> bool {
+        self.harmonics > 0 && heading::is_headed(ls.wh)
     }
 
     /// The documented sizing rule for training positions `xy`. Per axis, with `S` the data's
@@ -115,7 +153,7 @@ impl Basis {
     }
 
     pub fn len(&self) -> usize {
-        self.m[0] * self.m[1]
+        self.m[0] * self.m[1] * (2 * self.harmonics + 1)
     }
 
     pub fn is_empty(&self) -> bool {
@@ -158,19 +196,36 @@ impl Basis {
     }
 
     /// `Φᵀ` of the points: column-major `M x n`, one column of basis values per point
-    /// (index `j + m_x k` for `φ_j(x) φ_k(y)`).
+    /// (index `j + m_x k` for `φ_j(x) φ_k(y)`; with heading harmonics, that block once per
+    /// heading function, the points' headings unknown: see [`Basis::features_of`]).
     pub fn features(&self, xy: &[Point]) -> Vec<f64> {
+        self.features_of(Inputs::positions(xy))
+    }
+
+    /// `Φᵀ` at positions and previous headings (`c M_p + j + m_x k` for `ψ_c(h) φ_j(x) φ_k(y)`).
+    pub fn features_of(&self, pts: Inputs<'_>) -> Vec<f64> {
         let (mx, my) = (self.m[0], self.m[1]);
-        let mm = mx * my;
-        let mut out = vec![0.0; mm * xy.len()];
+        let mp = mx * my;
+        let mm = self.len();
+        let mut out = vec![0.0; mm * pts.len()];
         let mut fx = vec![0.0; mx];
         let mut fy = vec![0.0; my];
-        for (col, p) in out.chunks_mut(mm).zip(xy) {
+        let mut psi = vec![0.0; 2 * self.harmonics + 1];
+        for (i, (col, p)) in out.chunks_mut(mm).zip(pts.xy).enumerate() {
             self.eval_axis(0, p[0], &mut fx);
             self.eval_axis(1, p[1], &mut fy);
             for (k, &y) in fy.iter().enumerate() {
                 for (c, &x) in col[k * mx..(k + 1) * mx].iter_mut().zip(&fx) {
                     *c = x * y;
+                }
+            }
+            if self.harmonics > 0 {
+                heading::features(pts.heading(i), &mut psi);
+                let (pos, rest) = col.split_at_mut(mp);
+                for (block, &w) in rest.chunks_mut(mp).zip(&psi[1..]) {
+                    for (b, &x) in block.iter_mut().zip(pos.iter()) {
+                        *b = w * x;
+                    }
                 }
             }
         }
@@ -190,11 +245,23 @@ impl Basis {
         })
     }
 
-    /// `√s_jk` for every basis function, in feature order.
+    /// `√s_jk` for every basis function, in feature order (times `√q_c` of the heading function
+    /// `c` with heading harmonics: a heading length scale of `∞` leaves only the constant).
     pub fn sqrt_spectral(&self, ls: LengthScales) -> Vec<f64> {
         let [sx, sy] = self.axis_spectra(ls);
-        sy.iter()
+        let pos: Vec<f64> = sy
+            .iter()
             .flat_map(|&y| sx.iter().map(move |&x| (x * y).sqrt()))
+            .collect();
+        if self.harmonics == 0 {
+            return pos;
+        }
+        let q = heading::spectrum(ls.wh, self.harmonics);
+        (0..2 * self.harmonics + 1)
+            .flat_map(|c| {
+                let w = q[heading::harmonic_of(c)].sqrt();
+                pos.iter().map(move |x| x * w)
+            })
             .collect()
     }
 
@@ -256,13 +323,48 @@ impl Basis {
         out
     }
 
-    /// [`Basis::correlation_between`] of two point sets.
-    pub fn correlation(&self, a: &[Point], b: &[Point], ls: LengthScales, scale: f64) -> Vec<f64> {
-        let fa = self.axis_features(a);
-        if std::ptr::eq(a, b) {
-            return self.correlation_between(&fa, &fa, ls, scale);
+    /// `scale · k̃(a, b) / σ²` of two point sets: [`Basis::correlation_between`] of their
+    /// positions, times [`Basis::heading_factor`] of their headings.
+    pub fn correlation(
+        &self,
+        a: Inputs<'_>,
+        b: Inputs<'_>,
+        ls: LengthScales,
+        scale: f64,
+    ) -> Vec<f64> {
+        let fa = self.axis_features(a.xy);
+        let mut out = if std::ptr::eq(a.xy, b.xy) {
+            self.correlation_between(&fa, &fa, ls, scale)
+        } else {
+            self.correlation_between(&fa, &self.axis_features(b.xy), ls, scale)
+        };
+        self.heading_factor(a, b, ls, &mut out);
+        out
+    }
+
+    /// Multiply a column-major `|a| x |b|` correlation of positions by the truncated periodic
+    /// kernel of the points' headings, `Σ_{j ≤ J} q_j² cos(j (h_a − h_b))` (`q_0²` where either
+    /// is unknown): the reduced-rank kernel is separable in position and heading. Nothing to do
+    /// without heading harmonics or with `w_h = ∞`.
+    pub fn heading_factor(&self, a: Inputs<'_>, b: Inputs<'_>, ls: LengthScales, out: &mut [f64]) {
+        if !self.headed(ls) || a.is_empty() {
+            return;
         }
-        self.correlation_between(&fa, &self.axis_features(b), ls, scale)
+        let q = heading::spectrum(ls.wh, self.harmonics);
+        for (j, col) in out.chunks_mut(a.len()).enumerate() {
+            let hb = b.heading(j);
+            for (i, c) in col.iter_mut().enumerate() {
+                let d = a.heading(i) - hb;
+                *c *= if d.is_nan() {
+                    q[0]
+                } else {
+                    q.iter()
+                        .enumerate()
+                        .map(|(k, w)| w * (k as f64 * d).cos())
+                        .sum::<f64>()
+                };
+            }
+        }
     }
 }
 

@@ -4,9 +4,10 @@
 
 use std::sync::Arc;
 
-use crate::frame::{LengthScales, Point};
+use crate::frame::{Inputs, LengthScales, Point};
+use crate::heading::HeadingKernel;
 use crate::hsgp::Basis;
-use crate::kernel::cross;
+use crate::kernel::cross_headed;
 
 /// The correlation function of a pattern's GP: the squared exponential, or its reduced-rank
 /// (HSGP) approximation `k̃` on a fixed basis, assembled densely for small patterns.
@@ -20,7 +21,7 @@ pub enum Correlation {
 impl Correlation {
     /// `scale * r(a, b)`, column-major `a.len() x b.len()` (single-threaded: callers run inside
     /// parallel loops).
-    pub fn cross(&self, a: &[Point], b: &[Point], ls: LengthScales, scale: f64) -> Vec<f64> {
+    pub fn cross(&self, a: Inputs<'_>, b: Inputs<'_>, ls: LengthScales, scale: f64) -> Vec<f64> {
         self.cross_par(a, b, ls, scale, false)
     }
 
@@ -29,27 +30,27 @@ impl Correlation {
     /// same either way.
     pub fn cross_par(
         &self,
-        a: &[Point],
-        b: &[Point],
+        a: Inputs<'_>,
+        b: Inputs<'_>,
         ls: LengthScales,
         scale: f64,
         parallel: bool,
     ) -> Vec<f64> {
         match self {
-            Self::SquaredExp => cross(a, b, ls, scale, parallel),
+            Self::SquaredExp => cross_headed(a, b, ls, scale, parallel),
             Self::Reduced(basis) => basis.correlation(a, b, ls, scale),
         }
     }
 
     /// `scale * r(a, a) + noise * I`.
-    pub fn gram(&self, a: &[Point], ls: LengthScales, scale: f64, noise: f64) -> Vec<f64> {
+    pub fn gram(&self, a: Inputs<'_>, ls: LengthScales, scale: f64, noise: f64) -> Vec<f64> {
         self.gram_par(a, ls, scale, noise, false)
     }
 
     /// [`Correlation::gram`], parallel as [`Correlation::cross_par`].
     pub fn gram_par(
         &self,
-        a: &[Point],
+        a: Inputs<'_>,
         ls: LengthScales,
         scale: f64,
         noise: f64,
@@ -72,13 +73,22 @@ impl Correlation {
     }
 
     /// `r(p, p)` for each point.
-    pub fn diag(&self, q: &[Point], ls: LengthScales) -> Vec<f64> {
+    pub fn diag(&self, q: Inputs<'_>, ls: LengthScales) -> Vec<f64> {
         match self {
-            Self::SquaredExp => vec![1.0; q.len()],
-            Self::Reduced(basis) => q
-                .iter()
-                .map(|p| {
-                    basis.correlation(std::slice::from_ref(p), std::slice::from_ref(p), ls, 1.0)[0]
+            Self::SquaredExp => {
+                let k = HeadingKernel::new(ls.wh);
+                (0..q.len())
+                    .map(|i| k.eval(q.heading(i), q.heading(i)))
+                    .collect()
+            }
+            Self::Reduced(basis) => (0..q.len())
+                .map(|i| {
+                    let h = [q.heading(i)];
+                    let one = Inputs {
+                        xy: std::slice::from_ref(&q.xy[i]),
+                        h: &h,
+                    };
+                    basis.correlation(one, one, ls, 1.0)[0]
                 })
                 .collect(),
         }

@@ -6,11 +6,77 @@ use crate::error::{Error, Result};
 /// A position in the plane.
 pub type Point = [f64; 2];
 
-/// A frame's vehicles: positions and velocities, row for row.
+/// A frame's vehicles: positions and velocities, row for row, and each vehicle's previous
+/// heading (`NaN` where it has none) when the fit's fields depend on heading, else empty.
 #[derive(Clone, Copy, Debug)]
 pub struct FrameRef<'a> {
     pub xy: &'a [Point],
     pub v: &'a [[f64; 2]],
+    pub h: &'a [f64],
+}
+
+impl<'a> FrameRef<'a> {
+    /// A frame without headings.
+    pub fn new(xy: &'a [Point], v: &'a [[f64; 2]]) -> Self {
+        Self { xy, v, h: &[] }
+    }
+
+    pub fn inputs(&self) -> Inputs<'a> {
+        Inputs {
+            xy: self.xy,
+            h: self.h,
+        }
+    }
+}
+
+/// The inputs of a field at some points: positions and previous headings (`NaN`: unknown; an
+/// empty `h`: every heading unknown, which a field over position alone never reads).
+#[derive(Clone, Copy, Debug)]
+pub struct Inputs<'a> {
+    pub xy: &'a [Point],
+    pub h: &'a [f64],
+}
+
+impl<'a> Inputs<'a> {
+    /// Positions whose headings are unknown.
+    pub fn positions(xy: &'a [Point]) -> Self {
+        Self { xy, h: &[] }
+    }
+
+    /// The heading of point `i` (`NaN` when unknown).
+    #[inline]
+    pub fn heading(&self, i: usize) -> f64 {
+        if self.h.is_empty() {
+            f64::NAN
+        } else {
+            self.h[i]
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.xy.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.xy.is_empty()
+    }
+}
+
+/// Append the headings of a frame of `l` points to `h`, the headings of the `n` points before it:
+/// `h` stays empty while no frame has headings, and is filled with `NaN` (unknown) for frames
+/// without them once one has.
+pub fn extend_headings(h: &mut Vec<f64>, n: usize, frame_h: &[f64], l: usize) {
+    if frame_h.is_empty() && h.is_empty() {
+        return;
+    }
+    if h.is_empty() {
+        h.resize(n, f64::NAN);
+    }
+    if frame_h.is_empty() {
+        h.resize(n + l, f64::NAN);
+    } else {
+        h.extend_from_slice(frame_h);
+    }
 }
 
 /// The per-pattern length scales `(w_x, w_y)` in position and `w_h` in the previous heading

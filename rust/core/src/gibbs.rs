@@ -420,10 +420,7 @@ impl Data {
 
     pub fn frame(&self, i: usize) -> FrameRef<'_> {
         let (a, b) = (self.offsets[i], self.offsets[i + 1]);
-        FrameRef {
-            xy: &self.xy[a..b],
-            v: &self.v[a..b],
-        }
+        FrameRef::new(&self.xy[a..b], &self.v[a..b])
     }
 }
 

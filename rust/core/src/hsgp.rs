@@ -25,8 +25,7 @@ use faer::{Accum, MatMut, MatRef, Par};
 
 pub use crate::basis::{AxisFeatures, Basis, MAX_BASIS};
 use crate::error::Result;
-use crate::frame::FrameRef;
-use crate::frame::Point;
+use crate::frame::{FrameRef, Inputs, Point, extend_headings};
 use crate::gp::{GpParams, LN_2PI};
 use crate::hsgp_sums::{Group, Sums, VecSums, log_marginal, scaled_sqrt_spectrum};
 use crate::small;
@@ -43,6 +42,8 @@ pub struct HsgpPattern {
     frames: Vec<usize>,
     sizes: Vec<usize>,
     xy: Vec<Point>,
+    /// Each point's previous heading (`NaN`: unknown), or empty when no frame has headings.
+    h: Vec<f64>,
     v: Vec<[f64; 2]>,
     /// `G = Σ ΦᵀΦ`, M x M (both triangles).
     gram: Vec<f64>,
@@ -68,19 +69,31 @@ impl HsgpPattern {
             frames: Vec::new(),
             sizes: Vec::new(),
             xy: Vec::new(),
+            h: Vec::new(),
             v: Vec::new(),
             gram: Vec::new(),
             vecs: VecSums::zeros(0),
             groups: Vec::new(),
             weights: OnceLock::new(),
         };
-        for &(id, f) in members {
-            p.record(id, f);
+        if p.basis.harmonics() == 0 {
+            for &(id, f) in members {
+                p.record(id, f);
+            }
+            // The sums in O(M) per point (hsgp_sums: the Gram matrix from its moments).
+            let sums = Sums::of_points(&p.basis, &p.xy, &p.v, members.len());
+            p.gram = sums.gram(&p.basis);
+            p.vecs = sums.vecs;
+        } else {
+            // Heading functions are not separable into per-axis moments: sum the features.
+            let m = p.m();
+            p.gram = vec![0.0; m * m];
+            p.vecs = VecSums::zeros(m);
+            for &(id, f) in members {
+                let phi_t = p.basis.features_of(f.inputs());
+                p.add_stats(id, f, &phi_t, 1.0);
+            }
         }
-        // The sums in O(M) per point (hsgp_sums: the Gram matrix from its moments).
-        let sums = Sums::of_points(&p.basis, &p.xy, &p.v, members.len());
-        p.gram = sums.gram(&p.basis);
-        p.vecs = sums.vecs;
         p.refactor()?;
         Ok(p)
     }
@@ -107,6 +120,14 @@ impl HsgpPattern {
 
     pub fn points(&self) -> (&[Point], &[[f64; 2]]) {
         (&self.xy, &self.v)
+    }
+
+    /// The training inputs: positions and headings.
+    pub fn inputs(&self) -> Inputs<'_> {
+        Inputs {
+            xy: &self.xy,
+            h: &self.h,
+        }
     }
 
     /// Bytes held by the M x M matrices (the statistics and one factor per group).
@@ -137,6 +158,7 @@ impl HsgpPattern {
     fn record(&mut self, id: usize, f: FrameRef<'_>) {
         self.frames.push(id);
         self.sizes.push(f.xy.len());
+        extend_headings(&mut self.h, self.xy.len(), f.h, f.xy.len());
         self.xy.extend_from_slice(f.xy);
         self.v.extend_from_slice(f.v);
     }
@@ -280,7 +302,16 @@ impl HsgpPattern {
     fn score_block(&self, frames: &[FrameRef<'_>]) -> Result<Vec<f64>> {
         let m = self.m();
         let pts: Vec<Point> = frames.iter().flat_map(|f| f.xy.iter().copied()).collect();
-        let phi_t = self.basis.features(&pts);
+        let mut pts_h = Vec::new();
+        let mut at = 0;
+        for f in frames {
+            extend_headings(&mut pts_h, at, f.h, f.xy.len());
+            at += f.xy.len();
+        }
+        let phi_t = self.basis.features_of(Inputs {
+            xy: &pts,
+            h: &pts_h,
+        });
         let mut out: Vec<f64> = frames
             .iter()
             .map(|f| -(f.xy.len() as f64) * LN_2PI)
@@ -324,9 +355,14 @@ impl HsgpPattern {
         let f = FrameRef {
             xy: &self.xy[start..start + l],
             v: &self.v[start..start + l],
+            h: if self.h.is_empty() {
+                &[]
+            } else {
+                &self.h[start..start + l]
+            },
         };
         let m = self.m();
-        let phi_t = self.basis.features(f.xy);
+        let phi_t = self.basis.features_of(f.inputs());
         let mut total = -(l as f64) * LN_2PI;
         for g in &self.groups {
             let s2n = g.noise_var;
@@ -381,7 +417,7 @@ impl HsgpPattern {
 
     /// Add frame `id` (not already here): `O(l M²)`.
     pub fn insert(&mut self, id: usize, f: FrameRef<'_>) -> Result<()> {
-        let phi_t = self.basis.features(f.xy);
+        let phi_t = self.basis.features_of(f.inputs());
         self.add_stats(id, f, &phi_t, 1.0);
         if self.update_factors(&phi_t, f.xy.len(), 1.0) {
             self.rewhiten();
@@ -401,8 +437,18 @@ impl HsgpPattern {
         let l = self.sizes[pos];
         let xy: Vec<Point> = self.xy.drain(start..start + l).collect();
         let v: Vec<[f64; 2]> = self.v.drain(start..start + l).collect();
-        let phi_t = self.basis.features(&xy);
-        self.add_stats(id, FrameRef { xy: &xy, v: &v }, &phi_t, -1.0);
+        let h: Vec<f64> = if self.h.is_empty() {
+            Vec::new()
+        } else {
+            self.h.drain(start..start + l).collect()
+        };
+        let f = FrameRef {
+            xy: &xy,
+            v: &v,
+            h: &h,
+        };
+        let phi_t = self.basis.features_of(f.inputs());
+        self.add_stats(id, f, &phi_t, -1.0);
         self.frames.remove(pos);
         self.sizes.remove(pos);
         if self.update_factors(&phi_t, l, -1.0) {
@@ -438,6 +484,7 @@ impl HsgpPattern {
             frames: self.frames.clone(),
             sizes: self.sizes.clone(),
             xy: self.xy.clone(),
+            h: self.h.clone(),
             v: self.v.clone(),
             gram: self.gram.clone(),
             vecs: self.vecs.clone(),
@@ -459,10 +506,15 @@ impl HsgpPattern {
 
     /// Posterior mean velocity at `q`.
     pub fn predict_mean(&self, q: &[Point]) -> Vec<[f64; 2]> {
+        self.predict_mean_at(Inputs::positions(q))
+    }
+
+    /// [`HsgpPattern::predict_mean`] at positions and previous headings.
+    pub fn predict_mean_at(&self, q: Inputs<'_>) -> Vec<[f64; 2]> {
         let m = self.m();
         let mut out = vec![self.params.mean; q.len()];
-        for (block, out) in q.chunks(1024).zip(out.chunks_mut(1024)) {
-            let phi_t = self.basis.features(block);
+        for (block, out) in blocks(q, 1024).zip(out.chunks_mut(1024)) {
+            let phi_t = self.basis.features_of(block);
             for (g, a) in self.groups.iter().zip(self.weights()) {
                 for (c, &d) in g.outs.iter().enumerate() {
                     let ad = &a[c * m..(c + 1) * m];
@@ -478,10 +530,15 @@ impl HsgpPattern {
     /// Posterior mean and latent variance at `q`; outside the box the variance is the prior's
     /// `σ²` (the basis has no support there, so the model knows nothing).
     pub fn posterior(&self, q: &[Point]) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
+        self.posterior_at(Inputs::positions(q))
+    }
+
+    /// [`HsgpPattern::posterior`] at positions and previous headings.
+    pub fn posterior_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
         let m = self.m();
         let mut var = Vec::with_capacity(q.len());
-        for block in q.chunks(1024) {
-            let phi_t = self.basis.features(block);
+        for block in blocks(q, 1024) {
+            let phi_t = self.basis.features_of(block);
             let mut out = vec![[0.0; 2]; block.len()];
             for g in &self.groups {
                 let s2n = g.noise_var;
@@ -489,7 +546,7 @@ impl HsgpPattern {
                 for (j, o) in out.iter_mut().enumerate() {
                     let explained: f64 = u[j * m..(j + 1) * m].iter().map(|x| x * x).sum();
                     for &d in g.outs {
-                        o[d] = if self.basis.contains(block[j]) {
+                        o[d] = if self.basis.contains(block.xy[j]) {
                             s2n * explained
                         } else {
                             g.signal_var
@@ -499,14 +556,19 @@ impl HsgpPattern {
             }
             var.extend(out);
         }
-        (self.predict_mean(q), var)
+        (self.predict_mean_at(q), var)
     }
 
     /// Joint posterior of the latent field at `q`: the mean per point and, per output, the
     /// `n x n` covariance `σ_n² UᵀU` (plus the prior `σ²` on the diagonal outside the box).
     pub fn predict_joint(&self, q: &[Point]) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
+        self.predict_joint_at(Inputs::positions(q))
+    }
+
+    /// [`HsgpPattern::predict_joint`] at positions and previous headings.
+    pub fn predict_joint_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
         let (m, n) = (self.m(), q.len());
-        let phi_t = self.basis.features(q);
+        let phi_t = self.basis.features_of(q);
         let mut cov = [Vec::new(), Vec::new()];
         for g in &self.groups {
             let s2n = g.noise_var;
@@ -521,7 +583,7 @@ impl HsgpPattern {
                 s2n,
                 Par::Seq,
             );
-            for (i, p) in q.iter().enumerate() {
+            for (i, p) in q.xy.iter().enumerate() {
                 if !self.basis.contains(*p) {
                     c[i * n + i] += g.signal_var;
                 }
@@ -530,8 +592,20 @@ impl HsgpPattern {
                 cov[d] = c.clone();
             }
         }
-        (self.predict_mean(q), cov)
+        (self.predict_mean_at(q), cov)
     }
+}
+
+/// Inputs in blocks of `size` points.
+fn blocks(q: Inputs<'_>, size: usize) -> impl Iterator<Item = Inputs<'_>> {
+    let n = q.len();
+    (0..n).step_by(size).map(move |a| {
+        let b = (a + size).min(n);
+        Inputs {
+            xy: &q.xy[a..b],
+            h: if q.h.is_empty() { &[] } else { &q.h[a..b] },
+        }
+    })
 }
 
 #[cfg(test)]

@@ -8,7 +8,7 @@
 
 use rayon::prelude::*;
 
-pub use crate::frame::{LengthScales, Point};
+pub use crate::frame::{Inputs, LengthScales, Point};
 use crate::heading;
 use crate::vexp::exp_nonpos;
 
@@ -75,40 +75,34 @@ pub fn cross(a: &[Point], b: &[Point], ls: LengthScales, scale: f64, parallel: b
 }
 
 /// `scale * R(a, b)` for the field over position and previous heading (`heading`): the squared
-/// exponential times `k_h(ha_i, hb_j)`, with `ha`, `hb` the points' headings (`NaN` where a
-/// vehicle has none). With `ls.wh = ∞` the headings are not read and this is [`cross`], bit for
-/// bit.
+/// exponential times `k_h(h_a, h_b)` (an unknown heading: the field averaged over heading). With
+/// `ls.wh = ∞` the headings are not read and this is [`cross`], bit for bit.
 pub fn cross_headed(
-    a: &[Point],
-    ha: &[f64],
-    b: &[Point],
-    hb: &[f64],
+    a: Inputs<'_>,
+    b: Inputs<'_>,
     ls: LengthScales,
     scale: f64,
     parallel: bool,
 ) -> Vec<f64> {
-    let mut out = cross(a, b, ls, scale, parallel);
+    let mut out = cross(a.xy, b.xy, ls, scale, parallel);
     if !heading::is_headed(ls.wh) || a.is_empty() {
         return out;
     }
-    assert!(
-        ha.len() == a.len() && hb.len() == b.len(),
-        "one heading per point"
-    );
     let k = heading::HeadingKernel::new(ls.wh);
+    let ha: Vec<f64> = (0..a.len()).map(|i| a.heading(i)).collect();
     let apply = |col: &mut [f64], h: f64| {
-        for (c, &g) in col.iter_mut().zip(ha) {
+        for (c, &g) in col.iter_mut().zip(&ha) {
             *c *= k.eval(g, h);
         }
     };
     let n = a.len();
     if parallel && n * b.len() >= PAR_MIN_ENTRIES {
         out.par_chunks_mut(n)
-            .zip(hb.par_iter())
-            .for_each(|(col, &h)| apply(col, h));
+            .enumerate()
+            .for_each(|(j, col)| apply(col, b.heading(j)));
     } else {
-        for (col, &h) in out.chunks_mut(n).zip(hb) {
-            apply(col, h);
+        for (j, col) in out.chunks_mut(n).enumerate() {
+            apply(col, b.heading(j));
         }
     }
     out

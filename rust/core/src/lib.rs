@@ -38,7 +38,7 @@ pub mod placement;
 pub mod vexp;
 
 pub use error::{Error, Result};
-pub use frame::{FrameRef, LengthScales, Point};
+pub use frame::{FrameRef, Inputs, LengthScales, Point};
 pub use gp::GpParams;
 pub mod factor;
 pub mod gibbs;

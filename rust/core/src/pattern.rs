@@ -15,7 +15,7 @@ use crate::correlation::Correlation;
 use crate::error::{Error, Result, check_finite};
 use crate::factor::{GrowFactor, capacity};
 pub use crate::frame::FrameRef;
-use crate::frame::{LengthScales, Point};
+use crate::frame::{Inputs, LengthScales, Point, extend_headings};
 use crate::gp::{GpParams, LN_2PI, centered};
 use crate::linalg::Chol;
 use crate::small;
@@ -41,6 +41,8 @@ pub struct Pattern {
     pub frames: Vec<usize>,
     sizes: Vec<usize>,
     xy: Vec<Point>,
+    /// Each point's previous heading (`NaN`: unknown), or empty when no frame has headings.
+    h: Vec<f64>,
     v: Vec<[f64; 2]>,
     groups: Vec<Group>,
     /// Per group, `K⁻¹ (v − μ)` (n x outputs), computed on first use after each change.
@@ -66,6 +68,12 @@ impl Pattern {
         params: GpParams,
         members: &[(usize, FrameRef<'_>)],
     ) -> Result<Self> {
+        let mut h = Vec::new();
+        let mut n = 0;
+        for (_, f) in members {
+            extend_headings(&mut h, n, f.h, f.xy.len());
+            n += f.xy.len();
+        }
         let mut p = Self {
             params,
             corr,
@@ -75,6 +83,7 @@ impl Pattern {
                 .iter()
                 .flat_map(|m| m.1.xy.iter().copied())
                 .collect(),
+            h,
             v: members.iter().flat_map(|m| m.1.v.iter().copied()).collect(),
             groups: Vec::new(),
             weights: Default::default(),
@@ -87,13 +96,21 @@ impl Pattern {
     /// One GP over the points `xy` with velocities `v` (a pattern of one frame, id 0), factored
     /// and solved with the parallelism `par`. Inputs are checked: non-empty, finite, row for row.
     pub fn single(params: GpParams, xy: &[Point], v: &[[f64; 2]], par: Par) -> Result<Self> {
+        Self::single_at(params, FrameRef::new(xy, v), par)
+    }
+
+    /// [`Pattern::single`] over positions and previous headings (`f.h`: `NaN` where unknown).
+    pub fn single_at(params: GpParams, f: FrameRef<'_>, par: Par) -> Result<Self> {
+        let (xy, v) = (f.xy, f.v);
         check_pair("train_xy", xy, "train_v", v)?;
+        check_headings("train_h", f.h, xy.len())?;
         let mut p = Self {
             params,
             corr: Correlation::SquaredExp,
             frames: vec![0],
             sizes: vec![xy.len()],
             xy: xy.to_vec(),
+            h: f.h.to_vec(),
             v: v.to_vec(),
             groups: Vec::new(),
             weights: Default::default(),
@@ -159,6 +176,7 @@ impl Pattern {
             frames: self.frames.clone(),
             sizes: self.sizes.clone(),
             xy: self.xy.clone(),
+            h: self.h.clone(),
             v: self.v.clone(),
             groups: Vec::new(),
             weights: Default::default(),
@@ -187,7 +205,7 @@ impl Pattern {
             }
             let (ls, par, parallel) = (self.params.length_scales, self.par(), self.parallel());
             let chol = Chol::factor(n, "training", par, || {
-                self.corr.gram_par(&self.xy, ls, s2, noise, parallel)
+                self.corr.gram_par(self.inputs(), ls, s2, noise, parallel)
             })?;
             let mut z = centered(&self.v, outs, self.params.mean);
             chol.solve_lower(&mut z, par);
@@ -232,6 +250,7 @@ impl Pattern {
             frames: Vec::new(),
             sizes: Vec::new(),
             xy: Vec::new(),
+            h: Vec::new(),
             v: Vec::new(),
             groups: Vec::new(),
             weights: Default::default(),
@@ -251,6 +270,14 @@ impl Pattern {
         (&self.xy, &self.v)
     }
 
+    /// The training inputs: positions and headings.
+    pub fn inputs(&self) -> Inputs<'_> {
+        Inputs {
+            xy: &self.xy,
+            h: &self.h,
+        }
+    }
+
     /// `log p(D_k)`: the GP marginal likelihood of all the pattern's velocities.
     pub fn log_marginal(&self) -> f64 {
         let n = self.xy.len() as f64;
@@ -266,15 +293,28 @@ impl Pattern {
     pub fn score(&self, frames: &[FrameRef<'_>]) -> Result<Vec<f64>> {
         let n = self.xy.len();
         let pts: Vec<Point> = frames.iter().flat_map(|f| f.xy.iter().copied()).collect();
+        let mut pts_h = Vec::new();
+        let mut at = 0;
+        for f in frames {
+            extend_headings(&mut pts_h, at, f.h, f.xy.len());
+            at += f.xy.len();
+        }
         let total_m = pts.len();
         let mut out: Vec<f64> = frames
             .iter()
             .map(|f| -(f.xy.len() as f64) * LN_2PI)
             .collect();
         let (par, parallel) = (self.par(), self.parallel());
-        let corr = self
-            .corr
-            .cross_par(&self.xy, &pts, self.params.length_scales, 1.0, parallel);
+        let corr = self.corr.cross_par(
+            self.inputs(),
+            Inputs {
+                xy: &pts,
+                h: &pts_h,
+            },
+            self.params.length_scales,
+            1.0,
+            parallel,
+        );
         for g in &self.groups {
             let mut vbuf: Vec<f64> = corr.iter().map(|c| c * g.signal_var).collect();
             g.factor.solve_lower(&mut vbuf, par);
@@ -314,12 +354,17 @@ impl Pattern {
     /// Posterior mean velocity at `q`: `μ + σ² R(q, X) K⁻¹ (v − μ)` per output, queries in
     /// blocks of [`QUERY_BLOCK`].
     pub fn predict_mean(&self, q: &[Point]) -> Vec<[f64; 2]> {
+        self.predict_mean_at(Inputs::positions(q))
+    }
+
+    /// [`Pattern::predict_mean`] at positions and previous headings.
+    pub fn predict_mean_at(&self, q: Inputs<'_>) -> Vec<[f64; 2]> {
         let mut out = vec![self.params.mean; q.len()];
         let ls = self.params.length_scales;
-        for (block, ob) in q.chunks(QUERY_BLOCK).zip(out.chunks_mut(QUERY_BLOCK)) {
+        for (block, ob) in query_blocks(q).zip(out.chunks_mut(QUERY_BLOCK)) {
             let corr = self
                 .corr
-                .cross_par(&self.xy, block, ls, 1.0, self.parallel());
+                .cross_par(self.inputs(), block, ls, 1.0, self.parallel());
             self.add_mean(&corr, ob);
         }
         out
@@ -343,14 +388,19 @@ impl Pattern {
     /// factor (queries in blocks, so memory stays `n x QUERY_BLOCK`; each block's correlations
     /// serve both the mean and the variance).
     pub fn posterior(&self, q: &[Point]) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
+        self.posterior_at(Inputs::positions(q))
+    }
+
+    /// [`Pattern::posterior`] at positions and previous headings.
+    pub fn posterior_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
         let n = self.xy.len();
         let mut mean = vec![self.params.mean; q.len()];
         let mut var = Vec::with_capacity(q.len());
         let ls = self.params.length_scales;
-        for (block, mb) in q.chunks(QUERY_BLOCK).zip(mean.chunks_mut(QUERY_BLOCK)) {
+        for (block, mb) in query_blocks(q).zip(mean.chunks_mut(QUERY_BLOCK)) {
             let corr = self
                 .corr
-                .cross_par(&self.xy, block, ls, 1.0, self.parallel());
+                .cross_par(self.inputs(), block, ls, 1.0, self.parallel());
             self.add_mean(&corr, mb);
             let prior = self.corr.diag(block, ls);
             let mut out = vec![[0.0; 2]; block.len()];
@@ -360,7 +410,7 @@ impl Pattern {
                 for (j, o) in out.iter_mut().enumerate() {
                     let explained: f64 = v[j * n..(j + 1) * n].iter().map(|x| x * x).sum();
                     for &d in g.outs {
-                        o[d] = if self.corr.unsupported(block[j]) {
+                        o[d] = if self.corr.unsupported(block.xy[j]) {
                             g.signal_var
                         } else {
                             (g.signal_var * prior[j] - explained).max(0.0)
@@ -376,8 +426,15 @@ impl Pattern {
     /// Joint posterior of the latent field at `q`: the mean per point and, per output, the
     /// `m x m` covariance `σ² R_qq − Vᵀ V` (column-major), `V = L⁻¹ σ² R(X, q)`.
     pub fn predict_joint(&self, q: &[Point]) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
+        self.predict_joint_at(Inputs::positions(q))
+    }
+
+    /// [`Pattern::predict_joint`] at positions and previous headings.
+    pub fn predict_joint_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
         let (n, m) = (self.xy.len(), q.len());
-        let corr = self.corr.cross(&self.xy, q, self.params.length_scales, 1.0);
+        let corr = self
+            .corr
+            .cross(self.inputs(), q, self.params.length_scales, 1.0);
         let rqq = self.corr.cross(q, q, self.params.length_scales, 1.0);
         let mut cov = [Vec::new(), Vec::new()];
         for g in &self.groups {
@@ -394,7 +451,7 @@ impl Pattern {
                 Par::Seq,
             );
             // No support outside a reduced-rank basis: report the prior variance there.
-            for (i, p) in q.iter().enumerate() {
+            for (i, p) in q.xy.iter().enumerate() {
                 if self.corr.unsupported(*p) {
                     c[i * m + i] += g.signal_var;
                 }
@@ -403,7 +460,7 @@ impl Pattern {
                 cov[d] = c.clone();
             }
         }
-        (self.predict_mean(q), cov)
+        (self.predict_mean_at(q), cov)
     }
 
     /// `log p(V_f | D_k \\ f)` for a member frame, without touching the factor: leave-one-block-out
@@ -461,9 +518,13 @@ impl Pattern {
     pub fn insert(&mut self, id: usize, f: FrameRef<'_>) -> Result<()> {
         let (n, m) = (self.xy.len(), f.xy.len());
         self.weights = Default::default();
+        let train = Inputs {
+            xy: &self.xy,
+            h: &self.h,
+        };
         for g in &mut self.groups {
             let ls = self.params.length_scales;
-            let mut vbuf = self.corr.cross(&self.xy, f.xy, ls, g.signal_var);
+            let mut vbuf = self.corr.cross(train, f.inputs(), ls, g.signal_var);
             g.factor.solve_lower(&mut vbuf, Par::Seq);
             let v = MatRef::from_column_major_slice(&vbuf, n, m);
             let k = g.outs.len();
@@ -489,6 +550,7 @@ impl Pattern {
         }
         self.frames.push(id);
         self.sizes.push(m);
+        extend_headings(&mut self.h, n, f.h, m);
         self.xy.extend_from_slice(f.xy);
         self.v.extend_from_slice(f.v);
         Ok(())
@@ -505,6 +567,9 @@ impl Pattern {
         self.frames.remove(pos);
         self.sizes.remove(pos);
         self.xy.drain(start..start + l);
+        if !self.h.is_empty() {
+            self.h.drain(start..start + l);
+        }
         self.v.drain(start..start + l);
         if self.xy.is_empty() {
             self.groups.clear();
@@ -570,7 +635,13 @@ fn schur(
     par: Par,
 ) -> Vec<f64> {
     let parallel = !matches!(par, Par::Seq);
-    let mut s = corr.gram_par(f.xy, p.length_scales, g.signal_var, g.noise_var, parallel);
+    let mut s = corr.gram_par(
+        f.inputs(),
+        p.length_scales,
+        g.signal_var,
+        g.noise_var,
+        parallel,
+    );
     sub_vt_times(&mut s, v, v, par);
     s
 }
@@ -600,6 +671,35 @@ pub fn check_points(name: &str, xy: &[Point]) -> Result<()> {
         )));
     }
     check_finite(name, xy.as_flattened())
+}
+
+/// Headings that are empty (none known) or one per point, each finite or `NaN` (unknown).
+pub fn check_headings(name: &str, h: &[f64], n: usize) -> Result<()> {
+    if !h.is_empty() && h.len() != n {
+        return Err(Error::Shape(format!(
+            "{name} has {} headings for {n} points; give one per point (NaN where a vehicle has \
+             no previous step) or none",
+            h.len()
+        )));
+    }
+    if let Some(i) = h.iter().position(|x| x.is_infinite()) {
+        return Err(Error::InvalidInput(format!(
+            "{name}[{i}] is infinite; a heading is an angle in radians, or NaN where unknown"
+        )));
+    }
+    Ok(())
+}
+
+/// Query inputs in blocks of [`QUERY_BLOCK`] points.
+fn query_blocks<'a>(q: Inputs<'a>) -> impl Iterator<Item = Inputs<'a>> {
+    let n = q.len();
+    (0..n).step_by(QUERY_BLOCK).map(move |a| {
+        let b = (a + QUERY_BLOCK).min(n);
+        Inputs {
+            xy: &q.xy[a..b],
+            h: if q.h.is_empty() { &[] } else { &q.h[a..b] },
+        }
+    })
 }
 
 /// Points and velocities that are non-empty, finite and row for row.
@@ -638,9 +738,11 @@ pub fn prior_scores_with(corr: &Correlation, f: FrameRef<'_>, ps: &[GpParams]) -
         .map(|p| {
             let c = match (corr, &features) {
                 (Correlation::Reduced(basis), Some(ft)) => {
-                    basis.correlation_between(ft, ft, p.length_scales, 1.0)
+                    let mut c = basis.correlation_between(ft, ft, p.length_scales, 1.0);
+                    basis.heading_factor(f.inputs(), f.inputs(), p.length_scales, &mut c);
+                    c
                 }
-                _ => corr.cross(f.xy, f.xy, p.length_scales, 1.0),
+                _ => corr.cross(f.inputs(), f.inputs(), p.length_scales, 1.0),
             };
             gaussian_prior(&c, f, p)
         })

@@ -25,6 +25,8 @@ pub trait PatternModel: Send + Sync + std::fmt::Debug {
     fn frames(&self) -> &[usize];
     /// All its points and velocities, frames in [`PatternModel::frames`] order.
     fn points(&self) -> (&[Point], &[[f64; 2]]);
+    /// The points' previous headings (`NaN`: unknown), or empty when no frame has them.
+    fn headings(&self) -> &[f64];
     /// `log p(D_k)`.
     fn log_marginal(&self) -> f64;
     /// `log p(V_f | D_k)` of frames not in the pattern.
@@ -83,6 +85,7 @@ pub trait PatternModel: Send + Sync + std::fmt::Debug {
     /// `(id, frame)` of every member, in internal order.
     fn members(&self) -> Vec<(usize, FrameRef<'_>)> {
         let (xy, v) = self.points();
+        let h = self.headings();
         let mut start = 0;
         self.frames()
             .iter()
@@ -91,6 +94,11 @@ pub trait PatternModel: Send + Sync + std::fmt::Debug {
                 let f = FrameRef {
                     xy: &xy[start..start + l],
                     v: &v[start..start + l],
+                    h: if h.is_empty() {
+                        &[]
+                    } else {
+                        &h[start..start + l]
+                    },
                 };
                 start += l;
                 (id, f)
@@ -123,6 +131,9 @@ impl PatternModel for Pattern {
     }
     fn points(&self) -> (&[Point], &[[f64; 2]]) {
         Pattern::points(self)
+    }
+    fn headings(&self) -> &[f64] {
+        Pattern::inputs(self).h
     }
     fn log_marginal(&self) -> f64 {
         Pattern::log_marginal(self)
@@ -255,6 +266,9 @@ impl PatternModel for HsgpPattern {
     fn points(&self) -> (&[Point], &[[f64; 2]]) {
         HsgpPattern::points(self)
     }
+    fn headings(&self) -> &[f64] {
+        HsgpPattern::inputs(self).h
+    }
     fn log_marginal(&self) -> f64 {
         HsgpPattern::log_marginal(self)
     }
@@ -308,6 +322,9 @@ impl PatternModel for ReducedPattern {
     }
     fn points(&self) -> (&[Point], &[[f64; 2]]) {
         self.inner().points()
+    }
+    fn headings(&self) -> &[f64] {
+        self.inner().headings()
     }
     fn log_marginal(&self) -> f64 {
         self.inner().log_marginal()

@@ -288,7 +288,7 @@ pub(super) fn item_score(p: &dyn PatternModel, data: &Data, item: &[usize]) -> R
         xy.extend_from_slice(fr.xy);
         v.extend_from_slice(fr.v);
     }
-    Ok(p.score(&[FrameRef { xy: &xy, v: &v }])?[0])
+    Ok(p.score(&[FrameRef::new(&xy, &v)])?[0])
 }
 
 impl Sampler {

@@ -1,7 +1,7 @@
 //! numpy <-> core views, without copies.
 
 use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyArray2, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{IntoPyArray, PyArray2, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
 use crate::errors::{CoreError, CoreResult};
@@ -31,4 +31,17 @@ pub fn to_numpy<'py>(py: Python<'py>, v: Vec<[f64; 2]>) -> Bound<'py, PyArray2<f
     Array2::from_shape_vec((n, 2), flat)
         .expect("length is 2n by construction")
         .into_pyarray(py)
+}
+
+/// Borrow an optional float64 array of headings (radians, `NaN` where unknown); `None` gives
+/// the empty slice (no headings).
+pub fn headings<'a>(name: &str, a: &'a Option<PyReadonlyArray1<'_, f64>>) -> CoreResult<&'a [f64]> {
+    match a {
+        None => Ok(&[]),
+        Some(a) => a.as_slice().map_err(|_| {
+            CoreError(Error::Shape(format!(
+                "{name} must be a C-contiguous float64 array (use numpy.ascontiguousarray)"
+            )))
+        }),
+    }
 }

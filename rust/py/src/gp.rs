@@ -5,13 +5,13 @@
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 
-use crate::convert::{pairs, to_numpy};
+use crate::convert::{headings, pairs, to_numpy};
 use crate::errors::CoreResult;
 use crate::sampler::{frame_refs, offsets_vec};
-use dpgp_core::frame::{FrameRef, Point};
+use dpgp_core::frame::{FrameRef, Inputs, Point};
 use dpgp_core::gp::GpParams;
 use dpgp_core::linalg::par_for;
-use dpgp_core::pattern::{Pattern, check_pair, check_points};
+use dpgp_core::pattern::{Pattern, check_headings, check_pair, check_points};
 
 /// `(w_x, w_y, σ_x², σ_y², σ_n,x², σ_n,y², μ_x, μ_y)` as passed from Python.
 pub type ParamTuple = (f64, f64, f64, f64, f64, f64, f64, f64);
@@ -25,6 +25,12 @@ pub fn params(t: ParamTuple) -> CoreResult<GpParams> {
     )?)
 }
 
+/// [`params`] with the heading length scale `wh` (radians; `inf`: position only).
+pub fn params_headed(t: ParamTuple, wh: f64) -> CoreResult<GpParams> {
+    let p = params(t)?;
+    Ok(p.with_length_scales(p.length_scales.with_heading(wh)?))
+}
+
 /// Validate a parameter tuple; raises InvalidInputError naming the bad value.
 #[pyfunction]
 pub fn check_params(p: ParamTuple) -> CoreResult<()> {
@@ -36,19 +42,33 @@ fn single(xy: &[Point], v: &[[f64; 2]], p: ParamTuple) -> CoreResult<Pattern> {
     Ok(Pattern::single(params(p)?, xy, v, par_for(xy.len()))?)
 }
 
+/// [`single`] over positions and previous headings, heading length scale `wh`.
+fn single_at(f: FrameRef<'_>, p: ParamTuple, wh: f64) -> CoreResult<Pattern> {
+    Ok(Pattern::single_at(
+        params_headed(p, wh)?,
+        f,
+        par_for(f.xy.len()),
+    )?)
+}
+
 #[pyfunction]
+#[pyo3(signature = (xy, v, p, h=None, wh=f64::INFINITY))]
 pub fn log_marginal_likelihood(
     py: Python<'_>,
     xy: PyReadonlyArray2<'_, f64>,
     v: PyReadonlyArray2<'_, f64>,
     p: ParamTuple,
+    h: Option<PyReadonlyArray1<'_, f64>>,
+    wh: f64,
 ) -> CoreResult<f64> {
-    let (xy, v) = (pairs("xy", &xy)?, pairs("v", &v)?);
+    let (xy, v, h) = (pairs("xy", &xy)?, pairs("v", &v)?, headings("h", &h)?);
     check_pair("xy", xy, "v", v)?;
-    py.detach(|| Ok(single(xy, v, p)?.log_marginal()))
+    py.detach(|| Ok(single_at(FrameRef { xy, v, h }, p, wh)?.log_marginal()))
 }
 
 #[pyfunction]
+#[pyo3(signature = (train_xy, train_v, test_xy, test_v, p, train_h=None, test_h=None, wh=f64::INFINITY))]
+#[allow(clippy::too_many_arguments)]
 pub fn log_predictive(
     py: Python<'_>,
     train_xy: PyReadonlyArray2<'_, f64>,
@@ -56,11 +76,28 @@ pub fn log_predictive(
     test_xy: PyReadonlyArray2<'_, f64>,
     test_v: PyReadonlyArray2<'_, f64>,
     p: ParamTuple,
+    train_h: Option<PyReadonlyArray1<'_, f64>>,
+    test_h: Option<PyReadonlyArray1<'_, f64>>,
+    wh: f64,
 ) -> CoreResult<f64> {
     let (txy, tv) = (pairs("train_xy", &train_xy)?, pairs("train_v", &train_v)?);
     let (sxy, sv) = (pairs("test_xy", &test_xy)?, pairs("test_v", &test_v)?);
+    let (th, sh) = (headings("train_h", &train_h)?, headings("test_h", &test_h)?);
     check_pair("test_xy", sxy, "test_v", sv)?;
-    py.detach(|| Ok(single(txy, tv, p)?.score(&[FrameRef { xy: sxy, v: sv }])?[0]))
+    check_headings("test_h", sh, sxy.len())?;
+    py.detach(|| {
+        let train = FrameRef {
+            xy: txy,
+            v: tv,
+            h: th,
+        };
+        let test = FrameRef {
+            xy: sxy,
+            v: sv,
+            h: sh,
+        };
+        Ok(single_at(train, p, wh)?.score(&[test])?[0])
+    })
 }
 
 /// The predictive density of each test frame (rows `offsets[i]..offsets[i + 1]`) given the
@@ -106,18 +143,34 @@ pub fn log_predictive_frames<'py>(
 const SCORE_POINTS: usize = 1024;
 
 #[pyfunction]
-#[allow(clippy::type_complexity)]
+#[pyo3(signature = (train_xy, train_v, query_xy, p, train_h=None, query_h=None, wh=f64::INFINITY))]
+#[allow(clippy::type_complexity, clippy::too_many_arguments)]
 pub fn posterior<'py>(
     py: Python<'py>,
     train_xy: PyReadonlyArray2<'py, f64>,
     train_v: PyReadonlyArray2<'py, f64>,
     query_xy: PyReadonlyArray2<'py, f64>,
     p: ParamTuple,
+    train_h: Option<PyReadonlyArray1<'py, f64>>,
+    query_h: Option<PyReadonlyArray1<'py, f64>>,
+    wh: f64,
 ) -> CoreResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
     let (txy, tv) = (pairs("train_xy", &train_xy)?, pairs("train_v", &train_v)?);
     let q = pairs("query_xy", &query_xy)?;
+    let (th, qh) = (
+        headings("train_h", &train_h)?,
+        headings("query_h", &query_h)?,
+    );
     check_points("query_xy", q)?;
-    let (mean, var) = py.detach(|| -> CoreResult<_> { Ok(single(txy, tv, p)?.posterior(q)) })?;
+    check_headings("query_h", qh, q.len())?;
+    let (mean, var) = py.detach(|| -> CoreResult<_> {
+        let train = FrameRef {
+            xy: txy,
+            v: tv,
+            h: th,
+        };
+        Ok(single_at(train, p, wh)?.posterior_at(Inputs { xy: q, h: qh }))
+    })?;
     Ok((to_numpy(py, mean), to_numpy(py, var)))
 }
 

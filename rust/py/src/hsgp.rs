@@ -3,15 +3,16 @@
 
 use std::sync::Arc;
 
-use numpy::{PyArray2, PyReadonlyArray2};
+use numpy::{PyArray2, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 
-use crate::convert::{pairs, to_numpy};
+use crate::convert::{headings, pairs, to_numpy};
 use crate::errors::CoreResult;
-use crate::gp::{ParamTuple, params};
+use crate::gp::{ParamTuple, params_headed};
+use dpgp_core::frame::Inputs;
 use dpgp_core::hsgp::{Basis, HsgpPattern};
-use dpgp_core::kernel::{LengthScales, Point};
-use dpgp_core::pattern::FrameRef;
+use dpgp_core::kernel::LengthScales;
+use dpgp_core::pattern::{FrameRef, check_headings};
 use dpgp_core::{Error, error::check_finite};
 
 /// `((centre x, y), (half-width x, y), (count x, y))`.
@@ -45,7 +46,16 @@ pub fn hsgp_basis(
     Ok(as_tuple(&b))
 }
 
-fn pattern(xy: &[Point], v: &[[f64; 2]], p: ParamTuple, b: BasisTuple) -> CoreResult<HsgpPattern> {
+/// A standalone reduced-rank GP over the training frame `f` (headings optional), heading length
+/// scale `wh`, on the basis `b` with `harmonics` heading harmonics.
+fn pattern(
+    f: FrameRef<'_>,
+    p: ParamTuple,
+    b: BasisTuple,
+    wh: f64,
+    harmonics: usize,
+) -> CoreResult<HsgpPattern> {
+    let (xy, v) = (f.xy, f.v);
     if xy.is_empty() || xy.len() != v.len() {
         return Err(Error::Shape(format!(
             "train_xy has {} points and train_v {} velocities; need at least one, row for row",
@@ -56,26 +66,34 @@ fn pattern(xy: &[Point], v: &[[f64; 2]], p: ParamTuple, b: BasisTuple) -> CoreRe
     }
     check_finite("train_xy", xy.as_flattened())?;
     check_finite("train_v", v.as_flattened())?;
+    check_headings("train_h", f.h, xy.len())?;
     Ok(HsgpPattern::new(
-        Arc::new(basis(b)?),
-        params(p)?,
-        &[(0, FrameRef { xy, v })],
+        Arc::new(basis(b)?.with_harmonics(harmonics)?),
+        params_headed(p, wh)?,
+        &[(0, f)],
     )?)
 }
 
 #[pyfunction]
+#[pyo3(signature = (xy, v, p, b, h=None, wh=f64::INFINITY, harmonics=0))]
+#[allow(clippy::too_many_arguments)]
 pub fn hsgp_log_marginal_likelihood(
     py: Python<'_>,
     xy: PyReadonlyArray2<'_, f64>,
     v: PyReadonlyArray2<'_, f64>,
     p: ParamTuple,
     b: BasisTuple,
+    h: Option<PyReadonlyArray1<'_, f64>>,
+    wh: f64,
+    harmonics: usize,
 ) -> CoreResult<f64> {
-    let (xy, v) = (pairs("xy", &xy)?, pairs("v", &v)?);
-    py.detach(|| Ok(pattern(xy, v, p, b)?.log_marginal()))
+    let (xy, v, h) = (pairs("xy", &xy)?, pairs("v", &v)?, headings("h", &h)?);
+    py.detach(|| Ok(pattern(FrameRef { xy, v, h }, p, b, wh, harmonics)?.log_marginal()))
 }
 
 #[pyfunction]
+#[pyo3(signature = (train_xy, train_v, test_xy, test_v, p, b, train_h=None, test_h=None, wh=f64::INFINITY, harmonics=0))]
+#[allow(clippy::too_many_arguments)]
 pub fn hsgp_log_predictive(
     py: Python<'_>,
     train_xy: PyReadonlyArray2<'_, f64>,
@@ -84,9 +102,15 @@ pub fn hsgp_log_predictive(
     test_v: PyReadonlyArray2<'_, f64>,
     p: ParamTuple,
     b: BasisTuple,
+    train_h: Option<PyReadonlyArray1<'_, f64>>,
+    test_h: Option<PyReadonlyArray1<'_, f64>>,
+    wh: f64,
+    harmonics: usize,
 ) -> CoreResult<f64> {
     let (txy, tv) = (pairs("train_xy", &train_xy)?, pairs("train_v", &train_v)?);
     let (sxy, sv) = (pairs("test_xy", &test_xy)?, pairs("test_v", &test_v)?);
+    let (th, sh) = (headings("train_h", &train_h)?, headings("test_h", &test_h)?);
+    check_headings("test_h", sh, sxy.len())?;
     if sxy.is_empty() || sxy.len() != sv.len() {
         return Err(
             Error::Shape("test_xy and test_v must be non-empty, row for row".into()).into(),
@@ -95,13 +119,24 @@ pub fn hsgp_log_predictive(
     check_finite("test_xy", sxy.as_flattened())?;
     check_finite("test_v", sv.as_flattened())?;
     py.detach(|| {
-        let pat = pattern(txy, tv, p, b)?;
-        Ok(pat.score(&[FrameRef { xy: sxy, v: sv }])?[0])
+        let train = FrameRef {
+            xy: txy,
+            v: tv,
+            h: th,
+        };
+        let pat = pattern(train, p, b, wh, harmonics)?;
+        let test = FrameRef {
+            xy: sxy,
+            v: sv,
+            h: sh,
+        };
+        Ok(pat.score(&[test])?[0])
     })
 }
 
 #[pyfunction]
-#[allow(clippy::type_complexity)]
+#[pyo3(signature = (train_xy, train_v, query_xy, p, b, train_h=None, query_h=None, wh=f64::INFINITY, harmonics=0))]
+#[allow(clippy::type_complexity, clippy::too_many_arguments)]
 pub fn hsgp_posterior<'py>(
     py: Python<'py>,
     train_xy: PyReadonlyArray2<'py, f64>,
@@ -109,11 +144,26 @@ pub fn hsgp_posterior<'py>(
     query_xy: PyReadonlyArray2<'py, f64>,
     p: ParamTuple,
     b: BasisTuple,
+    train_h: Option<PyReadonlyArray1<'py, f64>>,
+    query_h: Option<PyReadonlyArray1<'py, f64>>,
+    wh: f64,
+    harmonics: usize,
 ) -> CoreResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
     let (txy, tv) = (pairs("train_xy", &train_xy)?, pairs("train_v", &train_v)?);
     let q = pairs("query_xy", &query_xy)?;
+    let (th, qh) = (
+        headings("train_h", &train_h)?,
+        headings("query_h", &query_h)?,
+    );
     check_finite("query_xy", q.as_flattened())?;
-    let (mean, var) =
-        py.detach(|| -> CoreResult<_> { Ok(pattern(txy, tv, p, b)?.posterior(q)) })?;
+    check_headings("query_h", qh, q.len())?;
+    let (mean, var) = py.detach(|| -> CoreResult<_> {
+        let train = FrameRef {
+            xy: txy,
+            v: tv,
+            h: th,
+        };
+        Ok(pattern(train, p, b, wh, harmonics)?.posterior_at(Inputs { xy: q, h: qh }))
+    })?;
     Ok((to_numpy(py, mean), to_numpy(py, var)))
 }

@@ -131,6 +131,7 @@ pub(crate) fn frame_refs<'a>(
         .map(|w| FrameRef {
             xy: &xy[w[0]..w[1]],
             v: &v[w[0]..w[1]],
+            h: &[],
         })
         .collect())
 }

@@ -1,5 +1,6 @@
 use super::*;
 use crate::correlation::Correlation;
+use crate::frame::Inputs;
 use crate::frame::LengthScales;
 use crate::kernel;
 use crate::pattern::Pattern;
@@ -29,7 +30,7 @@ fn reduced_correlation_approaches_the_squared_exponential() {
     let fs = frames(1, 4);
     let pts: Vec<Point> = fs.iter().flat_map(|f| f.0.iter().copied()).collect();
     let ls = LengthScales::new(6.0, 20.0).unwrap();
-    let approx = b.correlation(&pts, &pts, ls, 1.0);
+    let approx = b.correlation(Inputs::positions(&pts), Inputs::positions(&pts), ls, 1.0);
     let exact = kernel::cross(&pts, &pts, ls, 1.0, false);
     for (a, e) in approx.iter().zip(&exact) {
         assert!((a - e).abs() < 2e-3, "{a} vs {e}");

@@ -159,6 +159,7 @@ fn the_log_marginal_from_sums_is_the_patterns() {
                 crate::frame::FrameRef {
                     xy: &xy[10 * i..10 * i + 10],
                     v: &v[10 * i..10 * i + 10],
+                    h: &[],
                 },
             )
         })

@@ -68,11 +68,12 @@ fn headed_cross_is_the_product_kernel_and_blind_without_a_heading_scale() {
         .collect();
     let blind = LengthScales::new(2.0, 1.5).unwrap();
     let plain = cross(&a, &b, blind, 1.3, false);
-    assert_eq!(cross_headed(&a, &ha, &b, &hb, blind, 1.3, false), plain);
+    let (ia, ib) = (Inputs { xy: &a, h: &ha }, Inputs { xy: &b, h: &hb });
+    assert_eq!(cross_headed(ia, ib, blind, 1.3, false), plain);
     let ls = blind.with_heading(0.8).unwrap();
     let q0 = crate::heading::spectrum(0.8, 0)[0];
     for parallel in [false, true] {
-        let k = cross_headed(&a, &ha, &b, &hb, ls, 1.3, parallel);
+        let k = cross_headed(ia, ib, ls, 1.3, parallel);
         for j in 0..b.len() {
             for i in 0..a.len() {
                 let d = ha[i] - hb[j];
@@ -85,5 +86,10 @@ fn headed_cross_is_the_product_kernel_and_blind_without_a_heading_scale() {
                 assert!((k[j * a.len() + i] - want).abs() < 1e-14, "{i} {j}");
             }
         }
+    }
+    // No headings at all: every one unknown.
+    let none = cross_headed(Inputs::positions(&a), Inputs::positions(&b), ls, 1.3, false);
+    for (x, y) in none.iter().zip(&plain) {
+        assert!((x - y * q0).abs() < 1e-15);
     }
 }

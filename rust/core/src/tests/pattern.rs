@@ -103,6 +103,7 @@ fn single_predictive_is_the_ratio_of_marginal_likelihoods() {
             let test = FrameRef {
                 xy: &xy[cut..],
                 v: &v[cut..],
+                h: &[],
             };
             let pred = train.score(&[test]).unwrap()[0];
             let (lm, pr) = (train.log_marginal(), pred);
@@ -115,7 +116,7 @@ fn single_predictive_is_the_ratio_of_marginal_likelihoods() {
 fn single_matches_the_sampler_pattern_and_ignores_the_thread_count() {
     let (xy, v) = data(50, 3);
     let p = params(1.5, 9.0);
-    let member = Pattern::new(p, &[(0, FrameRef { xy: &xy, v: &v })]).unwrap();
+    let member = Pattern::new(p, &[(0, FrameRef::new(&xy, &v))]).unwrap();
     let q: Vec<Point> = (0..1500)
         .map(|i| [i as f64 * 0.04, i as f64 * 0.13])
         .collect();

@@ -157,6 +157,7 @@ fn grid_pattern(c: [f64; 2], origin: Point, mean: [f64; 2]) -> Pattern {
                 FrameRef {
                     xy: &xy[f * 8..f * 8 + 8],
                     v: &v[f * 8..f * 8 + 8],
+                    h: &[],
                 },
             )
         })

@@ -34,7 +34,7 @@ pub fn frames(seed: u64, count: usize) -> Vec<(Vec<Point>, Vec<[f64; 2]>)> {
 }
 
 pub fn refs(fs: &[(Vec<Point>, Vec<[f64; 2]>)]) -> Vec<FrameRef<'_>> {
-    fs.iter().map(|(xy, v)| FrameRef { xy, v }).collect()
+    fs.iter().map(|(xy, v)| FrameRef::new(xy, v)).collect()
 }
 
 /// Total variation between partition frequencies and the exact posterior over partitions.
