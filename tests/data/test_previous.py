@@ -293,6 +293,15 @@ def test_model_files_store_the_columns_and_read_old_ones_without(tmp_path):
     old = dpgp.DPGP.load(tmp_path / "old.npz")
     assert old.frames_.prev_v is None and old.frames_.prev_heading is None
     np.testing.assert_array_equal(old.labels_, model.labels_)
+    damaged = dict(arrays, frame_prev_v=frames.prev_v.copy())
+    damaged["frame_prev_v"][0] = [np.inf, 0.0]
+    damaged["frame_prev_heading"] = frames.prev_heading
+    np.savez(tmp_path / "bad.npz", **damaged)
+    with pytest.raises(dpgp.ModelFileError, match="previous velocity"):
+        dpgp.DPGP.load(tmp_path / "bad.npz")
+    np.savez(tmp_path / "half.npz", **dict(arrays, frame_prev_v=frames.prev_v))  # no heading member
+    with pytest.raises(dpgp.ModelFileError, match="come together"):
+        dpgp.DPGP.load(tmp_path / "half.npz")
 
 
 # --- bad input -----------------------------------------------------------------------------------

@@ -44,7 +44,7 @@ def check_min_speed(value: Any) -> float:
 
 def own_headings(vx: np.ndarray, vy: np.ndarray, floor: float) -> np.ndarray:
     """The heading of each velocity, NaN where it is slower than ``floor`` (frames' units/s)."""
-    return np.where(np.hypot(vx, vy) >= floor, np.arctan2(vy, vx), np.nan)
+    return np.arctan2(vy, vx, out=np.full(len(vx), np.nan), where=np.hypot(vx, vy) >= floor)
 
 
 def previous_steps(

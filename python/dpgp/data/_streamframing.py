@@ -25,7 +25,10 @@ directory of the write:
    the point's interpolation, differences and smoothing look at, and enough more that a track
    cut at the margin looks the same near the point as the whole track: each point comes out
    exactly as from the whole table. The summary's counts of segments and gaps are made as the
-   buckets go by, carrying each track's open segment. Frames go to a scratch file in order.
+   buckets go by, carrying each track's open segment. Each track's last grid point (its
+   velocity and carried heading, inside the ROI or not) is carried too, so that the next
+   window's previous steps are the whole table's (:mod:`._previous`). Frames go to a scratch
+   file in order.
 
 Then the shards are cut as :meth:`Frames.to_parquet` cuts them (about equal numbers of
 vehicles, from the frames' sizes) and written one at a time from the scratch file, with the
@@ -1059,21 +1062,17 @@ def _frame_all(
                 carry=carry,
                 keep=_window_keeper(dt, W, w),
             )
-            if res is None:
+            if res is None:  # none of the window's own grid points (keep) lies in the ROI
                 continue
             k = res["k"]
-            inside = np.floor(k * dt / W).astype(np.int64) == w
-            if not inside.any():
-                continue
-            k = k[inside]
-            trk = res["track_labels"][res["track"][inside]].astype(np.int64)
+            trk = res["track_labels"][res["track"]].astype(np.int64)
             order = np.lexsort((trk, k))
             spool.add(
                 code,
                 k[order],
                 {
                     "track": trk[order],
-                    **{name: res[name][inside][order] for name in ("x", "y", "vx", "vy", "pvx", "pvy", "ph")},
+                    **{name: res[name][order] for name in ("x", "y", "vx", "vy", "pvx", "pvy", "ph")},
                 },
             )
     segs.finish()
@@ -1082,7 +1081,9 @@ def _frame_all(
 
 
 def _window_keeper(dt: float, W: float, w: int) -> Any:
-    """Which grid numbers are window ``w``'s own (as the points kept from its framing)."""
+    """Which grid numbers are window ``w``'s own: those whose time falls in it. The framing of
+    the window keeps only these (the margins' points are other windows'), before its ROI crop and
+    its previous steps, which carry each track on to the next window."""
     return lambda k: np.floor(k * dt / W).astype(np.int64) == w
 
 

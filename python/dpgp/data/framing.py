@@ -142,7 +142,10 @@ def _frames(
     xy = np.column_stack([res["x"][order], res["y"][order]])
     v = np.column_stack([res["vx"][order], res["vy"][order]])
     # keep each vehicle's track (its code among the table's track ids) to follow it over time
-    prev_v = np.column_stack([res["pvx"][order], res["pvy"][order]])
+    # gathered column by column, each source freed once read (peak memory)
+    prev_v = np.empty((len(ks), 2))
+    prev_v[:, 0] = res.pop("pvx")[order]
+    prev_v[:, 1] = res.pop("pvy")[order]
     frames = Frames(
         ids,
         np.r_[starts, len(ks)],
@@ -150,7 +153,7 @@ def _frames(
         v,
         tracks=res["track"][order],
         prev_v=prev_v,
-        prev_heading=res["ph"][order],
+        prev_heading=res.pop("ph")[order],
         heading_min_speed=min_speed,
     )
     summary = FramingSummary(
