@@ -155,7 +155,8 @@ class Frames:
         whole-number track id per row. ``prev_vx, prev_vy``, if given, are each row's previous
         velocity (NaN in both where there is none); ``prev_heading`` the heading carried through
         stops (:meth:`headings`), else each previous velocity's own heading, NaN where slower
-        than ``heading_min_speed`` m/s (rows alone hold no history to carry one from).
+        than ``heading_min_speed`` (in the rows' own length unit per second: metres give m/s)
+        (rows alone hold no history to carry one from).
         """
         frame = np.asarray(frame)
         if frame.ndim != 1:
@@ -293,8 +294,9 @@ class Frames:
 
     def crop(self, roi: Any) -> Frames:
         """The vehicles inside ``roi`` ``(x_min, x_max, y_min, y_max)`` (edges included), in
-        their frames; frames left empty are dropped, labels and track ids kept. The framing
-        summary is not carried over (it described the uncropped frames).
+        their frames; frames left empty are dropped, labels, track ids and previous steps kept
+        (a vehicle's previous step may lie outside the ROI). The framing summary is not carried
+        over (it described the uncropped frames).
         :class:`~dpgp.InvalidInputError` if no vehicle lies inside."""
         box = check_roi(roi)
         keep = inside_roi(self.xy, box)
