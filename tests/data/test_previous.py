@@ -170,6 +170,31 @@ def test_batch_boundaries_do_not_change_anything(monkeypatch):
     np.testing.assert_array_equal(cut.prev_heading, whole.prev_heading)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_random_stop_and_go_with_gaps_in_small_batches_matches_the_loop(monkeypatch, seed):
+    """Uneven sampling, gaps, stops and a ROI, framed in batches of 61 grid points and rows."""
+    rng = np.random.default_rng(seed)
+    parts = []
+    for i in range(30):
+        n = int(rng.integers(2, 60))
+        steps = rng.uniform(0.05, 0.3, n)
+        steps[rng.random(n) < 0.05] = 1.5  # gaps longer than max_gap
+        t = rng.uniform(0, 20) + np.cumsum(steps)
+        moving = rng.random(n) < 0.6  # stop and go
+        vx = np.where(moving, rng.normal(0, 3, n), rng.normal(0, 0.1, n))
+        vy = np.where(moving, rng.normal(0, 3, n), rng.normal(0, 0.1, n))
+        x, y = np.cumsum(vx * steps), np.cumsum(vy * steps)
+        parts.append(pd.DataFrame({"track": 7 * i + 3, "t": t, "x": x, "y": y, "vx": vx, "vy": vy}))
+    tracks = pd.concat(parts, ignore_index=True)
+    kw = {"dt": 0.2, "max_gap": 0.7, "roi": (-3, 3, -3, 3)}
+    monkeypatch.setattr(framing, "_BATCH", 61)
+    frames = dpgp.make_frames(tracks, **kw)
+    want = _loop_oracle(tracks, 0.5, **kw)
+    for r in frames.to_pandas().itertuples():
+        w = want[(r.track, round(r.frame / kw["dt"]))]
+        assert _same((r.prev_vx, r.prev_vy, r.prev_heading), w), (r.track, r.frame, w)
+
+
 # --- selections, shards, model files -------------------------------------------------------------
 
 
