@@ -29,6 +29,10 @@ def assert_same_frames(a: dpgp.Frames, b: dpgp.Frames) -> None:
     assert np.array_equal(a.xy, b.xy) and np.array_equal(a.v, b.v)
     assert a.tracks is not None and b.tracks is not None and np.array_equal(a.tracks, b.tracks)
     assert a.summary == b.summary
+    # previous steps (issue 34): the heading carried through stops crosses windows and shards
+    assert a.heading_min_speed == b.heading_min_speed is not None
+    assert np.array_equal(a.prev_v, b.prev_v, equal_nan=True)
+    assert np.array_equal(a.prev_heading, b.prev_heading, equal_nan=True)
 
 
 def _manifest(directory) -> dict:
@@ -50,6 +54,8 @@ def check(tmp_path, source, tracks, read_kw, frame_kw, shards_n=3, window=5.0, c
         part, start = shards.read_shard(tmp_path / "got", i)
         rows = slice(want.offsets[start], want.offsets[start + len(part)])
         assert np.array_equal(part.xy, want.xy[rows]) and np.array_equal(part.tracks, want.tracks[rows])
+        assert np.array_equal(part.prev_v, want.prev_v[rows], equal_nan=True)
+        assert np.array_equal(part.headings(), want.prev_heading[rows], equal_nan=True)
     assert sorted(os.listdir(tmp_path)) == ["got", "want"]  # no scratch left beside it
     assert not any(name.startswith(".") for name in os.listdir(tmp_path / "got"))
     return want

@@ -21,6 +21,8 @@ work of a sweep), every shard at least one frame. One row per vehicle observatio
 ``frame``         the frame's id; for ``(scene, time)`` ids the time, with the scene in ``scene``
 ``x, y, vx, vy``  float64
 ``track``         int64 track id, when the frames keep them
+``prev_vx, prev_vy, prev_heading``  float64, NaN where none: each vehicle's previous velocity
+                  and carried heading (:mod:`._previous`), when the frames carry them
 ``label``         the frame's label, when the frames carry labels
 
 Values of a frame (id, label) repeat on each of its rows; Parquet stores such runs compactly.
@@ -37,7 +39,10 @@ or ``"pair"`` for ``(scene, time)`` ids; ``labels`` is ``null`` without labels);
 ``null``); ``summary`` (the :class:`~dpgp.FramingSummary`: how the frames were made, with the
 framing provenance, or ``null``); ``time_order`` (``dt``, ``in_time_order``: whether the frames
 are in recording order, ``n_sequences``: runs of consecutive frames; ``null`` when the ids are
-not times, see :mod:`.timeorder`); ``written_by``.
+not times, see :mod:`.timeorder`); ``previous`` (``{"heading_min_speed": m/s}`` when the rows
+carry previous velocities and headings; absent or ``null`` otherwise: directories written before
+issue 34 read as frames without them, and older readers ignore the columns, so the version
+stays 1); ``written_by``.
 
 **Atomic.** Everything is written into a temporary directory beside the target (named
 ``.dpgp-<name>-*.tmp``), synced, then renamed onto it: a failed or interrupted write leaves no
@@ -69,6 +74,7 @@ _META_KEY = b"dpgp"
 #: numpy kinds stored as a typed Parquet column and restored to their dtype.
 _ARRAY_KINDS = "biufUmM"
 _FLOATS = ("x", "y", "vx", "vy")
+_PREVIOUS = ("prev_vx", "prev_vy", "prev_heading")
 
 
 @dataclass(frozen=True)
@@ -109,6 +115,7 @@ class ShardManifest:
     dt: float | None
     in_time_order: bool
     n_sequences: int | None
+    heading_min_speed: float | None = None  # rows carry prev_vx, prev_vy, prev_heading (issue 34)
 
     @property
     def n_shards(self) -> int:
@@ -129,6 +136,9 @@ class StoredFrames(NamedTuple):
     labels: np.ndarray | None
     tracks: np.ndarray | None
     summary: FramingSummary | None
+    prev_v: np.ndarray | None = None
+    prev_heading: np.ndarray | None = None
+    heading_min_speed: float | None = None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -209,7 +219,14 @@ def write_shards(frames: Any, directory: Any, shards: Any, *, overwrite: bool = 
     order, continues = _time_info(frames, bounds)
     infos = shard_infos(offsets, bounds, continues)
     doc = manifest_doc(
-        n_frames, infos, ids_spec, labels_spec, frames.tracks is not None, getattr(frames, "summary", None), order
+        n_frames,
+        infos,
+        ids_spec,
+        labels_spec,
+        frames.tracks is not None,
+        getattr(frames, "summary", None),
+        order,
+        getattr(frames, "heading_min_speed", None) if getattr(frames, "prev_v", None) is not None else None,
     )
     parent = os.path.dirname(path)
     tmp = tempfile.mkdtemp(prefix=temp_prefix(path), suffix=".tmp", dir=parent)
@@ -245,8 +262,11 @@ def manifest_doc(
     tracks: bool,
     summary: FramingSummary | None,
     order: dict[str, Any] | None,
+    heading_min_speed: float | None = None,
 ) -> dict[str, Any]:
-    """The manifest's JSON document (the module docstring lists its fields)."""
+    """The manifest's JSON document (the module docstring lists its fields); ``heading_min_speed``
+    when the rows carry previous velocities and headings."""
+    previous = None if heading_min_speed is None else {"heading_min_speed": float(heading_min_speed)}
     return {
         "format": FORMAT,
         "version": VERSION,
@@ -262,6 +282,7 @@ def manifest_doc(
         "units": None if summary is None else summary.length_unit,
         "summary": None if summary is None else summary.to_dict(),
         "time_order": order,
+        "previous": previous,
         "written_by": f"dpgp {_version()}",
     }
 
@@ -355,6 +376,10 @@ def _write_shard(
         cols[name] = pa.array(np.ascontiguousarray(col, dtype=np.float64))
     if frames.tracks is not None:
         cols["track"] = pa.array(np.ascontiguousarray(frames.tracks[r0:r1], dtype=np.int64))
+    prev_v, prev_h = getattr(frames, "prev_v", None), getattr(frames, "prev_heading", None)
+    if prev_v is not None and prev_h is not None:
+        for name, col in zip(_PREVIOUS, (prev_v[r0:r1, 0], prev_v[r0:r1, 1], prev_h[r0:r1])):
+            cols[name] = pa.array(np.ascontiguousarray(col, dtype=np.float64))  # NaN stays a value, not a null
     if labels_spec is not None:
         cols.update(_columns(labels_spec, np.asarray(frames.labels)[a:b], sizes, "label", "labels"))
     meta = {
@@ -576,6 +601,13 @@ def parse_manifest(doc: Any, directory: str, mpath: str) -> ShardManifest:
         if not (isinstance(sorted_, bool) and _is_int(runs) and 1 <= runs <= n_frames):
             raise bad(f"'time_order' {order!r} needs in_time_order (true or false) and n_sequences")
         dt, in_order, n_seq = float(step), sorted_, runs
+    previous = doc.get("previous")
+    min_speed = None
+    if previous is not None:
+        m = previous.get("heading_min_speed") if isinstance(previous, dict) else None
+        if not (isinstance(m, (int, float)) and not isinstance(m, bool) and np.isfinite(m) and m >= 0):
+            raise bad(f"'previous' {previous!r} needs heading_min_speed, a number of m/s >= 0")
+        min_speed = float(m)
     return ShardManifest(
         directory=directory,
         version=version,
@@ -590,6 +622,7 @@ def parse_manifest(doc: Any, directory: str, mpath: str) -> ShardManifest:
         dt=dt,
         in_time_order=in_order,
         n_sequences=n_seq,
+        heading_min_speed=min_speed,
     )
 
 
@@ -649,6 +682,7 @@ def read_parts(manifest: ShardManifest, i: Any) -> StoredFrames:
     needed += ["scene"] if manifest.ids["kind"] == "pair" else []
     needed += ["track"] if manifest.tracks else []
     needed += ["label"] if manifest.labels is not None else []
+    needed += list(_PREVIOUS) if manifest.heading_min_speed is not None else []
     missing = [c for c in needed if c not in table.column_names]
     if missing:
         raise bad(f"it has no column(s) {missing}")
@@ -680,12 +714,22 @@ def read_parts(manifest: ShardManifest, i: Any) -> StoredFrames:
         if tracks.dtype.kind not in "iu":
             raise bad(f"column 'track' holds {tracks.dtype}, not whole numbers")
         tracks = np.array(tracks, dtype=np.int64)
+    prev_v = prev_h = None
+    if manifest.heading_min_speed is not None:
+        pv = [table.column(c).to_numpy() for c in _PREVIOUS]
+        if any(c.dtype != np.float64 for c in pv):
+            raise bad(f"columns {list(_PREVIOUS)} hold {[str(c.dtype) for c in pv]}, not float64")
+        if np.isinf(np.column_stack(pv)).any() or (np.isnan(pv[0]) != np.isnan(pv[1])).any():
+            raise bad("its previous velocities hold inf, or NaN in one entry of a row only")
+        prev_v, prev_h = np.column_stack(pv[:2]), np.array(pv[2])
     try:
         ids = _per_frame(manifest.ids, table, "frame", first)
         labels = None if manifest.labels is None else _per_frame(manifest.labels, table, "label", first)
     except (pa.ArrowException, TypeError, ValueError) as e:
         raise bad(f"its ids or labels do not read as the manifest says ({e})") from None
-    return StoredFrames(ids, offsets, xy, v, labels, tracks, manifest.summary)
+    return StoredFrames(
+        ids, offsets, xy, v, labels, tracks, manifest.summary, prev_v, prev_h, manifest.heading_min_speed
+    )
 
 
 def _per_frame(spec: dict[str, Any], table: Any, name: str, first: np.ndarray) -> np.ndarray:
@@ -711,6 +755,9 @@ def read_all(directory: Any) -> StoredFrames:
     xy = np.empty((manifest.n_points, 2))
     v = np.empty((manifest.n_points, 2))
     tracks: np.ndarray | None = np.empty(manifest.n_points, dtype=np.int64) if manifest.tracks else None
+    has_prev = manifest.heading_min_speed is not None
+    prev_v = np.empty((manifest.n_points, 2)) if has_prev else None
+    prev_h = np.empty(manifest.n_points) if has_prev else None
     offsets = np.empty(manifest.n_frames + 1, dtype=np.int64)
     offsets[0] = 0
     ids: list[np.ndarray] = []
@@ -722,6 +769,9 @@ def read_all(directory: Any) -> StoredFrames:
         v[r0 : r0 + info.points] = part.v
         if tracks is not None and part.tracks is not None:
             tracks[r0 : r0 + info.points] = part.tracks
+        if prev_v is not None and prev_h is not None and part.prev_v is not None and part.prev_heading is not None:
+            prev_v[r0 : r0 + info.points] = part.prev_v
+            prev_h[r0 : r0 + info.points] = part.prev_heading
         offsets[info.start + 1 : info.stop + 1] = part.offsets[1:] + r0
         ids.append(part.ids)
         if part.labels is not None:
@@ -734,4 +784,7 @@ def read_all(directory: Any) -> StoredFrames:
         np.concatenate(labels) if manifest.labels is not None else None,
         tracks,
         manifest.summary,
+        prev_v,
+        prev_h,
+        manifest.heading_min_speed,
     )

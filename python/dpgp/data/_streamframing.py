@@ -25,7 +25,10 @@ directory of the write:
    the point's interpolation, differences and smoothing look at, and enough more that a track
    cut at the margin looks the same near the point as the whole track: each point comes out
    exactly as from the whole table. The summary's counts of segments and gaps are made as the
-   buckets go by, carrying each track's open segment. Frames go to a scratch file in order.
+   buckets go by, carrying each track's open segment. Each track's last grid point (its
+   velocity and carried heading, inside the ROI or not) is carried too, so that the next
+   window's previous steps are the whole table's (:mod:`._previous`). Frames go to a scratch
+   file in order.
 
 Then the shards are cut as :meth:`Frames.to_parquet` cuts them (about equal numbers of
 vehicles, from the frames' sizes) and written one at a time from the scratch file, with the
@@ -48,6 +51,7 @@ from .._arrays import column_floats, is_path
 from .._constants import DEFAULT_DT
 from ..exceptions import DataFormatError, InvalidInputError
 from . import _shardfile as sf
+from ._previous import HEADING_MIN_SPEED, PerTrack, check_min_speed
 from .framing import _GRID_EPS, _MAX_GRID_NUMBER, _check_options, _positive, _resample
 from .provenance import FramingSummary, describe_tracks
 from .tracks import (
@@ -101,6 +105,7 @@ def frame_to_shards(
     window: float = 600.0,
     overwrite: bool = False,
     chunk_rows: int = 1 << 20,
+    heading_min_speed: float = HEADING_MIN_SPEED,
 ) -> sf.ShardManifest:
     """Frame a track file that need not fit in memory straight into a directory of frame shards.
 
@@ -130,8 +135,9 @@ def frame_to_shards(
     preset, id, t, x, y, vx, vy, scene, time_scale, sort
         How to read the file: as for :func:`dpgp.read_tracks` (``preset="ngsim"``: as
         :func:`dpgp.read_ngsim`, with its ``split_gap`` of 1 s).
-    roi, dt, velocity, smoothing, units, max_gap
-        How to frame the tracks: as for :func:`dpgp.make_frames`.
+    roi, dt, velocity, smoothing, units, max_gap, heading_min_speed
+        How to frame the tracks: as for :func:`dpgp.make_frames` (each track's last grid point is
+        carried from window to window, so previous velocities and headings match too).
     window
         Seconds of recording framed at a time (and the time span of the scratch buckets the
         file is sorted into). Memory goes with the rows in a window plus its margins of
@@ -153,7 +159,7 @@ def frame_to_shards(
     path = _source_path(source)
     n_shards = sf.check_shards(shards)
     target = sf.check_target(out, overwrite)
-    opts = _Options.check(roi, dt, velocity, smoothing, units, max_gap, window, chunk_rows)
+    opts = _Options.check(roi, dt, velocity, smoothing, units, max_gap, window, chunk_rows, heading_min_speed)
     reader = _Reader.open(path, preset, dict(id=id, t=t, x=x, y=y, vx=vx, vy=vy, scene=scene), time_scale, sort)
     sf._pyarrow()
     tmp = tempfile.mkdtemp(prefix=sf.temp_prefix(target), suffix=".tmp", dir=os.path.dirname(target))
@@ -188,16 +194,27 @@ class _Options(NamedTuple):
     max_gap: float | None
     window: float
     chunk_rows: int
+    heading_min_speed: float = HEADING_MIN_SPEED
 
     @classmethod
     def check(
-        cls, roi: Any, dt: Any, velocity: Any, smoothing: Any, units: Any, max_gap: Any, window: Any, chunk_rows: Any
+        cls,
+        roi: Any,
+        dt: Any,
+        velocity: Any,
+        smoothing: Any,
+        units: Any,
+        max_gap: Any,
+        window: Any,
+        chunk_rows: Any,
+        heading_min_speed: Any = HEADING_MIN_SPEED,
     ) -> _Options:
         roi, dt, smoothing, scale, units_name, max_gap = _check_options(roi, dt, velocity, smoothing, units, max_gap)
         window = _positive("window", window, "seconds of recording framed at a time")
         if isinstance(chunk_rows, (bool, np.bool_)) or not isinstance(chunk_rows, (int, np.integer)) or chunk_rows < 1:
             raise InvalidInputError(f"chunk_rows must be a whole number of rows (1 or more), got {chunk_rows!r}")
-        return cls(roi, dt, velocity, smoothing, units, scale, units_name, max_gap, window, int(chunk_rows))
+        min_speed = check_min_speed(heading_min_speed)
+        return cls(roi, dt, velocity, smoothing, units, scale, units_name, max_gap, window, int(chunk_rows), min_speed)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -952,6 +969,8 @@ class _Part(NamedTuple):
     v: np.ndarray
     tracks: np.ndarray
     labels: None
+    prev_v: np.ndarray
+    prev_heading: np.ndarray
 
 
 def _frame_all(
@@ -987,6 +1006,12 @@ def _frame_all(
     sizes = np.full((n_tracks, 2), np.nan)
     sized = np.zeros(n_tracks, dtype=bool)
     with_v = tracks.reader.has_velocity()
+    # each track's last grid point (inside the ROI or not) so far, for the next window's
+    # previous steps: a stopped vehicle's heading may come from many windows back
+    carry = PerTrack(n_tracks)
+    stub = pd.DataFrame()
+    stub.attrs["dpgp"] = {"units": tracks.reader.units}
+    length_unit = describe_tracks(stub, opts.units_name, opts.scale)["length_unit"]
     tracks.reset()
     for members, code, windows in zip(groups.members, groups.codes, groups.windows):
         todo = sorted({w + d for w in windows for d in range(-ng, ng + 1)})
@@ -1024,28 +1049,42 @@ def _frame_all(
             order = np.argsort(tr, kind="stable")
             table = {name: np.concatenate([r[name] for r in ctx])[order] for name in names}
             res = _resample(
-                pd.DataFrame(table), opts.roi, dt, opts.velocity, opts.smoothing, opts.units, max_gap, partial=True
+                pd.DataFrame(table),
+                opts.roi,
+                dt,
+                opts.velocity,
+                opts.smoothing,
+                opts.units,
+                max_gap,
+                partial=True,
+                heading_min_speed=opts.heading_min_speed,
+                length_unit=length_unit,
+                carry=carry,
+                keep=_window_keeper(dt, W, w),
             )
-            if res is None:
+            if res is None:  # none of the window's own grid points (keep) lies in the ROI
                 continue
             k = res["k"]
-            inside = np.floor(k * dt / W).astype(np.int64) == w
-            if not inside.any():
-                continue
-            k = k[inside]
-            trk = res["track_labels"][res["track"][inside]].astype(np.int64)
+            trk = res["track_labels"][res["track"]].astype(np.int64)
             order = np.lexsort((trk, k))
             spool.add(
                 code,
                 k[order],
                 {
                     "track": trk[order],
-                    **{name: res[name][inside][order] for name in ("x", "y", "vx", "vy")},
+                    **{name: res[name][order] for name in ("x", "y", "vx", "vy", "pvx", "pvy", "ph")},
                 },
             )
     segs.finish()
     spool.close()
     return segs, sizes, mode
+
+
+def _window_keeper(dt: float, W: float, w: int) -> Any:
+    """Which grid numbers are window ``w``'s own: those whose time falls in it. The framing of
+    the window keeps only these (the margins' points are other windows'), before its ROI crop and
+    its previous steps, which carry each track on to the next window."""
+    return lambda k: np.floor(k * dt / W).astype(np.int64) == w
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1131,7 +1170,7 @@ def _run(reader: _Reader, opts: _Options, n_shards: int, tmp: str, work: str) ->
         else:
             ids = np.empty(b - a, dtype=object)
             ids[:] = list(zip(labels[f_scene[a:b]].tolist(), times[a:b].tolist()))
-        cols = {name: part.column(name).to_numpy() for name in ("x", "y", "vx", "vy", "track")}
+        cols = {name: part.column(name).to_numpy() for name in ("x", "y", "vx", "vy", "track", "pvx", "pvy", "ph")}
         frames = _Part(
             ids,
             offsets[a : b + 1] - offsets[a],
@@ -1139,9 +1178,11 @@ def _run(reader: _Reader, opts: _Options, n_shards: int, tmp: str, work: str) ->
             np.column_stack([cols["vx"], cols["vy"]]),
             cols["track"],
             None,
+            np.column_stack([cols["pvx"], cols["pvy"]]),
+            cols["ph"],
         )
         sf._write_shard(os.path.join(tmp, info.file), frames, info, i, n_shards, ids_spec, None, first=a)
-    return sf.manifest_doc(n_frames, infos, ids_spec, None, True, summary, order)
+    return sf.manifest_doc(n_frames, infos, ids_spec, None, True, summary, order, opts.heading_min_speed)
 
 
 __all__ = ["frame_to_shards"]

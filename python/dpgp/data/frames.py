@@ -17,6 +17,7 @@ from .._arrays import as_path, as_vector, column_floats, is_path
 from .._validate import check_roi, inside_roi
 from ..exceptions import DataFormatError, InvalidInputError, ShapeError
 from . import _shardfile
+from ._previous import HEADING_MIN_SPEED, check_min_speed, previous_columns
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -25,12 +26,15 @@ if TYPE_CHECKING:
 @dataclass(frozen=True)
 class Frame:
     """One frame: positions ``xy`` (l, 2) and velocities ``v`` (l, 2) of its ``l`` vehicles, and
-    their track ids ``tracks`` (l,) when the frames carry them (else ``None``)."""
+    their track ids ``tracks`` (l,), previous velocities ``prev_v`` (l, 2) and previous headings
+    ``prev_heading`` (l,) when the frames carry them (else ``None``)."""
 
     id: object
     xy: np.ndarray
     v: np.ndarray
     tracks: np.ndarray | None = None
+    prev_v: np.ndarray | None = None
+    prev_heading: np.ndarray | None = None
 
     @property
     def x(self) -> np.ndarray:
@@ -63,10 +67,27 @@ class Frames:
     temporal statistics learned), else ``None`` (frames read without ids). Positions and
     velocities must be finite: a NaN or inf is an :class:`~dpgp.InvalidInputError` naming the
     frame and the vehicle (its row inside the frame), never a frame that scores NaN.
+
+    ``prev_v`` (n, 2) holds per row the vehicle's velocity one grid step earlier, NaN in both
+    entries where it has none (its first appearance, after a gap), and ``prev_heading`` (n,)
+    the heading it was last travelling in (:meth:`headings`), carried with ``heading_min_speed``
+    (m/s); all three are ``None`` for frames without tracks. :func:`dpgp.make_frames` computes
+    them from the tracks; they are data only (no fit uses them yet).
     """
 
     # summary: what dpgp.make_frames left out and why (a dpgp.FramingSummary), else None
-    __slots__ = ("ids", "offsets", "xy", "v", "labels", "summary", "tracks")
+    __slots__ = (
+        "ids",
+        "offsets",
+        "xy",
+        "v",
+        "labels",
+        "summary",
+        "tracks",
+        "prev_v",
+        "prev_heading",
+        "heading_min_speed",
+    )
 
     def __init__(
         self,
@@ -76,6 +97,9 @@ class Frames:
         v: np.ndarray,
         labels: np.ndarray | None = None,
         tracks: np.ndarray | None = None,
+        prev_v: np.ndarray | None = None,
+        prev_heading: np.ndarray | None = None,
+        heading_min_speed: float | None = None,
     ) -> None:
         # Sizes before any conversion: an array of 1e11 zero-byte items (a damaged model file)
         # would otherwise be converted to 745 GiB of int64 before its length is seen.
@@ -104,6 +128,9 @@ class Frames:
         _check_finite_rows(self.ids, offsets, self.xy, self.v)
         self.labels = None if labels is None else np.asarray(labels)
         self.tracks = None if tracks is None else _track_ids(tracks, len(self.xy))
+        self.prev_v, self.prev_heading, self.heading_min_speed = previous_columns(
+            self.ids, offsets, prev_v, prev_heading, heading_min_speed
+        )
         self.summary: Any = None  # a dpgp.FramingSummary
 
     @classmethod
@@ -116,12 +143,20 @@ class Frames:
         vy: object,
         labels: object | None = None,
         track: object | None = None,
+        prev_vx: object | None = None,
+        prev_vy: object | None = None,
+        prev_heading: object | None = None,
+        heading_min_speed: float = HEADING_MIN_SPEED,
     ) -> Frames:
         """Group rows by their ``frame`` value (one row per vehicle observation).
 
         Frames come out in increasing order of ``frame``; rows keep their order inside a frame.
         ``labels``, if given, is one label per *frame* in that order; ``track``, if given, one
-        whole-number track id per row.
+        whole-number track id per row. ``prev_vx, prev_vy``, if given, are each row's previous
+        velocity (NaN in both where there is none); ``prev_heading`` the heading carried through
+        stops (:meth:`headings`), else each previous velocity's own heading, NaN where slower
+        than ``heading_min_speed`` (in the rows' own length unit per second: metres give m/s)
+        (rows alone hold no history to carry one from).
         """
         frame = np.asarray(frame)
         if frame.ndim != 1:
@@ -153,7 +188,14 @@ class Frames:
         v = np.column_stack([cols["vx"][order], cols["vy"][order]])
         lab = None if labels is None else np.asarray(labels)
         tracks = None if track is None else _track_ids(track, len(frame))[order]
-        return cls(sorted_frame[starts], offsets, xy, v, lab, tracks)
+        if (prev_vx is None) != (prev_vy is None) or (prev_heading is not None and prev_vx is None):
+            raise InvalidInputError("give prev_vx and prev_vy together (and prev_heading only with them)")
+        prev_v = ph = None
+        if prev_vx is not None:
+            pv = [_row_column(name, a, len(frame))[order] for name, a in (("prev_vx", prev_vx), ("prev_vy", prev_vy))]
+            prev_v = np.column_stack(pv)
+            ph = None if prev_heading is None else _row_column("prev_heading", prev_heading, len(frame))[order]
+        return cls(sorted_frame[starts], offsets, xy, v, lab, tracks, prev_v, ph, heading_min_speed)
 
     # --- sequence protocol -------------------------------------------------------------------
     def __len__(self) -> int:
@@ -170,7 +212,8 @@ class Frames:
                 raise IndexError(f"frame index {i} out of range for {n} frames")
             i = int(i) % n
             a, b = self.offsets[i], self.offsets[i + 1]
-            return Frame(self.ids[i], self.xy[a:b], self.v[a:b], None if self.tracks is None else self.tracks[a:b])
+            tr, pv, ph = self._row_columns(slice(a, b))
+            return Frame(self.ids[i], self.xy[a:b], self.v[a:b], tr, pv, ph)
         idx = self._selection(i)
         if len(idx) == 0:
             raise ShapeError("selection is empty: a Frames needs at least one frame")
@@ -178,17 +221,27 @@ class Frames:
         # the rows of the chosen frames, in selection order, without a loop over frames
         rows = np.arange(int(sizes.sum()), dtype=np.int64)
         rows += np.repeat(self.offsets[idx] - (np.cumsum(sizes) - sizes), sizes)
+        tr, pv, ph = self._row_columns(rows)
         out = Frames(
             self.ids[idx],
             np.r_[0, np.cumsum(sizes)],
             self.xy[rows],
             self.v[rows],
             None if self.labels is None else self.labels[idx],
-            None if self.tracks is None else self.tracks[rows],
+            tr,
+            pv,
+            ph,
+            self.heading_min_speed,
         )
         # A selection keeps how the frames were made (dt, ROI, units) for the model to use.
         out.summary = self.summary
         return out
+
+    def _row_columns(self, rows: Any) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """The per-row columns beyond positions and velocities (track ids, previous velocities
+        and headings), at ``rows``: a selection carries each row's own values."""
+        tr, pv, ph = (None if c is None else c[rows] for c in (self.tracks, self.prev_v, self.prev_heading))
+        return tr, pv, ph
 
     def _selection(self, i: object) -> np.ndarray:
         """Frame positions picked by a slice, an integer array or a boolean mask."""
@@ -241,8 +294,9 @@ class Frames:
 
     def crop(self, roi: Any) -> Frames:
         """The vehicles inside ``roi`` ``(x_min, x_max, y_min, y_max)`` (edges included), in
-        their frames; frames left empty are dropped, labels and track ids kept. The framing
-        summary is not carried over (it described the uncropped frames).
+        their frames; frames left empty are dropped, labels, track ids and previous steps kept
+        (a vehicle's previous step may lie outside the ROI). The framing summary is not carried
+        over (it described the uncropped frames).
         :class:`~dpgp.InvalidInputError` if no vehicle lies inside."""
         box = check_roi(roi)
         keep = inside_roi(self.xy, box)
@@ -250,17 +304,22 @@ class Frames:
             raise InvalidInputError(f"no vehicle lies inside the ROI {box} (the frames span {self.bounds()})")
         counts = np.bincount(self.frame_of_row[keep], minlength=len(self))
         kept = counts > 0
+        tr, pv, ph = self._row_columns(keep)
         return Frames(
             self.ids[kept],
             np.r_[0, np.cumsum(counts[kept])].astype(np.int64),
             self.xy[keep],
             self.v[keep],
             None if self.labels is None else self.labels[kept],
-            None if self.tracks is None else self.tracks[keep],
+            tr,
+            pv,
+            ph,
+            self.heading_min_speed,
         )
 
     def to_pandas(self) -> pd.DataFrame:
-        """One row per vehicle observation: ``frame, x, y, vx, vy`` (and ``track`` when known)."""
+        """One row per vehicle observation: ``frame, x, y, vx, vy`` (and ``track``, ``prev_vx``,
+        ``prev_vy``, ``prev_heading`` when known)."""
         import pandas as pd
 
         df = pd.DataFrame(
@@ -274,7 +333,39 @@ class Frames:
         )
         if self.tracks is not None:
             df["track"] = self.tracks
+        if self.prev_v is not None and self.prev_heading is not None:
+            df["prev_vx"], df["prev_vy"], df["prev_heading"] = self.prev_v[:, 0], self.prev_v[:, 1], self.prev_heading
         return df
+
+    def headings(self, min_speed: float | None = None) -> np.ndarray:
+        """Each vehicle's previous heading, in radians (n,): the direction ``atan2(vy, vx)`` of
+        its previous velocity (``prev_v``, one grid step earlier) when that is at least
+        ``heading_min_speed`` m/s fast; slower, the heading it had at the frame before, and so
+        on back along its track, so that a queued vehicle keeps the heading it had when it last
+        moved (a stopped vehicle's velocity direction is noise; its last moving heading is its
+        orientation). NaN where the vehicle has no previous step (its first appearance, or the
+        first after a gap in its track) or has not moved that fast since it appeared.
+
+        The carried heading needs the vehicle's whole past, which a slice or a shard of frames
+        does not hold, so it is computed where the frames are made from tracks and kept as the
+        column ``prev_heading``; this returns a copy of it. ``min_speed`` (m/s) may only
+        restate the speed the frames were made with (``heading_min_speed``): another needs
+        the tracks again (``make_frames(..., heading_min_speed=...)``).
+        :class:`~dpgp.InvalidInputError` for frames without previous velocities (frames
+        without tracks) or another ``min_speed``.
+        """
+        if self.prev_heading is None:
+            raise InvalidInputError(
+                "these frames carry no previous velocities, so no headings: make them from tracks with "
+                "dpgp.make_frames (or give prev_vx and prev_vy to Frames.from_arrays)"
+            )
+        if min_speed is not None and check_min_speed(min_speed) != self.heading_min_speed:
+            raise InvalidInputError(
+                f"these frames carry headings through stops slower than {self.heading_min_speed:g} m/s, not "
+                f"{min_speed!r}: the carried heading needs each track's past, so make the frames again with "
+                f"make_frames(..., heading_min_speed={min_speed!r})"
+            )
+        return self.prev_heading.copy()
 
     def to_parquet(
         self, directory: str | os.PathLike, shards: int = 1, *, overwrite: bool = False
@@ -309,6 +400,17 @@ def _check_finite_rows(ids: np.ndarray, offsets: np.ndarray, xy: np.ndarray, v: 
         f"frame {k} (id {ident!r}), vehicle {row - int(offsets[k])}: the {what} {value} is not finite; "
         f"{int(bad.sum())} vehicle observation(s) hold NaN or inf in all. Drop or impute them first"
     )
+
+
+def _row_column(name: str, values: object, n: int) -> np.ndarray:
+    """One float per row, NaN allowed (previous velocities and headings)."""
+    try:
+        arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{name} must hold numbers (NaN where there is none)") from None
+    if arr.shape != (n,):
+        raise ShapeError(f"{name} must be one value per row ({n}), got shape {arr.shape}")
+    return arr
 
 
 def _track_ids(tracks: object, n: int) -> np.ndarray:
@@ -416,7 +518,17 @@ def read_frames(
 
 def from_stored(parts: _shardfile.StoredFrames) -> Frames:
     """:class:`Frames` from the arrays read from shards (:mod:`dpgp.data.shards`)."""
-    out = Frames(parts.ids, parts.offsets, parts.xy, parts.v, parts.labels, parts.tracks)
+    out = Frames(
+        parts.ids,
+        parts.offsets,
+        parts.xy,
+        parts.v,
+        parts.labels,
+        parts.tracks,
+        parts.prev_v,
+        parts.prev_heading,
+        parts.heading_min_speed,
+    )
     out.summary = parts.summary
     return out
 

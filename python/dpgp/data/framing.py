@@ -17,6 +17,7 @@ import numpy as np
 from .._constants import DEFAULT_DT
 from .._validate import check_roi
 from ..exceptions import DataFormatError, InvalidInputError
+from ._previous import HEADING_MIN_SPEED, LastRow, check_min_speed, previous_steps
 from ._shardfile import check_shards, check_target
 from .frames import Frames
 from .provenance import FramingSummary, describe_tracks
@@ -45,6 +46,7 @@ def make_frames(
     out: str | os.PathLike | None = None,
     shards: int = 1,
     overwrite: bool = False,
+    heading_min_speed: float = HEADING_MIN_SPEED,
 ) -> Frames:
     """Frames from a tracks table: one frame per grid time with every vehicle in the ROI.
 
@@ -84,6 +86,10 @@ def make_frames(
         with a manifest (:meth:`Frames.to_parquet`, :mod:`dpgp.data.shards`; atomic, and an
         existing non-empty directory only with ``overwrite=True``). The target is checked
         before any framing; the framing's temporaries are freed before the shards are written.
+    heading_min_speed
+        m/s (converted when the frames' length unit is feet): a previous velocity slower than
+        this gives no heading of its own, and the vehicle keeps the heading it last moved in
+        (``frames.prev_heading``, :meth:`Frames.headings`).
 
     Returns
     -------
@@ -91,22 +97,28 @@ def make_frames(
         Frame ids are the grid times in seconds (``(scene, time)`` tuples when the table has a
         ``scene`` column). ``frames.tracks`` holds each row's track id (the table's own
         integer ids, else codes in the sorted order of its ids). ``frames.summary`` is a :class:`FramingSummary` that counts every
-        vehicle-time left out and empty frame dropped.
+        vehicle-time left out and empty frame dropped. ``frames.prev_v`` holds each vehicle's
+        velocity one grid step earlier (NaN where its track was not resampled there; inside the
+        ROI or not) and ``frames.prev_heading`` the heading it was last travelling in
+        (:meth:`Frames.headings` says how it is carried through stops).
     """
+    min_speed = check_min_speed(heading_min_speed)
     if out is None:
         if shards != 1 or overwrite:
             raise InvalidInputError("shards and overwrite say how to write the frames: give out=directory too")
-        return _frames(tracks, roi, dt, velocity, smoothing, units, max_gap)
+        return _frames(tracks, roi, dt, velocity, smoothing, units, max_gap, min_speed)
     check_shards(shards)
     check_target(out, overwrite)
-    frames = _frames(tracks, roi, dt, velocity, smoothing, units, max_gap)
+    frames = _frames(tracks, roi, dt, velocity, smoothing, units, max_gap, min_speed)
     frames.to_parquet(out, shards, overwrite=overwrite)
     return frames
 
 
-def _frames(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, units: Any, max_gap: Any) -> Frames:
+def _frames(
+    tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, units: Any, max_gap: Any, min_speed: float
+) -> Frames:
     """make_frames' frames (its temporaries go when this returns)."""
-    res = _resample(tracks, roi, dt, velocity, smoothing, units, max_gap)
+    res = _resample(tracks, roi, dt, velocity, smoothing, units, max_gap, heading_min_speed=min_speed)
     k, scene = res["k"], res["scene"]
     # Frames in order of (scene, grid time); inside a frame, vehicles in track order.
     keys = (res["track"], k) if scene is None else (res["track"], k, scene)
@@ -130,7 +142,20 @@ def _frames(tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, units
     xy = np.column_stack([res["x"][order], res["y"][order]])
     v = np.column_stack([res["vx"][order], res["vy"][order]])
     # keep each vehicle's track (its code among the table's track ids) to follow it over time
-    frames = Frames(ids, np.r_[starts, len(ks)], xy, v, tracks=res["track"][order])
+    # gathered column by column, each source freed once read (peak memory)
+    prev_v = np.empty((len(ks), 2))
+    prev_v[:, 0] = res.pop("pvx")[order]
+    prev_v[:, 1] = res.pop("pvy")[order]
+    frames = Frames(
+        ids,
+        np.r_[starts, len(ks)],
+        xy,
+        v,
+        tracks=res["track"][order],
+        prev_v=prev_v,
+        prev_heading=res.pop("ph")[order],
+        heading_min_speed=min_speed,
+    )
     summary = FramingSummary(
         **res["counts"],
         n_points=len(ks),
@@ -199,7 +224,15 @@ def _check_options(roi: Any, dt: Any, velocity: Any, smoothing: Any, units: Any,
 
 @overload
 def _resample(
-    tracks: Any, roi: Any, dt: Any, velocity: str, smoothing: Any, units: Any, max_gap: Any
+    tracks: Any,
+    roi: Any,
+    dt: Any,
+    velocity: str,
+    smoothing: Any,
+    units: Any,
+    max_gap: Any,
+    *,
+    heading_min_speed: float = ...,
 ) -> dict[str, Any]: ...
 
 
@@ -214,6 +247,10 @@ def _resample(
     max_gap: Any,
     *,
     partial: Literal[True],
+    heading_min_speed: float = ...,
+    length_unit: str | None = ...,
+    carry: Any = ...,
+    keep: Any = ...,
 ) -> dict[str, Any] | None: ...
 
 
@@ -227,11 +264,19 @@ def _resample(
     max_gap: Any,
     *,
     partial: bool = False,
+    heading_min_speed: float = HEADING_MIN_SPEED,
+    length_unit: str | None = "table",
+    carry: Any = None,
+    keep: Any = None,
 ) -> dict[str, Any] | None:
-    """The resampled vehicle-times of a tracks table, with the counts of the framing summary.
+    """The resampled vehicle-times of a tracks table, with the counts of the framing summary,
+    and each one's previous step (``pvx, pvy, ph``: :mod:`._previous`).
 
     ``partial``: the table is one time window of a larger one (:mod:`._streamframing`), which
-    may hold no grid time or no vehicle in the ROI: None then, rather than an error."""
+    may hold no grid time or no vehicle in the ROI: None then, rather than an error. Such a
+    window gives the frames' ``length_unit`` (its table has lost the reader's), a ``carry`` of
+    every track's last grid point in earlier windows (:class:`._previous.PerTrack`, by the
+    tracks' own integer ids), and ``keep``, which grid numbers are its own."""
     roi, dt, smoothing, scale, units_name, max_gap = _check_options(roi, dt, velocity, smoothing, units, max_gap)
 
     cols = _columns(tracks)
@@ -327,6 +372,13 @@ def _resample(
             f"(and max_gap={max_gap:g} s cuts tracks at longer gaps); use a smaller dt or a larger max_gap"
         )
 
+    # The heading floor in the table's units (velocities are scaled to the frames' units last).
+    unit = counts["length_unit"] if length_unit == "table" else length_unit
+    floor = heading_min_speed / (FT_TO_M if unit == "ft" else 1.0) / scale
+    if carry is None:
+        carry, seg_id = LastRow(), seg_track
+    else:
+        seg_id = np.asarray(track_labels[seg_track], dtype=np.int64)
     # Resample in batches of whole segments, so that temporaries stay small however long the
     # table: each batch holds about _BATCH grid points plus rows.
     cost = np.cumsum(cnt + seg_len)
@@ -352,6 +404,7 @@ def _resample(
                 mode,
                 smoothing,
                 roi,
+                (seg_id[sa:sb], floor, carry, keep),
             )
         part["seg"] += sa
         parts.append(part)
@@ -374,11 +427,11 @@ def _resample(
             )
     counts["n_outside_roi"] = G - len(seg_g)
     if scale != 1.0:
-        for key in ("x", "y", "vx", "vy"):
-            largest = float(np.abs(out[key]).max())
+        for key in ("x", "y", "vx", "vy", "pvx", "pvy"):
+            largest = float(np.max(np.abs(out[key]), initial=0.0, where=~np.isnan(out[key])))
             with np.errstate(over="ignore"):  # checked just below, with a message that says what to do
                 out[key] *= scale
-            if not np.isfinite(out[key]).all():
+            if np.isinf(out[key]).any() or (key in ("x", "y", "vx", "vy") and np.isnan(out[key]).any()):
                 raise InvalidInputError(
                     f"units={units!r} takes {key} beyond the floating-point range (largest |{key}| "
                     f"{largest:g}); use a smaller factor"
@@ -471,9 +524,12 @@ def _resample_batch(
     mode: str,
     smoothing: tuple[int, int] | None,
     roi: tuple[float, float, float, float] | None,
+    previous: tuple[np.ndarray, float, Any, Any] | None = None,
 ) -> dict[str, np.ndarray]:
     """Resample consecutive segments at their grid times; the arrays hold just their rows,
-    ``starts/ends`` index into them."""
+    ``starts/ends`` index into them. ``previous``: ``(track of each segment, speed floor, carry,
+    keep)`` adds each point's previous step (:mod:`._previous`) as ``pvx, pvy, ph``, after
+    keeping only the grid numbers ``keep(k)`` accepts (None: all)."""
     G = int(cnt.sum())
     seg = np.repeat(np.arange(len(starts)), cnt)
     k = np.arange(G, dtype=np.int64)
@@ -523,6 +579,17 @@ def _resample_batch(
     if mode == "columns":
         gvx, gvy = _lerp(vx[j], vx[j1], w), _lerp(vy[j], vy[j1], w)  # type: ignore[index]
     out = {"seg": seg, "k": k, "x": gx, "y": gy, "vx": gvx, "vy": gvy}
+    if previous is not None:
+        # Before the ROI crop: a vehicle entering the ROI has a previous step just outside it.
+        seg_id, floor, carry, keep = previous
+        if keep is not None:  # a time window keeps only its own grid points (and carries them on)
+            inside = keep(k)
+            if not inside.all():
+                out = {key: arr[inside] for key, arr in out.items()}
+        out["pvx"], out["pvy"], out["ph"] = previous_steps(
+            seg_id[out["seg"]], out["k"], out["vx"], out["vy"], floor, carry
+        )
+        gx, gy = out["x"], out["y"]
     if roi is not None:
         inside = (gx >= roi[0]) & (gx <= roi[1]) & (gy >= roi[2]) & (gy <= roi[3])
         if not inside.all():

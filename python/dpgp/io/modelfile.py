@@ -14,6 +14,9 @@ name                dtype, shape            content
 ``frame_v``         float64 (n, 2)          velocities
 ``frame_labels``    (N,), optional          ground-truth labels the frames carried
 ``frame_tracks``    int64 (n,), optional    track id of each row (``make_frames`` keeps it)
+``frame_prev_v``    float64 (n, 2), opt.    each row's previous velocity, NaN where none
+``frame_prev_h…``   float64 (n,), optional  ``frame_prev_heading``: the heading carried through
+                                            stops (:meth:`dpgp.Frames.headings`)
 ``labels``          int64 (N,)              fitted pattern of each frame (patterns by size)
 ``length_scales``   float64 (K, 2)          ``(w_x, w_y)`` per pattern
 ``pattern_ids``     uint64 (K,)             the sampler's stable pattern ids
@@ -26,6 +29,11 @@ name                dtype, shape            content
 ``draw_length_s…``  float64 (ΣK, 2), opt.   ``draw_length_scales``: their length scales, draw by draw
 ``draw_alpha``      float64 (D,), optional  their α
 ==================  ======================  ===================================================
+
+The ``frame_prev_*`` members (issue 34) come with the metadata key ``frames_heading_min_speed``
+(the speed, m/s, the headings were carried with). Files without them (written before them, or of
+frames without tracks) load as frames without previous velocities, and older readers ignore
+them and read the same model (the sampler does not use them), so they need no new version.
 
 The ``draw_*`` members (:mod:`dpgp.posterior`) are the thinned posterior states that
 posterior-averaged scores use; files without them (written before them) load with no draws, and
@@ -189,6 +197,8 @@ def save(state: ModelState, path: str | os.PathLike, resume: Any = None, compres
         meta[RESUME_KEY] = resume.meta()  # a checkpoint
     if state.shards is not None:
         meta["shards"] = state.shards
+    if frames is not None and getattr(frames, "prev_v", None) is not None:
+        meta["frames_heading_min_speed"] = frames.heading_min_speed  # with the frame_prev_* members
     arrays: dict[str, np.ndarray] = {
         "metadata": np.array(json.dumps(_jsonable(meta))),
         "labels": np.asarray(state.labels, dtype=np.int64),
@@ -206,6 +216,9 @@ def save(state: ModelState, path: str | os.PathLike, resume: Any = None, compres
             arrays["frame_labels"] = _ids_array(frames.labels)
         if frames.tracks is not None:  # what generation learns motion from (issue 15)
             arrays["frame_tracks"] = np.asarray(frames.tracks, dtype=np.int64)
+        if getattr(frames, "prev_v", None) is not None:  # each vehicle's previous step (issue 34)
+            arrays["frame_prev_v"] = np.asarray(frames.prev_v, dtype=np.float64)
+            arrays["frame_prev_heading"] = np.asarray(frames.prev_heading, dtype=np.float64)
     if state.pattern_noise_var is not None:
         arrays["pattern_noise_var"] = np.asarray(state.pattern_noise_var, dtype=np.float64).reshape(-1, 2)
     if state.label_trace is not None:
@@ -364,6 +377,9 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
     _check_counts(arrays, arrays["frame_xy"].size // 2)
     _check_finite(arrays)
     labels_file = arrays.get("frame_labels")
+    prev_v, prev_h = arrays.get("frame_prev_v"), arrays.get("frame_prev_heading")
+    if (prev_v is None) != (prev_h is None):
+        raise ModelFileError(f"{path}: frame_prev_v and frame_prev_heading come together; the file is corrupted")
     frames = Frames(
         arrays["frame_ids"],
         arrays["frame_offsets"],
@@ -371,6 +387,9 @@ def _parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], path: str) -> Mo
         arrays["frame_v"],
         labels_file,
         arrays.get("frame_tracks"),
+        prev_v,
+        prev_h,
+        meta.get("frames_heading_min_speed") if prev_v is not None else None,
     )
     return _parse_rest(meta, arrays, path, settings, frames, len(frames), None)
 
