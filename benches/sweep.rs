@@ -87,6 +87,7 @@ fn bench(c: &mut Criterion) {
         base: params(),
         fixed_length_scales: false,
         length_scale_prior: (10.0, 1.0),
+        heading_prior: None,
         alpha: None,
         new_pattern_samples: 100,
         length_scale_fraction: 1.0,

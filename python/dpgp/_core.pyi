@@ -217,6 +217,8 @@ class _SamplerSettings(TypedDict):
     # the sticky prior: each frame's predecessor (-1: a run's first frame), ρ's Beta prior, a fixed ρ or None
     dynamics: NotRequired[tuple[list[int], tuple[float, float], float | None] | None]
     sampler: NotRequired[str]  # "collapsed" | "subcluster"
+    heading_prior: NotRequired[tuple[float, float] | None]  # Gamma of w_h (radians); None: position only
+    heading_harmonics: NotRequired[int | None]  # heading harmonics of an hsgp basis
 
 def nearest_neighbour_sq(xy: NDArray[np.float64], offsets: NDArray[np.int64]) -> NDArray[np.float64]: ...
 def check_settings(settings: _SamplerSettings) -> None: ...
@@ -239,7 +241,12 @@ class Sampler:
     "sampler"; rust/py/src/sampler.rs); dpgp.DPGP wraps it."""
 
     def __new__(
-        cls, xy: NDArray[np.float64], v: NDArray[np.float64], offsets: NDArray[np.int64], settings: _SamplerSettings
+        cls,
+        xy: NDArray[np.float64],
+        v: NDArray[np.float64],
+        offsets: NDArray[np.int64],
+        settings: _SamplerSettings,
+        h: NDArray[np.float64] | None = None,
     ) -> Self: ...
     @staticmethod
     def over_shards(shards: list[Shard], settings: _SamplerSettings) -> Sampler: ...

@@ -116,6 +116,20 @@ impl LengthScales {
         Ok(Self { wh, ..self })
     }
 
+    /// Length scale `i` of `(w_x, w_y, w_h)`: the coordinates the samplers update one by one.
+    pub fn coord(self, i: usize) -> f64 {
+        [self.wx, self.wy, self.wh][i]
+    }
+
+    /// The same length scales with coordinate `i` of `(w_x, w_y, w_h)` set to `w`.
+    pub fn with_coord(self, i: usize, w: f64) -> Self {
+        match i {
+            0 => Self { wx: w, ..self },
+            1 => Self { wy: w, ..self },
+            _ => Self { wh: w, ..self },
+        }
+    }
+
     /// `(1 / (2 wx^2), 1 / (2 wy^2))`: the factors the squared distances are scaled by.
     #[inline]
     pub(crate) fn inv2(self) -> (f64, f64) {

@@ -178,6 +178,10 @@ pub struct Settings {
     pub fixed_length_scales: bool,
     /// Gamma(shape, scale) prior of each length scale.
     pub length_scale_prior: (f64, f64),
+    /// Gamma(shape, scale) prior of each pattern's length scale in the previous heading
+    /// (radians): fields over position and heading (`heading`). `None`: over position only
+    /// (`w_h = ∞`, the paper's model).
+    pub heading_prior: Option<(f64, f64)>,
     /// A fixed concentration; `None` samples it.
     pub alpha: Option<f64>,
     /// Auxiliary patterns of Algorithm 8.
@@ -240,6 +244,7 @@ impl Default for Settings {
             },
             fixed_length_scales: false,
             length_scale_prior: (10.0, 1.0),
+            heading_prior: None,
             alpha: None,
             new_pattern_samples: 10,
             pattern_moments: false,
@@ -289,6 +294,36 @@ pub fn check_length_scale_prior((a, b): (f64, f64)) -> Result<()> {
 }
 
 impl Settings {
+    /// The Gamma priors of the sampled length-scale coordinates `(w_x, w_y[, w_h])`.
+    pub(crate) fn length_scale_priors(&self) -> Vec<(f64, f64)> {
+        let mut p = vec![self.length_scale_prior; 2];
+        p.extend(self.heading_prior);
+        p
+    }
+
+    /// `Σ log Gamma(w_i; a_i, b_i)` over the sampled coordinates of `ls`.
+    pub(crate) fn length_scale_log_prior(&self, ls: LengthScales) -> f64 {
+        self.length_scale_priors()
+            .iter()
+            .enumerate()
+            .map(|(i, &(a, b))| ln_gamma_pdf(ls.coord(i), a, b))
+            .sum()
+    }
+
+    /// Length scales drawn from their priors (`w_h = ∞` without a heading prior).
+    pub(crate) fn draw_length_scales(&self, rng: &mut impl rand::Rng) -> Result<LengthScales> {
+        let mut ls = LengthScales {
+            wx: 1.0,
+            wy: 1.0,
+            wh: f64::INFINITY,
+        };
+        for (i, (a, b)) in self.length_scale_priors().into_iter().enumerate() {
+            let g = Gamma::new(a, b).map_err(|e| Error::InvalidInput(e.to_string()))?;
+            ls = ls.with_coord(i, g.sample(rng).max(1e-12));
+        }
+        Ok(ls)
+    }
+
     /// `base` with length scales `ls`.
     pub(crate) fn pattern_params(&self, ls: LengthScales) -> GpParams {
         self.base.with_length_scales(ls)
@@ -306,6 +341,26 @@ impl Settings {
     /// (before work that depends on the settings) with placeholders for what they resolve later.
     pub fn validate(&self) -> Result<()> {
         check_length_scale_prior(self.length_scale_prior)?;
+        if let Some((a, b)) = self.heading_prior {
+            if !(a.is_finite() && a > 0.0 && b.is_finite() && b > 0.0) {
+                return Err(Error::InvalidInput(format!(
+                    "heading_prior must be a Gamma (shape, scale) with both positive (radians), \
+                     got ({a}, {b})"
+                )));
+            }
+            if self.sampler == SamplerKind::Subcluster {
+                return Err(Error::InvalidInput(
+                    "fields over heading run on the collapsed sampler for now: use \
+                     sampler='collapsed' with inputs='position+heading'"
+                        .into(),
+                ));
+            }
+            if self.dynamics.is_some() {
+                return Err(Error::InvalidInput(
+                    "fields over heading do not run with dynamics='sticky' yet".into(),
+                ));
+            }
+        }
         let (lo, hi) = ALPHA_RANGE;
         if let Some(al) = self.alpha
             && !(lo..=hi).contains(&al)
@@ -374,6 +429,8 @@ pub struct Data {
     xy: Vec<Point>,
     v: Vec<[f64; 2]>,
     offsets: Vec<usize>,
+    /// Each point's previous heading (`NaN`: unknown), or empty: fields over position only.
+    h: Vec<f64>,
 }
 
 impl Data {
@@ -397,7 +454,30 @@ impl Data {
         }
         crate::error::check_finite("positions", xy.as_flattened())?;
         crate::error::check_finite("velocities", v.as_flattened())?;
-        Ok(Self { xy, v, offsets })
+        Ok(Self {
+            xy,
+            v,
+            offsets,
+            h: Vec::new(),
+        })
+    }
+
+    /// The same frames with each point's previous heading (radians, `NaN` where unknown).
+    pub fn with_headings(self, h: Vec<f64>) -> Result<Self> {
+        crate::pattern::check_headings("headings", &h, self.xy.len())?;
+        if h.len() != self.xy.len() {
+            return Err(Error::Shape(format!(
+                "{} headings for {} points; give one per point",
+                h.len(),
+                self.xy.len()
+            )));
+        }
+        Ok(Self { h, ..self })
+    }
+
+    /// The points' previous headings, or empty.
+    pub fn headings(&self) -> &[f64] {
+        &self.h
     }
 
     pub fn len(&self) -> usize {
@@ -420,7 +500,15 @@ impl Data {
 
     pub fn frame(&self, i: usize) -> FrameRef<'_> {
         let (a, b) = (self.offsets[i], self.offsets[i + 1]);
-        FrameRef::new(&self.xy[a..b], &self.v[a..b])
+        FrameRef {
+            xy: &self.xy[a..b],
+            v: &self.v[a..b],
+            h: if self.h.is_empty() {
+                &[]
+            } else {
+                &self.h[a..b]
+            },
+        }
     }
 }
 
@@ -523,8 +611,31 @@ impl Sampler {
     }
 
     /// [`Sampler::new`] over frames shared with others (the sub-cluster sampler's, say).
-    pub fn new_with_data(data: Arc<Data>, settings: Settings) -> Result<Self> {
+    pub fn new_with_data(data: Arc<Data>, mut settings: Settings) -> Result<Self> {
         settings.validate()?;
+        if let Some((a, b)) = settings.heading_prior {
+            if data.headings().is_empty() {
+                return Err(Error::InvalidInput(
+                    "fields over heading need each vehicle's previous heading: frames made by \
+                     dpgp.make_frames from tracks carry them"
+                        .into(),
+                ));
+            }
+            if let Likelihood::Hsgp(basis) = &settings.likelihood
+                && basis.harmonics() == 0
+            {
+                return Err(Error::InvalidInput(
+                    "fields over heading on the reduced-rank engine need a basis with heading \
+                     harmonics"
+                        .into(),
+                ));
+            }
+            // Patterns start at the prior's mean heading length scale unless one is fixed.
+            let ls = settings.base.length_scales;
+            if !crate::heading::is_headed(ls.wh) {
+                settings.base.length_scales = ls.with_heading(a * b)?;
+            }
+        }
         let n = data.len();
         let alpha = initial_alpha(&settings)?;
         let grid = (settings.proposal == Proposal::Informed).then(|| {
@@ -1033,27 +1144,21 @@ impl Sampler {
             )]);
         }
         let m = self.settings.new_pattern_samples;
-        let (a, b) = self.settings.length_scale_prior;
-        let gamma = Gamma::new(a, b).map_err(|e| Error::InvalidInput(e.to_string()))?;
         let fixed = self.settings.fixed_length_scales;
         let draws: Vec<GpParams> = (0..m)
             .map(|j| match (j, own) {
-                (0, Some(p)) => p,
+                (0, Some(p)) => Ok(p),
                 _ => {
                     let ls = if fixed {
                         self.settings.base.length_scales
                     } else {
-                        LengthScales {
-                            wx: gamma.sample(rng).max(1e-12),
-                            wy: gamma.sample(rng).max(1e-12),
-                            wh: f64::INFINITY,
-                        }
+                        self.settings.draw_length_scales(rng)?
                     };
                     let noise = self.settings.new_noise(rng);
-                    self.settings.new_params(ls, noise)
+                    Ok(self.settings.new_params(ls, noise))
                 }
             })
-            .collect();
+            .collect::<Result<_>>()?;
         let log_w0 = (self.alpha / m as f64).ln();
         // The draws come from one stream in order; their scores (a few µs each) are independent,
         // so score them in parallel chunks.
@@ -1452,8 +1557,8 @@ impl Sampler {
         let keys: Vec<(usize, u64)> = self.patterns().iter().map(|p| (p.slot, p.id)).collect();
         self.check_memory(self.candidate_bytes())?;
         let sweep = self.sweep;
-        let (prior, fraction) = (
-            self.settings.length_scale_prior,
+        let (priors, fraction) = (
+            self.settings.length_scale_priors(),
             self.settings.length_scale_fraction,
         );
         let updated: Vec<Box<dyn PatternModel>> = keys
@@ -1461,7 +1566,7 @@ impl Sampler {
             .map(|&(k, id)| {
                 let mut rng = stream(self.settings.seed, sweep, Phase::LengthScales, id);
                 let current = self.live_slot(k).pattern.clone();
-                hyper::length_scale_step(current, prior, fraction, 0.5, &mut rng)
+                hyper::length_scale_step(current, &priors, fraction, 0.5, &mut rng)
             })
             .collect();
         for ((k, _), p) in keys.iter().zip(updated) {
@@ -1508,13 +1613,13 @@ impl Sampler {
             total += -0.5 * (2.0 * std::f64::consts::PI).ln() - 1.5 * a.ln() - 0.5 / a;
         }
         total += self.noise_log_prior();
-        let (pa, pb) = self.settings.length_scale_prior;
         for (k, s) in self.live() {
             let nk = fresh.as_ref().map_or(s.pattern.n_frames(), |c| c.0[k]);
             total += a.ln() + ln_gamma(nk as f64) + s.pattern.log_marginal();
             if !self.settings.fixed_length_scales {
-                let ls = s.pattern.length_scales();
-                total += ln_gamma_pdf(ls.wx, pa, pb) + ln_gamma_pdf(ls.wy, pa, pb);
+                total += self
+                    .settings
+                    .length_scale_log_prior(s.pattern.length_scales());
             }
         }
         total

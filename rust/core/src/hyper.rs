@@ -7,7 +7,6 @@ use rand::RngExt;
 
 use super::noise::{MIN_RATIO, NoisePrior, width};
 use crate::error::Result;
-use crate::frame::LengthScales;
 use crate::gp::GpParams;
 use crate::slice::slice_step;
 use crate::special::ln_gamma_pdf;
@@ -22,23 +21,24 @@ pub(crate) trait Refit: Sized {
     fn refit(&self, params: GpParams) -> Result<Self>;
 }
 
-/// Log density of a pattern's length scales (with the log-scale Jacobian) and data.
-pub(crate) fn ls_log_target<P: Refit>(p: &P, prior: (f64, f64)) -> f64 {
-    let (a, b) = prior;
+/// Log density of a pattern's length scales (with the log-scale Jacobian) and data, under the
+/// Gamma `priors` of the sampled coordinates `(w_x, w_y[, w_h])`.
+pub(crate) fn ls_log_target<P: Refit>(p: &P, priors: &[(f64, f64)]) -> f64 {
     let ls = p.params().length_scales;
-    ln_gamma_pdf(ls.wx, a, b)
-        + ln_gamma_pdf(ls.wy, a, b)
-        + ls.wx.ln()
-        + ls.wy.ln()
+    priors
+        .iter()
+        .enumerate()
+        .map(|(i, &(a, b))| ln_gamma_pdf(ls.coord(i), a, b) + ls.coord(i).ln())
+        .sum::<f64>()
         + p.log_marginal()
 }
 
-/// Slice-sample `log w_x` then `log w_y` of `current` under the Gamma `prior`, slices of
-/// `width` on the log scale; with `fraction` below 1, only that share of calls updates (a
-/// uniform drawn first decides).
+/// Slice-sample `log w_x`, `log w_y` (and `log w_h` when `priors` has a third entry) of
+/// `current` in turn under their Gamma `priors`, slices of `width` on the log scale; with
+/// `fraction` below 1, only that share of calls updates (a uniform drawn first decides).
 pub(crate) fn length_scale_step<P: Refit>(
     mut current: P,
-    prior: (f64, f64),
+    priors: &[(f64, f64)],
     fraction: f64,
     width: f64,
     rng: &mut impl rand::Rng,
@@ -46,25 +46,21 @@ pub(crate) fn length_scale_step<P: Refit>(
     if fraction < 1.0 && rng.random::<f64>() >= fraction {
         return current;
     }
-    let mut f0 = ls_log_target(&current, prior);
-    for axis in 0..2 {
+    let mut f0 = ls_log_target(&current, priors);
+    for axis in 0..priors.len() {
         let params = *current.params();
         let ls = params.length_scales;
-        let x0 = if axis == 0 { ls.wx.ln() } else { ls.wy.ln() };
+        let x0 = ls.coord(axis).ln();
         let mut last: Option<(f64, P)> = None;
         let (x, fx) = slice_step(x0, f0, width, rng, |x| {
             let w = x.exp();
             if !(w.is_finite() && w > 0.0) {
                 return f64::NEG_INFINITY;
             }
-            let cand = if axis == 0 {
-                LengthScales { wx: w, ..ls }
-            } else {
-                LengthScales { wy: w, ..ls }
-            };
+            let cand = ls.with_coord(axis, w);
             match current.refit(params.with_length_scales(cand)) {
                 Ok(p) => {
-                    let f = ls_log_target(&p, prior);
+                    let f = ls_log_target(&p, priors);
                     last = Some((x, p));
                     f
                 }

@@ -44,12 +44,11 @@
 use std::sync::Arc;
 
 use rand::RngExt;
-use rand_distr::{Distribution, Gamma, StandardNormal};
+use rand_distr::{Distribution, StandardNormal};
 
 use super::{Assignment, Data, NONE, Sampler, Settings};
 use crate::error::{Error, Result, unknown_option};
 use crate::frame::FrameRef;
-use crate::frame::LengthScales;
 use crate::gp::GpParams;
 use crate::pattern_model::PatternModel;
 use crate::rng::{Phase, stream};
@@ -179,13 +178,7 @@ impl Settings {
         let ls = if self.fixed_length_scales {
             self.base.length_scales
         } else {
-            let (a, b) = self.length_scale_prior;
-            let g = Gamma::new(a, b).map_err(|e| Error::InvalidInput(e.to_string()))?;
-            LengthScales {
-                wx: g.sample(rng).max(1e-12),
-                wy: g.sample(rng).max(1e-12),
-                wh: f64::INFINITY,
-            }
+            self.draw_length_scales(rng)?
         };
         let noise = self.new_noise(rng);
         Ok(self.new_params(ls, noise))
@@ -212,11 +205,11 @@ impl Settings {
                 (x.ln() + sd * z).exp()
             };
             let ls = if sample_ls {
-                LengthScales {
-                    wx: jitter(parent.length_scales.wx, LOCAL_LS_SD),
-                    wy: jitter(parent.length_scales.wy, LOCAL_LS_SD),
-                    ..parent.length_scales
+                let mut ls = parent.length_scales;
+                for i in 0..self.length_scale_priors().len() {
+                    ls = ls.with_coord(i, jitter(ls.coord(i), LOCAL_LS_SD));
                 }
+                ls
             } else {
                 self.base.length_scales
             };
@@ -242,12 +235,8 @@ impl Settings {
         };
         let (mut lp, mut ll) = (0.0, 0.0);
         if !self.fixed_length_scales {
-            let (a, b) = self.length_scale_prior;
-            let pairs = [
-                (theta.length_scales.wx, parent.length_scales.wx),
-                (theta.length_scales.wy, parent.length_scales.wy),
-            ];
-            for (w, w0) in pairs {
+            for (i, (a, b)) in self.length_scale_priors().into_iter().enumerate() {
+                let (w, w0) = (theta.length_scales.coord(i), parent.length_scales.coord(i));
                 let u = w.ln();
                 lp += a * u - w / b - ln_gamma(a) - a * b.ln();
                 ll += normal(u, w0.ln(), LOCAL_LS_SD);
@@ -282,13 +271,18 @@ pub(super) fn item_score(p: &dyn PatternModel, data: &Data, item: &[usize]) -> R
     if let [f] = item {
         return Ok(p.score(&[data.frame(*f)])?[0]);
     }
-    let (mut xy, mut v) = (Vec::new(), Vec::new());
+    let (mut xy, mut v, mut h) = (Vec::new(), Vec::new(), Vec::new());
     for &f in item {
         let fr = data.frame(f);
+        crate::frame::extend_headings(&mut h, xy.len(), fr.h, fr.xy.len());
         xy.extend_from_slice(fr.xy);
         v.extend_from_slice(fr.v);
     }
-    Ok(p.score(&[FrameRef::new(&xy, &v)])?[0])
+    Ok(p.score(&[FrameRef {
+        xy: &xy,
+        v: &v,
+        h: &h,
+    }])?[0])
 }
 
 impl Sampler {

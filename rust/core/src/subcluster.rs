@@ -48,7 +48,7 @@ use crate::gp::GpParams;
 use crate::hsgp_sums::{Posterior, Sums};
 use crate::pattern_model::Likelihood;
 use crate::rng::{Phase, stream};
-use crate::special::{ln_gamma, ln_gamma_pdf};
+use crate::special::ln_gamma;
 
 #[path = "subcluster_moves.rs"]
 mod moves;
@@ -563,8 +563,8 @@ impl SubclusterSampler {
     fn update_length_scales(&mut self) -> Result<()> {
         self.refresh_fits()?;
         let keys: Vec<(usize, u64)> = self.live().map(|(k, _)| (k, self.id(k))).collect();
-        let (prior, fraction) = (
-            self.settings.length_scale_prior,
+        let (priors, fraction) = (
+            self.settings.length_scale_priors(),
             self.settings.length_scale_fraction,
         );
         let updated: Vec<Fit> = keys
@@ -573,7 +573,7 @@ impl SubclusterSampler {
                 let mut rng = stream(self.settings.seed, self.sweep, Phase::LengthScales, id);
                 let c = self.candidate(k);
                 let width = crate::gibbs::length_scale_width(c.sums.vecs.n_points);
-                crate::gibbs::length_scale_step(c, prior, fraction, width, &mut rng).fit
+                crate::gibbs::length_scale_step(c, &priors, fraction, width, &mut rng).fit
             })
             .collect();
         for ((k, _), fit) in keys.iter().zip(updated) {
@@ -712,12 +712,10 @@ impl SubclusterSampler {
                 NoiseScope::PerPattern => self.live().map(|(_, p)| pair(p.params.noise_var)).sum(),
             };
         }
-        let (pa, pb) = self.settings.length_scale_prior;
         for (k, p) in self.live() {
             total += a.ln() + ln_gamma(p.sums.n_frames as f64) + self.log_marginal_of(k);
             if !self.settings.fixed_length_scales {
-                let ls = p.params.length_scales;
-                total += ln_gamma_pdf(ls.wx, pa, pb) + ln_gamma_pdf(ls.wy, pa, pb);
+                total += self.settings.length_scale_log_prior(p.params.length_scales);
             }
         }
         total

@@ -259,18 +259,26 @@ impl PySampler {
 impl PySampler {
     /// A sampler over frames `xy`, `v` (rows of all frames, `offsets` where each starts) with
     /// `settings`, a dict (settings.rs: `SamplerSettings`) that the core validates.
+    /// `h`: each point's previous heading (radians, `NaN` where unknown), for fields over heading.
     #[new]
+    #[pyo3(signature = (xy, v, offsets, settings, h=None))]
     fn new(
         py: Python<'_>,
         xy: PyReadonlyArray2<'_, f64>,
         v: PyReadonlyArray2<'_, f64>,
         offsets: PyReadonlyArray1<'_, i64>,
         settings: &Bound<'_, PyAny>,
+        h: Option<PyReadonlyArray1<'_, f64>>,
     ) -> PyResult<Self> {
         let (settings, n_threads) = SamplerSettings::extract(settings)?.into_core(false)?;
         let (xy, v) = (pairs("xy", &xy)?, pairs("v", &v)?);
+        let h = crate::convert::headings("h", &h)?;
         let offsets = offsets_vec("offsets", &offsets)?;
-        let data = Arc::new(Data::new(xy.to_vec(), v.to_vec(), offsets).map_err(CoreError)?);
+        let mut data = Data::new(xy.to_vec(), v.to_vec(), offsets).map_err(CoreError)?;
+        if !h.is_empty() {
+            data = data.with_headings(h.to_vec()).map_err(CoreError)?;
+        }
+        let data = Arc::new(data);
         let sampler = py
             .detach(|| match settings.sampler {
                 SamplerKind::Collapsed => {

@@ -65,13 +65,20 @@ pub struct SamplerSettings {
     /// "collapsed" or "subcluster" (parsed by the core); `None`: collapsed.
     #[pyo3(default)]
     sampler: Option<String>,
+    /// Gamma(shape, scale) prior of the heading length scale (radians): fields over position
+    /// and previous heading. `None`: over position only.
+    #[pyo3(default)]
+    heading_prior: Option<(f64, f64)>,
+    /// Heading harmonics of the reduced-rank basis (with `heading_prior`); `None`: 0.
+    #[pyo3(default)]
+    heading_harmonics: Option<usize>,
 }
 
 /// Keys whose value is a bool; anywhere else a bool is a mistake, though Python counts it as 1.
 const BOOL_KEYS: [&str; 2] = ["fixed_length_scales", "pattern_moments"];
 /// The struct's fields: the dict may hold no other key (a misspelt one would silently take its
 /// default), and a field missing here is refused at once as unknown, so the two cannot drift.
-const KEYS: [&str; 20] = [
+const KEYS: [&str; 22] = [
     "assignment",
     "likelihood",
     "proposal",
@@ -92,6 +99,8 @@ const KEYS: [&str; 20] = [
     "noise_scope",
     "dynamics",
     "sampler",
+    "heading_prior",
+    "heading_harmonics",
 ];
 
 /// A value's repr cut to 40 characters (a 300-digit integer says nothing more).
@@ -159,9 +168,15 @@ impl SamplerSettings {
             Some(name) => name.parse().map_err(CoreError)?,
             None => LikelihoodKind::Exact,
         };
+        let harmonics = self.heading_harmonics.unwrap_or(0);
         let basis = self
             .basis
-            .map(|b| crate::hsgp::basis(b).map(Arc::new))
+            .map(|b| -> PyResult<Arc<Basis>> {
+                let b = crate::hsgp::basis(b)?
+                    .with_harmonics(harmonics)
+                    .map_err(CoreError)?;
+                Ok(Arc::new(b))
+            })
             .transpose()?;
         let sampler: SamplerKind = match self.sampler {
             Some(name) => name.parse().map_err(CoreError)?,
@@ -184,6 +199,7 @@ impl SamplerSettings {
             base: self.params.map(params).transpose()?.unwrap_or(d.base),
             fixed_length_scales: self.fixed_length_scales,
             length_scale_prior: self.length_scale_prior.unwrap_or(d.length_scale_prior),
+            heading_prior: self.heading_prior,
             alpha: self.alpha,
             new_pattern_samples: self.new_pattern_samples,
             pattern_moments: self.pattern_moments,

@@ -26,6 +26,7 @@ fn settings(assignment: Assignment, seed: u64) -> Settings {
         base: GpParams::new((10.0, 10.0), (25.0, 25.0), (1.0, 1.0), (5.0, 5.0)).unwrap(),
         fixed_length_scales: false,
         length_scale_prior: (10.0, 1.0),
+        heading_prior: None,
         alpha: None,
         new_pattern_samples: 10,
         length_scale_fraction: 1.0,

@@ -5,6 +5,7 @@
 
 use std::collections::HashMap;
 
+use crate::frame::LengthScales;
 use crate::test_util::tv;
 use std::sync::Arc;
 
@@ -39,6 +40,7 @@ pub(crate) fn tiny_settings(likelihood: Likelihood, seed: u64) -> Settings {
         base: GpParams::new((3.0, 4.0), (1.0, 2.0), (1.0, 1.0), (1.0, 0.0)).unwrap(),
         fixed_length_scales: true,
         length_scale_prior: (10.0, 0.35),
+        heading_prior: None,
         alpha: Some(1.0),
         new_pattern_samples: 1,
         length_scale_fraction: 1.0,
@@ -320,5 +322,120 @@ fn split_merge_with_sampled_length_scales_samples_the_enumerated_posterior() {
             sm.split_accepted > 1000 && sm.merge_accepted > 1000,
             "{name}: {sm:?}"
         );
+    }
+}
+
+/// [`tiny`] with each vehicle's previous heading: the frames of the two fields head opposite
+/// ways (one vehicle's heading unknown), so a field over heading tells them apart.
+fn tiny_headed() -> Data {
+    let d = tiny();
+    let mut u = crate::test_util::uniform(12u64);
+    let mut h = Vec::new();
+    for i in 0..d.len() {
+        for _ in d.frame(i).xy {
+            h.push(std::f64::consts::PI * (i % 2) as f64 + 0.3 * (u() - 0.5));
+        }
+    }
+    h[4] = f64::NAN;
+    d.with_headings(h).unwrap()
+}
+
+fn tiny_hsgp_headed() -> Likelihood {
+    Likelihood::Hsgp(Arc::new(
+        Basis::new([3.0, 3.0], [6.0, 6.0], [3, 3])
+            .unwrap()
+            .with_harmonics(2)
+            .unwrap(),
+    ))
+}
+
+fn headed_settings(likelihood: Likelihood, seed: u64) -> Settings {
+    let mut st = tiny_settings(likelihood, seed);
+    st.heading_prior = Some((3.0, 0.4));
+    st.base = st
+        .base
+        .with_length_scales(st.base.length_scales.with_heading(0.6).unwrap());
+    st
+}
+
+fn chain_frequencies(data: Data, st: Settings, sweeps: usize) -> HashMap<Vec<usize>, f64> {
+    let mut s = Sampler::new(data, st).unwrap();
+    let mut freq: HashMap<Vec<usize>, f64> = HashMap::new();
+    for _ in 0..sweeps {
+        s.sweep(&|| false).unwrap();
+        *freq.entry(canonical(s.labels())).or_default() += 1.0 / sweeps as f64;
+    }
+    freq
+}
+
+/// Gibbs + split–merge over fields of position and heading, hyperparameters fixed: the
+/// partition posterior enumerated from the patterns' marginal likelihoods (product kernel), and
+/// far from the posterior of the fields over position alone (the check has power).
+#[test]
+fn heading_fields_sample_the_enumerated_posterior() {
+    let data = tiny_headed();
+    for likelihood in [Likelihood::Exact, tiny_hsgp_headed()] {
+        let st = headed_settings(likelihood.clone(), 6);
+        let exact = enumerated(&data, &st);
+        let mut blind = st.clone();
+        blind.base = st
+            .base
+            .with_length_scales(st.base.length_scales.with_heading(f64::INFINITY).unwrap());
+        let freq = chain_frequencies(tiny_headed(), st, 40_000);
+        let (d, other) = (tv(&freq, &exact), tv(&freq, &enumerated(&data, &blind)));
+        let name = likelihood.name();
+        eprintln!("{name} over heading: TV {d:.4}; against position only {other:.4}");
+        assert!(d <= 0.03, "{name}: TV {d:.4} > 0.03");
+        assert!(other > 0.05, "{name}: no power ({other:.4})");
+    }
+}
+
+/// `log ∫ Gamma(w_x) Gamma(w_y) Gamma(w_h) p(D | w) dw` of one pattern, on a grid of `log w`.
+fn three_scales_integrated(data: &Data, st: &Settings, members: &[usize]) -> f64 {
+    let m: Vec<(usize, FrameRef)> = members.iter().map(|&i| (i, data.frame(i))).collect();
+    let priors = st.length_scale_priors();
+    let (half, n) = (4.0, 36);
+    let step = 2.0 * half / n as f64;
+    let mut lp = Vec::with_capacity((n + 1) * (n + 1) * (n + 1));
+    for s in 0..=n {
+        for t in 0..=n {
+            for r in 0..=n {
+                let mut ls = st.base.length_scales;
+                let mut prior = 0.0;
+                for (i, k) in [s, t, r].into_iter().enumerate() {
+                    let (a, b) = priors[i];
+                    let u = (a * b).ln() - half + step * k as f64;
+                    ls = ls.with_coord(i, u.exp());
+                    prior += crate::special::ln_gamma_pdf(u.exp(), a, b) + u;
+                }
+                let p = st.base.with_length_scales(ls);
+                lp.push(prior + st.likelihood.pattern(p, &m).unwrap().log_marginal());
+            }
+        }
+    }
+    crate::special::log_sum_exp(&lp) + 3.0 * step.ln()
+}
+
+/// The same with every pattern's length scales sampled, the heading's among them (and split
+/// patterns drawing all three): the partition posterior with the three integrated out.
+#[test]
+fn heading_fields_with_sampled_length_scales_sample_the_enumerated_posterior() {
+    let data = tiny_headed();
+    for likelihood in [Likelihood::Exact, tiny_hsgp_headed()] {
+        let mut st = headed_settings(likelihood.clone(), 8);
+        st.fixed_length_scales = false;
+        st.length_scale_prior = (3.0, 1.2);
+        st.split_merge.moves_per_sweep = 2;
+        st.new_pattern_samples = 3;
+        let exact = enumerated_by(data.len(), st.alpha.unwrap(), |members| {
+            three_scales_integrated(&data, &st, members)
+        });
+        let freq = chain_frequencies(tiny_headed(), st.clone(), 40_000);
+        let d = tv(&freq, &exact);
+        let fixed = tv(&freq, &enumerated(&data, &st));
+        let name = likelihood.name();
+        eprintln!("{name}: sampled w_x, w_y, w_h: TV {d:.4}; against fixed {fixed:.4}");
+        assert!(d <= 0.03, "{name}: TV {d:.4} > 0.03");
+        assert!(fixed > 0.04, "{name}: no power ({fixed:.4})");
     }
 }

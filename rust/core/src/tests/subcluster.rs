@@ -13,6 +13,7 @@ use crate::gibbs::enumeration::{
     tiny_settings,
 };
 use crate::gibbs::{NoiseScope, PairChoice, SamplerKind, Settings};
+use crate::special::ln_gamma_pdf;
 use crate::special::log_sum_exp;
 use crate::test_util::tv;
 
