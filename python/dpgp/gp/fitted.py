@@ -35,6 +35,8 @@ class FittedPatterns:
     alpha: float
     cache: dict = field(default_factory=dict)
     new_sampler: Callable[[Frames], Any] | None = None
+    #: Whether the fields take the previous heading: frames are scored with theirs.
+    headed: bool = False
 
     @property
     def n_patterns(self) -> int:
@@ -57,7 +59,17 @@ class FittedPatterns:
 
     def log_scores(self, frames: Frames) -> tuple[np.ndarray, np.ndarray]:
         """log p(V_f | D_k) for each frame and pattern (estimator order), and the new-pattern term."""
-        per_slot, new = self.sampler.score_frames(frames.xy, frames.v, frames.offsets)
+        h = None
+        if self.headed:
+            if frames.prev_heading is None:
+                from ..exceptions import InvalidInputError
+
+                raise InvalidInputError(
+                    "the model's fields take each vehicle's previous heading: score frames made by dpgp.make_frames "
+                    "from tracks, which carry it"
+                )
+            h = frames.prev_heading
+        per_slot, new = self.sampler.score_frames(frames.xy, frames.v, frames.offsets, h)
         scores = np.asarray(per_slot, dtype=np.float64).reshape(len(frames), -1)[:, self.slot_order]
         return scores, np.asarray(new, dtype=np.float64)
 
@@ -87,12 +99,16 @@ class FittedPatterns:
         sampler.set_noise_var(tuple(float(x) for x in self.sampler.noise_var()))
         own = np.asarray(self.sampler.pattern_noise(), dtype=np.float64).reshape(-1, 2)
         noise = np.array([own[int(self.slot_order[k])] for k in present], dtype=np.float64).reshape(-1, 2)
-        sampler.set_state(compact.astype(np.int64), ls, float(self.alpha), noise)  # each pattern's own noise
+        wh = None
+        if self.headed:
+            scales = self.sampler.heading_scales()
+            wh = [float(scales[int(self.slot_order[k])]) for k in present]
+        sampler.set_state(compact.astype(np.int64), ls, float(self.alpha), noise, heading_scales=wh)  # own noise
         mine = sampler.patterns()  # set_state keeps label c in slot order c
         counts = np.bincount(compact, minlength=len(present)).astype(np.float64)
         sub = FittedPatterns(
             sampler, np.array([p[0] for p in mine], dtype=np.int64), np.arange(len(mine), dtype=np.int64), frames,
-            compact.astype(np.int64), counts / counts.sum(), float(self.alpha), {}, self.new_sampler,
+            compact.astype(np.int64), counts / counts.sum(), float(self.alpha), {}, self.new_sampler, self.headed,
         )  # fmt: skip
         return sub, present
 

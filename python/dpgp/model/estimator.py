@@ -40,6 +40,13 @@ if TYPE_CHECKING:
 
 _DYNAMICS = (None, "sticky")
 _SAMPLERS = ("auto", "subcluster", "collapsed")
+_INPUTS = ("position", "position+heading")
+#: Gamma(shape, scale) prior of a pattern's heading length scale w_h (radians): mean 1.2, 5% and
+#: 95% quantiles 0.52 and 2.1. Headings π apart then correlate at exp(-2/w_h²) ≈ 0.25 at the
+#: mean (opposite lanes are told apart), π/2 apart (a turn) at 0.5.
+HEADING_PRIOR = (6.0, 0.2)
+#: Most heading harmonics of a reduced-rank basis: the position basis is multiplied by 2J + 1.
+MAX_HEADING_HARMONICS = 3
 _INITS = ("sequential", "one", "many")
 #: Why ``sampler="auto"`` runs the sub-cluster sampler where it can (engine_choice_["sampler"]).
 SUBCLUSTER_REASON = (
@@ -194,6 +201,7 @@ class DPGP:
         dynamics: str | None = None,
         sampler: str = "auto",
         init: str = "sequential",
+        inputs: str = "position",
     ) -> None:
         self.iterations = iterations
         self.assignment = assignment
@@ -225,6 +233,7 @@ class DPGP:
         self.dynamics = dynamics
         self.sampler = sampler
         self.init = init
+        self.inputs = inputs
 
     # Set outside __init__ (not settings): a resumed chain's start, the generation cache, and
     # whether Ctrl-C keeps the state reached (a pilot fit's does not).
@@ -320,9 +329,25 @@ class DPGP:
             raise InvalidInputError(f"sampler must be one of {_SAMPLERS}, got {self.sampler!r}")
         if self.init not in _INITS:
             raise InvalidInputError(f"init must be one of {_INITS}, got {self.init!r}")
+        if self.inputs not in _INPUTS:
+            raise InvalidInputError(f"inputs must be one of {_INPUTS}, got {self.inputs!r}")
+        if self._headed():
+            if _is_auto(self.likelihood):
+                raise InvalidInputError(
+                    "inputs='position+heading' does not choose its engine yet: pass likelihood='exact' or 'hsgp'"
+                )
+            if self.sampler == "subcluster" or self.dynamics is not None:
+                raise InvalidInputError(
+                    "inputs='position+heading' runs on the collapsed sampler without dynamics for now: "
+                    "use sampler='collapsed' (or 'auto') and dynamics=None"
+                )
         if self.dynamics is not None and self.checkpoint is not None:
             raise InvalidInputError("dynamics='sticky' cannot write checkpoints yet (its links are not stored in them)")
         _core.check_settings(self._sampler_settings())
+
+    def _headed(self) -> bool:
+        """Whether the fields take the vehicles' previous headings as input."""
+        return self.inputs == "position+heading"
 
     def _sampler_settings(self) -> _core._SamplerSettings:
         """The settings of the core sampler as the user gave them (``"auto"`` resolved where no
@@ -630,10 +655,12 @@ class DPGP:
 
     def _set_state(self, labels: Any, length_scales: Any, alpha: float, noise: Any = None) -> None:
         """``set_state`` of the sampler; per-pattern noise: with each pattern's pair ``noise``."""
+        wh = [float(x) for x in self.heading_scales_] if self._headed() else None
         if self._per_pattern_noise() and noise is not None:
-            self._sampler.set_state(labels, length_scales, alpha, np.asarray(noise, dtype=np.float64).reshape(-1, 2))
+            noise = np.asarray(noise, dtype=np.float64).reshape(-1, 2)
+            self._sampler.set_state(labels, length_scales, alpha, noise, heading_scales=wh)
         else:
-            self._sampler.set_state(labels, length_scales, alpha)
+            self._sampler.set_state(labels, length_scales, alpha, heading_scales=wh)
 
     def _save_checkpoint(self, stable: int, traces: list[np.ndarray]) -> np.ndarray:
         """Rebuild the sampler from its own state in canonical order, as a resumed chain does
@@ -743,6 +770,8 @@ class DPGP:
         """``sampler_`` for ``likelihood_``, and why in ``engine_choice_["sampler"]``."""
         if self.sampler != "auto":
             sampler, why = self.sampler, "given"
+        elif self._headed():
+            sampler, why = "collapsed", "fields over heading run on the collapsed sampler"
         elif self.likelihood_ != "hsgp":
             sampler, why = "collapsed", "the exact likelihood has no finite weights to draw"
         elif self.dynamics is not None:
@@ -834,7 +863,19 @@ class DPGP:
         sampler whatever ``sampler_``); shared by ``fit`` and by loading a model file, so that
         both compute identically."""
         settings = self._core_settings(len(frames), frames, seed=seed, collapsed=collapsed)
-        return _core.Sampler(frames.xy, frames.v, frames.offsets, settings)
+        return _core.Sampler(frames.xy, frames.v, frames.offsets, settings, self._headings(frames, "training"))
+
+    def _headings(self, frames: Frames, what: str) -> np.ndarray | None:
+        """The frames' previous headings for fields over heading (``None`` for fields over
+        position); frames without them are an error that says how to get them."""
+        if not self._headed():
+            return None
+        if frames.prev_heading is None:
+            raise InvalidInputError(
+                f"inputs='position+heading' needs each vehicle's previous heading in the {what} frames: frame the "
+                "tracks with dpgp.make_frames (frames read without track ids carry none)"
+            )
+        return frames.prev_heading
 
     def _core_settings(
         self, n_frames: int, frames: Frames | None, seed: int | None = None, collapsed: bool = False
@@ -864,9 +905,22 @@ class DPGP:
                 else None,
                 "noise_scope": "per_pattern" if self._per_pattern_noise() else "global",
                 "dynamics": _sticky_prior(frames) if self.dynamics == "sticky" and frames is not None else None,
+                "heading_prior": HEADING_PRIOR if self._headed() else None,
+                "heading_harmonics": self._heading_harmonics()
+                if self._headed() and self.likelihood_ == "hsgp"
+                else None,
             }
         )
         return settings
+
+    @staticmethod
+    def _heading_harmonics() -> int:
+        """Harmonics for the heading prior's 5% quantile, at most :data:`MAX_HEADING_HARMONICS` (the
+        cut makes the heading kernel smoother, still a valid kernel: resolution, not correctness)."""
+        from scipy.stats import gamma
+
+        a, b = HEADING_PRIOR
+        return min(_core.heading_harmonics(float(gamma.ppf(0.05, a, scale=b))), MAX_HEADING_HARMONICS)
 
     def _sync(self) -> None:
         """Read the sampler's state into the public attributes, patterns by decreasing size."""
@@ -882,6 +936,8 @@ class DPGP:
         counts = np.array([patterns[j][2] for j in order], dtype=np.float64)
         self.weights_ = counts / counts.sum()
         self.length_scales_ = np.array([[patterns[j][3], patterns[j][4]] for j in order]).reshape(-1, 2)
+        if self._headed():
+            self.heading_scales_ = np.asarray(self._sampler.heading_scales(), dtype=np.float64)[order]
         self.pattern_ids_ = np.array([patterns[j][1] for j in order], dtype=np.uint64)
         self.alpha_ = float(self._sampler.alpha())
         per_slot = np.asarray(self._sampler.pattern_noise(), dtype=np.float64).reshape(-1, 2)
@@ -921,6 +977,7 @@ class DPGP:
             self.alpha_,
             cache,
             lambda frames: self._new_sampler(frames, collapsed=True),  # scores other frames only
+            self._headed(),
         )
 
     @property
@@ -1214,6 +1271,10 @@ class DPGP:
         from ..io.modelfile import save
 
         self._check_fitted()
+        if self._headed():
+            raise InvalidInputError(
+                "model files of fields over heading are not written yet (issue 34): keep the model in memory"
+            )
         save(self._file_state(), path)
 
     def _file_state(self, by_reference: bool = False) -> ModelState:

@@ -924,6 +924,17 @@ impl Sampler {
         alpha: f64,
     ) -> Result<()> {
         check_state(self.data.len(), labels, length_scales, noise_var, alpha)?;
+        if self.settings.heading_prior.is_some()
+            && length_scales
+                .iter()
+                .any(|ls| !crate::heading::is_headed(ls.wh))
+        {
+            return Err(Error::InvalidInput(
+                "a chain over heading needs each group's heading length scale (w_h); a state \
+                 without them is a fit over position only"
+                    .into(),
+            ));
+        }
         self.slots.clear();
         self.generations.clear();
         self.cache = vec![Vec::new(); self.data.len()];

@@ -167,3 +167,16 @@ pub fn hsgp_posterior<'py>(
     })?;
     Ok((to_numpy(py, mean), to_numpy(py, var)))
 }
+
+/// Heading harmonics an hsgp basis needs for heading length scales down to `wh_lo` (radians):
+/// the fewest that keep 99% of the periodic kernel's variance there (`heading::harmonics_for`).
+#[pyfunction]
+pub fn heading_harmonics(wh_lo: f64) -> CoreResult<usize> {
+    if !(wh_lo > 0.0) {
+        return Err(Error::InvalidInput(format!(
+            "a heading length scale must be positive, got {wh_lo}"
+        ))
+        .into());
+    }
+    Ok(dpgp_core::heading::harmonics_for(wh_lo))
+}

@@ -30,7 +30,8 @@ mod _core {
     };
     #[pymodule_export]
     use super::hsgp::{
-        hsgp_basis, hsgp_log_marginal_likelihood, hsgp_log_predictive, hsgp_posterior,
+        heading_harmonics, hsgp_basis, hsgp_log_marginal_likelihood, hsgp_log_predictive,
+        hsgp_posterior,
     };
     #[pymodule_export]
     use super::sampler::PySampler;

@@ -544,18 +544,36 @@ impl PySampler {
     }
 
     /// For new frames: (log p(V_f | D_k) per frame and pattern in slot order, new-pattern term).
+    /// `h`: each point's previous heading (`NaN`: unknown), for a chain over heading.
     #[allow(clippy::type_complexity)]
+    #[pyo3(signature = (xy, v, offsets, h=None))]
     fn score_frames<'py>(
         &self,
         py: Python<'py>,
         xy: PyReadonlyArray2<'py, f64>,
         v: PyReadonlyArray2<'py, f64>,
         offsets: PyReadonlyArray1<'py, i64>,
+        h: Option<PyReadonlyArray1<'py, f64>>,
     ) -> PyResult<(Vec<Vec<f64>>, Vec<f64>)> {
         let (xy, v) = (pairs("xy", &xy)?, pairs("v", &v)?);
+        let h = crate::convert::headings("h", &h)?;
+        dpgp_core::pattern::check_headings("h", h, xy.len()).map_err(CoreError)?;
         let offsets = offsets_vec("offsets", &offsets)?;
-        let frames = frame_refs(xy, v, &offsets)?;
+        let mut frames = frame_refs(xy, v, &offsets)?;
+        if !h.is_empty() {
+            for (f, w) in frames.iter_mut().zip(offsets.windows(2)) {
+                f.h = &h[w[0]..w[1]];
+            }
+        }
         self.run(py, |s, _| s.score_frames(&frames))
+    }
+
+    /// Each pattern's heading length scale (slot order as `patterns`; `inf`: position only).
+    fn heading_scales(&self) -> Vec<f64> {
+        self.infos()
+            .into_iter()
+            .map(|p| p.length_scales.wh)
+            .collect()
     }
 
     /// Posterior mean and variance of pattern `slot`'s velocity field at `query_xy`.
@@ -577,7 +595,8 @@ impl PySampler {
 
     /// Set the state: a group number per frame, the length scales of each group, and alpha;
     /// `noise_var`: each group's noise pair (per-pattern noise), `None` for the chain's pair.
-    #[pyo3(signature = (labels, length_scales, alpha, noise_var=None))]
+    /// `heading_scales`: each group's heading length scale, for a chain over heading.
+    #[pyo3(signature = (labels, length_scales, alpha, noise_var=None, heading_scales=None))]
     fn set_state(
         &self,
         py: Python<'_>,
@@ -585,11 +604,30 @@ impl PySampler {
         length_scales: PyReadonlyArray2<'_, f64>,
         alpha: f64,
         noise_var: Option<PyReadonlyArray2<'_, f64>>,
+        heading_scales: Option<Vec<f64>>,
     ) -> PyResult<()> {
         let labels = offsets_vec("labels", &labels)?;
-        let ls: Vec<LengthScales> = pairs("length_scales", &length_scales)?
+        let pos = pairs("length_scales", &length_scales)?;
+        if let Some(wh) = &heading_scales
+            && wh.len() != pos.len()
+        {
+            return Err(CoreError(Error::Shape(format!(
+                "{} heading length scales for {} groups",
+                wh.len(),
+                pos.len()
+            )))
+            .into());
+        }
+        let ls: Vec<LengthScales> = pos
             .iter()
-            .map(|w| LengthScales::new(w[0], w[1]))
+            .enumerate()
+            .map(|(g, w)| {
+                let ls = LengthScales::new(w[0], w[1])?;
+                match &heading_scales {
+                    Some(wh) => ls.with_heading(wh[g]),
+                    None => Ok(ls),
+                }
+            })
             .collect::<dpgp_core::Result<_>>()
             .map_err(CoreError)?;
         let noise: Option<Vec<[f64; 2]>> = match &noise_var {

@@ -1,0 +1,77 @@
+"""Fields over position against fields over position and previous heading (issue 34), held out.
+
+    python benches/heading.py [--only peachtree,sumo_grid,eth,zara01] [--seeds 1] [--iterations 20]
+
+Each data set with tracks is framed by ``make_frames`` (which gives every vehicle's previous
+heading), split in time (``dpgp.evaluate.split_in_time``), and fitted twice with the same engine,
+sampler and seed, ``inputs="position"`` and ``inputs="position+heading"``. Printed per fit: the
+held-out log density of the velocities given the positions per vehicle (the last state's:
+``score_samples(test, positions=False)``), K, the median sweep and the fit's seconds; then the
+heading fit's gain per vehicle. Both fits run the collapsed sampler on the exact engine (the only
+sampler fields over heading have so far), so the comparison isolates the field's input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+import dpgp
+from dpgp.evaluate import split_in_time
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+def datasets(sumo_dt: float) -> dict:
+    def eth_ucy(name):
+        return lambda: dpgp.make_frames(dpgp.read_tracks(DATA / name, preset="eth_ucy"), dt=0.4)
+
+    return {
+        "peachtree": lambda: dpgp.make_frames(
+            dpgp.read_ngsim(DATA / "ngsim_peachtree_raw.csv"), roi=(-20, 30, 0, 80), dt=0.5
+        ),
+        "sumo_grid": lambda: dpgp.make_frames(
+            dpgp.read_tracks(DATA / "sumo_grid_intersection_fcd.xml.gz", preset="sumo"), dt=sumo_dt
+        ),
+        "eth": eth_ucy("eth_ucy_biwi_eth.txt"),
+        "zara01": eth_ucy("eth_ucy_crowds_zara01.txt"),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--only", help="comma-separated subset of the data sets")
+    ap.add_argument("--seeds", type=int, default=1)
+    ap.add_argument("--iterations", type=int, default=20)
+    ap.add_argument("--likelihood", default="exact", choices=("exact", "hsgp"))
+    ap.add_argument("--sumo-dt", type=float, default=2.0, help="frame step of the SUMO junction (s)")
+    args = ap.parse_args()
+    for name, load in datasets(args.sumo_dt).items():
+        if args.only and name not in args.only.split(","):
+            continue
+        train, test = split_in_time(load())
+        known = float(np.mean(~np.isnan(train.prev_heading)))
+        print(f"{name}: {len(train)}/{len(test)} frames, {train.sizes.sum()}/{test.sizes.sum()} vehicles, "
+              f"{known:.0%} of training vehicles with a previous heading", flush=True)  # fmt: skip
+        for seed in range(args.seeds):
+            scores = {}
+            for inputs in ("position", "position+heading"):
+                t0 = time.perf_counter()
+                model = dpgp.DPGP(
+                    iterations=args.iterations, seed=seed, progress=False, likelihood=args.likelihood,
+                    sampler="collapsed", inputs=inputs,
+                ).fit(train)  # fmt: skip
+                seconds = time.perf_counter() - t0
+                scores[inputs] = float(model.score_samples(test, positions=False).sum() / test.sizes.sum())
+                wh = getattr(model, "heading_scales_", None)
+                extra = "" if wh is None else f", median w_h {np.median(wh):.2f} rad"
+                print(f"  seed {seed} {inputs:17s} held-out {scores[inputs]:+.3f} nats/vehicle, K {model.n_patterns_}, "
+                      f"median sweep {np.median(model.history_['seconds']):.2f} s, fit {seconds:.0f} s{extra}", flush=True)  # fmt: skip
+            print(f"  seed {seed} gain {scores['position+heading'] - scores['position']:+.3f} nats/vehicle", flush=True)
+
+
+if __name__ == "__main__":
+    main()
