@@ -82,4 +82,8 @@ def test_heading_settings_are_checked_before_any_work(road, tmp_path) -> None:
         model.score_samples(dpgp.Frames(test.ids, test.offsets, test.xy, test.v))
     with pytest.raises(InvalidInputError, match="not written yet"):
         model.save(tmp_path / "m.npz")
+    with pytest.raises(InvalidInputError, match="generation"):
+        model.sample_scenarios(2, steps=3)
+    with pytest.raises(InvalidInputError, match="generation"):
+        model.simulate(test[0], steps=3)
     assert not (tmp_path / "m.npz").exists()

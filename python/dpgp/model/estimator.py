@@ -125,6 +125,14 @@ class DPGP:
         conditional (then, past 1,000 frames, by cheap score); ``"one"``: every frame in one
         pattern; ``"many"``: every frame its own pattern, or 256 contiguous blocks of frames on
         larger data. ``fit_chains(init="dispersed")`` starts chains from one and from many.
+    inputs : ``"position"`` (default): each pattern's field maps a position to a velocity, the
+        paper's model. ``"position+heading"``: the field also takes each vehicle's previous
+        heading (docs/heading.md), so opposite lanes and turning movements at one place no longer
+        average; the kernel is the squared exponential times a periodic kernel in heading, whose
+        length scale each pattern samples (``heading_scales_``, prior :data:`HEADING_PRIOR`).
+        Needs frames made by :func:`dpgp.make_frames` from tracks (they carry ``prev_heading``);
+        runs on the collapsed sampler, ``likelihood="exact"`` or ``"hsgp"`` given explicitly.
+        Not yet: ``likelihood="auto"``, model files, generation over heading.
     dynamics : ``None`` (default): frames are exchangeable, the paper's independent DP.
         ``"sticky"``: a Markov prior on consecutive frames' labels (docs/dynamics.md): each
         frame stays in its predecessor's pattern with probability ρ (``stickiness_``, sampled
@@ -962,6 +970,14 @@ class DPGP:
         if not hasattr(self, "labels_"):
             raise NotFittedError("this DPGP is not fitted yet; call fit(frames) first")
 
+    def _check_generation(self) -> None:
+        """Generation follows fields over position only so far: a fit over heading says so."""
+        if self._headed():
+            raise InvalidInputError(
+                "generation (simulate, scenarios, rollouts) does not follow fields over heading yet (issue 34): "
+                "fit with inputs='position' to generate"
+            )
+
     def _fitted(self) -> FittedPatterns:
         """The fitted state the lower modules (simulation, scenarios) work on: they take this,
         never the estimator, so that dependencies run one way."""
@@ -1215,6 +1231,7 @@ class DPGP:
         Returns a :class:`dpgp.simulation.Simulation`."""
         from ..generate.simulation import simulate
 
+        self._check_generation()
         return simulate(
             self._fitted(), frame, pattern, steps, dt, method, stochastic, seed, roi, low_data_threshold, dynamics
         )
@@ -1248,6 +1265,7 @@ class DPGP:
             ph = options.get("phases")
             if isinstance(ph, str) or (isinstance(ph, (int, np.integer)) and not isinstance(ph, bool)):
                 options["phases"] = self.phases(ph if isinstance(ph, str) else int(ph))
+            self._check_generation()
             return sample_long_scenarios(self._fitted(), self.transitions_, n, duration, seed, **options)
         options.pop("duration", None)
         from ..generate.scenarios import sample_scenarios
@@ -1255,6 +1273,7 @@ class DPGP:
         for name in ("phases", "phase_fields", "cycle_splits", "stop_lines", "free_speeds"):
             if options.pop(name, None) is not None:
                 raise InvalidInputError(f"{name}= applies to long scenarios (duration=...)")
+        self._check_generation()
         return sample_scenarios(self._fitted(), n, steps, pattern, seed, **options)
 
     def summary(self, top: int = 10) -> str:
@@ -1478,6 +1497,8 @@ class DPGP:
         (``.table``, ``.plot()``)."""
         from ..evaluate.scores import evaluate
 
+        if tracks is not None:
+            self._check_generation()
         return evaluate(self, as_frames(test_frames), tracks, horizons, average, agent=agent, seed=seed)
 
 
