@@ -58,6 +58,8 @@ mod pass;
 mod peel;
 #[path = "subcluster_shard.rs"]
 pub mod shard;
+#[path = "subcluster_stays.rs"]
+pub mod stays;
 
 pub use shard::Store;
 

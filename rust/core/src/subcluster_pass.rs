@@ -4,11 +4,13 @@
 //! Every pattern's two fields are evaluated at a frame's points by the fused kernel of
 //! [`crate::field_blocks`] (`2 M` multiply–adds per field and point).
 
+use std::ops::Range;
 use std::time::Instant;
 
 use rayon::prelude::*;
 
 use super::shard::{Bank, DrawKey};
+use super::stays::{self, Event, Proposal};
 use super::{Fit, SubclusterSampler, gamma};
 use crate::basis::Basis;
 use crate::error::{Error, Result};
@@ -134,20 +136,10 @@ impl SubclusterSampler {
 
         let t = Instant::now();
         let proposed = self.propose_labels(&bank, &log_w, stop)?;
-        // In frame order: a frame moves to its draw unless it is the last of its pattern.
-        let mut counts = vec![0usize; self.slots.len()];
-        for &k in &slots {
-            counts[k] = self.part(k).sums.n_frames;
-        }
-        let mut moved: Vec<(usize, usize, usize)> = Vec::new();
-        for (i, &pick) in proposed.iter().enumerate() {
-            let (from, to) = (self.labels[i], slots[pick as usize]);
-            if to != from && counts[from] > 1 {
-                counts[from] -= 1;
-                counts[to] += 1;
-                self.labels[i] = to;
-                moved.push((i, from, to));
-            }
+        let moved = self.resolve_moves(&slots, &proposed);
+        drop(proposed);
+        for &(i, _, to) in &moved {
+            self.labels[i] = to;
         }
         self.timings.assign += t.elapsed().as_secs_f64();
 
@@ -155,6 +147,48 @@ impl SubclusterSampler {
         self.apply_moves(&moved)?;
         self.timings.sums += t.elapsed().as_secs_f64();
         Ok(moved.len())
+    }
+
+    /// The moves `(frame, from, to)` of a pass whose draws are `picks` (indices into `slots`):
+    /// a frame moves to its draw unless it is the last of its pattern, in frame order. Decided
+    /// shard by shard from each shard's labels and draws, the leader walking only the frames of
+    /// at-risk patterns (`subcluster_stays.rs`): the moves of the walk over all frames.
+    fn resolve_moves(&self, slots: &[usize], picks: &[u32]) -> Vec<(usize, usize, usize)> {
+        let k = slots.len();
+        let mut index = vec![u32::MAX; self.slots.len()];
+        for (b, &s) in slots.iter().enumerate() {
+            index[s] = b as u32;
+        }
+        let ranges: Vec<Range<usize>> = self.store.shard_ranges().collect();
+        let shard = |r: &Range<usize>| (&self.labels[r.clone()], &picks[r.clone()]);
+        let proposals: Vec<Proposal> = ranges
+            .iter()
+            .map(|r| {
+                let (l, p) = shard(r);
+                stays::propose(l, p, &index, k)
+            })
+            .collect();
+        let risk = stays::at_risk(&proposals);
+        let kept: Vec<Vec<u32>> = if risk.contains(&true) {
+            let counts: Vec<usize> = slots.iter().map(|&s| self.part(s).sums.n_frames).collect();
+            let events: Vec<Vec<Event>> = ranges
+                .iter()
+                .map(|r| {
+                    let (l, p) = shard(r);
+                    stays::events(l, p, &index, &risk)
+                })
+                .collect();
+            stays::resolve(&counts, &risk, &events)
+        } else {
+            vec![Vec::new(); ranges.len()]
+        };
+        let mut moved = Vec::new();
+        for (r, st) in ranges.iter().zip(&kept) {
+            let (l, p) = shard(r);
+            let m = stays::moves(l, p, slots, st);
+            moved.extend(m.into_iter().map(|(i, from, to)| (r.start + i, from, to)));
+        }
+        moved
     }
 
     /// Pattern `k`'s log mixture weight (up to a constant shared by all patterns) and basis

@@ -380,6 +380,11 @@ impl Store {
         self.data.as_ref()
     }
 
+    /// Each shard's frames, as a range of all frames.
+    pub fn shard_ranges(&self) -> impl Iterator<Item = Range<usize>> + '_ {
+        self.starts.windows(2).map(|w| w[0]..w[1])
+    }
+
     fn shard_of(&self, f: usize) -> usize {
         self.starts.partition_point(|&s| s <= f) - 1
     }
