@@ -110,6 +110,30 @@ impl SubclusterSampler {
     /// frames moved.
     pub(super) fn assignment_pass(&mut self, stop: &dyn Fn() -> bool) -> Result<usize> {
         let t = Instant::now();
+        let (slots, bank, log_w) = self.pass_bank()?;
+        self.timings.fields += t.elapsed().as_secs_f64();
+        if stop() {
+            return Err(Error::Interrupted);
+        }
+
+        let t = Instant::now();
+        let proposed = self.propose_labels(&bank, &log_w, stop)?;
+        let moved = self.resolve_moves(&slots, &proposed);
+        drop(proposed);
+        for &(i, _, to) in &moved {
+            self.labels[i] = to;
+        }
+        self.timings.assign += t.elapsed().as_secs_f64();
+
+        let t = Instant::now();
+        self.apply_moves(&moved)?;
+        self.timings.sums += t.elapsed().as_secs_f64();
+        Ok(moved.len())
+    }
+
+    /// The live slots, and the bank and log mixture weights a pass draws under: the patterns'
+    /// drawn weights and fields.
+    pub(super) fn pass_bank(&mut self) -> Result<(Vec<usize>, Bank, Vec<f64>)> {
         self.refresh_fits()?;
         let slots: Vec<usize> = self.live().map(|(k, _)| k).collect();
         let drawn: Vec<Result<(f64, [Vec<f64>; 2])>> =
@@ -129,24 +153,7 @@ impl SubclusterSampler {
             noise,
             mean: self.settings.base.mean,
         };
-        self.timings.fields += t.elapsed().as_secs_f64();
-        if stop() {
-            return Err(Error::Interrupted);
-        }
-
-        let t = Instant::now();
-        let proposed = self.propose_labels(&bank, &log_w, stop)?;
-        let moved = self.resolve_moves(&slots, &proposed);
-        drop(proposed);
-        for &(i, _, to) in &moved {
-            self.labels[i] = to;
-        }
-        self.timings.assign += t.elapsed().as_secs_f64();
-
-        let t = Instant::now();
-        self.apply_moves(&moved)?;
-        self.timings.sums += t.elapsed().as_secs_f64();
-        Ok(moved.len())
+        Ok((slots, bank, log_w))
     }
 
     /// The moves `(frame, from, to)` of a pass whose draws are `picks` (indices into `slots`):
@@ -239,13 +246,18 @@ impl SubclusterSampler {
         frames: std::ops::Range<usize>,
         (sweep, phase): (u64, Phase),
     ) -> Result<Vec<u32>> {
-        let key = DrawKey {
+        let key = self.draw_key(sweep, phase);
+        self.store.draw(&self.basis, bank, log_w, frames, key)
+    }
+
+    /// The key of the uniforms of a draw at `sweep` in `phase`.
+    pub(super) fn draw_key(&self, sweep: u64, phase: Phase) -> DrawKey {
+        DrawKey {
             seed: self.settings.seed,
             sweep,
             phase: phase as u64,
             map: self.map(),
-        };
-        self.store.draw(&self.basis, bank, log_w, frames, key)
+        }
     }
 
     /// Groups of the frames after the first `groups.len()`, drawn by the instantiated conditional
