@@ -20,7 +20,8 @@
 //! be left empty. So frames are drawn from that product one at a time in frame order, a frame that
 //! is the last of its pattern staying where it is: its exact conditional. The draws need no
 //! state of other frames, so they are made in parallel beforehand and only the "last frame"
-//! bookkeeping runs in order (`O(N)`, integers only). This pass never creates nor empties a
+//! bookkeeping runs in order (`O(N)`, integers only; shard by shard, the leader walking only the
+//! frames of patterns none of whose frames drew them: `subcluster_stays.rs`). This pass never creates nor empties a
 //! pattern; the split–merge moves do, and make the chain ergodic. (The restricted step of Chang &
 //! Fisher 2013 lets a pattern empty; it then merges and never splits, which does not keep the
 //! posterior: with two frames, `{1}{2} → {12}` has positive probability and its reverse none.)
@@ -58,6 +59,8 @@ mod pass;
 mod peel;
 #[path = "subcluster_shard.rs"]
 pub mod shard;
+#[path = "subcluster_stays.rs"]
+pub mod stays;
 
 pub use shard::Store;
 

@@ -4,11 +4,13 @@
 //! Every pattern's two fields are evaluated at a frame's points by the fused kernel of
 //! [`crate::field_blocks`] (`2 M` multiply–adds per field and point).
 
+use std::ops::Range;
 use std::time::Instant;
 
 use rayon::prelude::*;
 
 use super::shard::{Bank, DrawKey};
+use super::stays::{self, Event, Proposal};
 use super::{Fit, SubclusterSampler, gamma};
 use crate::basis::Basis;
 use crate::error::{Error, Result};
@@ -108,6 +110,30 @@ impl SubclusterSampler {
     /// frames moved.
     pub(super) fn assignment_pass(&mut self, stop: &dyn Fn() -> bool) -> Result<usize> {
         let t = Instant::now();
+        let (slots, bank, log_w) = self.pass_bank()?;
+        self.timings.fields += t.elapsed().as_secs_f64();
+        if stop() {
+            return Err(Error::Interrupted);
+        }
+
+        let t = Instant::now();
+        let proposed = self.propose_labels(&bank, &log_w, stop)?;
+        let moved = self.resolve_moves(&slots, &proposed);
+        drop(proposed);
+        for &(i, _, to) in &moved {
+            self.labels[i] = to;
+        }
+        self.timings.assign += t.elapsed().as_secs_f64();
+
+        let t = Instant::now();
+        self.apply_moves(&moved)?;
+        self.timings.sums += t.elapsed().as_secs_f64();
+        Ok(moved.len())
+    }
+
+    /// The live slots, and the bank and log mixture weights a pass draws under: the patterns'
+    /// drawn weights and fields.
+    pub(super) fn pass_bank(&mut self) -> Result<(Vec<usize>, Bank, Vec<f64>)> {
         self.refresh_fits()?;
         let slots: Vec<usize> = self.live().map(|(k, _)| k).collect();
         let drawn: Vec<Result<(f64, [Vec<f64>; 2])>> =
@@ -127,34 +153,49 @@ impl SubclusterSampler {
             noise,
             mean: self.settings.base.mean,
         };
-        self.timings.fields += t.elapsed().as_secs_f64();
-        if stop() {
-            return Err(Error::Interrupted);
-        }
+        Ok((slots, bank, log_w))
+    }
 
-        let t = Instant::now();
-        let proposed = self.propose_labels(&bank, &log_w, stop)?;
-        // In frame order: a frame moves to its draw unless it is the last of its pattern.
-        let mut counts = vec![0usize; self.slots.len()];
-        for &k in &slots {
-            counts[k] = self.part(k).sums.n_frames;
+    /// The moves `(frame, from, to)` of a pass whose draws are `picks` (indices into `slots`):
+    /// a frame moves to its draw unless it is the last of its pattern, in frame order. Decided
+    /// shard by shard from each shard's labels and draws, the leader walking only the frames of
+    /// at-risk patterns (`subcluster_stays.rs`): the moves of the walk over all frames.
+    fn resolve_moves(&self, slots: &[usize], picks: &[u32]) -> Vec<(usize, usize, usize)> {
+        let k = slots.len();
+        let mut index = vec![u32::MAX; self.slots.len()];
+        for (b, &s) in slots.iter().enumerate() {
+            index[s] = b as u32;
         }
-        let mut moved: Vec<(usize, usize, usize)> = Vec::new();
-        for (i, &pick) in proposed.iter().enumerate() {
-            let (from, to) = (self.labels[i], slots[pick as usize]);
-            if to != from && counts[from] > 1 {
-                counts[from] -= 1;
-                counts[to] += 1;
-                self.labels[i] = to;
-                moved.push((i, from, to));
-            }
+        let ranges: Vec<Range<usize>> = self.store.shard_ranges().collect();
+        let shard = |r: &Range<usize>| (&self.labels[r.clone()], &picks[r.clone()]);
+        let proposals: Vec<Proposal> = ranges
+            .iter()
+            .map(|r| {
+                let (l, p) = shard(r);
+                stays::propose(l, p, &index, k)
+            })
+            .collect();
+        let risk = stays::at_risk(&proposals);
+        let kept: Vec<Vec<u32>> = if risk.contains(&true) {
+            let counts: Vec<usize> = slots.iter().map(|&s| self.part(s).sums.n_frames).collect();
+            let events: Vec<Vec<Event>> = ranges
+                .iter()
+                .map(|r| {
+                    let (l, p) = shard(r);
+                    stays::events(l, p, &index, &risk)
+                })
+                .collect();
+            stays::resolve(&counts, &risk, &events)
+        } else {
+            vec![Vec::new(); ranges.len()]
+        };
+        let mut moved = Vec::new();
+        for (r, st) in ranges.iter().zip(&kept) {
+            let (l, p) = shard(r);
+            let m = stays::moves(l, p, slots, st);
+            moved.extend(m.into_iter().map(|(i, from, to)| (r.start + i, from, to)));
         }
-        self.timings.assign += t.elapsed().as_secs_f64();
-
-        let t = Instant::now();
-        self.apply_moves(&moved)?;
-        self.timings.sums += t.elapsed().as_secs_f64();
-        Ok(moved.len())
+        moved
     }
 
     /// Pattern `k`'s log mixture weight (up to a constant shared by all patterns) and basis
@@ -205,13 +246,18 @@ impl SubclusterSampler {
         frames: std::ops::Range<usize>,
         (sweep, phase): (u64, Phase),
     ) -> Result<Vec<u32>> {
-        let key = DrawKey {
+        let key = self.draw_key(sweep, phase);
+        self.store.draw(&self.basis, bank, log_w, frames, key)
+    }
+
+    /// The key of the uniforms of a draw at `sweep` in `phase`.
+    pub(super) fn draw_key(&self, sweep: u64, phase: Phase) -> DrawKey {
+        DrawKey {
             seed: self.settings.seed,
             sweep,
             phase: phase as u64,
             map: self.map(),
-        };
-        self.store.draw(&self.basis, bank, log_w, frames, key)
+        }
     }
 
     /// Groups of the frames after the first `groups.len()`, drawn by the instantiated conditional

@@ -8,6 +8,8 @@
 //! under a bank, each frame's mean velocity, and a few frames' points. None of them needs a
 //! frame's label, so a shard holds nothing but its frames (a lost worker is replaced by reading
 //! its shard again) and the labels stay with the leader, which runs every other step on sums.
+//! A shard can also keep a chain's labels and run the pass on them (`subcluster_held.rs`: the
+//! requests from `SetLabels` on), returning per-pattern statistics instead of a label a frame.
 //!
 //! **The same chain however the shards are served.** A shard's reply depends only on its frames
 //! and the request (uniforms keyed by the global frame index, parallel work reduced in a fixed
@@ -16,8 +18,9 @@
 //! ([`Link`] over [`Request::encode`] bytes), for any thread count. One shard computes exactly
 //! what the sampler computed over all frames before shards existed.
 
+use std::collections::HashMap;
 use std::ops::Range;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use rayon::prelude::*;
 
@@ -71,6 +74,31 @@ pub enum Request {
     Means,
     /// The points of some frames.
     Points { frames: Vec<u32> },
+    /// Hold these labels (slots) of the shard's frames for chain `chain` (`subcluster_held.rs`).
+    SetLabels { chain: u64, labels: Vec<u32> },
+    /// Draw every frame's entry of the bank (whose patterns are `slots`) and keep the draws.
+    Pass {
+        chain: u64,
+        basis: Basis,
+        bank: Bank,
+        log_w: Vec<f64>,
+        slots: Vec<u32>,
+        key: DrawKey,
+    },
+    /// The frames drawn from or into the at-risk patterns `risk` (by bank index).
+    Events { chain: u64, risk: Vec<bool> },
+    /// Move every drawn frame but `stays`; the moved frames' sums per pair (or, `rebuild`,
+    /// every pattern's sums).
+    Move {
+        chain: u64,
+        basis: Basis,
+        stays: Vec<u32>,
+        rebuild: bool,
+    },
+    /// The held labels.
+    Labels { chain: u64 },
+    /// Drop the chain's labels.
+    Forget { chain: u64 },
 }
 
 /// A shard's answer to a [`Request`] of the same kind.
@@ -85,21 +113,42 @@ pub enum Reply {
         v: Vec<[f64; 2]>,
         sizes: Vec<u32>,
     },
+    Done,
+    Proposal {
+        keeps: Vec<bool>,
+        leaving: u64,
+    },
+    Events(Vec<super::stays::Event>),
+    Moved {
+        pairs: Vec<[u32; 2]>,
+        sums: Vec<Sums>,
+    },
+    Labels(Vec<u32>),
 }
 
-/// Consecutive frames of the data, the first being frame `first` of all.
+/// Consecutive frames of the data, the first being frame `first` of all, and the labels of its
+/// frames that chains left with it (`subcluster_held.rs`; shared by clones).
 #[derive(Clone, Debug)]
 pub struct Shard {
     data: Arc<Data>,
     first: usize,
+    held: Arc<Mutex<HashMap<u64, held::Held>>>,
 }
+
+#[path = "subcluster_held.rs"]
+mod held;
+pub use held::Moved;
 
 /// Frames summed per parallel task (the sums of a set are those of its chunks, in order).
 const SUM_CHUNK: usize = 64;
 
 impl Shard {
     pub fn new(data: Arc<Data>, first: usize) -> Self {
-        Self { data, first }
+        Self {
+            data,
+            first,
+            held: Arc::default(),
+        }
     }
 
     pub fn len(&self) -> usize {
@@ -117,6 +166,9 @@ impl Shard {
 
     /// Answer `request`.
     pub fn handle(&self, request: &Request) -> Result<Reply> {
+        if let Some(reply) = self.handle_held(request)? {
+            return Ok(reply);
+        }
         let n = self.data.len();
         let check = |mut frames: std::iter::Copied<std::slice::Iter<'_, u32>>| -> Result<()> {
             match frames.find(|&f| f as usize >= n) {
@@ -162,6 +214,7 @@ impl Shard {
                 let sizes = starts.windows(2).map(|w| (w[1] - w[0]) as u32).collect();
                 Reply::Points { xy, v, sizes }
             }
+            _ => unreachable!("requests about held labels are answered above"),
         })
     }
 
@@ -378,6 +431,11 @@ impl Store {
     /// The frames, when this store holds them all in this process as one shard.
     pub fn data(&self) -> Option<&Arc<Data>> {
         self.data.as_ref()
+    }
+
+    /// Each shard's frames, as a range of all frames.
+    pub fn shard_ranges(&self) -> impl Iterator<Item = Range<usize>> + '_ {
+        self.starts.windows(2).map(|w| w[0]..w[1])
     }
 
     fn shard_of(&self, f: usize) -> usize {
@@ -671,6 +729,14 @@ impl Writer {
         self.pairs(&b.noise);
         self.pairs(&[b.mean]);
     }
+    fn bools(&mut self, xs: &[bool]) {
+        self.u32s(&xs.iter().map(|&b| u32::from(b)).collect::<Vec<_>>());
+    }
+    fn key(&mut self, key: &DrawKey) {
+        for x in [key.seed, key.sweep, key.phase, u64::from(key.map)] {
+            self.u64(x);
+        }
+    }
     fn sums(&mut self, s: &Sums) {
         self.f64s(&s.h);
         self.f64s(&s.vecs.phi_sum);
@@ -734,6 +800,24 @@ impl Reader<'_> {
             .chunks_exact(4)
             .map(|c| u32::from_le_bytes(c.try_into().unwrap()))
             .collect())
+    }
+    fn bools(&mut self) -> Result<Vec<bool>> {
+        self.u32s()?
+            .into_iter()
+            .map(|x| match x {
+                0 => Ok(false),
+                1 => Ok(true),
+                _ => Err(malformed()),
+            })
+            .collect()
+    }
+    fn key(&mut self) -> Result<DrawKey> {
+        Ok(DrawKey {
+            seed: self.u64()?,
+            sweep: self.u64()?,
+            phase: self.u64()?,
+            map: self.u64()? != 0,
+        })
     }
     fn basis(&mut self) -> Result<Basis> {
         let ch = self.pairs()?;
@@ -833,14 +917,58 @@ impl Request {
                 w.bank(bank);
                 w.f64s(log_w);
                 w.u32s(&[frames.start, frames.end]);
-                for x in [key.seed, key.sweep, key.phase, u64::from(key.map)] {
-                    w.u64(x);
-                }
+                w.key(key);
             }
             Request::Means => header(&mut w, 4),
             Request::Points { frames } => {
                 header(&mut w, 5);
                 w.u32s(frames);
+            }
+            Request::SetLabels { chain, labels } => {
+                header(&mut w, 6);
+                w.u64(*chain);
+                w.u32s(labels);
+            }
+            Request::Pass {
+                chain,
+                basis,
+                bank,
+                log_w,
+                slots,
+                key,
+            } => {
+                header(&mut w, 7);
+                w.u64(*chain);
+                w.basis(basis);
+                w.bank(bank);
+                w.f64s(log_w);
+                w.u32s(slots);
+                w.key(key);
+            }
+            Request::Events { chain, risk } => {
+                header(&mut w, 8);
+                w.u64(*chain);
+                w.bools(risk);
+            }
+            Request::Move {
+                chain,
+                basis,
+                stays,
+                rebuild,
+            } => {
+                header(&mut w, 9);
+                w.u64(*chain);
+                w.basis(basis);
+                w.u32s(stays);
+                w.u64(u64::from(*rebuild));
+            }
+            Request::Labels { chain } => {
+                header(&mut w, 10);
+                w.u64(*chain);
+            }
+            Request::Forget { chain } => {
+                header(&mut w, 11);
+                w.u64(*chain);
             }
         }
         w.0
@@ -868,12 +996,7 @@ impl Request {
                 if range.len() != 2 {
                     return Err(malformed());
                 }
-                let key = DrawKey {
-                    seed: r.u64()?,
-                    sweep: r.u64()?,
-                    phase: r.u64()?,
-                    map: r.u64()? != 0,
-                };
+                let key = r.key()?;
                 Request::Draw {
                     basis,
                     bank,
@@ -884,6 +1007,30 @@ impl Request {
             }
             4 => Request::Means,
             5 => Request::Points { frames: r.u32s()? },
+            6 => Request::SetLabels {
+                chain: r.u64()?,
+                labels: r.u32s()?,
+            },
+            7 => Request::Pass {
+                chain: r.u64()?,
+                basis: r.basis()?,
+                bank: r.bank()?,
+                log_w: r.f64s()?,
+                slots: r.u32s()?,
+                key: r.key()?,
+            },
+            8 => Request::Events {
+                chain: r.u64()?,
+                risk: r.bools()?,
+            },
+            9 => Request::Move {
+                chain: r.u64()?,
+                basis: r.basis()?,
+                stays: r.u32s()?,
+                rebuild: r.u64()? != 0,
+            },
+            10 => Request::Labels { chain: r.u64()? },
+            11 => Request::Forget { chain: r.u64()? },
             _ => return Err(malformed()),
         };
         r.done()?;
@@ -920,6 +1067,30 @@ impl Reply {
                 w.pairs(v);
                 w.u32s(sizes);
             }
+            Reply::Done => header(&mut w, 6),
+            Reply::Proposal { keeps, leaving } => {
+                header(&mut w, 7);
+                w.bools(keeps);
+                w.u64(*leaving);
+            }
+            Reply::Events(e) => {
+                header(&mut w, 8);
+                let flat: Vec<u32> = e.iter().flat_map(|&(i, f, t)| [i, f, t]).collect();
+                w.u32s(&flat);
+            }
+            Reply::Moved { pairs, sums } => {
+                header(&mut w, 9);
+                let flat: Vec<u32> = pairs.iter().flatten().copied().collect();
+                w.u32s(&flat);
+                w.u64(sums.len() as u64);
+                for s in sums {
+                    w.sums(s);
+                }
+            }
+            Reply::Labels(l) => {
+                header(&mut w, 10);
+                w.u32s(l);
+            }
         }
         w.0
     }
@@ -939,6 +1110,30 @@ impl Reply {
                 v: r.pairs()?,
                 sizes: r.u32s()?,
             },
+            6 => Reply::Done,
+            7 => Reply::Proposal {
+                keeps: r.bools()?,
+                leaving: r.u64()?,
+            },
+            8 => {
+                let flat = r.u32s()?;
+                if flat.len() % 3 != 0 {
+                    return Err(malformed());
+                }
+                Reply::Events(flat.chunks(3).map(|c| (c[0], c[1], c[2])).collect())
+            }
+            9 => {
+                let flat = r.u32s()?;
+                let n = r.len(8)?;
+                if flat.len() != 2 * n {
+                    return Err(malformed());
+                }
+                Reply::Moved {
+                    pairs: flat.chunks(2).map(|c| [c[0], c[1]]).collect(),
+                    sums: (0..n).map(|_| r.sums()).collect::<Result<_>>()?,
+                }
+            }
+            10 => Reply::Labels(r.u32s()?),
             _ => return Err(malformed()),
         };
         r.done()?;

@@ -272,3 +272,196 @@ fn shards_out_of_order_are_refused() {
     assert!(err.to_string().contains("in order"), "{err}");
     assert!(Store::sharded(&[2, 0], Arc::new(InProcess(Vec::new()))).is_err());
 }
+
+#[test]
+fn held_label_requests_and_replies_cross_as_bytes() {
+    let bank = Bank {
+        weights: vec![[vec![0.5; 6], vec![-1.0; 6]]],
+        noise: vec![[0.3, 0.4]],
+        mean: [0.1, -0.2],
+    };
+    let key = DrawKey {
+        seed: 3,
+        sweep: 4,
+        phase: 5,
+        map: false,
+    };
+    let requests = [
+        Request::SetLabels {
+            chain: 2,
+            labels: vec![4, 0, 4],
+        },
+        Request::Pass {
+            chain: 2,
+            basis: basis(),
+            bank,
+            log_w: vec![-0.5],
+            slots: vec![4],
+            key,
+        },
+        Request::Events {
+            chain: 2,
+            risk: vec![true, false],
+        },
+        Request::Move {
+            chain: 2,
+            basis: basis(),
+            stays: vec![1, 5],
+            rebuild: true,
+        },
+        Request::Labels { chain: 9 },
+        Request::Forget { chain: 9 },
+    ];
+    for r in requests {
+        let bytes = r.encode();
+        assert_eq!(Request::decode(&bytes).unwrap(), r);
+        for cut in 0..bytes.len() {
+            assert!(Request::decode(&bytes[..cut]).is_err());
+        }
+    }
+    let mut s = Sums::zeros(&basis());
+    s.n_frames = 2;
+    s.h[1] = 0.25;
+    let replies = [
+        Reply::Done,
+        Reply::Proposal {
+            keeps: vec![true, false, true],
+            leaving: 7,
+        },
+        Reply::Events(vec![(1, 2, 0), (4, 0, 2)]),
+        Reply::Moved {
+            pairs: vec![[3, 1], [1, 3]],
+            sums: vec![s.clone(), s],
+        },
+        Reply::Labels(vec![1, 1, 0]),
+    ];
+    for r in replies {
+        let bytes = r.encode();
+        assert_eq!(Reply::decode(&bytes).unwrap(), r);
+        for cut in 0..bytes.len() {
+            assert!(Reply::decode(&bytes[..cut]).is_err());
+        }
+    }
+}
+
+/// A link that counts the requests for events it passes on.
+#[derive(Debug)]
+struct Counted(Bytes, std::sync::atomic::AtomicUsize);
+
+impl Link for Counted {
+    fn run(&self, jobs: Vec<(usize, Request)>) -> Result<Vec<Reply>> {
+        let n = jobs
+            .iter()
+            .filter(|(_, r)| matches!(r, Request::Events { .. }))
+            .count();
+        self.1.fetch_add(n, std::sync::atomic::Ordering::Relaxed);
+        self.0.run(jobs)
+    }
+}
+
+/// `n` frames of two to four points, their velocities in three groups.
+fn frames(n: usize) -> Data {
+    let mut u = crate::test_util::uniform(3u64);
+    let (mut xy, mut v, mut offsets) = (Vec::new(), Vec::new(), vec![0]);
+    for i in 0..n {
+        let shift = 1.5 * (i % 3) as f64;
+        for _ in 0..(2 + i % 3) {
+            xy.push([6.0 * u(), 6.0 * u()]);
+            v.push([
+                1.0 + shift + 2.0 * (u() - 0.5),
+                -0.5 + 0.5 * shift + 2.0 * (u() - 0.5),
+            ]);
+        }
+        offsets.push(xy.len());
+    }
+    Data::new(xy, v, offsets).unwrap()
+}
+
+fn bits(s: &Sums) -> String {
+    format!("{s:?}")
+}
+
+#[test]
+fn a_pass_over_held_labels_is_the_leaders_pass() {
+    let data = frames(600);
+    let sizes = [200, 250, 150];
+    let leader = Store::in_process_shards(cut(&data, &sizes)).unwrap();
+    let mut s = SubclusterSampler::with_store(leader, settings(9)).unwrap();
+    s.initialize(Start::Many, &|| false).unwrap();
+    // Shards that hold the labels, reached through bytes as workers are.
+    let link = Arc::new(Counted(Bytes(cut(&data, &sizes)), Default::default()));
+    let held = Store::sharded(&sizes, Arc::clone(&link) as Arc<dyn Link>).unwrap();
+    let chain = 7;
+    held.set_held_labels(chain, s.labels()).unwrap();
+    let (mut rebuilt, mut paired) = (0, 0);
+    for sweep in 0..40 {
+        let mut c = s.clone();
+        c.sweep += 1;
+        let (slots, bank, log_w) = c.pass_bank().unwrap();
+        let counts: Vec<usize> = slots.iter().map(|&k| c.part(k).sums.n_frames).collect();
+        let key = c.draw_key(c.sweep, crate::rng::Phase::Labels);
+        let before = c.labels().to_vec();
+        let got = held
+            .held_pass(chain, &c.basis, &bank, &log_w, &slots, &counts, key)
+            .unwrap();
+        let moved = c.assignment_pass(&|| false).unwrap();
+        let after = c.labels().to_vec();
+        assert_eq!(held.held_labels(chain).unwrap(), after, "sweep {sweep}");
+        let store = c.store();
+        match got {
+            Moved::Rebuilt { moved: m, sums } => {
+                rebuilt += 1;
+                assert_eq!(m, moved);
+                let mut index = vec![usize::MAX; c.slots.len()];
+                for (j, &k) in slots.iter().enumerate() {
+                    index[k] = j;
+                }
+                let want = store
+                    .sums_of_groups(&c.basis, &after, &index, slots.len())
+                    .unwrap();
+                assert_eq!(
+                    sums.iter().map(bits).collect::<Vec<_>>(),
+                    want.iter().map(bits).collect::<Vec<_>>()
+                );
+            }
+            Moved::Pairs { moved: m, sums } => {
+                paired += 1;
+                assert_eq!(m, moved);
+                let mut groups: std::collections::BTreeMap<(usize, usize), Vec<usize>> =
+                    Default::default();
+                for (i, (&a, &b)) in before.iter().zip(&after).enumerate() {
+                    if a != b {
+                        groups.entry((a, b)).or_default().push(i);
+                    }
+                }
+                assert_eq!(
+                    sums.keys().collect::<Vec<_>>(),
+                    groups.keys().collect::<Vec<_>>()
+                );
+                let sets: Vec<&[usize]> = groups.values().map(|g| &g[..]).collect();
+                let want = store.sums_of_sets(&c.basis, &sets).unwrap();
+                assert_eq!(
+                    sums.values().map(bits).collect::<Vec<_>>(),
+                    want.iter().map(bits).collect::<Vec<_>>()
+                );
+            }
+        }
+        // The rest of the sweep (moves, hyperparameters) on the leader, which sets the shards'
+        // labels again where its moves changed them.
+        s.sweep(&|| false).unwrap();
+        held.set_held_labels(chain, s.labels()).unwrap();
+    }
+    assert!(
+        rebuilt >= 1 && paired >= 20,
+        "{rebuilt} rebuilt, {paired} by pairs"
+    );
+    // Passes with at-risk patterns (small patterns here: every pass has some).
+    let events = link.1.load(std::sync::atomic::Ordering::Relaxed);
+    assert!(events >= 3, "{events} requests for events");
+    // A replaced shard holds no labels: a clear error until they are set again.
+    let fresh = Store::sharded(&sizes, Arc::new(Bytes(cut(&data, &sizes)))).unwrap();
+    let err = fresh.held_labels(chain).unwrap_err().to_string();
+    assert!(err.contains("holds no labels"), "{err}");
+    fresh.set_held_labels(chain, s.labels()).unwrap();
+    assert_eq!(fresh.held_labels(chain).unwrap(), s.labels());
+}
