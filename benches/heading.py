@@ -7,8 +7,13 @@ heading), split in time (``dpgp.evaluate.split_in_time``), and fitted twice with
 sampler and seed, ``inputs="position"`` and ``inputs="position+heading"``. Printed per fit: the
 held-out log density of the velocities given the positions per vehicle (the last state's:
 ``score_samples(test, positions=False)``), K, the median sweep and the fit's seconds; then the
-heading fit's gain per vehicle. Both fits run the collapsed sampler on the exact engine (the only
-sampler fields over heading have so far), so the comparison isolates the field's input.
+heading fit's gain per vehicle. Both fits run the collapsed sampler (the only sampler fields over
+heading have so far).
+
+Two chains differ in their partition and noise as well as in the input, so ``--same-partition``
+also scores the position fit's own state (partition, length scales, each pattern's noise, α)
+with the heading input added at fixed ``w_h`` values: the input's effect alone (``w_h = 1e6``
+gives the position fit's score back exactly).
 """
 
 from __future__ import annotations
@@ -48,6 +53,7 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=20)
     ap.add_argument("--likelihood", default="exact", choices=("exact", "hsgp"))
     ap.add_argument("--sumo-dt", type=float, default=2.0, help="frame step of the SUMO junction (s)")
+    ap.add_argument("--same-partition", action="store_true", help="also score the position fit's state over heading")
     args = ap.parse_args()
     for name, load in datasets(args.sumo_dt).items():
         if args.only and name not in args.only.split(","):
@@ -71,6 +77,25 @@ def main() -> None:
                 print(f"  seed {seed} {inputs:17s} held-out {scores[inputs]:+.3f} nats/vehicle, K {model.n_patterns_}, "
                       f"median sweep {np.median(model.history_['seconds']):.2f} s, fit {seconds:.0f} s{extra}", flush=True)  # fmt: skip
             print(f"  seed {seed} gain {scores['position+heading'] - scores['position']:+.3f} nats/vehicle", flush=True)
+            if args.same_partition:
+                same_partition(train, test, seed, args)
+
+
+def same_partition(train, test, seed: int, args) -> None:
+    """The position fit's final state scored with the heading input at fixed w_h."""
+    kw = dict(seed=seed, progress=False, likelihood=args.likelihood, sampler="collapsed")
+    pos = dpgp.DPGP(iterations=args.iterations, **kw).fit(train)
+    base = float(pos.score_samples(test, positions=False).sum() / test.sizes.sum())
+    headed = dpgp.DPGP(iterations=0, inputs="position+heading", **kw).fit(train)
+    noise = np.ascontiguousarray(pos.pattern_noise_var_)
+    for wh in (0.3, 0.6, 1.0, 2.0, 5.0, 1e6):  # 1e6: the position field to round-off
+        scales = [wh] * pos.n_patterns_
+        headed._sampler.set_state(
+            pos.labels_.astype(np.int64), pos.length_scales_, pos.alpha_, noise, heading_scales=scales
+        )
+        headed._sync()
+        s = float(headed.score_samples(test, positions=False).sum() / test.sizes.sum())
+        print(f"  seed {seed} position fit's state, w_h {wh}: {s:+.3f} (gain {s - base:+.3f})", flush=True)
 
 
 if __name__ == "__main__":
