@@ -925,10 +925,7 @@ class DPGP:
     def _heading_harmonics() -> int:
         """Harmonics for the heading prior's 5% quantile, at most :data:`MAX_HEADING_HARMONICS` (the
         cut makes the heading kernel smoother, still a valid kernel: resolution, not correctness)."""
-        from scipy.stats import gamma
-
-        a, b = HEADING_PRIOR
-        return min(_core.heading_harmonics(float(gamma.ppf(0.05, a, scale=b))), MAX_HEADING_HARMONICS)
+        return min(_core.heading_harmonics(HEADING_PRIOR), MAX_HEADING_HARMONICS)
 
     def _sync(self) -> None:
         """Read the sampler's state into the public attributes, patterns by decreasing size."""

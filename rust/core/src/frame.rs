@@ -60,6 +60,33 @@ impl<'a> Inputs<'a> {
     pub fn is_empty(&self) -> bool {
         self.xy.is_empty()
     }
+
+    /// The inputs in consecutive blocks of `size` points.
+    pub fn chunks(self, size: usize) -> impl Iterator<Item = Inputs<'a>> {
+        let n = self.len();
+        (0..n).step_by(size).map(move |a| {
+            let b = (a + size).min(n);
+            Inputs {
+                xy: &self.xy[a..b],
+                h: if self.h.is_empty() {
+                    &[]
+                } else {
+                    &self.h[a..b]
+                },
+            }
+        })
+    }
+}
+
+/// The headings of `frames` one after another, as [`extend_headings`] keeps them: empty when
+/// no frame has any.
+pub fn concat_headings<'a>(frames: impl IntoIterator<Item = FrameRef<'a>>) -> Vec<f64> {
+    let (mut h, mut n) = (Vec::new(), 0);
+    for f in frames {
+        extend_headings(&mut h, n, f.h, f.xy.len());
+        n += f.xy.len();
+    }
+    h
 }
 
 /// Append the headings of a frame of `l` points to `h`, the headings of the `n` points before it:

@@ -25,7 +25,7 @@ use faer::{Accum, MatMut, MatRef, Par};
 
 pub use crate::basis::{AxisFeatures, Basis, MAX_BASIS};
 use crate::error::Result;
-use crate::frame::{FrameRef, Inputs, Point, extend_headings};
+use crate::frame::{FrameRef, Inputs, Point, concat_headings, extend_headings};
 use crate::gp::{GpParams, LN_2PI};
 use crate::hsgp_sums::{Group, Sums, VecSums, log_marginal, scaled_sqrt_spectrum};
 use crate::small;
@@ -302,12 +302,7 @@ impl HsgpPattern {
     fn score_block(&self, frames: &[FrameRef<'_>]) -> Result<Vec<f64>> {
         let m = self.m();
         let pts: Vec<Point> = frames.iter().flat_map(|f| f.xy.iter().copied()).collect();
-        let mut pts_h = Vec::new();
-        let mut at = 0;
-        for f in frames {
-            extend_headings(&mut pts_h, at, f.h, f.xy.len());
-            at += f.xy.len();
-        }
+        let pts_h = concat_headings(frames.iter().copied());
         let phi_t = self.basis.features_of(Inputs {
             xy: &pts,
             h: &pts_h,
@@ -513,7 +508,7 @@ impl HsgpPattern {
     pub fn predict_mean_at(&self, q: Inputs<'_>) -> Vec<[f64; 2]> {
         let m = self.m();
         let mut out = vec![self.params.mean; q.len()];
-        for (block, out) in blocks(q, 1024).zip(out.chunks_mut(1024)) {
+        for (block, out) in q.chunks(1024).zip(out.chunks_mut(1024)) {
             let phi_t = self.basis.features_of(block);
             for (g, a) in self.groups.iter().zip(self.weights()) {
                 for (c, &d) in g.outs.iter().enumerate() {
@@ -537,7 +532,7 @@ impl HsgpPattern {
     pub fn posterior_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
         let m = self.m();
         let mut var = Vec::with_capacity(q.len());
-        for block in blocks(q, 1024) {
+        for block in q.chunks(1024) {
             let phi_t = self.basis.features_of(block);
             let mut out = vec![[0.0; 2]; block.len()];
             for g in &self.groups {
@@ -594,18 +589,6 @@ impl HsgpPattern {
         }
         (self.predict_mean_at(q), cov)
     }
-}
-
-/// Inputs in blocks of `size` points.
-fn blocks(q: Inputs<'_>, size: usize) -> impl Iterator<Item = Inputs<'_>> {
-    let n = q.len();
-    (0..n).step_by(size).map(move |a| {
-        let b = (a + size).min(n);
-        Inputs {
-            xy: &q.xy[a..b],
-            h: if q.h.is_empty() { &[] } else { &q.h[a..b] },
-        }
-    })
 }
 
 #[cfg(test)]

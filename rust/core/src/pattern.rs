@@ -15,7 +15,7 @@ use crate::correlation::Correlation;
 use crate::error::{Error, Result, check_finite};
 use crate::factor::{GrowFactor, capacity};
 pub use crate::frame::FrameRef;
-use crate::frame::{Inputs, LengthScales, Point, extend_headings};
+use crate::frame::{Inputs, LengthScales, Point, concat_headings, extend_headings};
 use crate::gp::{GpParams, LN_2PI, centered};
 use crate::linalg::Chol;
 use crate::small;
@@ -68,12 +68,7 @@ impl Pattern {
         params: GpParams,
         members: &[(usize, FrameRef<'_>)],
     ) -> Result<Self> {
-        let mut h = Vec::new();
-        let mut n = 0;
-        for (_, f) in members {
-            extend_headings(&mut h, n, f.h, f.xy.len());
-            n += f.xy.len();
-        }
+        let h = concat_headings(members.iter().map(|m| m.1));
         let mut p = Self {
             params,
             corr,
@@ -293,12 +288,7 @@ impl Pattern {
     pub fn score(&self, frames: &[FrameRef<'_>]) -> Result<Vec<f64>> {
         let n = self.xy.len();
         let pts: Vec<Point> = frames.iter().flat_map(|f| f.xy.iter().copied()).collect();
-        let mut pts_h = Vec::new();
-        let mut at = 0;
-        for f in frames {
-            extend_headings(&mut pts_h, at, f.h, f.xy.len());
-            at += f.xy.len();
-        }
+        let pts_h = concat_headings(frames.iter().copied());
         let total_m = pts.len();
         let mut out: Vec<f64> = frames
             .iter()
@@ -361,7 +351,7 @@ impl Pattern {
     pub fn predict_mean_at(&self, q: Inputs<'_>) -> Vec<[f64; 2]> {
         let mut out = vec![self.params.mean; q.len()];
         let ls = self.params.length_scales;
-        for (block, ob) in query_blocks(q).zip(out.chunks_mut(QUERY_BLOCK)) {
+        for (block, ob) in q.chunks(QUERY_BLOCK).zip(out.chunks_mut(QUERY_BLOCK)) {
             let corr = self
                 .corr
                 .cross_par(self.inputs(), block, ls, 1.0, self.parallel());
@@ -397,7 +387,7 @@ impl Pattern {
         let mut mean = vec![self.params.mean; q.len()];
         let mut var = Vec::with_capacity(q.len());
         let ls = self.params.length_scales;
-        for (block, mb) in query_blocks(q).zip(mean.chunks_mut(QUERY_BLOCK)) {
+        for (block, mb) in q.chunks(QUERY_BLOCK).zip(mean.chunks_mut(QUERY_BLOCK)) {
             let corr = self
                 .corr
                 .cross_par(self.inputs(), block, ls, 1.0, self.parallel());
@@ -688,18 +678,6 @@ pub fn check_headings(name: &str, h: &[f64], n: usize) -> Result<()> {
         )));
     }
     Ok(())
-}
-
-/// Query inputs in blocks of [`QUERY_BLOCK`] points.
-fn query_blocks<'a>(q: Inputs<'a>) -> impl Iterator<Item = Inputs<'a>> {
-    let n = q.len();
-    (0..n).step_by(QUERY_BLOCK).map(move |a| {
-        let b = (a + QUERY_BLOCK).min(n);
-        Inputs {
-            xy: &q.xy[a..b],
-            h: if q.h.is_empty() { &[] } else { &q.h[a..b] },
-        }
-    })
 }
 
 /// Points and velocities that are non-empty, finite and row for row.

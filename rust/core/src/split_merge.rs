@@ -271,13 +271,13 @@ pub(super) fn item_score(p: &dyn PatternModel, data: &Data, item: &[usize]) -> R
     if let [f] = item {
         return Ok(p.score(&[data.frame(*f)])?[0]);
     }
-    let (mut xy, mut v, mut h) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut xy, mut v) = (Vec::new(), Vec::new());
     for &f in item {
         let fr = data.frame(f);
-        crate::frame::extend_headings(&mut h, xy.len(), fr.h, fr.xy.len());
         xy.extend_from_slice(fr.xy);
         v.extend_from_slice(fr.v);
     }
+    let h = crate::frame::concat_headings(item.iter().map(|&f| data.frame(f)));
     Ok(p.score(&[FrameRef {
         xy: &xy,
         v: &v,

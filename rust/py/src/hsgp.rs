@@ -168,15 +168,18 @@ pub fn hsgp_posterior<'py>(
     Ok((to_numpy(py, mean), to_numpy(py, var)))
 }
 
-/// Heading harmonics an hsgp basis needs for heading length scales down to `wh_lo` (radians):
-/// the fewest that keep 99% of the periodic kernel's variance there (`heading::harmonics_for`).
+/// Heading harmonics an hsgp basis needs under the Gamma(shape, scale) prior of the heading
+/// length scale: the fewest that keep 99% of the periodic kernel's variance at the prior's 5%
+/// quantile (`heading::harmonics_for`; the position basis is sized the same way).
 #[pyfunction]
-pub fn heading_harmonics(wh_lo: f64) -> CoreResult<usize> {
-    if !(wh_lo > 0.0) {
+pub fn heading_harmonics(prior: (f64, f64)) -> CoreResult<usize> {
+    let (a, b) = prior;
+    if !(a.is_finite() && a > 0.0 && b.is_finite() && b > 0.0) {
         return Err(Error::InvalidInput(format!(
-            "a heading length scale must be positive, got {wh_lo}"
+            "a heading prior is a Gamma (shape, scale) with both positive, got {prior:?}"
         ))
         .into());
     }
+    let wh_lo = dpgp_core::special::gamma_quantile(0.05, a, b);
     Ok(dpgp_core::heading::harmonics_for(wh_lo))
 }
