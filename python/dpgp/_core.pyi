@@ -87,6 +87,9 @@ def posterior(
 # Rollouts (rust/py/src/simulate.rs). Each returns (positions (R, 2), velocities (R, 2),
 # in_roi (R,), low_data (R,)), rows grouped by rollout, then time, then vehicle.
 _RolloutArrays = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]
+# Start headings of a fit over heading: one per start row (NaN: unknown), and the speed from
+# which a velocity gives a heading.
+_Headings = tuple[NDArray[np.float64], float]
 
 def rollouts(
     sampler: Sampler,
@@ -99,6 +102,7 @@ def rollouts(
     roi: tuple[float, float, float, float] | None = None,
     seeds: list[int] | None = None,
     low_data: float | None = None,
+    headings: _Headings | None = None,
 ) -> _RolloutArrays: ...
 def motion_rollouts(
     sampler: Sampler,
@@ -118,6 +122,7 @@ def motion_rollouts(
     renew: bool = False,
     stops: list[list[tuple[float, float, float, float]]] | None = None,
     free_speeds: tuple[float, float, float, NDArray[np.float64]] | None = None,
+    headings: _Headings | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], NDArray[np.float64]]: ...
 def scene_rollouts(
     sampler: Sampler,
@@ -137,9 +142,14 @@ def scene_rollouts(
     low_data: float | None = None,
     starts: NDArray[np.float64] | None = None,
     start_offsets: NDArray[np.int64] | None = None,
+    headings: _Headings | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], list[int]]: ...
 def field_means(
-    sampler: Sampler, slots: list[int], xy: NDArray[np.float64], offsets: NDArray[np.int64]
+    sampler: Sampler,
+    slots: list[int],
+    xy: NDArray[np.float64],
+    offsets: NDArray[np.int64],
+    h: NDArray[np.float64] | None = None,
 ) -> NDArray[np.float64]: ...
 def integrate_affine(
     start: NDArray[np.float64],
@@ -285,7 +295,7 @@ class Sampler:
         h: NDArray[np.float64] | None = None,
     ) -> tuple[list[list[float]], list[float]]: ...
     def posterior(
-        self, slot: int, query_xy: NDArray[np.float64]
+        self, slot: int, query_xy: NDArray[np.float64], h: NDArray[np.float64] | None = None
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
     def sweeps_done(self) -> int: ...
     def set_sweeps_done(self, sweeps: int) -> None: ...

@@ -42,6 +42,7 @@ from ..data.timeorder import time_order
 from ..exceptions import InvalidInputError
 from ..gp.fitted import FittedPatterns
 from .free_speeds import learn_free_speeds
+from .headings import carried, heading_speed, start_headings
 from .motion import consecutive_pairs, motion_model
 from .rollout import motion_rollouts
 from .stop_lines import learn_stop_lines
@@ -336,6 +337,7 @@ def sample_long_scenarios(
     red_lines = None if lines is None else [lines.in_force(p) for p in range(phases.n_phases)]
     free_map = None if free is None else free.core()
     rng = np.random.default_rng(seed)
+    speed = heading_speed(fit)
     weights = np.asarray(fit.weights, dtype=np.float64)
     out = []
     for _ in range(int(n)):
@@ -348,6 +350,8 @@ def sample_long_scenarios(
         members = phases.labels == schedule.phase if together else fit.labels == k
         f = fit.frames[int(rng.choice(np.flatnonzero(members)))]
         pos, vel = np.c_[f.x, f.y], np.c_[f.vx, f.vy]
+        # a field over heading: each vehicle's previous heading, carried from block to block
+        head = start_headings(vel, f.prev_heading, speed, len(pos))
         ids = np.arange(len(pos))
         drivers = None  # each vehicle's driver state, carried from block to block
         next_id = len(pos)
@@ -366,6 +370,7 @@ def sample_long_scenarios(
                     drivers=None if drivers is None else [drivers], support=True,
                     mixtures=[mixtures[schedule.phase]] if together else None, renew=renew,
                     stops=None if red_lines is None else [red_lines[schedule.phase]], free_speeds=free_map,
+                    headings=[head],
                 )[0]  # fmt: skip
                 on_road = np.stack([area.contains(sim.positions[j]) for j in range(m + 1)])
                 left_area = np.logical_or.accumulate(~on_road & sim.in_roi, axis=0)  # dropped from there on
@@ -375,6 +380,7 @@ def sample_long_scenarios(
                         (np.full(keep.sum(), (s + j) * dt), ids[keep], sim.positions[j][keep], sim.velocities[j][keep])
                     )
                 keep = sim.in_roi[m] & ~left_area[m]
+                head = carried(sim.velocities, head, speed)[keep]
                 pos, vel, ids = sim.positions[m][keep], sim.velocities[m][keep], ids[keep]
                 assert sim.drivers is not None
                 drivers = sim.drivers[keep]
@@ -401,6 +407,7 @@ def sample_long_scenarios(
                 if len(pos) and np.min(np.hypot(*(pos - p).T)) < gap:
                     continue  # the entry is occupied
                 pos, vel = np.r_[pos, p[None]], np.r_[vel, entries.v[e][i][None]]
+                head = np.r_[head, start_headings(entries.v[e][i][None], None, speed, 1)]
                 if drivers is not None:
                     drivers = np.r_[drivers, motion.driver_states(entries.v[e][i])]
                 ids = np.r_[ids, next_id]

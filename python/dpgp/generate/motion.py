@@ -104,6 +104,7 @@ from .. import _core
 from ..data.frames import Frames
 from ..exceptions import DataFormatError
 from ..gp.fitted import FittedPatterns
+from .headings import carried, heading_speed, start_headings
 
 MIN_PAIRS = 50  # recorded track-steps to learn τ, a and b from at all
 #: held-out track-steps for a pattern's own τ (fewer: the pooled one). Measured on ETH and Zara
@@ -345,13 +346,15 @@ class MotionModel:
         return f"{np.median(self.sigma):.3g}"
 
 
-def field_means(fit: FittedPatterns, xy: np.ndarray, row_label: np.ndarray) -> np.ndarray:
-    """(n, 2): the posterior mean velocity at each position ``xy[i]`` under pattern ``row_label[i]``."""
+def field_means(fit: FittedPatterns, xy: np.ndarray, row_label: np.ndarray, h: np.ndarray | None = None) -> np.ndarray:
+    """(n, 2): the posterior mean velocity at each position ``xy[i]`` under pattern ``row_label[i]``;
+    a field over heading at the previous heading ``h[i]`` (``NaN`` or no ``h``: averaged over it)."""
     order = np.argsort(row_label, kind="stable")
     ks, starts = np.unique(row_label[order], return_index=True)
     offsets = np.r_[starts, len(order)].astype(np.int64)
     xy = np.ascontiguousarray(xy[order])
-    means = np.asarray(_core.field_means(fit.sampler, [int(fit.slots[k]) for k in ks], xy, offsets))
+    hh = None if h is None or not fit.headed else np.ascontiguousarray(np.asarray(h, np.float64)[order])
+    means = np.asarray(_core.field_means(fit.sampler, [int(fit.slots[k]) for k in ks], xy, offsets, hh))
     out = np.empty_like(means)
     out[order] = means
     return out
@@ -506,7 +509,8 @@ def time_constants(
     sizes = frames.sizes[chosen]
     # rolled out through the pattern of the fields that roll it (a new frame's: predicted)
     through = labels[chosen] if held is None else roll.predict(frames[chosen])
-    pred = relaxed_mean_rollouts(roll, np.repeat(through, sizes), frames.xy[rows], frames.v[rows], grid, steps, dt)
+    h0 = None if frames.prev_heading is None else frames.prev_heading[rows]
+    pred = relaxed_mean_rollouts(roll, np.repeat(through, sizes), frames.xy[rows], frames.v[rows], grid, steps, dt, h0)
     dist = np.linalg.norm(pred[1:] - frames.xy[np.maximum(truth[1:], 0)][:, :, None, :], axis=-1)  # (steps, n, G)
     dist = np.where(known[:, :, None], dist, 0.0).sum(axis=0)  # (n, G)
     row_pat = np.repeat(labels[chosen], sizes)  # grouped by this fit's pattern of the frame
@@ -531,13 +535,22 @@ def held_out_fields(fit: FittedPatterns, holdout: float) -> tuple[FittedPatterns
 
 
 def relaxed_mean_rollouts(
-    fit: FittedPatterns, patterns: np.ndarray, xy: np.ndarray, v: np.ndarray, taus: np.ndarray, steps: int, dt: float
+    fit: FittedPatterns,
+    patterns: np.ndarray,
+    xy: np.ndarray,
+    v: np.ndarray,
+    taus: np.ndarray,
+    steps: int,
+    dt: float,
+    h0: np.ndarray | None = None,
 ) -> np.ndarray:
     """(steps + 1, n, len(taus), 2): positions of vehicles starting at ``xy`` with velocities
     ``v`` through ``patterns`` (per vehicle, this fit's) under each time constant, mean mode, no
     interaction, no ROI: the core's ``dynamics="relaxed"`` rollout (``motion.rs``; Euler, the
     residual relaxing at the new position), every vehicle and ``τ`` in one field evaluation per
-    step (a call per frame and ``τ`` costs milliseconds each on a reduced-rank field)."""
+    step (a call per frame and ``τ`` costs milliseconds each on a reduced-rank field). A field over
+    heading is asked at each vehicle's previous heading, kept as the core keeps it (from ``h0``, the
+    recorded ones)."""
     order = np.argsort(patterns, kind="stable")
     ks, starts = np.unique(patterns[order], return_index=True)
     n, g = len(order), len(taus)
@@ -548,9 +561,16 @@ def relaxed_mean_rollouts(
     w = np.repeat(v[order][:, None, :], g, axis=1)
     out = np.empty((steps + 1, n, g, 2))
     out[0] = x
+    speed = heading_speed(fit)
+    h = None
+    if fit.headed:
+        start = start_headings(v, h0, speed, len(v))[order]
+        h = np.repeat(start[:, None], g, axis=1).reshape(-1)
     for t in range(1, steps + 1):
         x = x + dt * w
-        m = np.asarray(_core.field_means(fit.sampler, slots, np.ascontiguousarray(x.reshape(-1, 2)), offsets))
+        if h is not None:
+            h = carried(w.reshape(1, -1, 2), h, speed)
+        m = np.asarray(_core.field_means(fit.sampler, slots, np.ascontiguousarray(x.reshape(-1, 2)), offsets, h))
         m = m.reshape(n, g, 2)
         w = m + rho * (w - m)
         out[t] = x
@@ -616,7 +636,7 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     """Learn a :class:`MotionModel` from a fitted model's training frames (see the module docs)."""
     frames, labels, dt, K = fit.frames, fit.labels, fit.dt, fit.n_patterns
     row_label = np.repeat(labels, frames.sizes)
-    means = field_means(fit, frames.xy, row_label)
+    means = field_means(fit, frames.xy, row_label, frames.prev_heading)
     resid = frames.v - means
     # generated scenes: the residual's decay against the fields as fitted; rollouts of recorded
     # frames: the held-out choice, which also pays for the fields' error at an unseen vehicle
@@ -690,7 +710,7 @@ def steering(
     if held is not None:
         late = frames[np.arange(held[1], len(frames))]
         through = np.repeat(held[0].predict(late), late.sizes)
-        late_means = field_means(held[0], late.xy, through)
+        late_means = field_means(held[0], late.xy, through, late.prev_heading)
         tau_h = heading_time_constant(late, late_means, dt, min_speed, typical_speed)
         if not np.isnan(tau_h):
             return tau_h, heading_tolerance(late, late_means, dt, min_speed, typical_speed, tau_h)

@@ -12,6 +12,7 @@ import numpy as np
 
 from .. import _core
 from ..gp.fitted import FittedPatterns
+from .headings import for_core
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -125,7 +126,7 @@ def motion_rollouts(
     motion: Any, recorded: bool = False, drivers: list[np.ndarray] | None = None, support: bool = False,
     mixtures: list[list[tuple[int, float]]] | None = None, renew: bool = False,
     stops: list[list[tuple[float, float, float, float]]] | None = None,
-    free_speeds: tuple[float, float, float, np.ndarray] | None = None,
+    free_speeds: tuple[float, float, float, np.ndarray] | None = None, headings: list[np.ndarray] | None = None,
 ) -> list[Simulation]:  # fmt: skip
     """Rollouts by the residual model ``motion`` (a :class:`dpgp.generate.motion.MotionModel`)
     and interaction: ``starts[i]`` (l_i, 2) from their own ``velocities[i]`` through pattern
@@ -141,7 +142,8 @@ def motion_rollouts(
     driver takes up the field where it is, as far as the field knows it (the core's ``Carried``).
     ``stops[i]``: the red stop lines ``(x, y, heading x, heading y)`` in force in rollout ``i``
     (:mod:`.stop_lines`; the core's ``Stop``). ``free_speeds``: every field raised to these
-    (:meth:`.free_speeds.FreeSpeeds.core`; the core's ``AtFreeSpeed``)."""
+    (:meth:`.free_speeds.FreeSpeeds.core`; the core's ``AtFreeSpeed``). ``headings[i]`` (l_i,):
+    a fit over heading starts the vehicles at these previous headings (:mod:`.headings`)."""
     sizes = np.array([len(s) for s in starts], dtype=np.int64)
     offsets = np.r_[0, np.cumsum(sizes)].astype(np.int64)
     cat = lambda a: np.ascontiguousarray(np.concatenate(a) if a else np.zeros((0, 2)), dtype=np.float64)  # noqa: E731
@@ -150,7 +152,7 @@ def motion_rollouts(
         motion_records(patterns, dynamics, motion, recorded), float(dt), int(steps), tuple(roi), seeds, low_data_threshold,
         None if drivers is None else cat(drivers), support,
         None if mixtures is None else [[(int(fit.slots[k]), float(w)) for k, w in m] for m in mixtures], renew, stops,
-        free_speeds,
+        free_speeds, for_core(fit, np.concatenate(headings) if headings else None),
     )  # fmt: skip
     sims = split(
         pos,

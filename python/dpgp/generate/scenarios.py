@@ -40,6 +40,7 @@ from .._validate import check_roi
 from ..exceptions import InvalidInputError
 from ..gp.fitted import FittedPatterns, as_fitted
 from .distributions import EmpiricalDistributions
+from .headings import for_core, heading_speed, start_headings
 from .motion import motion_model
 from .rollout import motion_records, split
 from .simulation import (
@@ -318,6 +319,9 @@ def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistri
     requested = fit.frames.sizes[chosen]
     rows = np.concatenate([np.arange(fit.frames.offsets[f], fit.frames.offsets[f + 1]) for f in chosen])
     starts = np.ascontiguousarray(fit.frames.xy[rows], dtype=np.float64)
+    # a field over heading: each recorded vehicle's heading goes with its position
+    prev = None if fit.frames.prev_heading is None else fit.frames.prev_heading[rows]
+    headings = for_core(fit, start_headings(fit.frames.v[rows], prev, heading_speed(fit), len(rows)))
     seeds = [int(s) for s in rng.integers(0, 2**63, size=len(patterns), dtype=np.uint64)]
     spacing = motion_model(fit).spacing[patterns]
     unused = np.ones((1, 1))  # the core's histogram placement: not used when starts are given
@@ -325,7 +329,7 @@ def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistri
         fit.sampler, [int(fit.slots[k]) for k in patterns], requested.tolist(), [0] * len(patterns),
         unused, (1, 1), tuple(psi.roi), spacing.tolist(),  # type: ignore[arg-type]
         motion_records(patterns, dynamics, motion_model(fit)), seeds, bool(stochastic), float(dt), int(steps), tuple(roi), low_data_threshold,
-        starts, np.r_[0, np.cumsum(requested)].astype(np.int64),
+        starts, np.r_[0, np.cumsum(requested)].astype(np.int64), headings,
     )  # fmt: skip
     sims = split(
         pos,

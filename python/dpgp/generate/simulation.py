@@ -44,7 +44,8 @@ from .._validate import check_roi, real_number
 from ..data.frames import Frame, Frames
 from ..exceptions import InvalidInputError, ShapeError
 from ..gp.fitted import DEFAULT_DT, FittedPatterns, as_fitted, frames_dt, frames_roi
-from .motion import motion_model
+from .headings import for_core, heading_speed, start_headings
+from .motion import field_means, motion_model
 from .rollout import Simulation, motion_rollouts, split
 from .rollout import motion_records as motion_records  # re-exported: its home before rollout.py
 
@@ -132,9 +133,12 @@ def rollouts(
     seeds: list[int] | None,
     roi: tuple[float, float, float, float],
     low_data_threshold: float | None,
+    headings: list[np.ndarray] | None = None,
 ) -> list[Simulation]:
     """Many rollouts in one call into the core (run in parallel): ``starts[i]`` (l_i, 2) through
-    pattern ``patterns[i]``, stochastic with ``seeds[i]`` when ``seeds`` is given."""
+    pattern ``patterns[i]``, stochastic with ``seeds[i]`` when ``seeds`` is given; a fit over
+    heading starts the vehicles at ``headings[i]`` (l_i,) (:mod:`.headings`; ``NaN`` or none:
+    unknown)."""
     _check_rows(int(steps) + 1, f"a time axis of {steps} steps", "ask for fewer steps")  # allocated even for no rollout
     sizes = np.array([len(s) for s in starts], dtype=np.int64)
     offsets = np.r_[0, np.cumsum(sizes)].astype(np.int64)
@@ -151,6 +155,7 @@ def rollouts(
         tuple(roi),  # type: ignore[arg-type]
         seeds,
         low_data_threshold,
+        for_core(fit, np.concatenate(headings) if headings else None),
     )
     return split(
         pos,
@@ -182,8 +187,14 @@ def check_dynamics(dynamics: Any, method: str) -> str:
     return dynamics
 
 
-def _start(fit: FittedPatterns, frame: Any) -> tuple[np.ndarray, np.ndarray | None, int | None]:
-    """(positions, velocities or None, training index or None) of what the user passed."""
+def _start(fit: FittedPatterns, frame: Any) -> tuple[np.ndarray, np.ndarray | None, int | None, np.ndarray]:
+    """(positions, velocities or None, training index or None, start headings) of what the user
+    passed (:func:`.headings.start_headings`: recorded ones, else of the velocities, else NaN)."""
+    xy, v, index, prev = _given(fit, frame)
+    return xy, v, index, start_headings(v, prev, heading_speed(fit), len(xy))
+
+
+def _given(fit: FittedPatterns, frame: Any) -> tuple[np.ndarray, np.ndarray | None, int | None, np.ndarray | None]:
     if isinstance(frame, (bool, np.bool_)):
         raise InvalidInputError("frame must be a training frame index, a Frame or an array, not a bool")
     if isinstance(frame, (int, np.integer)):
@@ -191,18 +202,23 @@ def _start(fit: FittedPatterns, frame: Any) -> tuple[np.ndarray, np.ndarray | No
         if not -n <= frame < n:
             raise InvalidInputError(f"frame index {frame} out of range for {n} training frames")
         f = fit.frames[int(frame)]
-        return f.xy, f.v, int(frame) % n
+        return f.xy, f.v, int(frame) % n, f.prev_heading
     if isinstance(frame, Frames):
         if len(frame) != 1:
             raise ShapeError(f"simulate takes one frame, got Frames with {len(frame)}; pass frames[i]")
         frame = frame[0]
     if isinstance(frame, Frame):
-        return frame.xy, frame.v, None
+        return frame.xy, frame.v, None, frame.prev_heading
     arr = as_float_array("frame", frame.to_numpy() if hasattr(frame, "to_numpy") else frame)
     if arr.ndim != 2 or arr.shape[1] not in (2, 4) or len(arr) == 0:
         raise ShapeError(f"frame as an array must be (l, 2) positions or (l, 4) x, y, vx, vy; got shape {arr.shape}")
     check_finite("frame", arr)
-    return np.ascontiguousarray(arr[:, :2]), (np.ascontiguousarray(arr[:, 2:]) if arr.shape[1] == 4 else None), None
+    return (
+        np.ascontiguousarray(arr[:, :2]),
+        (np.ascontiguousarray(arr[:, 2:]) if arr.shape[1] == 4 else None),
+        None,
+        None,
+    )
 
 
 def simulate(
@@ -221,13 +237,13 @@ def simulate(
     """Roll the vehicles of ``frame`` forward through a pattern; see :meth:`dpgp.DPGP.simulate`.
     ``model``: a :class:`~dpgp.fitted.FittedPatterns` (or a fitted estimator, which hands one down)."""
     fit = as_fitted(model)
-    xy, v, index = _start(fit, frame)
+    xy, v, index, h = _start(fit, frame)
     if pattern is None:
         if index is not None:
             pattern = int(fit.labels[index])  # a training frame's own assignment
         elif v is not None:
             one = Frames(np.array([0]), np.array([0, len(xy)]), xy, v)
-            pattern = int(fit.predict(one)[0])
+            pattern = int(fit.predict(one, h)[0])
         else:
             raise InvalidInputError(
                 "frame has positions only: pass pattern=k (there are no velocities to assign it by)"
@@ -240,14 +256,10 @@ def simulate(
     dynamics = check_dynamics(dynamics, method)
     if dynamics != "field":
         if v is None:  # positions only: start on the field
-            v = np.asarray(
-                _core.field_means(
-                    fit.sampler, [int(fit.slots[k])], np.ascontiguousarray(xy), np.array([0, len(xy)], np.int64)
-                )
-            )
+            v = field_means(fit, xy, np.full(len(xy), k), h)
         return motion_rollouts(
             fit, [k], [xy], [v], steps=steps, dt=dt, seeds=_seeds(seed, 1) if stochastic else None, roi=box,
-            low_data_threshold=thr, dynamics=dynamics, motion=motion_model(fit), recorded=True,
+            low_data_threshold=thr, dynamics=dynamics, motion=motion_model(fit), recorded=True, headings=[h],
         )[0]  # fmt: skip
     return rollouts(
         fit,
@@ -259,6 +271,7 @@ def simulate(
         seeds=_seeds(seed, 1) if stochastic else None,
         roi=box,
         low_data_threshold=thr,
+        headings=[h],
     )[0]
 
 

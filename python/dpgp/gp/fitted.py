@@ -57,10 +57,10 @@ class FittedPatterns:
         reach = (max(p[3] for p in patterns), max(p[4] for p in patterns)) if patterns else (1.0, 1.0)
         return _widened(frames_roi(self.frames), reach)
 
-    def log_scores(self, frames: Frames) -> tuple[np.ndarray, np.ndarray]:
-        """log p(V_f | D_k) for each frame and pattern (estimator order), and the new-pattern term."""
-        h = None
-        if self.headed:
+    def log_scores(self, frames: Frames, h: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """log p(V_f | D_k) for each frame and pattern (estimator order), and the new-pattern term;
+        a fit over heading takes the frames' ``prev_heading``, or ``h`` (n,) when given."""
+        if self.headed and h is None:
             if frames.prev_heading is None:
                 from ..exceptions import InvalidInputError
 
@@ -69,20 +69,20 @@ class FittedPatterns:
                     "from tracks, which carry it"
                 )
             h = frames.prev_heading
-        per_slot, new = self.sampler.score_frames(frames.xy, frames.v, frames.offsets, h)
+        per_slot, new = self.sampler.score_frames(frames.xy, frames.v, frames.offsets, h if self.headed else None)
         scores = np.asarray(per_slot, dtype=np.float64).reshape(len(frames), -1)[:, self.slot_order]
         return scores, np.asarray(new, dtype=np.float64)
 
-    def log_joint_terms(self, frames: Frames) -> np.ndarray:
+    def log_joint_terms(self, frames: Frames, h: np.ndarray | None = None) -> np.ndarray:
         """(N, K+1): log [DP predictive weight × likelihood] of each pattern, then of a new one."""
-        scores, new = self.log_scores(frames)
+        scores, new = self.log_scores(frames, h)
         n = len(self.labels)
         log_prior = np.log(np.r_[self.weights * n, self.alpha]) - np.log(n + self.alpha)
         return np.column_stack([scores, new]) + log_prior
 
-    def predict(self, frames: Frames) -> np.ndarray:
-        """The most probable existing pattern of each frame."""
-        return np.argmax(self.log_joint_terms(frames)[:, :-1], axis=1)
+    def predict(self, frames: Frames, h: np.ndarray | None = None) -> np.ndarray:
+        """The most probable existing pattern of each frame (``h``: as :meth:`log_scores`)."""
+        return np.argmax(self.log_joint_terms(frames, h)[:, :-1], axis=1)
 
     def conditioned_on(self, rows: np.ndarray) -> tuple[FittedPatterns, np.ndarray] | None:
         """The same patterns (assignments, length scales, α, noise) conditioned on the training

@@ -967,14 +967,6 @@ class DPGP:
         if not hasattr(self, "labels_"):
             raise NotFittedError("this DPGP is not fitted yet; call fit(frames) first")
 
-    def _check_generation(self) -> None:
-        """Generation follows fields over position only so far: a fit over heading says so."""
-        if self._headed():
-            raise InvalidInputError(
-                "generation (simulate, scenarios, rollouts) does not follow fields over heading yet (issue 34): "
-                "fit with inputs='position' to generate"
-            )
-
     def _fitted(self) -> FittedPatterns:
         """The fitted state the lower modules (simulation, scenarios) work on: they take this,
         never the estimator, so that dependencies run one way."""
@@ -1170,8 +1162,12 @@ class DPGP:
             out = out + distributions(self._fitted()).for_scoring().log_frame_densities(frames)
         return out
 
-    def velocity_field(self, k: int, xy: object) -> tuple[np.ndarray, np.ndarray]:
-        """Posterior mean and variance (each (n, 2)) of pattern ``k``'s velocity field at ``xy``."""
+    def velocity_field(self, k: int, xy: object, heading: object = None) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior mean and variance (each (n, 2)) of pattern ``k``'s velocity field at ``xy``.
+
+        ``heading`` (a fit over heading): the previous heading of a vehicle there, radians, one
+        for every point or one per point; ``None`` or ``NaN``: the field averaged over heading
+        (what it says of a vehicle seen for the first time). A field over position ignores it."""
         self._check_fitted()
         from .._arrays import as_pairs
 
@@ -1179,7 +1175,18 @@ class DPGP:
             raise InvalidInputError(
                 f"pattern {k!r} does not exist; the model has {self.n_patterns_} (0..{self.n_patterns_ - 1})"
             )
-        return self._sampler.posterior(int(self._slots[k]), as_pairs("xy", xy))
+        q = as_pairs("xy", xy)
+        h = None
+        if heading is not None and self._headed():
+            try:
+                h = np.ascontiguousarray(np.broadcast_to(np.asarray(heading, dtype=np.float64), (len(q),)))
+            except (TypeError, ValueError) as e:
+                raise InvalidInputError(
+                    f"heading must be one angle in radians or one per point ({len(q)}), got {heading!r}"
+                ) from e
+            if np.isinf(h).any():
+                raise InvalidInputError("heading must be finite radians, or NaN for a heading not known")
+        return self._sampler.posterior(int(self._slots[k]), q, h)
 
     def conditional_log_probs(self, i: int) -> np.ma.MaskedArray:
         """Normalised log conditional of training frame ``i`` given every other frame's pattern:
@@ -1228,7 +1235,6 @@ class DPGP:
         Returns a :class:`dpgp.simulation.Simulation`."""
         from ..generate.simulation import simulate
 
-        self._check_generation()
         return simulate(
             self._fitted(), frame, pattern, steps, dt, method, stochastic, seed, roi, low_data_threshold, dynamics
         )
@@ -1262,7 +1268,6 @@ class DPGP:
             ph = options.get("phases")
             if isinstance(ph, str) or (isinstance(ph, (int, np.integer)) and not isinstance(ph, bool)):
                 options["phases"] = self.phases(ph if isinstance(ph, str) else int(ph))
-            self._check_generation()
             return sample_long_scenarios(self._fitted(), self.transitions_, n, duration, seed, **options)
         options.pop("duration", None)
         from ..generate.scenarios import sample_scenarios
@@ -1270,7 +1275,6 @@ class DPGP:
         for name in ("phases", "phase_fields", "cycle_splits", "stop_lines", "free_speeds"):
             if options.pop(name, None) is not None:
                 raise InvalidInputError(f"{name}= applies to long scenarios (duration=...)")
-        self._check_generation()
         return sample_scenarios(self._fitted(), n, steps, pattern, seed, **options)
 
     def summary(self, top: int = 10) -> str:
@@ -1494,8 +1498,6 @@ class DPGP:
         (``.table``, ``.plot()``)."""
         from ..evaluate.scores import evaluate
 
-        if tracks is not None:
-            self._check_generation()
         return evaluate(self, as_frames(test_frames), tracks, horizons, average, agent=agent, seed=seed)
 
 

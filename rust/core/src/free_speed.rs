@@ -100,6 +100,14 @@ impl Field for AtFreeSpeed<'_> {
     fn support(&mut self, q: &[Point]) -> Result<Option<Vec<f64>>> {
         self.inner.support(q)
     }
+
+    fn start_headings(&self) -> Option<(&[f64], f64)> {
+        self.inner.start_headings()
+    }
+
+    fn set_headings(&mut self, h: &[f64]) {
+        self.inner.set_headings(h)
+    }
 }
 
 #[cfg(test)]

@@ -41,7 +41,7 @@ use rand_distr::{Distribution, StandardNormal};
 use crate::error::{Error, Result};
 use crate::frame::Point;
 use crate::rng::{Phase, stream};
-use crate::simulate::{Field, Method, Options, Rollout};
+use crate::simulate::{Field, HeadingTrack, Method, Options, Rollout};
 
 /// Stream entity of the residual's innovations (entity 0 is the GP draw at step 0).
 const NOISE_ENTITY: u64 = 1;
@@ -783,11 +783,16 @@ pub fn drive_on(
     let mut steering = vec![[0.0; 2]; l];
     let mut want = vec![[0.0; 2]; l]; // desired velocities
     let mut vel = vec![[0.0; 2]; l]; // actual velocities
+    // a field over heading is asked at each vehicle's previous heading (its last actual velocity's)
+    let mut track = HeadingTrack::of(field, l)?;
     for t in 0..=opts.steps {
         let row = t * l;
         let active: Vec<usize> = (0..l).filter(|&j| out.in_roi[row + j]).collect();
         let x: Vec<Point> = active.iter().map(|&j| out.positions[row + j]).collect();
         if !active.is_empty() {
+            if let Some(track) = &track {
+                track.tell(field, &active);
+            }
             let info = field.step_start(t, &x)?;
             let mean = field.velocity(&x)?;
             if mean.len() != x.len()
@@ -928,6 +933,9 @@ pub fn drive_on(
             for (a, &j) in active.iter().enumerate() {
                 out.velocities[row + j] = vel[j];
                 out.low_data[row + j] = info.low_data[a];
+                if let Some(track) = track.as_mut() {
+                    track.moved(j, vel[j]);
+                }
             }
         }
         if t == opts.steps {

@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use crate::correlation::Correlation;
 use crate::error::{Error, Result};
-use crate::frame::FrameRef;
+use crate::frame::{FrameRef, Inputs};
 use crate::frame::{LengthScales, Point};
 use crate::gp::GpParams;
 use crate::hsgp::{Basis, HsgpPattern};
@@ -37,11 +37,17 @@ pub trait PatternModel: Send + Sync + std::fmt::Debug {
     fn remove(&mut self, id: usize) -> Result<bool>;
     /// The same frames under other hyperparameters.
     fn with_params(&self, params: GpParams) -> Result<Box<dyn PatternModel>>;
-    fn predict_mean(&self, q: &[Point]) -> Vec<[f64; 2]>;
-    /// Posterior mean and latent variance at each point.
-    fn posterior(&self, q: &[Point]) -> (Vec<[f64; 2]>, Vec<[f64; 2]>);
+    /// Posterior mean at each input (a position, and a previous heading for a field over
+    /// heading; `NaN` or none: the field averaged over heading).
+    fn predict_mean_at(&self, q: Inputs<'_>) -> Vec<[f64; 2]>;
+    /// Posterior mean and latent variance at each input.
+    fn posterior_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, Vec<[f64; 2]>);
     /// Posterior mean and, per output, the joint latent covariance (column-major).
-    fn predict_joint(&self, q: &[Point]) -> (Vec<[f64; 2]>, [Vec<f64>; 2]);
+    fn predict_joint_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, [Vec<f64>; 2]);
+    /// Whether the field takes a heading beside the position.
+    fn headed(&self) -> bool {
+        self.params().length_scales.wh.is_finite()
+    }
     /// Bytes held now, and after adding a frame of `l` points.
     fn bytes(&self) -> usize;
     fn bytes_after_insert(&self, l: usize) -> usize;
@@ -49,6 +55,21 @@ pub trait PatternModel: Send + Sync + std::fmt::Debug {
 
     fn length_scales(&self) -> LengthScales {
         self.params().length_scales
+    }
+
+    /// [`PatternModel::predict_mean_at`] of positions alone.
+    fn predict_mean(&self, q: &[Point]) -> Vec<[f64; 2]> {
+        self.predict_mean_at(Inputs::positions(q))
+    }
+
+    /// [`PatternModel::posterior_at`] of positions alone.
+    fn posterior(&self, q: &[Point]) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
+        self.posterior_at(Inputs::positions(q))
+    }
+
+    /// [`PatternModel::predict_joint_at`] of positions alone.
+    fn predict_joint(&self, q: &[Point]) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
+        self.predict_joint_at(Inputs::positions(q))
     }
 
     fn n_points(&self) -> usize {
@@ -153,14 +174,14 @@ impl PatternModel for Pattern {
     fn with_params(&self, params: GpParams) -> Result<Box<dyn PatternModel>> {
         Ok(Box::new(Pattern::with_params(self, params)?))
     }
-    fn predict_mean(&self, q: &[Point]) -> Vec<[f64; 2]> {
-        Pattern::predict_mean(self, q)
+    fn predict_mean_at(&self, q: Inputs<'_>) -> Vec<[f64; 2]> {
+        Pattern::predict_mean_at(self, q)
     }
-    fn posterior(&self, q: &[Point]) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
-        Pattern::posterior(self, q)
+    fn posterior_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
+        Pattern::posterior_at(self, q)
     }
-    fn predict_joint(&self, q: &[Point]) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
-        Pattern::predict_joint(self, q)
+    fn predict_joint_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
+        Pattern::predict_joint_at(self, q)
     }
     fn bytes(&self) -> usize {
         Pattern::bytes(self)
@@ -287,14 +308,14 @@ impl PatternModel for HsgpPattern {
     fn with_params(&self, params: GpParams) -> Result<Box<dyn PatternModel>> {
         Ok(Box::new(HsgpPattern::with_params(self, params)?))
     }
-    fn predict_mean(&self, q: &[Point]) -> Vec<[f64; 2]> {
-        HsgpPattern::predict_mean(self, q)
+    fn predict_mean_at(&self, q: Inputs<'_>) -> Vec<[f64; 2]> {
+        HsgpPattern::predict_mean_at(self, q)
     }
-    fn posterior(&self, q: &[Point]) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
-        HsgpPattern::posterior(self, q)
+    fn posterior_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
+        HsgpPattern::posterior_at(self, q)
     }
-    fn predict_joint(&self, q: &[Point]) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
-        HsgpPattern::predict_joint(self, q)
+    fn predict_joint_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
+        HsgpPattern::predict_joint_at(self, q)
     }
     fn bytes(&self) -> usize {
         HsgpPattern::bytes(self)
@@ -355,14 +376,14 @@ impl PatternModel for ReducedPattern {
             Self::Basis(p) => Self::Basis(p.with_params(params)?),
         }))
     }
-    fn predict_mean(&self, q: &[Point]) -> Vec<[f64; 2]> {
-        self.inner().predict_mean(q)
+    fn predict_mean_at(&self, q: Inputs<'_>) -> Vec<[f64; 2]> {
+        self.inner().predict_mean_at(q)
     }
-    fn posterior(&self, q: &[Point]) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
-        self.inner().posterior(q)
+    fn posterior_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
+        self.inner().posterior_at(q)
     }
-    fn predict_joint(&self, q: &[Point]) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
-        self.inner().predict_joint(q)
+    fn predict_joint_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
+        self.inner().predict_joint_at(q)
     }
     fn bytes(&self) -> usize {
         self.inner().bytes()

@@ -109,16 +109,24 @@ pub fn place(grid: &Grid, count: usize, spacing: f64, rng: &mut ChaCha8Rng) -> V
 /// The positions of `candidates` (in order) kept by the hard core: each unless it stands closer
 /// than `spacing` to one kept before it.
 pub fn thin(candidates: &[Point], spacing: f64) -> Vec<Point> {
-    let mut out: Vec<Point> = Vec::with_capacity(candidates.len());
-    for &p in candidates {
-        if out
-            .iter()
-            .all(|q| (p[0] - q[0]).hypot(p[1] - q[1]) >= spacing)
-        {
-            out.push(p);
+    thin_kept(candidates, spacing)
+        .into_iter()
+        .map(|i| candidates[i])
+        .collect()
+}
+
+/// The indices of the candidates [`thin`] keeps, in order.
+pub fn thin_kept(candidates: &[Point], spacing: f64) -> Vec<usize> {
+    let mut kept: Vec<usize> = Vec::with_capacity(candidates.len());
+    for (i, &p) in candidates.iter().enumerate() {
+        if kept.iter().all(|&k| {
+            let q = candidates[k];
+            (p[0] - q[0]).hypot(p[1] - q[1]) >= spacing
+        }) {
+            kept.push(i);
         }
     }
-    out
+    kept
 }
 
 #[cfg(test)]

@@ -12,7 +12,7 @@
 use rand_distr::{Distribution, StandardNormal};
 
 use crate::error::{Error, Result};
-use crate::frame::Point;
+use crate::frame::{Inputs, Point};
 use crate::pattern_model::PatternModel;
 use crate::rng::{Phase, stream};
 use crate::small;
@@ -141,6 +141,92 @@ pub trait Field {
     fn support(&mut self, _q: &[Point]) -> Result<Option<Vec<f64>>> {
         Ok(None)
     }
+
+    /// A field over heading ([`crate::heading`]): every vehicle's previous heading at the start
+    /// (`NaN`: unknown) and the speed from which a velocity gives one. The integrator then keeps
+    /// each vehicle's heading as frames carry it (the last velocity at least that fast) and
+    /// hands the moving vehicles' to [`Field::set_headings`] before each step's queries.
+    /// Default `None`: a field over position.
+    fn start_headings(&self) -> Option<(&[f64], f64)> {
+        None
+    }
+
+    /// The previous headings of the vehicles the next queries are about (`NaN`: unknown).
+    fn set_headings(&mut self, _h: &[f64]) {}
+}
+
+/// The previous heading of every vehicle of a rollout, kept as frames carry it
+/// (`dpgp.data._previous`): the heading of its last velocity at least `min_speed` fast, else the
+/// one it started with.
+pub struct HeadingTrack {
+    h: Vec<f64>,
+    min_speed: f64,
+}
+
+impl HeadingTrack {
+    /// The track `field` asks for ([`Field::start_headings`]), `None` for a field over position.
+    pub fn of(field: &dyn Field, vehicles: usize) -> Result<Option<Self>> {
+        let Some((h, min_speed)) = field.start_headings() else {
+            return Ok(None);
+        };
+        if h.len() != vehicles {
+            return Err(Error::Shape(format!(
+                "{} start headings for {vehicles} vehicles",
+                h.len()
+            )));
+        }
+        if h.iter().any(|x| x.is_infinite()) || !(min_speed.is_finite() && min_speed >= 0.0) {
+            return Err(Error::InvalidInput(
+                "start headings must be finite radians or NaN (unknown), with a finite heading speed >= 0".into(),
+            ));
+        }
+        Ok(Some(Self {
+            h: h.to_vec(),
+            min_speed,
+        }))
+    }
+
+    /// Tell `field` the headings of the vehicles `active`.
+    pub fn tell(&self, field: &mut dyn Field, active: &[usize]) {
+        let h: Vec<f64> = active.iter().map(|&j| self.h[j]).collect();
+        field.set_headings(&h);
+    }
+
+    /// Vehicle `j` moved with velocity `v`.
+    pub fn moved(&mut self, j: usize, v: [f64; 2]) {
+        if v[0].hypot(v[1]) >= self.min_speed.max(f64::MIN_POSITIVE) {
+            self.h[j] = v[1].atan2(v[0]);
+        }
+    }
+}
+
+/// The headings a field over heading is queried with: the start ones and the current ones.
+#[derive(Clone, Debug, Default)]
+pub struct HeadingInput {
+    start: Vec<f64>,
+    min_speed: f64,
+    now: Vec<f64>,
+}
+
+impl HeadingInput {
+    pub fn new(start: Vec<f64>, min_speed: f64) -> Self {
+        Self {
+            start,
+            min_speed,
+            now: Vec::new(),
+        }
+    }
+
+    fn inputs<'q>(&'q self, q: &'q [Point]) -> Inputs<'q> {
+        Inputs {
+            xy: q,
+            h: if self.now.len() == q.len() {
+                &self.now
+            } else {
+                &[]
+            },
+        }
+    }
 }
 
 /// Any closure from positions to velocities is a deterministic field.
@@ -194,12 +280,17 @@ pub fn integrate(start: &[Point], opts: &Options, field: &mut dyn Field) -> Resu
     let mut out = Rollout::begin(start, opts)?;
     let (l, dt) = (start.len(), opts.dt);
     let rows = (opts.steps + 1) * l;
+    let mut track = HeadingTrack::of(field, l)?;
     for t in 0..=opts.steps {
         let row = t * l;
         let active: Vec<usize> = (0..l).filter(|&j| out.in_roi[row + j]).collect();
         let x: Vec<Point> = active.iter().map(|&j| out.positions[row + j]).collect();
         let mut next = out.positions[row..row + l].to_vec();
         if !active.is_empty() {
+            // the heading is held over the step (RK4's stages too): the previous step's
+            if let Some(track) = &track {
+                track.tell(field, &active);
+            }
             let info = field.step_start(t, &x)?;
             check_len("step offset", info.offset.len(), x.len())?;
             check_len("low-data flags", info.low_data.len(), x.len())?;
@@ -238,6 +329,9 @@ pub fn integrate(start: &[Point], opts: &Options, field: &mut dyn Field) -> Resu
             };
             for (a, &j) in active.iter().enumerate() {
                 next[j] = [x[a][0] + dt * step[a][0], x[a][1] + dt * step[a][1]];
+                if let Some(track) = track.as_mut() {
+                    track.moved(j, step[a]);
+                }
             }
         } else if t == opts.steps {
             break;
@@ -286,6 +380,8 @@ pub struct PatternField<'a> {
     draw_once: bool,
     /// Answer [`Field::support`] (a triangular solve per point and step); else `None`.
     support: bool,
+    /// A field over heading: the vehicles' headings ([`Field::start_headings`]).
+    headings: Option<HeadingInput>,
 }
 
 impl<'a> PatternField<'a> {
@@ -307,7 +403,25 @@ impl<'a> PatternField<'a> {
             low_data,
             draw_once: false,
             support: false,
+            headings: None,
         })
+    }
+
+    /// The field queried at each vehicle's previous heading too, `start` at the start (`NaN`:
+    /// unknown), then as [`HeadingTrack`] keeps them; a field over position ignores them.
+    pub fn with_headings(mut self, start: Vec<f64>, min_speed: f64) -> Self {
+        self.headings = self
+            .pattern
+            .headed()
+            .then(|| HeadingInput::new(start, min_speed));
+        self
+    }
+
+    fn inputs<'q>(&'q self, q: &'q [Point]) -> Inputs<'q> {
+        match &self.headings {
+            Some(h) => h.inputs(q),
+            None => Inputs::positions(q),
+        }
     }
 
     /// The field answering [`Field::support`]: `1 − v / s²` of its latent posterior variance `v`
@@ -332,15 +446,25 @@ impl<'a> PatternField<'a> {
 
 impl Field for PatternField<'_> {
     fn velocity(&mut self, q: &[Point]) -> Result<Vec<[f64; 2]>> {
-        Ok(self.pattern.predict_mean(q))
+        Ok(self.pattern.predict_mean_at(self.inputs(q)))
     }
 
     fn support(&mut self, q: &[Point]) -> Result<Option<Vec<f64>>> {
         if !self.support {
             return Ok(None);
         }
-        let (_, var) = self.pattern.posterior(q);
+        let (_, var) = self.pattern.posterior_at(self.inputs(q));
         Ok(Some(support_of(self.pattern, &var)))
+    }
+
+    fn start_headings(&self) -> Option<(&[f64], f64)> {
+        self.headings.as_ref().map(|h| (&h.start[..], h.min_speed))
+    }
+
+    fn set_headings(&mut self, h: &[f64]) {
+        if let Some(own) = self.headings.as_mut() {
+            own.now = h.to_vec();
+        }
     }
 
     fn step_start(&mut self, step: usize, q: &[Point]) -> Result<StepInfo> {
@@ -359,7 +483,7 @@ impl Field for PatternField<'_> {
         }
         if let (None, true, Some(f)) = (seed, self.draw_once, self.low_data) {
             // flags only: the latent variances alone (m triangular solves, no m x m matrix)
-            let (_, var) = self.pattern.posterior(q);
+            let (_, var) = self.pattern.posterior_at(self.inputs(q));
             let s2 = self.pattern.params().signal_var;
             for (flag, v) in info.low_data.iter_mut().zip(&var) {
                 *flag = (0..2).any(|d| v[d] > f * s2[d]);
@@ -368,7 +492,7 @@ impl Field for PatternField<'_> {
         }
         // The latent covariance costs n² m (a triangular solve per vehicle); it gives both the
         // variances for the flags and the matrix to draw from.
-        let (_, mut cov) = self.pattern.predict_joint(q);
+        let (_, mut cov) = self.pattern.predict_joint_at(self.inputs(q));
         let s2 = self.pattern.params().signal_var;
         if let Some(f) = self.low_data {
             for (j, flag) in info.low_data.iter_mut().enumerate() {
@@ -428,6 +552,8 @@ pub struct MixtureField<'a> {
     parts: Vec<(&'a dyn PatternModel, f64)>,
     /// The last points asked about and the answers (velocity then support ask for the same).
     last: Option<(Vec<Point>, Vec<[f64; 2]>, Vec<f64>)>,
+    /// Fields over heading: the vehicles' headings, as [`PatternField::with_headings`].
+    headings: Option<HeadingInput>,
 }
 
 impl<'a> MixtureField<'a> {
@@ -442,16 +568,34 @@ impl<'a> MixtureField<'a> {
                 "a mixture field's weights sum to 0".into(),
             ));
         }
-        Ok(Self { parts, last: None })
+        Ok(Self {
+            parts,
+            last: None,
+            headings: None,
+        })
+    }
+
+    /// As [`PatternField::with_headings`] (patterns over position ignore the headings).
+    pub fn with_headings(mut self, start: Vec<f64>, min_speed: f64) -> Self {
+        self.headings = self
+            .parts
+            .iter()
+            .any(|p| p.0.headed())
+            .then(|| HeadingInput::new(start, min_speed));
+        self
     }
 
     fn answer(&mut self, q: &[Point]) -> &(Vec<Point>, Vec<[f64; 2]>, Vec<f64>) {
         if self.last.as_ref().is_none_or(|l| l.0 != q) {
+            let input = match &self.headings {
+                Some(h) => h.inputs(q),
+                None => Inputs::positions(q),
+            };
             let m = q.len();
             let (mut num, mut den, mut sq) = (vec![[0.0; 2]; m], vec![0.0; m], vec![0.0; m]);
             let (mut prior, mut total) = (vec![[0.0; 2]; m], 0.0);
             for &(pattern, w) in &self.parts {
-                let (mean, var) = pattern.posterior(q);
+                let (mean, var) = pattern.posterior_at(input);
                 let s = support_of(pattern, &var);
                 total += w;
                 for j in 0..m {
@@ -486,6 +630,17 @@ impl Field for MixtureField<'_> {
 
     fn support(&mut self, q: &[Point]) -> Result<Option<Vec<f64>>> {
         Ok(Some(self.answer(q).2.clone()))
+    }
+
+    fn start_headings(&self) -> Option<(&[f64], f64)> {
+        self.headings.as_ref().map(|h| (&h.start[..], h.min_speed))
+    }
+
+    fn set_headings(&mut self, h: &[f64]) {
+        if let Some(own) = self.headings.as_mut() {
+            own.now = h.to_vec();
+            self.last = None; // the cache is keyed by position alone
+        }
     }
 }
 

@@ -578,17 +578,38 @@ impl PySampler {
 
     /// Posterior mean and variance of pattern `slot`'s velocity field at `query_xy`.
     #[allow(clippy::type_complexity)]
+    #[pyo3(signature = (slot, query_xy, h=None))]
     fn posterior<'py>(
         &self,
         py: Python<'py>,
         slot: usize,
         query_xy: PyReadonlyArray2<'py, f64>,
+        h: Option<PyReadonlyArray1<'py, f64>>,
     ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
         let q = pairs("query_xy", &query_xy)?;
+        let h: &[f64] = match &h {
+            Some(h) => h.as_slice().map_err(|_| {
+                CoreError(Error::Shape("h must be a contiguous float64 array".into()))
+            })?,
+            None => &[],
+        };
+        if !h.is_empty() && h.len() != q.len() {
+            return Err(CoreError(Error::Shape(format!(
+                "{} headings for {} points",
+                h.len(),
+                q.len()
+            )))
+            .into());
+        }
         let (mean, var) = self.run(py, |s, _| {
             let p = pattern_at(s, slot)?;
             dpgp_core::error::check_finite("query_xy", q.as_flattened())?;
-            Ok(p.posterior(q))
+            if h.iter().any(|x| x.is_infinite()) {
+                return Err(Error::InvalidInput(
+                    "headings must be finite radians or NaN (unknown)".into(),
+                ));
+            }
+            Ok(p.posterior_at(dpgp_core::frame::Inputs { xy: q, h }))
         })?;
         Ok((to_numpy(py, mean), to_numpy(py, var)))
     }

@@ -11,15 +11,16 @@ use crate::convert::{pairs, to_numpy};
 use crate::errors::{CoreError, CoreResult};
 use crate::sampler::{PySampler, pattern_at};
 use dpgp_core::Error;
+use dpgp_core::frame::Inputs;
 use dpgp_core::free_speed::{AtFreeSpeed, FreeSpeeds, SECTORS};
 use dpgp_core::gibbs::Sampler;
 use dpgp_core::kernel::Point;
 use dpgp_core::motion::{Carried, MOTION_FIELDS, Motion, Stop, drive, drive_on};
 use dpgp_core::pattern_model::PatternModel;
-use dpgp_core::placement::{Grid, place, thin};
+use dpgp_core::placement::{Grid, place, thin_kept};
 use dpgp_core::rng::{Phase, stream};
 use dpgp_core::simulate::{
-    Field, Method, MixtureField, Options, PatternField, Roi, Rollout, integrate, rollout,
+    Field, Method, MixtureField, Options, PatternField, Roi, Rollout, integrate,
 };
 
 /// Rollouts run in parallel in chunks of this many, with a Ctrl-C check between chunks.
@@ -73,7 +74,7 @@ fn arrays(py: Python<'_>, rollouts: Vec<Rollout>) -> Arrays<'_> {
 /// the pattern in `slots[i]`, stochastic with `seeds[i]` if given. Returns positions, velocities
 /// (rows: group, then time, then vehicle), in-ROI and low-data flags.
 #[pyfunction]
-#[pyo3(signature = (sampler, slots, start, offsets, dt, steps, method, roi=None, seeds=None, low_data=None))]
+#[pyo3(signature = (sampler, slots, start, offsets, dt, steps, method, roi=None, seeds=None, low_data=None, headings=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn rollouts<'py>(
     py: Python<'py>,
@@ -87,14 +88,18 @@ pub fn rollouts<'py>(
     roi: Option<(f64, f64, f64, f64)>,
     seeds: Option<Vec<u64>>,
     low_data: Option<f64>,
+    headings: Headings<'py>,
 ) -> PyResult<Arrays<'py>> {
     let opts = options(dt, steps, method, roi)?;
     let start: &[Point] = pairs("start", &start)?;
     let offsets = offsets_of(&offsets, slots.len(), start.len())?;
     check_seeds(&seeds, slots.len())?;
+    let h = headings_of(&headings, start.len())?;
     let rollouts = in_parallel(py, &sampler, &slots, |_, p, i| {
         let seed = seeds.as_ref().map(|v| v[i]);
-        rollout(p, &start[offsets[i]..offsets[i + 1]], &opts, seed, low_data)
+        let (a, b) = (offsets[i], offsets[i + 1]);
+        let mut field = headed(PatternField::new(p, seed, low_data)?, h, a, b);
+        integrate(&start[a..b], &opts, &mut field)
     })?;
     Ok(arrays(py, rollouts))
 }
@@ -121,6 +126,41 @@ fn in_parallel<T: Send>(
         }
         Ok(out)
     })
+}
+
+/// Start headings `(h, min speed)` for fields over heading ([`PatternField::with_headings`]):
+/// one heading per start row (`NaN`: unknown), checked.
+type Headings<'py> = Option<(PyReadonlyArray1<'py, f64>, f64)>;
+
+fn headings_of<'a>(h: &'a Headings<'_>, rows: usize) -> CoreResult<Option<(&'a [f64], f64)>> {
+    let Some((h, speed)) = h else {
+        return Ok(None);
+    };
+    let h = h.as_slice().map_err(|_| {
+        CoreError(Error::Shape(
+            "headings must be a contiguous float64 array".into(),
+        ))
+    })?;
+    if h.len() != rows {
+        return Err(CoreError(Error::Shape(format!(
+            "{} headings for {rows} start positions",
+            h.len()
+        ))));
+    }
+    Ok(Some((h, *speed)))
+}
+
+/// `field` at the headings `h[a..b]` when given.
+fn headed<'p>(
+    field: PatternField<'p>,
+    h: Option<(&[f64], f64)>,
+    a: usize,
+    b: usize,
+) -> PatternField<'p> {
+    match h {
+        Some((h, speed)) => field.with_headings(h[a..b].to_vec(), speed),
+        None => field,
+    }
 }
 
 fn offsets_of(
@@ -189,7 +229,7 @@ fn check_seeds(seeds: &Option<Vec<u64>>, n: usize) -> CoreResult<()> {
 /// ([`AtFreeSpeed`]). Returns what [`rollouts`] returns and each vehicle's driver
 /// state after the last step (rows as `start`).
 #[pyfunction]
-#[pyo3(signature = (sampler, slots, start, velocities, offsets, motion, dt, steps, roi=None, seeds=None, low_data=None, drivers=None, support=false, mixtures=None, renew=false, stops=None, free_speeds=None))]
+#[pyo3(signature = (sampler, slots, start, velocities, offsets, motion, dt, steps, roi=None, seeds=None, low_data=None, drivers=None, support=false, mixtures=None, renew=false, stops=None, free_speeds=None, headings=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn motion_rollouts<'py>(
     py: Python<'py>,
@@ -210,6 +250,7 @@ pub fn motion_rollouts<'py>(
     renew: bool,
     stops: Option<Vec<Vec<(f64, f64, f64, f64)>>>,
     free_speeds: Option<(f64, f64, f64, PyReadonlyArray3<'py, f64>)>,
+    headings: Headings<'py>,
 ) -> PyResult<(
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray2<f64>>,
@@ -267,6 +308,7 @@ pub fn motion_rollouts<'py>(
         }
         None => None,
     };
+    let h = headings_of(&headings, start.len())?;
     let rollouts = in_parallel(py, &sampler, &slots, |s, p, i| {
         let (a, b) = (offsets[i], offsets[i + 1]);
         let seed = seeds.as_ref().map(|v| v[i]);
@@ -277,9 +319,18 @@ pub fn motion_rollouts<'py>(
                     .iter()
                     .map(|&(slot, w)| Ok((pattern_at(s, slot)?, w)))
                     .collect::<dpgp_core::Result<Vec<_>>>()?;
-                Box::new(MixtureField::new(parts)?)
+                let field = MixtureField::new(parts)?;
+                Box::new(match h {
+                    Some((h, speed)) => field.with_headings(h[a..b].to_vec(), speed),
+                    None => field,
+                })
             }
-            None => Box::new(PatternField::new(p, None, low_data)?.with_support(support)),
+            None => Box::new(headed(
+                PatternField::new(p, None, low_data)?.with_support(support),
+                h,
+                a,
+                b,
+            )),
         };
         if let Some(speeds) = free.as_ref() {
             field = Box::new(AtFreeSpeed {
@@ -316,7 +367,7 @@ pub fn motion_rollouts<'py>(
 /// Every draw comes from `seeds[i]`. Returns the arrays of [`rollouts`] and each scene's
 /// vehicle count.
 #[pyfunction]
-#[pyo3(signature = (sampler, slots, counts, grid, grids, bins, grid_roi, spacing, motion, seeds, stochastic, dt, steps, roi=None, low_data=None, starts=None, start_offsets=None))]
+#[pyo3(signature = (sampler, slots, counts, grid, grids, bins, grid_roi, spacing, motion, seeds, stochastic, dt, steps, roi=None, low_data=None, starts=None, start_offsets=None, headings=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn scene_rollouts<'py>(
     py: Python<'py>,
@@ -337,6 +388,7 @@ pub fn scene_rollouts<'py>(
     low_data: Option<f64>,
     starts: Option<PyReadonlyArray2<'py, f64>>,
     start_offsets: Option<PyReadonlyArray1<'py, i64>>,
+    headings: Headings<'py>,
 ) -> PyResult<(
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray2<f64>>,
@@ -385,16 +437,42 @@ pub fn scene_rollouts<'py>(
         )))
         .into());
     }
+    // the recorded vehicles' previous headings go with their configurations
+    let h = match &configs {
+        Some((xy, _)) => headings_of(&headings, xy.len())?,
+        None if headings.is_some() => {
+            return Err(CoreError(Error::InvalidInput(
+                "start headings go with recorded configurations (starts)".into(),
+            ))
+            .into());
+        }
+        None => None,
+    };
     let rollouts = in_parallel(py, &sampler, &slots, |_, p, i| {
-        let start = match &configs {
-            Some((xy, off)) => thin(&xy[off[i]..off[i + 1]], spacing[i]),
+        let seed = stochastic.then_some(seeds[i]);
+        let field = PatternField::drawn_once(p, seed, low_data)?;
+        let (start, mut field) = match &configs {
+            Some((xy, off)) => {
+                let kept: Vec<usize> = thin_kept(&xy[off[i]..off[i + 1]], spacing[i])
+                    .into_iter()
+                    .map(|k| off[i] + k)
+                    .collect();
+                let field = match h {
+                    Some((h, speed)) => {
+                        field.with_headings(kept.iter().map(|&k| h[k]).collect(), speed)
+                    }
+                    None => field,
+                };
+                (kept.iter().map(|&k| xy[k]).collect::<Vec<Point>>(), field)
+            }
             None => {
                 let mut rng = stream(seeds[i], 0, Phase::Simulate, PLACEMENT_ENTITY);
-                place(&grids[grid[i]], counts[i], spacing[i], &mut rng)
+                (
+                    place(&grids[grid[i]], counts[i], spacing[i], &mut rng),
+                    field,
+                )
             }
         };
-        let seed = stochastic.then_some(seeds[i]);
-        let mut field = PatternField::drawn_once(p, seed, low_data)?;
         drive(&start, None, &opts, &motion[i], seed, &mut field)
     })?;
     let sizes = rollouts.iter().map(|r| r.vehicles).collect();
@@ -437,19 +515,35 @@ pub fn integrate_affine<'py>(
 
 /// The posterior mean field of the pattern in `slots[i]` at rows `offsets[i]..offsets[i+1]` of
 /// `xy` (no variances: `n m` per group), groups in parallel. For learning the residual model.
+/// `h` (fields over heading): each row's previous heading (`NaN`: unknown, the field averaged
+/// over heading).
 #[pyfunction]
+#[pyo3(signature = (sampler, slots, xy, offsets, h=None))]
 pub fn field_means<'py>(
     py: Python<'py>,
     sampler: PyRef<'py, PySampler>,
     slots: Vec<usize>,
     xy: PyReadonlyArray2<'py, f64>,
     offsets: PyReadonlyArray1<'py, i64>,
+    h: Option<PyReadonlyArray1<'py, f64>>,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let xy: &[Point] = pairs("xy", &xy)?;
     let offsets = offsets_of(&offsets, slots.len(), xy.len())?;
     dpgp_core::error::check_finite("xy", xy.as_flattened()).map_err(CoreError)?;
+    let h = h.map(|h| (h, 0.0));
+    let h = headings_of(&h, xy.len())?.map(|(h, _)| h);
+    if h.is_some_and(|h| h.iter().any(|x| x.is_infinite())) {
+        return Err(CoreError(Error::InvalidInput(
+            "headings must be finite radians or NaN (unknown)".into(),
+        ))
+        .into());
+    }
     let means = in_parallel(py, &sampler, &slots, |_, p, i| {
-        Ok(p.predict_mean(&xy[offsets[i]..offsets[i + 1]]))
+        let (a, b) = (offsets[i], offsets[i + 1]);
+        Ok(p.predict_mean_at(Inputs {
+            xy: &xy[a..b],
+            h: h.map_or(&[][..], |h| &h[a..b]),
+        }))
     })?;
     Ok(to_numpy(py, means.into_iter().flatten().collect()))
 }

@@ -1,7 +1,9 @@
 use super::*;
+use crate::frame::LengthScales;
 use crate::gp::GpParams;
 use crate::pattern::FrameRef;
 use crate::pattern::Pattern;
+use crate::pattern_model::PatternModel;
 
 fn opts(dt: f64, steps: usize, method: Method) -> Options {
     Options {
@@ -296,4 +298,105 @@ fn in_a_mixture_the_patterns_that_know_a_point_speak_for_it() {
     assert!(MixtureField::new(vec![]).is_err());
     assert!(MixtureField::new(vec![(&east, f64::NAN)]).is_err());
     assert!(MixtureField::new(vec![(&east, 0.0)]).is_err());
+}
+
+/// A two-way road: the same positions driven east at 5 m/s (heading 0) and west (heading π),
+/// under a field over heading of length scale `wh` (rad).
+fn two_way_pattern(wh: f64) -> Pattern {
+    let xy: Vec<Point> = (0..16)
+        .map(|i| [(i % 8) as f64 * 2.0, (i / 8) as f64 * 2.0])
+        .collect();
+    let east = vec![[5.0, 0.0]; 16];
+    let west = vec![[-5.0, 0.0]; 16];
+    let (h_east, h_west) = (vec![0.0; 16], vec![std::f64::consts::PI; 16]);
+    let ls = LengthScales::new(3.0, 3.0)
+        .unwrap()
+        .with_heading(wh)
+        .unwrap();
+    let p = GpParams::new((3.0, 3.0), (25.0, 25.0), (0.05, 0.05), (0.0, 0.0))
+        .unwrap()
+        .with_length_scales(ls);
+    let frames = [
+        (
+            0,
+            FrameRef {
+                xy: &xy,
+                v: &east,
+                h: &h_east,
+            },
+        ),
+        (
+            1,
+            FrameRef {
+                xy: &xy,
+                v: &west,
+                h: &h_west,
+            },
+        ),
+    ];
+    Pattern::new(p, &frames).unwrap()
+}
+
+#[test]
+fn a_field_over_heading_sends_each_vehicle_its_own_way() {
+    let pat = two_way_pattern(0.5);
+    assert!(PatternModel::headed(&pat));
+    let start = [[4.0, 1.0], [6.0, 1.0], [8.0, 1.0]];
+    let o = opts(0.1, 10, Method::Rk4);
+    let h0 = vec![0.0, std::f64::consts::PI, f64::NAN];
+    let mut field = PatternField::new(&pat, None, None)
+        .unwrap()
+        .with_headings(h0, 0.5);
+    let r = integrate(&start, &o, &mut field).unwrap();
+    for t in 0..=10 {
+        let v = &r.velocities[t * 3..t * 3 + 3];
+        assert!(
+            (v[0][0] - 5.0).abs() < 0.5 && v[0][1].abs() < 0.1,
+            "east: {v:?}"
+        );
+        assert!(
+            (v[1][0] + 5.0).abs() < 0.5 && v[1][1].abs() < 0.1,
+            "west: {v:?}"
+        );
+        // unknown heading: both ways averaged, standing (it never moves fast enough to get one)
+        assert!(v[2][0].abs() < 0.1, "averaged: {v:?}");
+    }
+    // the same starts asked without headings: everyone sees the average
+    let blind = rollout(&pat, &start, &o, None, None).unwrap();
+    assert!(blind.velocities.iter().all(|v| v[0].abs() < 0.1));
+    // a field over position ignores headings; the wrong number of them is an error
+    let flat = constant_pattern([1.0, 0.5]);
+    let mut f = PatternField::new(&flat, None, None)
+        .unwrap()
+        .with_headings(vec![0.0; 3], 0.5);
+    assert!(f.start_headings().is_none());
+    assert_eq!(
+        integrate(&start, &o, &mut f).unwrap(),
+        rollout(&flat, &start, &o, None, None).unwrap()
+    );
+    let mut short = PatternField::new(&pat, None, None)
+        .unwrap()
+        .with_headings(vec![0.0; 2], 0.5);
+    assert!(matches!(
+        integrate(&start, &o, &mut short),
+        Err(Error::Shape(_))
+    ));
+}
+
+#[test]
+fn a_heading_track_keeps_the_last_heading_fast_enough_to_be_one() {
+    let pat = two_way_pattern(0.5);
+    let field = PatternField::new(&pat, None, None)
+        .unwrap()
+        .with_headings(vec![f64::NAN, 1.0], 0.5);
+    let mut track = HeadingTrack::of(&field, 2).unwrap().unwrap();
+    track.moved(0, [0.0, 2.0]);
+    track.moved(1, [0.3, 0.0]); // slower than 0.5: no heading, the start's stays
+    assert_eq!(track.h, vec![std::f64::consts::FRAC_PI_2, 1.0]);
+    track.moved(0, [0.0, 0.0]);
+    assert_eq!(track.h[0], std::f64::consts::FRAC_PI_2);
+    let bad = PatternField::new(&pat, None, None)
+        .unwrap()
+        .with_headings(vec![f64::INFINITY, 0.0], 0.5);
+    assert!(HeadingTrack::of(&bad, 2).is_err());
 }
