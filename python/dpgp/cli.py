@@ -326,7 +326,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         + (f", the last {1 - args.split:.0%}" if args.split else "")
     )
     ev = model.evaluate(test, tracks=tracks, horizons=args.horizons, agent=args.agent)
-    print(ev.table.to_string(float_format=lambda x: f"{x:.3f}"))
+    print(ev.summary())  # the table, dpgp's margins over the baselines, why a baseline was not scored
     if ev.realism is not None:
         print("realism (WOSAC-style, dpgp.realism):")
         print(ev.realism.table.to_string(float_format=lambda x: f"{x:.3f}", na_rep=""))
@@ -535,9 +535,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_generate)
 
     p = sub.add_parser("evaluate", help="score a model on held-out data against baselines", formatter_class=fmt,
-                       description="Held-out log density of the velocities per vehicle for the model, a single GP and "
-                       "a position-blind Gaussian (both fitted to the model's training frames); for trajectory "
-                       "input, also rollout ADE/FDE against constant velocity and the WOSAC-style realism of generated "
+                       description="Held-out log density of the velocities per vehicle for the model, a single GP, "
+                       "a position-blind Gaussian and, for trajectory input, a constant-velocity Gaussian around "
+                       "each vehicle's previous velocity (all fitted to the model's training frames), with the "
+                       "model's margin over each; for trajectory input, also rollout ADE/FDE against constant velocity and the WOSAC-style realism of generated "
                        "scenarios (dpgp.realism). DATA is framed like the training "
                        "data (its dt, ROI and units).")  # fmt: skip
     p.add_argument("model", help="model file written by 'dpgp fit'")

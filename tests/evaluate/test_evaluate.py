@@ -15,6 +15,7 @@ from dpgp.evaluate import scores as ev
 
 from gp_oracle import log_marginal_likelihood as ref_lml
 from gp_oracle import log_predictive as ref_pred
+from test_baselines import oracle_scores as cv_oracle
 
 WS = (6.0, 9.0)
 
@@ -40,6 +41,20 @@ def tracks_table() -> pd.DataFrame:
         else:
             x, y = -40 + 4.0 * tt, np.full_like(tt, -3.0)
         rows.append(pd.DataFrame({"track": v, "t": t[keep], "x": x, "y": y}))
+    return pd.concat(rows, ignore_index=True)
+
+
+def wavy_tracks_table() -> pd.DataFrame:
+    """As :func:`tracks_table`, but each vehicle's speed swings along its lane, and vehicles 3 and 9
+    start inside the ROI (their first frame has no previous velocity; 9 appears in the test period)."""
+    rows = []
+    t = np.round(np.arange(0, 24, 0.1), 6)
+    for v in range(10):
+        start = v * 2.0
+        tt = t[t >= start] - start
+        s = (-20.0 if v in (3, 9) else -40.0) + (4.0 + 4.0 * (v % 2)) * tt + 1.5 * np.sin(0.8 * tt + v)
+        x, y = (np.full_like(tt, 3.0), s) if v % 2 else (s, np.full_like(tt, -3.0))
+        rows.append(pd.DataFrame({"track": v, "t": t[t >= start], "x": x, "y": y}))
     return pd.concat(rows, ignore_index=True)
 
 
@@ -112,6 +127,40 @@ def test_table_log_densities_match_the_oracles(fitted):
     assert np.isnan(out.table.loc["constant_velocity", "log_density"]) and out.rollouts is None
     assert (out.table["n_test_vehicles"] == n).all() and list(out.frame_scores["n_vehicles"]) == list(test.sizes)
     np.testing.assert_allclose(out.frame_scores["dpgp"], mix, rtol=1e-8)
+    assert out.table.loc["dpgp", "log_density_per_frame"] == pytest.approx(np.mean(mix), rel=1e-8)
+    # synthetic frames carry no previous velocities: the constant-velocity baseline is absent, with a note
+    assert "constant_velocity" not in out.frame_scores.columns and out.margins["constant_velocity"] is None
+    assert len(out.notes) == 1 and "test frames carry no previous velocities" in out.notes[0]
+    assert out.margins["position_blind"] == pytest.approx(
+        out.table.loc["dpgp", "log_density"] - out.table.loc["position_blind", "log_density"], rel=1e-12
+    )
+    assert "over constant_velocity not scored" in repr(out) and "note: constant_velocity not scored" in repr(out)
+
+
+def test_constant_velocity_baseline_and_margins_in_the_table():
+    frames = dpgp.make_frames(wavy_tracks_table(), roi=(-30.0, 30.0, -30.0, 30.0), dt=0.5)
+    train, test = ev.split_in_time(frames)
+    assert 0 < np.isnan(test.prev_v[:, 0]).sum() < test.n_points  # first appearances among the test vehicles
+    model = dpgp.DPGP(iterations=2, noise_var=0.1, seed=0, progress=False).fit(train)
+    out = model.evaluate(test)
+    want = cv_oracle(train, test)  # scipy, first appearances at the position-blind density
+    np.testing.assert_allclose(out.frame_scores["constant_velocity"], want, rtol=1e-12)
+    t, n = out.table, test.n_points
+    assert t.loc["constant_velocity", "log_density"] == pytest.approx(np.sum(want) / n, rel=1e-12)
+    assert t.loc["constant_velocity", "log_density_per_frame"] == pytest.approx(np.mean(want), rel=1e-12)
+    for m in ("single_gp", "position_blind", "constant_velocity"):
+        per_frame = out.frame_scores["dpgp"] - out.frame_scores[m]
+        assert t.loc[m, "dpgp_margin"] == pytest.approx(per_frame.sum() / n, rel=1e-9)
+    assert np.isnan(t.loc["dpgp", "dpgp_margin"]) and out.notes == ()
+    assert out.margins == pytest.approx(
+        {m: t.loc["dpgp", "log_density"] - t.loc[m, "log_density"] for m in ("position_blind", "constant_velocity")}
+    )
+    assert "over constant_velocity" in repr(out) and "note:" not in repr(out)
+    assert len(out.plot().axes[0].patches) == 4  # a bar per method
+    # training frames without previous velocities (a model file written before they were kept)
+    model.frames_ = dpgp.Frames(train.ids, train.offsets, train.xy, train.v)
+    out = model.evaluate(test)
+    assert np.isnan(out.table.loc["constant_velocity", "log_density"]) and "training frames carry" in out.notes[0]
 
 
 def _members(model, train, k):
@@ -158,6 +207,8 @@ def test_rollout_errors_match_a_numpy_computation():
             assert r.loc[h, f"{m}_fde"] == pytest.approx(np.mean(fde[m][h]), abs=1e-9)
             assert out.table.loc[m, f"fde_{h:g}s"] == pytest.approx(np.mean(fde[m][h]), abs=1e-9)
     assert r.loc[2.0, "constant_velocity_fde"] == pytest.approx(0.0, abs=1e-9)  # straight lines at constant speed
+    # ... so the constant-velocity density is degenerate: not scored, with the reason, not an error
+    assert out.margins["constant_velocity"] is None and "no spread" in out.notes[0]
     fig = out.plot()
     assert len(fig.axes) == 2
 
@@ -172,14 +223,22 @@ def test_bad_input_raises_typed_errors(fitted):
         dpgp.DPGP().evaluate(test)
 
 
-def test_cli_evaluate_writes_the_table_and_the_figure(tmp_path):
+def test_cli_evaluate_writes_the_table_and_the_figure(tmp_path, capsys):
     data = tmp_path / "tracks.csv"
-    tracks_table().to_csv(data, index=False)
+    tracks = wavy_tracks_table()
+    tracks.to_csv(data, index=False)
     model = tmp_path / "m.npz"
-    tracks = tracks_table()
     frames = dpgp.make_frames(tracks, roi=(-30.0, 30.0, -30.0, 30.0), dt=0.5)
-    dpgp.DPGP(iterations=2, noise_var=0.1, seed=0, progress=False).fit(ev.split_in_time(frames)[0]).save(model)
+    fitted = dpgp.DPGP(iterations=2, noise_var=0.1, seed=0, progress=False).fit(ev.split_in_time(frames)[0])
+    fitted.save(model)
     csv, png = tmp_path / "table.csv", tmp_path / "eval.png"
     assert main(["evaluate", str(model), str(data), "-o", str(csv), "--plot", str(png), "--horizons", "1", "2"]) == 0
     table = pd.read_csv(csv, index_col="method")
-    assert {"log_density", "ade_1s", "fde_2s"} <= set(table.columns) and png.stat().st_size > 0
+    assert {"log_density", "dpgp_margin", "ade_1s", "fde_2s"} <= set(table.columns) and png.stat().st_size > 0
+    # the model file keeps the training frames' previous velocities: the baseline is scored
+    test = ev.split_in_time(frames)[1]
+    want = np.sum(cv_oracle(fitted.frames_, test)) / test.n_points
+    assert table.loc["constant_velocity", "log_density"] == pytest.approx(want, rel=1e-12)
+    printed = capsys.readouterr().out
+    margin = table.loc["constant_velocity", "dpgp_margin"]
+    assert f"over constant_velocity {margin:+.3f}" in printed and "note:" not in printed

@@ -17,7 +17,17 @@ test frames divided by the number of test vehicles; higher is better):
   over patterns, it prefers white noise with tiny length scales and then scores below the
   position-blind baseline on every real data set);
 - ``position_blind``: an independent Gaussian per velocity component, fitted to the training
-  velocities (maximum likelihood).
+  velocities (maximum likelihood);
+- ``constant_velocity``: each vehicle's velocity a Gaussian around its previous velocity
+  (``Frames.prev_v``) with a full 2×2 spread fitted by maximum likelihood on the training frames'
+  steps, and the position-blind Gaussian for vehicles without a previous velocity
+  (:mod:`.baselines`, which says why). It needs training and test frames made by
+  :func:`dpgp.make_frames` from tracks; without them (frames read from a framed table, older
+  shards) its ``log_density`` is NaN and ``Evaluation.notes`` says why.
+
+The table's ``dpgp_margin`` is the model's score minus each baseline's, nats per vehicle
+(``Evaluation.margins``: over ``position_blind`` and ``constant_velocity``). A model that
+conditions on the previous step (``inputs="position+heading"``) should beat both.
 
 **Rollouts**, given the raw tracks: from each test frame, the model moves the vehicles with its
 mean field (:meth:`DPGP.simulate`, forward Euler at the frames' time step, through the frame's
@@ -46,6 +56,7 @@ from ..data.frames import Frames
 from ..exceptions import InvalidInputError, ShapeError
 from ..gp.defaults import NOISE_GRID, refine_grid, vehicle_spacing
 from ..gp.exact import GPParams, log_predictive_frames
+from .baselines import ConstantVelocity, constant_velocity_scores, position_blind_scores
 from .realism_checks import Realism, model_realism, realism
 
 if TYPE_CHECKING:
@@ -74,13 +85,16 @@ def split_in_time(frames: Frames, train_fraction: float = TRAIN_FRACTION) -> tup
 @dataclass(frozen=True, eq=False)
 class Evaluation:
     """``table``: one row per method (``dpgp``, ``single_gp``, ``position_blind``,
-    ``constant_velocity``), columns ``log_density`` (nats per vehicle) and ``ade_{h}s`` /
-    ``fde_{h}s`` per horizon (NaN where a method does not apply or there are no tracks).
-    ``frame_scores``: per test frame, the log density of each method and the vehicle count.
-    ``rollouts``: per horizon, ADE/FDE of each method and the vehicles counted.
-    ``realism``: the :class:`dpgp.realism.Realism` of generated scenarios (when tracks were
-    given; its meta-scores are also the table's ``realism`` column).
-    ``states_averaged``: the posterior states the ``dpgp`` density is averaged over."""
+    ``constant_velocity``), columns ``log_density`` (nats per vehicle), ``log_density_per_frame``
+    (nats per test frame, the mean of ``frame_scores``), ``dpgp_margin`` (the ``dpgp``
+    log density minus this method's, nats per vehicle; NaN on the ``dpgp`` row) and
+    ``ade_{h}s`` / ``fde_{h}s`` per horizon (NaN where a method does not apply or there are no
+    tracks). ``frame_scores``: per test frame, the log density of each method scored and the
+    vehicle count (no ``constant_velocity`` column when it was not scored). ``rollouts``: per
+    horizon, ADE/FDE of each method and the vehicles counted. ``realism``: the
+    :class:`dpgp.realism.Realism` of generated scenarios (when tracks were given; its
+    meta-scores are also the table's ``realism`` column). ``states_averaged``: the posterior
+    states the ``dpgp`` density is averaged over. ``notes``: why a baseline was not scored."""
 
     table: pd.DataFrame
     frame_scores: pd.DataFrame
@@ -88,6 +102,17 @@ class Evaluation:
     units: dict[str, Any] = field(default_factory=dict)
     realism: Realism | None = None
     states_averaged: int = 1  # posterior states the dpgp density averages over
+    notes: tuple[str, ...] = ()
+
+    @property
+    def margins(self) -> dict[str, float | None]:
+        """The model's held-out margin over ``position_blind`` and over ``constant_velocity``, nats
+        per test vehicle (``dpgp`` minus the baseline); ``None`` for a baseline not scored."""
+        out: dict[str, float | None] = {}
+        for m in ("position_blind", "constant_velocity"):
+            x = float(self.table.loc[m, "dpgp_margin"])
+            out[m] = None if np.isnan(x) else x
+        return out
 
     def plot(self) -> Figure:
         """Log density per vehicle by method, and ADE/FDE against horizon (when tracks were given)."""
@@ -97,10 +122,13 @@ class Evaluation:
         fig = Figure(figsize=(5.0 * panels, 4.0), layout="constrained")
         axes = fig.subplots(1, panels, squeeze=False)[0]
         scores = self.table["log_density"].dropna()
-        bars = axes[0].bar(scores.index, scores.to_numpy(), color=["#1f4e99", "#7a9cc6", "#b0b0b0"][: len(scores)])
+        colours = dict(zip(METHODS, ("#1f4e99", "#7a9cc6", "#b0b0b0", "#d9a441")))
+        bars = axes[0].bar(scores.index, scores.to_numpy(), color=[colours[m] for m in scores.index])
         axes[0].bar_label(bars, fmt="%.2f")
         axes[0].set_ylabel("held-out log density (nats per vehicle)")
-        axes[0].set_title("velocities given positions")
+        margins = ", ".join(f"{m}: {x:+.2f}" for m, x in self.margins.items() if x is not None)
+        axes[0].set_title(f"velocities given positions\ndpgp's margin over {margins}", fontsize="medium")
+        axes[0].tick_params(axis="x", labelrotation=20)
         if panels == 2:
             ax, r = axes[1], self.rollouts
             for method, colour in (("dpgp", "#1f4e99"), ("constant_velocity", "#b0b0b0")):
@@ -112,8 +140,17 @@ class Evaluation:
             ax.legend()
         return fig
 
+    def summary(self) -> str:
+        """The table, the model's two margins and the notes, as text (the repr, and what
+        ``dpgp evaluate`` prints)."""
+        lines = [self.table.to_string(float_format=lambda x: f"{x:.3f}")]
+        margins = "; ".join(f"over {m} {'not scored' if x is None else f'{x:+.3f}'}" for m, x in self.margins.items())
+        lines.append(f"dpgp's margin per test vehicle (nats): {margins}")
+        lines += [f"note: {n}" for n in self.notes]
+        return "\n".join(lines)
+
     def __repr__(self) -> str:
-        return f"Evaluation(\n{self.table.to_string(float_format=lambda x: f'{x:.3f}')}\n)"
+        return f"Evaluation(\n{self.summary()}\n)"
 
 
 def evaluate(
@@ -151,9 +188,15 @@ def evaluate(
         "single_gp": SingleGP.fit(train).score_frames(test_frames),
         "position_blind": position_blind_scores(train, test_frames),
     }
+    cv, note = _constant_velocity(train, test_frames)
+    if cv is not None:
+        scores["constant_velocity"] = cv
     frame_scores = pd.DataFrame({"frame": test_frames.ids, "n_vehicles": sizes, **scores})
     table = pd.DataFrame(index=pd.Index(METHODS, name="method"))
     table["log_density"] = [scores[m].sum() / sizes.sum() if m in scores else np.nan for m in METHODS]
+    table["log_density_per_frame"] = [scores[m].mean() if m in scores else np.nan for m in METHODS]
+    table["dpgp_margin"] = table.loc["dpgp", "log_density"] - table["log_density"]
+    table.loc["dpgp", "dpgp_margin"] = np.nan
     rollouts = real = None
     if tracks is not None:
         real = model_realism(model, test_frames, tracks, agent=agent, seed=seed)
@@ -170,22 +213,32 @@ def evaluate(
     from ..gp.draws import used
 
     states = 1 + (len(used(getattr(model, "draws_", None), getattr(model, "n_iter_", 0) or 0)) if average else 0)
-    return Evaluation(table, frame_scores, rollouts, _units(test_frames), realism=real, states_averaged=states)
+    return Evaluation(
+        table, frame_scores, rollouts, _units(test_frames), realism=real, states_averaged=states,
+        notes=() if note is None else (note,),
+    )  # fmt: skip
 
 
-# --- baselines ---------------------------------------------------------------------------------
-def position_blind_scores(train: Frames, test: Frames) -> np.ndarray:
-    """Per test frame: Σ over vehicles and components of log N(v; mean, var) of the training
-    velocities (maximum-likelihood variance)."""
-    mu, var = train.v.mean(axis=0), train.v.var(axis=0)
-    if np.any(var <= 0):
-        raise InvalidInputError(
-            "the training velocities have zero variance in a component; the position-blind baseline is undefined"
+def _constant_velocity(train: Frames, test: Frames) -> tuple[np.ndarray | None, str | None]:
+    """The ``constant_velocity`` frame scores, or None and why they are missing (frames without
+    previous velocities, or a baseline that cannot be fitted on these training frames)."""
+    if getattr(test, "prev_v", None) is None:
+        return None, (
+            "constant_velocity not scored: the test frames carry no previous velocities (prev_v); "
+            "frame them with dpgp.make_frames from tracks"
         )
-    per_row = -0.5 * (np.log(2 * np.pi * var) + (test.v - mu) ** 2 / var).sum(axis=1)
-    return np.add.reduceat(per_row, test.offsets[:-1])
+    if getattr(train, "prev_v", None) is None:
+        return None, (
+            "constant_velocity not scored: the model's training frames carry no previous velocities (prev_v); "
+            "fit it on frames made by dpgp.make_frames from tracks"
+        )
+    try:
+        return ConstantVelocity.fit(train).score_frames(test), None
+    except InvalidInputError as e:
+        return None, f"constant_velocity not scored: {e}"
 
 
+# --- the single GP baseline (the closed-form ones: .baselines) -------------------------------
 def _spread_frames(frames: Frames, max_points: int) -> Frames:
     """Whole frames spread evenly over the sequence, up to ``max_points`` observations."""
     if frames.n_points <= max_points:
@@ -350,6 +403,8 @@ __all__ = [
     "split_in_time",
     "SingleGP",
     "position_blind_scores",
+    "constant_velocity_scores",
+    "ConstantVelocity",
     "rollout_errors",
     "TRAIN_FRACTION",
 ]

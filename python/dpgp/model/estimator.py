@@ -1489,8 +1489,10 @@ class DPGP:
         seed: int | None = 0,
     ) -> Any:
         """Held-out evaluation against baselines (:mod:`dpgp.evaluate`): log density of the test
-        velocities per vehicle for this model, a single GP and a position-blind Gaussian, and,
-        given the raw ``tracks``, rollout ADE/FDE at ``horizons`` (seconds) against constant
+        velocities per vehicle for this model, a single GP, a position-blind Gaussian and a
+        constant-velocity Gaussian around each vehicle's previous velocity (when the frames carry
+        ``prev_v``), with the model's margins over the last two (``.margins``), and, given the raw
+        ``tracks``, rollout ADE/FDE at ``horizons`` (seconds) against constant
         velocity and the realism of generated scenarios (``.realism``, :mod:`dpgp.realism`;
         ``agent`` and ``seed`` its collision rule and scenarios). ``average`` (default True): the
         model's density is the posterior predictive over the kept draws
