@@ -84,3 +84,5 @@ def test_heading_settings_are_checked_before_any_work(road) -> None:
         model.sample_scenarios(2, steps=3)
     with pytest.raises(InvalidInputError, match="generation"):
         model.simulate(test[0], steps=3)
+    with pytest.raises(InvalidInputError, match="fit_chains does not run fields over heading"):
+        dpgp.fit_chains(train, n_chains=2, iterations=2, inputs="position+heading", likelihood="exact")
