@@ -141,7 +141,7 @@ def test_thinning_keeps_a_function_of_the_sweep_count_within_the_bound():
     n_frames, bound = 50, 16
     d = Draws(n_frames)
     for t in range(1, 1001):
-        d.record(t, lambda t=t: (np.full(n_frames, 0), np.ones((1, 2)) * t, 1.0, (0.5, 0.5)), bound)
+        d.record(t, lambda t=t: (np.full(n_frames, 0), np.ones((1, 2)) * t, 1.0, (0.5, 0.5), None), bound)
         assert len(d) <= bound
         step = thin_for(t, bound)
         assert d.sweeps == list(range(step, t + 1, step))

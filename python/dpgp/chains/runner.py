@@ -420,6 +420,13 @@ def fit_chains(
         raise InvalidInputError(
             "checkpoint is a setting of a single fit (DPGP(checkpoint=...).fit), not of fit_chains; leave it out"
         )
+    if settings.get("inputs") == "position+heading":
+        # A chain's blocks hand their state on as a model file without the frames' headings or
+        # the patterns' heading length scales: refuse rather than fail after the first block.
+        raise InvalidInputError(
+            "fit_chains does not run fields over heading yet (issue 34): fit one chain with "
+            "DPGP(inputs='position+heading').fit"
+        )
     if init not in ("sequential", "one", "many", "dispersed"):
         raise InvalidInputError(f"init must be 'sequential', 'one', 'many' or 'dispersed', got {init!r}")
     if init != "dispersed":

@@ -3,16 +3,17 @@
 A fitted model's last state is one draw from the posterior over partitions and hyperparameters;
 scoring only it ignores how uncertain the fit is. The fit therefore keeps a thinned set of its
 states, a :class:`Draws`: per kept sweep, the labels (patterns by decreasing size), each
-pattern's length scales and α. Those are all a state needs: the sampler refactors every pattern
+pattern's length scales (for fields over heading, ``DPGP(inputs="position+heading")``, its heading
+length scale ``w_h`` too) and α. Those are all a state needs: the sampler refactors every pattern
 from them (``Sampler.set_state``), as loading a model file does.
 
 **Thinning under a memory bound.** At most ``max_draws`` states are held. After ``t`` sweeps the
 kept sweeps are the multiples of ``thin(t)``, the least power of two with ``t // thin ≤ max_draws``;
 as ``t`` grows past the bound, every other draw is dropped and the step doubles. What is kept is a
 function of ``t`` alone, so a resumed chain keeps what the uninterrupted one would. Memory:
-``max_draws · (b N + 16 K + 16)`` bytes for ``N`` frames and ``K`` patterns a draw, with each
-draw's labels in the smallest unsigned type that holds them (``b = 1`` byte below 256 patterns;
-model files store them as int32).
+``max_draws · (b N + 16 K + 16)`` bytes for ``N`` frames and ``K`` patterns a draw (``24 K`` for
+fields over heading), with each draw's labels in the smallest unsigned type that holds them
+(``b = 1`` byte below 256 patterns; model files store them as int32).
 
 **Averaging.** Scores use the kept draws after a burn-in of the first half of the sweeps, and
 the final state (itself a draw); ``S`` states in all. For a test frame ``V`` and state ``s``,
@@ -60,7 +61,9 @@ class Draws:
     size, in the smallest unsigned type that holds them),
     ``length_scales`` (one (K_d, 2) array a draw), ``alpha`` (D,), ``noise_var`` (one
     ``(σ_n,x², σ_n,y²)`` a draw: the noise is sampled in the chain; ``None`` for draws read from a
-    file written before it was, which are scored with the model's final noise)."""
+    file written before it was, which are scored with the model's final noise) and
+    ``heading_scales`` (one (K_d,) array of ``w_h`` a draw for fields over heading; ``None`` for
+    fields over position)."""
 
     n_frames: int
     sweeps: list[int] = field(default_factory=list)
@@ -68,6 +71,7 @@ class Draws:
     length_scales: list[np.ndarray] = field(default_factory=list)
     alpha: list[float] = field(default_factory=list)
     noise_var: list[Any] = field(default_factory=list)  # a pair, a (K_d, 2) array per pattern, or None
+    heading_scales: list[np.ndarray | None] = field(default_factory=list)  # (K_d,) w_h; None: over position
 
     def __len__(self) -> int:
         return len(self.sweeps)
@@ -75,27 +79,32 @@ class Draws:
     @property
     def nbytes(self) -> int:
         per = sum(v.nbytes for v in self.noise_var if isinstance(v, np.ndarray))
+        per += sum(w.nbytes for w in self.heading_scales if w is not None)
         return sum(a.nbytes for a in self.labels) + sum(a.nbytes for a in self.length_scales) + 16 * len(self) + per
 
     def record(self, sweep: int, state: Callable[[], State], max_draws: int) -> None:
         """After sweep ``sweep``: drop what the thinning no longer keeps, then keep this state
-        (``state()``: labels, length scales, α, noise pair) if its sweep is a multiple of the step."""
+        (``state()``: labels, length scales, α, noise pair, heading length scales or None) if its
+        sweep is a multiple of the step."""
         step = thin_for(sweep, max_draws)
         keep = [i for i, s in enumerate(self.sweeps) if step and s % step == 0]
         if len(keep) != len(self):
             self._select(keep)
         if step and sweep % step == 0 and (not self.sweeps or self.sweeps[-1] != sweep):
-            labels, length_scales, alpha, noise = state()
+            labels, length_scales, alpha, noise, heading = state()
             self.sweeps.append(int(sweep))
             self.labels.append(compact_labels(labels))
             self.length_scales.append(np.asarray(length_scales, dtype=np.float64).reshape(-1, 2).copy())
             self.alpha.append(float(alpha))
             self.noise_var.append(_noise_entry(noise))
+            self.heading_scales.append(
+                None if heading is None else np.asarray(heading, dtype=np.float64).ravel().copy()
+            )
 
     def up_to(self, sweep: int) -> Draws:
         """The draws of sweeps ``<= sweep`` (a checkpoint's resume point)."""
         out = Draws(self.n_frames, list(self.sweeps), list(self.labels), list(self.length_scales), list(self.alpha),
-                    list(self.noise_var))  # fmt: skip
+                    list(self.noise_var), list(self.heading_scales))  # fmt: skip
         out._select([i for i, s in enumerate(self.sweeps) if s <= sweep])
         return out
 
@@ -105,6 +114,7 @@ class Draws:
         self.length_scales = [self.length_scales[i] for i in idx]
         self.alpha = [self.alpha[i] for i in idx]
         self.noise_var = [self.noise_var[i] for i in idx]
+        self.heading_scales = [self.heading_scales[i] for i in idx]
 
     # --- model-file members (dpgp.io) ----------------------------------------------------------
     def arrays(self) -> dict[str, np.ndarray]:
@@ -125,6 +135,7 @@ class Draws:
                 dtype=np.float64,
             ).reshape(d, 2),
             **self._pattern_noise_arrays(),
+            **self._heading_arrays(),
         }
 
     def _pattern_noise_arrays(self) -> dict[str, np.ndarray]:
@@ -133,6 +144,13 @@ class Draws:
         if not self.noise_var or not all(isinstance(v, np.ndarray) for v in self.noise_var):
             return {}
         return {"draw_pattern_noise_var": np.concatenate(self.noise_var).reshape(-1, 2)}
+
+    def _heading_arrays(self) -> dict[str, np.ndarray]:
+        """``draw_heading_scales`` (ΣK,): each pattern's ``w_h``, draw by draw, when the draws are
+        of fields over heading (then every draw has them)."""
+        if not self.heading_scales or any(w is None for w in self.heading_scales):
+            return {}
+        return {"draw_heading_scales": np.concatenate([w for w in self.heading_scales if w is not None])}
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], n_frames: int, min_ls: float, max_ls: float) -> Draws | None:
@@ -174,13 +192,22 @@ class Draws:
             if pn.shape != ls.shape or pn.dtype.kind != "f" or not (np.isfinite(pn).all() and (pn > 0).all()):
                 raise ValueError("the posterior draws' per-pattern noise must be positive, one pair per pattern")
             noise = list(np.split(pn.astype(np.float64), np.cumsum(counts)[:-1])) if d else []
+        heading: list[np.ndarray | None] = [None] * d  # fields over position
+        if "draw_heading_scales" in arrays:
+            wh = arrays["draw_heading_scales"]
+            if wh.shape != (len(ls),) or wh.dtype.kind != "f":
+                raise ValueError("the posterior draws' heading length scales must be one float per pattern (ΣK,)")
+            if not ((wh >= min_ls).all() and (wh <= max_ls).all()):
+                raise ValueError(f"the posterior draws' heading length scales must lie in [{min_ls:g}, {max_ls:g}]")
+            heading = list(np.split(wh.astype(np.float64), np.cumsum(counts)[:-1])) if d else []
         return cls(n_frames, [int(s) for s in sweeps], [compact_labels(x) for x in labels], list(parts),
-                   [float(a) for a in alpha], noise)  # fmt: skip
+                   [float(a) for a in alpha], noise, heading)  # fmt: skip
 
 
-#: One kept state: labels, length scales (K, 2), α and the noise: a pair, each pattern's pairs
-#: ((K, 2) array, per-pattern noise), or None (the model's own).
-State = tuple[np.ndarray, np.ndarray, float, Any]
+#: One kept state: labels, length scales (K, 2), α, the noise: a pair, each pattern's pairs
+#: ((K, 2) array, per-pattern noise), or None (the model's own), and the heading length scales
+#: ((K,) array, fields over heading) or None (fields over position).
+State = tuple[np.ndarray, np.ndarray, float, Any, np.ndarray | None]
 
 
 def _noise_entry(noise: Any) -> Any:
@@ -191,9 +218,10 @@ def _noise_entry(noise: Any) -> Any:
     return (float(noise[0]), float(noise[1]))
 
 
-def state_of(sampler: Any, per_pattern: bool = False) -> State:
+def state_of(sampler: Any, per_pattern: bool = False, headed: bool = False) -> State:
     """A sampler's state as a draw: labels with patterns by decreasing size (ties by slot), their
-    length scales (K, 2), α and the noise pair (``per_pattern``: each pattern's, (K, 2))."""
+    length scales (K, 2), α, the noise pair (``per_pattern``: each pattern's, (K, 2)) and, for
+    fields over heading (``headed``), their heading length scales (K,)."""
     patterns = sampler.patterns()  # (slot, id, n_frames, wx, wy)
     order = sorted(range(len(patterns)), key=lambda j: (-patterns[j][2], patterns[j][0]))
     slots = np.array([patterns[j][0] for j in order], dtype=np.int64)
@@ -203,11 +231,12 @@ def state_of(sampler: Any, per_pattern: bool = False) -> State:
     lookup = np.zeros(int(slots.max()) + 1 if len(slots) else 1, dtype=np.min_scalar_type(max(len(slots) - 1, 0)))
     lookup[slots] = np.arange(len(slots))
     ls = np.array([[patterns[j][3], patterns[j][4]] for j in order], dtype=np.float64).reshape(-1, 2)
+    wh = np.asarray(sampler.heading_scales(), dtype=np.float64)[order] if headed else None
     if per_pattern:
         per_slot = np.asarray(sampler.pattern_noise(), dtype=np.float64).reshape(-1, 2)
-        return lookup[raw], ls, float(sampler.alpha()), per_slot[order]
+        return lookup[raw], ls, float(sampler.alpha()), per_slot[order], wh
     noise = tuple(float(x) for x in sampler.noise_var())
-    return lookup[raw], ls, float(sampler.alpha()), (noise[0], noise[1])
+    return lookup[raw], ls, float(sampler.alpha()), (noise[0], noise[1]), wh
 
 
 def used(draws: Draws | None, n_iter: int) -> list[int]:
@@ -218,22 +247,26 @@ def used(draws: Draws | None, n_iter: int) -> list[int]:
     return [i for i, s in enumerate(draws.sweeps) if n_iter // 2 < s < n_iter]
 
 
-def _draw_terms(sampler: Any, state: State, frames: Any) -> tuple[np.ndarray, np.ndarray]:
+def _draw_terms(sampler: Any, state: State, frames: Any, h: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """For one state: (n_test, K+1) log [DP weight × likelihood] per pattern (state label order)
-    and a new one, and the (K,) training-frame counts per pattern."""
-    labels, ls, alpha, noise = state
+    and a new one, and the (K,) training-frame counts per pattern. ``h``: the test frames'
+    previous headings (fields over heading, whose states carry their heading length scales)."""
+    labels, ls, alpha, noise, heading = state
+    if (heading is None) != (h is None):
+        raise ValueError("a state of fields over heading is scored with the frames' headings, and only such a state")
+    wh = None if heading is None else [float(x) for x in heading]
     if isinstance(noise, np.ndarray) and noise.ndim == 2:  # each pattern's own pair
-        sampler.set_state(np.asarray(labels, dtype=np.int64), ls, alpha, noise)
+        sampler.set_state(np.asarray(labels, dtype=np.int64), ls, alpha, noise, heading_scales=wh)
     else:
         if noise is not None:
             sampler.set_noise_var(noise)
-        sampler.set_state(np.asarray(labels, dtype=np.int64), ls, alpha)
+        sampler.set_state(np.asarray(labels, dtype=np.int64), ls, alpha, heading_scales=wh)
     cur = state_of(sampler)[0]
     if not np.array_equal(cur, labels):  # set_state keeps label k in slot order k
         raise RuntimeError("the sampler did not take the draw's labels")
     patterns = sampler.patterns()
     order = sorted(range(len(patterns)), key=lambda j: (-patterns[j][2], patterns[j][0]))
-    per_slot, new = sampler.score_frames(frames.xy, frames.v, frames.offsets)
+    per_slot, new = sampler.score_frames(frames.xy, frames.v, frames.offsets, h)
     scores = np.asarray(per_slot, dtype=np.float64).reshape(len(frames), -1)[:, order]
     counts = np.bincount(labels, minlength=len(ls)).astype(np.float64)
     n = counts.sum()
@@ -247,11 +280,13 @@ def averaged(
     states: list[State],
     new_sampler: Callable[[], object],
     frames: object,
+    h: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Posterior-averaged ``(log density (n_test,), probabilities (n_test, K_final + 1))`` over the
     final state (its joint terms ``final_terms`` and labels) and the other kept ``states``
     (module docstring). ``new_sampler`` builds a sampler over the training frames to score a
-    state with (called once, only if there are other states)."""
+    state with (called once, only if there are other states). ``h``: the previous headings of
+    ``frames``' vehicles, for fields over heading (each state then carries its ``w_h``)."""
     k_final = final_terms.shape[1] - 1
     # One block per state: terms (n_test, K_s + 1) and the soft map of its patterns onto the final
     # ones ((K_s + 1, K_final + 1), "new" to "new").
@@ -259,7 +294,7 @@ def averaged(
     if states:
         sampler = new_sampler()
         for state in states:
-            terms, counts = _draw_terms(sampler, state, frames)
+            terms, counts = _draw_terms(sampler, state, frames, h)
             overlap = np.zeros((len(counts) + 1, k_final + 1))
             np.add.at(overlap, (np.asarray(state[0], dtype=np.int64), np.asarray(final_labels, dtype=np.int64)), 1.0)
             overlap[:-1] /= counts[:, None]

@@ -9,6 +9,9 @@ from which the chain continues bitwise as the uninterrupted fit does:
 ==========================  ==================  ============================================
 ``resume_labels``           int64 (N,)          patterns of the frames at the resume point
 ``resume_length_scales``    float64 (K, 2)      their length scales (patterns by size)
+``resume_heading_scales``   float64 (K,), opt.  their heading length scales ``w_h``: present
+                                                exactly when the model file holds
+                                                ``heading_scales`` (fields over heading)
 metadata ``resume``         JSON object         ``sweeps_done``, ``alpha``, ``stable`` (the
                                                 stopping rule's counter) and ``data_sha256``
 ==========================  ==================  ============================================
@@ -50,6 +53,7 @@ from ..exceptions import InvalidInputError, ModelFileError
 #: The metadata key and array names a checkpoint adds to a model file.
 META_KEY = "resume"
 LABELS, LENGTH_SCALES, NOISE = "resume_labels", "resume_length_scales", "resume_pattern_noise_var"
+HEADING = "resume_heading_scales"
 #: What ``history_`` records per sweep (a fit's and a checkpoint's).
 HISTORY_KEYS = (
     "n_patterns", "alpha", "log_joint", "moves", "ari", "seconds",
@@ -80,6 +84,7 @@ class ResumePoint:
     stable: int  # sweeps the stopping rule has seen K and the ARI stable
     data_sha256: str
     pattern_noise_var: np.ndarray | None = None  # (K, 2): each pattern's noise pair (per-pattern noise)
+    heading_scales: np.ndarray | None = None  # (K,): each pattern's w_h (fields over heading)
 
     def meta(self) -> dict[str, Any]:
         return {
@@ -94,6 +99,7 @@ class ResumePoint:
             LABELS: np.asarray(self.labels, dtype=np.int64),
             LENGTH_SCALES: np.asarray(self.length_scales, dtype=np.float64),
             **({} if self.pattern_noise_var is None else {NOISE: np.asarray(self.pattern_noise_var, dtype=np.float64)}),
+            **({} if self.heading_scales is None else {HEADING: np.asarray(self.heading_scales, dtype=np.float64)}),
         }
 
 
@@ -168,10 +174,16 @@ def parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], frames: Any, n_fr
     if trace is not None and (trace.ndim != 2 or len(trace) != n_iter):
         raise ModelFileError(f"the checkpoint's label_trace has shape {trace.shape} for {n_iter} sweeps")
     labels, ls = _resume_arrays(arrays, n_frames)
+    heading = heading_array(arrays, HEADING, len(ls))
+    if (heading is None) != ("heading_scales" not in arrays):
+        raise ModelFileError(
+            f"a checkpoint holds {HEADING!r} exactly when its model holds 'heading_scales' (fields over heading)"
+        )
     same = (
         alpha == meta.get("alpha")
         and np.array_equal(labels, arrays["labels"])
         and np.array_equal(ls, arrays["length_scales"])
+        and (heading is None or np.array_equal(heading, arrays["heading_scales"]))
     )
     if done == n_iter and not same:
         raise ModelFileError("the checkpoint's resume point is at the model's sweep but holds another state")
@@ -182,7 +194,7 @@ def parse(meta: dict[str, Any], arrays: dict[str, np.ndarray], frames: Any, n_fr
             "or damaged, and the chain cannot be resumed"
         )
     noise = _noise_array(arrays, NOISE, len(ls))
-    return ResumePoint(int(done), labels, ls, float(alpha), int(stable), r["data_sha256"], noise)  # type: ignore[arg-type]
+    return ResumePoint(int(done), labels, ls, float(alpha), int(stable), r["data_sha256"], noise, heading)  # type: ignore[arg-type]
 
 
 def _noise_array(arrays: dict[str, np.ndarray], name: str, k: int) -> np.ndarray | None:
@@ -193,6 +205,20 @@ def _noise_array(arrays: dict[str, np.ndarray], name: str, k: int) -> np.ndarray
     a = np.asarray(a)
     if a.shape != (k, 2) or a.dtype.kind != "f" or not (np.isfinite(a).all() and (a > 0).all()):
         raise ModelFileError(f"{name} must be one positive noise pair per pattern ({k}, 2), got shape {a.shape}")
+    return a.astype(np.float64)
+
+
+def heading_array(arrays: dict[str, np.ndarray], name: str, k: int) -> np.ndarray | None:
+    """The optional (K,) member ``name`` of heading length scales ``w_h`` (radians), checked
+    (None if absent): bounded as the position length scales are."""
+    a = arrays.get(name)
+    if a is None:
+        return None
+    a = np.asarray(a)
+    if a.shape != (k,) or a.dtype.kind != "f":
+        raise ModelFileError(f"{name} must be one heading length scale per pattern ({k},), got shape {a.shape}")
+    if not ((a >= MIN_LENGTH_SCALE).all() and (a <= MAX_MAGNITUDE).all()):
+        raise ModelFileError(f"{name} must lie in [{MIN_LENGTH_SCALE:g}, {MAX_MAGNITUDE:g}]; the file is corrupted")
     return a.astype(np.float64)
 
 
@@ -226,7 +252,8 @@ def _resume_arrays(arrays: dict[str, np.ndarray], n_frames: int) -> tuple[np.nda
 
 def at_resume_point(file: Any) -> Any:
     """``file`` (a :class:`dpgp.io.ModelFile` of a checkpoint) with its model state set back to the
-    resume point: labels, length scales and α, history and label trace truncated to it."""
+    resume point: labels, length scales (heading length scales too) and α, history and label
+    trace truncated to it."""
     p: ResumePoint = file.resume
     n = p.sweeps_done
     state = dict(file.state)
@@ -239,5 +266,5 @@ def at_resume_point(file: Any) -> Any:
         state["draws_"] = state["draws_"].up_to(n)
     return replace(
         file, labels=p.labels, length_scales=p.length_scales, alpha=p.alpha, state=state,
-        pattern_noise_var=p.pattern_noise_var,
+        pattern_noise_var=p.pattern_noise_var, heading_scales=p.heading_scales,
     )  # fmt: skip

@@ -22,12 +22,15 @@ name                dtype, shape            content
 ``pattern_ids``     uint64 (K,)             the sampler's stable pattern ids
 ``pattern_noise_v…``  float64 (K, 2), opt.  ``pattern_noise_var``: each pattern's noise pair
                                             (``noise_var="per_pattern"``; absent: the global pair)
+``heading_scales``  float64 (K,), optional  each pattern's heading length scale ``w_h`` (radians):
+                                            fields over heading (below)
 ``label_trace``     int64 (sweeps, N), opt.  labels per sweep (``store_labels=True``)
 ``draw_sweeps``     int64 (D,), optional    sweeps of the kept posterior draws (below)
 ``draw_labels``     int32 (D, N), optional  their labels (patterns by size within each draw)
 ``draw_n_patterns`` int64 (D,), optional    patterns per draw
 ``draw_length_s…``  float64 (ΣK, 2), opt.   ``draw_length_scales``: their length scales, draw by draw
 ``draw_alpha``      float64 (D,), optional  their α
+``draw_heading_s…`` float64 (ΣK,), opt.     ``draw_heading_scales``: their ``w_h``, draw by draw
 ==================  ======================  ===================================================
 
 The ``frame_prev_*`` members (issue 34) come with the metadata key ``frames_heading_min_speed``
@@ -38,6 +41,19 @@ them and read the same model (the sampler does not use them), so they need no ne
 The ``draw_*`` members (:mod:`dpgp.posterior`) are the thinned posterior states that
 posterior-averaged scores use; files without them (written before them) load with no draws, and
 readers that know nothing of them read the model as before, so they need no new version.
+
+**Fields over heading** (``DPGP(inputs="position+heading")``, issue 34): ``settings`` holds
+``inputs``; the file then holds ``heading_scales``, the frames' ``frame_prev_*`` members (the
+sampler's inputs), ``draw_heading_scales`` when it holds draws and, in a checkpoint,
+``resume_heading_scales``; ``engine`` adds ``heading`` (``prior``, the Gamma prior of ``w_h``, and
+``harmonics``, the reduced-rank basis's heading harmonics or null), the values the fit ran with.
+Each of these comes with the others: a file of fields over heading without its heading length
+scales or its frames' headings, or with heading length scales but fields over position, is a
+:class:`~dpgp.ModelFileError`. The format version stays 2: no reader of an earlier version
+misreads such a file. Readers from before issue 34 refuse the ``inputs`` setting they do not
+know; the first readers that knew it (which wrote no such model files, only checkpoints without
+heading length scales) fail to rebuild the fields rather than build other ones. Files without
+``inputs`` (written before it) are fields over position.
 
 ``metadata`` holds ``format`` (``"dpgp-model"``), ``format_version``, ``dpgp_version``,
 ``settings`` (``DPGP.get_params()``), ``params`` (the global GP parameters), ``alpha``,
@@ -54,8 +70,8 @@ resolved (:class:`dpgp.defaults.Resolved`); version 1 files, written when those 
 always numbers, are read by taking them from ``settings``.
 
 A *checkpoint* (``DPGP(checkpoint=PATH)``) is a model file with a resume point besides: the
-metadata key ``resume`` and the arrays ``resume_labels`` and ``resume_length_scales``
-(:mod:`dpgp.checkpoint`). Readers that know nothing of them read the model it holds.
+metadata key ``resume`` and the arrays ``resume_labels`` and ``resume_length_scales`` (and
+``resume_heading_scales`` over heading; :mod:`dpgp.checkpoint`). Readers that know nothing of them read the model it holds.
 
 Version 3 (written only for a checkpoint of a fit over a directory of shards): the frames stay in
 their shards. The file has no ``frame_*`` members; the metadata key ``shards`` names the
@@ -149,6 +165,7 @@ class ModelState:
     transitions: dict[str, Any] | None = None  # dpgp.evaluate.transitions.Transitions.to_dict (issue 20)
     sticky: dict[str, Any] | None = None  # dynamics="sticky": {"rho": ρ, "links": frames linked to their predecessor}
     pattern_noise_var: np.ndarray | None = None  # (K, 2) under per-pattern noise
+    heading_scales: np.ndarray | None = None  # (K,) w_h of fields over heading (inputs="position+heading")
     # Frames left in their shards (a checkpoint of a fit over shards): {"directory", "sizes",
     # "data_sha256"}, and ``frames`` is None.
     shards: dict[str, Any] | None = None
@@ -221,6 +238,8 @@ def save(state: ModelState, path: str | os.PathLike, resume: Any = None, compres
             arrays["frame_prev_heading"] = np.asarray(frames.prev_heading, dtype=np.float64)
     if state.pattern_noise_var is not None:
         arrays["pattern_noise_var"] = np.asarray(state.pattern_noise_var, dtype=np.float64).reshape(-1, 2)
+    if state.heading_scales is not None:
+        arrays["heading_scales"] = np.asarray(state.heading_scales, dtype=np.float64).reshape(-1)
     if state.label_trace is not None:
         arrays["label_trace"] = np.asarray(state.label_trace, dtype=np.int64)
     if state.draws is not None:
@@ -344,6 +363,8 @@ class ModelFile:
     pattern_noise_var: np.ndarray | None = None  # (K, 2): each pattern's noise pair (per-pattern noise)
     sampler: str = "collapsed"  # the sampler that ran the chain; files before issue 32 ran the collapsed one
     shards: dict[str, Any] | None = None  # frames left in shards: directory, sizes, data_sha256 (frames is None)
+    heading_scales: np.ndarray | None = None  # (K,): each pattern's w_h (fields over heading)
+    heading: dict[str, Any] | None = None  # the w_h prior and heading harmonics the fit ran with (None: the defaults)
 
 
 def read_model_file(path: str | os.PathLike) -> ModelFile:
@@ -439,6 +460,7 @@ def _parse_rest(
             f"the model's numbers are beyond what a fit accepts ({e}); the file is corrupted"
         ) from None
     likelihood, basis = _engine(meta)
+    heading_scales, heading = _heading(meta, arrays, settings, frames, len(ls), likelihood)
     history = {k: list(v) for k, v in meta.get("history", {}).items()}
     for key, values in history.items():
         if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in values):
@@ -458,6 +480,10 @@ def _parse_rest(
         state["chain_summary_"] = meta["chain_summary"]
     draws = Draws.from_arrays(arrays, n_frames, MIN_LENGTH_SCALE, _MAX_MAGNITUDE)  # None: a file before them
     if draws is not None:
+        if len(draws) and (heading_scales is None) != ("draw_heading_scales" not in arrays):
+            raise ModelFileError(
+                "the posterior draws hold heading length scales exactly when the model does (fields over heading)"
+            )
         state["draws_"] = draws
     if isinstance((meta.get("engine") or {}).get("choice"), dict):
         state["engine_choice_"] = meta["engine"]["choice"]
@@ -469,6 +495,7 @@ def _parse_rest(
         None if d is None else EmpiricalDistributions.from_dict(d), parse_resume(meta, arrays, frames, n_frames),
         None if meta.get("motion") is None else MotionModel.from_dict(meta["motion"]), transitions,
         _sticky(meta.get("sticky"), n_frames), _pattern_noise(arrays, len(ls)), _sampler(meta), shards,
+        heading_scales, heading,
     )  # fmt: skip
 
 
@@ -567,6 +594,57 @@ def _engine(meta: dict[str, Any]) -> tuple[str, Any]:
     if e.get("likelihood") not in ("exact", "hsgp") or (e["likelihood"] == "hsgp") != (e.get("basis") is not None):
         raise ModelFileError(f"unknown likelihood or basis in the model file: {e!r}")
     return e["likelihood"], None if e.get("basis") is None else Basis.from_dict(e["basis"])
+
+
+def _heading(
+    meta: dict[str, Any], arrays: dict[str, np.ndarray], settings: dict[str, Any], frames: Any, k: int, likelihood: str
+) -> tuple[np.ndarray | None, dict[str, Any] | None]:
+    """Fields over heading: each pattern's ``w_h`` and the engine's heading entry (the prior and
+    harmonics the fit ran with; None in a file without it), checked against the settings and the
+    frames; ``(None, None)`` for fields over position."""
+    from .checkpoint import heading_array
+
+    headed = settings.get("inputs", "position") == "position+heading"
+    scales = heading_array(arrays, "heading_scales", k)
+    if scales is not None and not headed:
+        raise ModelFileError(
+            f"the file holds heading length scales but its fields are over {settings.get('inputs', 'position')!r}, "
+            "not 'position+heading'; it is corrupted"
+        )
+    if not headed:
+        if "heading" in (meta.get("engine") or {}):
+            raise ModelFileError(
+                "the engine has a heading entry but the fields are over position; the file is corrupted"
+            )
+        return None, None
+    if scales is None:
+        raise ModelFileError(
+            "the file's fields are over position and heading (inputs='position+heading') but it holds no heading "
+            "length scales ('heading_scales'): it was not written by a dpgp that saves such models, or it is damaged"
+        )
+    if frames is None or getattr(frames, "prev_heading", None) is None:
+        raise ModelFileError(
+            "the file holds heading length scales (fields over heading) but not its frames' previous headings "
+            "('frame_prev_heading'), which the fields take as input; the file is corrupted"
+        )
+    h = (meta.get("engine") or {}).get("heading")
+    if h is None:
+        return scales, None
+    prior, harmonics = (h.get("prior"), h.get("harmonics")) if isinstance(h, dict) else (None, None)
+    prior_ok = (
+        isinstance(prior, list)
+        and len(prior) == 2
+        and all(isinstance(x, (int, float)) and not isinstance(x, bool) and 0 < x < _MAX_MAGNITUDE for x in prior)
+    )
+    # The core bounds the basis the harmonics make; here only a count it can take.
+    count = isinstance(harmonics, int) and not isinstance(harmonics, bool) and 0 <= harmonics <= 10**6
+    harmonics_ok = harmonics is None if likelihood == "exact" else count
+    if not (prior_ok and harmonics_ok):
+        raise ModelFileError(
+            f"the engine's heading entry {h!r} needs a prior of two positive numbers and, for the hsgp likelihood "
+            "only, a count of harmonics; the file is corrupted"
+        )
+    return scales, {"prior": (float(prior[0]), float(prior[1])), "harmonics": harmonics}  # type: ignore[index]
 
 
 def _sampler(meta: dict[str, Any]) -> str:

@@ -132,7 +132,8 @@ class DPGP:
         length scale each pattern samples (``heading_scales_``, prior :data:`HEADING_PRIOR`).
         Needs frames made by :func:`dpgp.make_frames` from tracks (they carry ``prev_heading``);
         runs on the collapsed sampler, ``likelihood="exact"`` or ``"hsgp"`` given explicitly.
-        Not yet: ``likelihood="auto"``, model files, generation over heading.
+        Model files, checkpoints and posterior draws keep each pattern's heading length scale.
+        Not yet: ``likelihood="auto"``, the sub-cluster sampler, ``fit_chains``.
     dynamics : ``None`` (default): frames are exchangeable, the paper's independent DP.
         ``"sticky"``: a Markov prior on consecutive frames' labels (docs/dynamics.md): each
         frame stays in its predecessor's pattern with probability ρ (``stickiness_``, sampled
@@ -249,6 +250,7 @@ class DPGP:
     _cache: dict[str, Any]
     _keep_state_on_interrupt: bool
     _resume_point: ckpt.ResumePoint  # the last checkpoint's state (with checkpoint=)
+    _heading_stored: dict[str, Any]  # a loaded model's w_h prior and heading harmonics (fields over heading)
 
     # --- scikit-learn conventions ---------------------------------------------------------------
     def get_params(self, deep: bool = True) -> dict[str, Any]:
@@ -410,6 +412,7 @@ class DPGP:
         if warm_start and hasattr(self, "_sampler"):
             return self._continue(frames)
         self._check_settings()
+        self.__dict__.pop("_heading_stored", None)  # a fresh chain runs with this dpgp's heading prior
         sharded = manifest is not None and self._runs_on_shards(client)
         if self.checkpoint is not None:
             ckpt.check_path(self.checkpoint)  # before the work, not after the initialisation
@@ -655,7 +658,8 @@ class DPGP:
 
         draws = self.__dict__.setdefault("draws_", Draws(self._n_training()))
         per = self._per_pattern_noise()
-        draws.record(self.n_iter_, lambda: state_of(self._sampler, per), int(self.posterior_draws))
+        headed = self._headed()
+        draws.record(self.n_iter_, lambda: state_of(self._sampler, per, headed), int(self.posterior_draws))
 
     def _per_pattern_noise(self) -> bool:
         """Whether each pattern samples its own noise pair (``noise_var="per_pattern"``)."""
@@ -691,6 +695,7 @@ class DPGP:
             stable,
             self._data_sha256,
             self.pattern_noise_var_.copy() if self._per_pattern_noise() else None,
+            self.heading_scales_.copy() if self._headed() else None,
         )
         self._write_checkpoint(traces)
         self.checkpoint_seconds_["write"].append(time.perf_counter() - reset)
@@ -900,6 +905,7 @@ class DPGP:
             from .engine_cost import subcluster_moves
 
             settings["split_merge"] = subcluster_moves(n_frames)
+        heading = self._heading_engine()
         settings.update(
             {
                 "assignment": self.assignment_,
@@ -913,13 +919,23 @@ class DPGP:
                 else None,
                 "noise_scope": "per_pattern" if self._per_pattern_noise() else "global",
                 "dynamics": _sticky_prior(frames) if self.dynamics == "sticky" and frames is not None else None,
-                "heading_prior": HEADING_PRIOR if self._headed() else None,
-                "heading_harmonics": self._heading_harmonics()
-                if self._headed() and self.likelihood_ == "hsgp"
-                else None,
+                "heading_prior": heading["prior"] if heading else None,
+                "heading_harmonics": heading["harmonics"] if heading else None,
             }
         )
         return settings
+
+    def _heading_engine(self) -> dict[str, Any] | None:
+        """Fields over heading: the Gamma prior of ``w_h`` and the reduced-rank basis's heading
+        harmonics (None for the exact likelihood) the chain runs with: those a loaded model file
+        recorded, else :data:`HEADING_PRIOR` and its harmonics rule. None over position."""
+        if not self._headed():
+            return None
+        stored = self.__dict__.get("_heading_stored")
+        if stored is not None:
+            return dict(stored)
+        harmonics = self._heading_harmonics() if self.likelihood_ == "hsgp" else None
+        return {"prior": HEADING_PRIOR, "harmonics": harmonics}
 
     @staticmethod
     def _heading_harmonics() -> int:
@@ -1116,10 +1132,12 @@ class DPGP:
                 draws.length_scales[i],
                 draws.alpha[i],
                 own if draws.noise_var[i] is None else draws.noise_var[i],
+                draws.heading_scales[i],  # each draw's own w_h (fields over heading), else None
             )
             for i in used(draws, self.n_iter_)
         ]
-        return averaged(terms, self.labels_, states, lambda: self._new_sampler(self.frames_, collapsed=True), frames)
+        h = self._headings(frames, "scored")
+        return averaged(terms, self.labels_, states, lambda: self._new_sampler(self.frames_, collapsed=True), frames, h)
 
     def predict_proba(self, frames: Frames | Any, average: bool = False) -> np.ndarray:
         """Posterior probability of each pattern for each frame: shape (N, K+1), the last column
@@ -1291,10 +1309,6 @@ class DPGP:
         from ..io.modelfile import save
 
         self._check_fitted()
-        if self._headed():
-            raise InvalidInputError(
-                "model files of fields over heading are not written yet (issue 34): keep the model in memory"
-            )
         save(self._file_state(), path)
 
     def _file_state(self, by_reference: bool = False) -> ModelState:
@@ -1309,6 +1323,7 @@ class DPGP:
             settings=self.get_params(), params=self.params_, alpha=self.alpha_, n_patterns=self.n_patterns_,
             labels=self.labels_, length_scales=self.length_scales_,
             pattern_noise_var=self.pattern_noise_var_ if self._per_pattern_noise() else None,
+            heading_scales=self.heading_scales_ if self._headed() else None,
             pattern_ids=self.pattern_ids_, resolved=self._resolved_dict(),
             engine=self.engine_info(), history=getattr(self, "history_", {}), n_iter=getattr(self, "n_iter_", None),
             converged=getattr(self, "converged_", None), init_seconds=getattr(self, "init_seconds_", None),
@@ -1355,13 +1370,17 @@ class DPGP:
         """The likelihood that ran (``"exact"`` or ``"hsgp"``), its basis, the memory budget and
         ``likelihood="auto"``'s decision, as plain values (what a model file stores)."""
         basis = getattr(self, "basis_", None)
-        return {
+        info: dict[str, Any] = {
             "likelihood": getattr(self, "likelihood_", "exact"),
             "basis": None if basis is None else basis.to_dict(),
             "memory_budget": getattr(self, "memory_budget_", None),
             "choice": getattr(self, "engine_choice_", None),  # likelihood="auto"'s decision (dpgp.model.engine_cost)
             "sampler": getattr(self, "sampler_", "collapsed"),
         }
+        heading = self._heading_engine() if hasattr(self, "likelihood_") else None
+        if heading is not None:  # fields over heading: the w_h prior and heading harmonics
+            info["heading"] = {"prior": list(heading["prior"]), "harmonics": heading["harmonics"]}
+        return info
 
     @classmethod
     def load(cls, path: Any) -> DPGP:
@@ -1450,6 +1469,12 @@ class DPGP:
         )  # fmt: skip
         model.likelihood_, model.basis_ = file.likelihood, file.basis
         model.sampler_ = file.sampler
+        if model._headed():  # the file's w_h per pattern, and the prior and harmonics the fit ran with
+            if file.heading_scales is None:
+                raise ModelFileError("a model of fields over heading needs each pattern's heading length scale")
+            model.heading_scales_ = np.asarray(file.heading_scales, dtype=np.float64)
+            if file.heading is not None:
+                model._heading_stored = dict(file.heading)
         budget = parse_bytes("memory_budget", model.memory_budget)  # this machine's budget
         model.memory_budget_ = budget if budget is not None else default_memory_budget(model.n_threads)
         if file.shards is None:
