@@ -7,6 +7,10 @@ the position-blind generator ("blind") as references; plus rollout FDE at 1 s an
 Prints one table, then the issue's targets met or missed.
 
     python benches/realism.py [--iterations 20] [--only peachtree,eth,zara01,sumo_junction] [--plots DIR]
+                              [--inputs position,position+heading] [--heading-likelihood exact]
+
+``--inputs``: the fields' inputs to compare, one fit each (issue 34); a fit over heading runs the
+collapsed sampler on ``--heading-likelihood`` (it does not choose its engine yet).
 
 Scores are WOSAC-style likelihoods (higher is better); collision rates are shares of object
 steps; FDE in the data's length units (Peachtree: feet; the others: metres).
@@ -43,15 +47,18 @@ def datasets() -> dict:
     return {**{k: theirs[k] for k in ("peachtree", "eth", "zara01")}, "sumo_junction": (sumo, "m")}
 
 
-def measure(name: str, load, unit: str, iterations: int, plots: Path | None) -> dict:
+def measure(
+    name: str, load, unit: str, iterations: int, plots: Path | None, inputs: str = "position", likelihood: str = "exact"
+) -> dict:
     t0 = time.perf_counter()
     frames, tracks = load()
     train, test = split_in_time(frames)
-    model = dpgp.DPGP(iterations=iterations, seed=0, progress=False).fit(train)
+    options = {} if inputs == "position" else {"inputs": inputs, "likelihood": likelihood, "sampler": "collapsed"}
+    model = dpgp.DPGP(iterations=iterations, seed=0, progress=False, **options).fit(train)
     fit_s = time.perf_counter() - t0
     ev = model.evaluate(test, tracks=tracks, horizons=(1, 4))
     r, t = ev.realism, ev.table
-    row: dict = {"data": name, "train/test frames": f"{len(train)}/{len(test)}", "K": model.n_patterns_}
+    row: dict = {"data": f"{name} [{inputs}]", "train/test frames": f"{len(train)}/{len(test)}", "K": model.n_patterns_}
     for f in (*FEATURES, "meta"):
         for src in ("generated", "recorded", "blind"):
             row[f"{f} [{'dpgp' if src == 'generated' else src}]"] = r.scores.loc[f, src]
@@ -69,7 +76,7 @@ def measure(name: str, load, unit: str, iterations: int, plots: Path | None) -> 
     row["seconds"] = time.perf_counter() - t0
     if plots is not None:
         plots.mkdir(parents=True, exist_ok=True)
-        r.plot().savefig(plots / f"realism_{name}.png", dpi=80)
+        r.plot().savefig(plots / f"realism_{name}_{inputs.replace('+', '_')}.png", dpi=80)
     return row
 
 
@@ -89,6 +96,13 @@ def targets(row: dict, unit: str) -> list[str]:
     out.append(
         f"FDE@1s within 10% of constant velocity: {'met' if f1 <= 1.1 * c1 else 'MISSED'} ({f1:.2f} vs {c1:.2f} {unit})"
     )
+    # issue 34's targets (fields over heading)
+    for f in ("turn_rate", "angular_acceleration"):
+        gen, rec = row[f"{f} [dpgp]"], row[f"{f} [recorded]"]
+        out.append(f"issue 34: {f} >= 90% of recorded: {'met' if gen >= 0.9 * rec else 'MISSED'} ({gen:.3f} vs {rec:.3f})")
+    out.append(f"issue 34: realism ratio >= 0.9: {'met' if ratio >= 0.9 else 'MISSED'} ({ratio:.2f})")
+    out.append(f"issue 34: FDE@4s <= 0.8 x constant velocity: {'met' if f4 <= 0.8 * c4 else 'MISSED'} ({f4 / c4:.2f} x)")
+    out.append(f"issue 34: FDE@1s within 5% of constant velocity: {'met' if f1 <= 1.05 * c1 else 'MISSED'} ({f1 / c1:.2f} x)")
     return out
 
 
@@ -97,15 +111,18 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=20, help="Gibbs sweeps per fit")
     ap.add_argument("--only", help="comma-separated subset of the data sets")
     ap.add_argument("--plots", type=Path, help="write each data set's realism figure (PNG) into this folder")
+    ap.add_argument("--inputs", default="position", help="comma-separated inputs to compare (position, position+heading)")
+    ap.add_argument("--heading-likelihood", default="exact", choices=("exact", "hsgp"))
     args = ap.parse_args()
     rows, checks = [], {}
     for name, (load, unit) in datasets().items():
         if args.only and name not in args.only.split(","):
             continue
-        row = measure(name, load, unit, args.iterations, args.plots)
-        rows.append(row)
-        checks[name] = targets(row, unit)
-        print(f"{name}: done in {row['seconds']:.0f} s", flush=True)
+        for inputs in args.inputs.split(","):
+            row = measure(name, load, unit, args.iterations, args.plots, inputs, args.heading_likelihood)
+            rows.append(row)
+            checks[row["data"]] = targets(row, unit)
+            print(f"{row['data']}: done in {row['seconds']:.0f} s", flush=True)
     table = pd.DataFrame(rows).set_index("data")
     with pd.option_context("display.width", 250, "display.max_columns", 40, "display.max_rows", 100):
         print(table.T.to_string(float_format=lambda x: f"{x:.3g}"))

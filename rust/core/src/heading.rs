@@ -36,6 +36,12 @@ pub fn spectrum(wh: f64, harmonics: usize) -> Vec<f64> {
     q
 }
 
+/// `q_0² = I_0(z) e^{−z}`: the heading kernel averaged over one heading (or both), at
+/// concentration `z = 1 / w_h²`.
+pub fn bessel_q0(z: f64) -> f64 {
+    bessel_ive(0, z)[0]
+}
+
 /// `k_h(a, b)`: the exact periodic kernel, `q_0²` when either heading is unknown (`NaN`).
 pub struct HeadingKernel {
     z: f64,

@@ -74,6 +74,90 @@ pub fn cross(a: &[Point], b: &[Point], ls: LengthScales, scale: f64, parallel: b
     out
 }
 
+/// Per point, its heading as `(cos h, sin h, 1)`, or `(0, 0, 0)` when it is unknown.
+fn heading_terms(x: Inputs<'_>) -> Vec<[f64; 3]> {
+    (0..x.len())
+        .map(|i| {
+            let h = x.heading(i);
+            if h.is_nan() {
+                [0.0; 3]
+            } else {
+                let (s, c) = h.sin_cos();
+                [c, s, 1.0]
+            }
+        })
+        .collect()
+}
+
+/// What a column of the headed kernel needs besides the points: `(ix, iy)` of the position part,
+/// the heading kernel's concentration `z = 1 / w_h²` and `ln q_0²` (either heading unknown).
+#[derive(Clone, Copy)]
+struct Headed {
+    ix: f64,
+    iy: f64,
+    z: f64,
+    log_q0: f64,
+}
+
+/// One column of the headed kernel in a single exponential: `exp(−r² + z (cos(h − h') − 1))` with
+/// `cos(h − h') = cos h cos h' + sin h sin h'`, or `exp(−r² + ln q_0²)` when a heading is unknown
+/// (the product of the two factors, without a trigonometric call per entry).
+#[inline(always)]
+fn fill_headed_generic(
+    a: &[Point],
+    ah: &[[f64; 3]],
+    q: Point,
+    qh: [f64; 3],
+    k: Headed,
+    scale: f64,
+    col: &mut [f64],
+) {
+    for ((c, p), g) in col.iter_mut().zip(a).zip(ah) {
+        let dx = p[0] - q[0];
+        let dy = p[1] - q[1];
+        let both = g[2] * qh[2];
+        let turn = (k.z * (g[0] * qh[0] + g[1] * qh[1] - 1.0)).min(0.0);
+        let arg = -(dx * dx * k.ix + dy * dy * k.iy) + both * turn + (1.0 - both) * k.log_q0;
+        *c = scale * exp_nonpos(arg);
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn fill_headed_avx2(
+    a: &[Point],
+    ah: &[[f64; 3]],
+    q: Point,
+    qh: [f64; 3],
+    k: Headed,
+    scale: f64,
+    col: &mut [f64],
+) {
+    fill_headed_generic(a, ah, q, qh, k, scale, col)
+}
+
+#[inline]
+fn fill_headed(
+    a: &[Point],
+    ah: &[[f64; 3]],
+    q: Point,
+    qh: [f64; 3],
+    k: Headed,
+    scale: f64,
+    col: &mut [f64],
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the required CPU features were detected at run time.
+            unsafe { fill_headed_avx2(a, ah, q, qh, k, scale, col) };
+            return;
+        }
+    }
+    fill_headed_generic(a, ah, q, qh, k, scale, col)
+}
+
 /// `scale * R(a, b)` for the field over position and previous heading (`heading`): the squared
 /// exponential times `k_h(h_a, h_b)` (an unknown heading: the field averaged over heading). With
 /// `ls.wh = ∞` the headings are not read and this is [`cross`], bit for bit.
@@ -84,25 +168,35 @@ pub fn cross_headed(
     scale: f64,
     parallel: bool,
 ) -> Vec<f64> {
-    let mut out = cross(a.xy, b.xy, ls, scale, parallel);
     if !heading::is_headed(ls.wh) || a.is_empty() {
-        return out;
+        return cross(a.xy, b.xy, ls, scale, parallel);
     }
-    let k = heading::HeadingKernel::new(ls.wh);
-    let ha: Vec<f64> = (0..a.len()).map(|i| a.heading(i)).collect();
-    let apply = |col: &mut [f64], h: f64| {
-        for (c, &g) in col.iter_mut().zip(&ha) {
-            *c *= k.eval(g, h);
-        }
+    let (ix, iy) = ls.inv2();
+    let z = 1.0 / (ls.wh * ls.wh);
+    let k = Headed {
+        ix,
+        iy,
+        z,
+        log_q0: heading::bessel_q0(z).ln(),
     };
+    let (ah, bh) = (heading_terms(a), heading_terms(b));
     let n = a.len();
+    let mut out = vec![0.0; n * b.len()];
     if parallel && n * b.len() >= PAR_MIN_ENTRIES {
-        out.par_chunks_mut(n)
-            .enumerate()
-            .for_each(|(j, col)| apply(col, b.heading(j)));
+        let cols_per_block = (PAR_MIN_ENTRIES / 8 / n).max(1);
+        out.par_chunks_mut(n * cols_per_block)
+            .zip(
+                b.xy.par_chunks(cols_per_block)
+                    .zip(bh.par_chunks(cols_per_block)),
+            )
+            .for_each(|(block, (qs, qh))| {
+                for ((col, &q), &g) in block.chunks_mut(n).zip(qs).zip(qh) {
+                    fill_headed(a.xy, &ah, q, g, k, scale, col);
+                }
+            });
     } else {
-        for (j, col) in out.chunks_mut(n).enumerate() {
-            apply(col, b.heading(j));
+        for ((col, &q), &g) in out.chunks_mut(n).zip(b.xy).zip(&bh) {
+            fill_headed(a.xy, &ah, q, g, k, scale, col);
         }
     }
     out
