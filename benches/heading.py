@@ -54,6 +54,10 @@ def main() -> None:
     ap.add_argument("--likelihood", default="exact", choices=("exact", "hsgp"))
     ap.add_argument("--sumo-dt", type=float, default=2.0, help="frame step of the SUMO junction (s)")
     ap.add_argument("--same-partition", action="store_true", help="also score the position fit's state over heading")
+    ap.add_argument(
+        "--sweep-cost", type=int, default=0, metavar="S",
+        help="also time S sweeps of each input from the position fit's state (the same patterns)",
+    )  # fmt: skip
     args = ap.parse_args()
     for name, load in datasets(args.sumo_dt).items():
         if args.only and name not in args.only.split(","):
@@ -79,6 +83,8 @@ def main() -> None:
             print(f"  seed {seed} gain {scores['position+heading'] - scores['position']:+.3f} nats/vehicle", flush=True)
             if args.same_partition:
                 same_partition(train, test, seed, args)
+            if args.sweep_cost:
+                sweep_cost(train, seed, args)
 
 
 def same_partition(train, test, seed: int, args) -> None:
@@ -96,6 +102,34 @@ def same_partition(train, test, seed: int, args) -> None:
         headed._sync()
         s = float(headed.score_samples(test, positions=False).sum() / test.sizes.sum())
         print(f"  seed {seed} position fit's state, w_h {wh}: {s:+.3f} (gain {s - base:+.3f})", flush=True)
+
+
+def sweep_cost(train, seed: int, args) -> None:
+    """Median seconds of a collapsed sweep with each input, both chains started from the position
+    fit's final state (its partition, length scales, noise and α; ``w_h`` 1 rad): the cost of the
+    input at the same number of patterns (issue 34: at most 1.5x)."""
+    kw = dict(seed=seed, progress=False, likelihood=args.likelihood, sampler="collapsed")
+    pos = dpgp.DPGP(iterations=args.iterations, **kw).fit(train)
+    noise = np.ascontiguousarray(pos.pattern_noise_var_)
+    out = {}
+    for inputs in ("position", "position+heading"):
+        model = dpgp.DPGP(iterations=0, inputs=inputs, **kw).fit(train)
+        wh = [1.0] * pos.n_patterns_ if inputs != "position" else None
+        model._sampler.set_state(pos.labels_.astype(np.int64), pos.length_scales_, pos.alpha_, noise, heading_scales=wh)
+        times = []
+        for _ in range(args.sweep_cost):
+            t0 = time.perf_counter()
+            model._sampler.sweep()
+            times.append(time.perf_counter() - t0)
+        out[inputs] = float(np.median(times))
+        k = len(model._sampler.patterns())
+        print(
+            f"  seed {seed} {inputs}: median sweep {out[inputs]:.3f} s from K {pos.n_patterns_} (K {k} after)",
+            flush=True,
+        )
+    print(
+        f"  seed {seed} sweep cost ratio heading/position: {out['position+heading'] / out['position']:.2f}", flush=True
+    )
 
 
 if __name__ == "__main__":

@@ -99,10 +99,16 @@ def targets(row: dict, unit: str) -> list[str]:
     # issue 34's targets (fields over heading)
     for f in ("turn_rate", "angular_acceleration"):
         gen, rec = row[f"{f} [dpgp]"], row[f"{f} [recorded]"]
-        out.append(f"issue 34: {f} >= 90% of recorded: {'met' if gen >= 0.9 * rec else 'MISSED'} ({gen:.3f} vs {rec:.3f})")
+        out.append(
+            f"issue 34: {f} >= 90% of recorded: {'met' if gen >= 0.9 * rec else 'MISSED'} ({gen:.3f} vs {rec:.3f})"
+        )
     out.append(f"issue 34: realism ratio >= 0.9: {'met' if ratio >= 0.9 else 'MISSED'} ({ratio:.2f})")
-    out.append(f"issue 34: FDE@4s <= 0.8 x constant velocity: {'met' if f4 <= 0.8 * c4 else 'MISSED'} ({f4 / c4:.2f} x)")
-    out.append(f"issue 34: FDE@1s within 5% of constant velocity: {'met' if f1 <= 1.05 * c1 else 'MISSED'} ({f1 / c1:.2f} x)")
+    out.append(
+        f"issue 34: FDE@4s <= 0.8 x constant velocity: {'met' if f4 <= 0.8 * c4 else 'MISSED'} ({f4 / c4:.2f} x)"
+    )
+    out.append(
+        f"issue 34: FDE@1s within 5% of constant velocity: {'met' if f1 <= 1.05 * c1 else 'MISSED'} ({f1 / c1:.2f} x)"
+    )
     return out
 
 
@@ -111,7 +117,9 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=20, help="Gibbs sweeps per fit")
     ap.add_argument("--only", help="comma-separated subset of the data sets")
     ap.add_argument("--plots", type=Path, help="write each data set's realism figure (PNG) into this folder")
-    ap.add_argument("--inputs", default="position", help="comma-separated inputs to compare (position, position+heading)")
+    ap.add_argument(
+        "--inputs", default="position", help="comma-separated inputs to compare (position, position+heading)"
+    )
     ap.add_argument("--heading-likelihood", default="exact", choices=("exact", "hsgp"))
     args = ap.parse_args()
     rows, checks = [], {}

@@ -16,10 +16,10 @@ import time
 
 import numpy as np
 import pandas as pd
-from realism import datasets as realism_datasets  # benches/realism.py, this folder
 
 import dpgp
 from dpgp.evaluate import split_in_time
+from realism import datasets as realism_datasets  # benches/realism.py, this folder
 
 REVERSAL = np.deg2rad(150.0)
 

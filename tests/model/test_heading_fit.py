@@ -167,3 +167,15 @@ def test_generated_scenes_keep_their_vehicles_direction(one_line) -> None:
             )
             reversed_ += bool(np.any(turn > np.deg2rad(150)))
     assert vehicles >= 12 and reversed_ == 0, (vehicles, reversed_)
+
+
+def test_long_scenarios_and_exports_run_through_fields_over_heading(one_line, tmp_path) -> None:
+    _, headed, _ = one_line
+    long = headed.sample_scenarios(2, duration=8.0, seed=5, roi=ROI)
+    assert len(long) == 2
+    for scene in long:
+        table = scene.table
+        assert len(table) and np.isfinite(table[["x", "y", "vx", "vy"]].to_numpy()).all()
+    scenes = headed.sample_scenarios(3, steps=6, seed=6, roi=ROI)
+    scenes.to_sumo(tmp_path / "routes.xml")
+    assert (tmp_path / "routes.xml").stat().st_size > 0
