@@ -68,16 +68,20 @@ coefficients, with these changes:
 - the accuracy probe runs **with the headings**: both GPs of :func:`resolution_gap` get each
   point's previous heading (``NaN`` where a vehicle has none, as the fit treats it), hsgp's basis
   the fit's ``J`` harmonics, and the grid adds heading length scales :data:`PROBE_HEADING_SCALES`
-  times the prior's mean. A probe over positions alone would judge a different kernel from the
-  one the fit runs: on a two-way road whose lanes lie closer than the basis resolution, the
-  position GP must bend between opposite velocities within metres, which only exact can, so the
-  probe would send the fit to exact for a structure the heading input resolves at coarse length
-  scales; and it could not see what the heading cut costs (``J`` harmonics keep 99% of the
-  periodic kernel's variance only down to the prior's 5% quantile, less with the cap of 3). The
-  tolerance stays :data:`PROBE_TOLERANCE` nats per point, set on fields over position (the same
-  units: exact's best fit less hsgp's); it has not been recalibrated on heading fits. The probe
-  costs three times the position one (three heading scales), a few seconds at
-  :data:`PROBE_POINTS`.
+  times the prior's mean. A probe over positions alone judges a different kernel from the one
+  the fit runs: where opposite lanes lie closer than the basis resolves, the position GP must
+  bend between opposite velocities within centimetres, which only exact can, so that probe sends
+  the fit to exact for a structure the heading input separates at coarse length scales (a
+  two-way road with lanes 0.2 m apart, 240 points, a 150-function position basis: 0.75 nats per
+  point over positions, 0.002 with the headings; ``tests/model/test_heading_auto.py``). It also
+  could not see what the heading cut costs (``J`` harmonics keep 99% of the periodic kernel's
+  variance only down to the prior's 5% quantile, less with the cap of 3). The tolerance stays
+  :data:`PROBE_TOLERANCE` nats per point, set on fields over position (the same units: exact's
+  best fit less hsgp's); it has not been recalibrated on fits over heading. **Cost:** hsgp's
+  marginal likelihoods of a probe sample sum ``M`` terms per kernel entry, so the probe costs
+  about ``2 (2J + 1)`` times the position one (two heading scales, seven times the functions):
+  on that road 11-13 s against 0.1-0.2 s. It runs only when auto gets to step 2 (exact's worst
+  case predicted well over hsgp's best), on data whose sweeps cost seconds.
 
 Accuracy: hsgp's kernel stays within its documented error of the squared exponential where the
 basis resolves the data's length scales (README, "How it is fast": median 0.011 nats per frame on
@@ -272,9 +276,9 @@ PROBE_TOLERANCE = 0.22
 #: shows only at such noise (with 3% the lowest, the SUMO grid read 0.15-0.22 and kept hsgp).
 PROBE_NOISE = (0.003, 0.01, 0.03, 0.1, 0.3)
 #: Heading length scales of the probe's grid for fields over heading, as multiples of the ``w_h``
-#: prior's mean (0.6, 1.2 and 2.4 rad under :data:`dpgp.model.estimator.HEADING_PRIOR`: about its
-#: 5% and 95% quantiles, 0.52 and 2.1, and its mean). The lowest is where the heading harmonics'
-#: cut shows, if the data want it.
+#: prior's mean: 0.6 and 1.2 rad under :data:`dpgp.model.estimator.HEADING_PRIOR` (about its 5%
+#: quantile, 0.52, and its mean). The lower is where the heading harmonics' cut shows, if the data
+#: want it; each scale adds a full grid of hsgp's costliest probe evaluations, so two, not more.
 PROBE_HEADING_SCALES = (0.5, 1.0)
 #: Seeds of the initialisations the probe reads: fixed, so that auto's engine is a function of the
 #: data and the settings, never of the fit's seed.
