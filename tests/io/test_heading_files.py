@@ -136,7 +136,15 @@ def test_damaged_heading_members_are_a_model_file_error(saved, tmp_path, change,
 @pytest.mark.parametrize(
     "edit, match",
     [
-        (lambda m: m["settings"].update(inputs="position"), "heading length scales but its fields are over"),
+        # a file from before the engine's inputs entry
+        (
+            lambda m: (m["settings"].update(inputs="position"), m["engine"].pop("inputs")),
+            "heading length scales but its fields are over",
+        ),
+        (lambda m: m["settings"].update(inputs="position"), "settings give inputs='position' but the engine ran"),
+        (lambda m: m["engine"].update(inputs="heading"), "not a fields' input"),
+        # inputs="auto" needs the input it resolved to
+        (lambda m: (m["settings"].update(inputs="auto"), m["engine"].pop("inputs")), "not a fields' input"),
         (lambda m: m["engine"]["heading"].update(prior=[6.0, -1.0]), "heading entry"),
         # exact: no harmonics; hsgp: a count
         (
@@ -144,7 +152,7 @@ def test_damaged_heading_members_are_a_model_file_error(saved, tmp_path, change,
             "heading entry",
         ),
     ],
-    ids=["position-inputs", "bad-prior", "bad-harmonics"],
+    ids=["position-inputs", "settings-disagree", "unknown-inputs", "auto-unresolved", "bad-prior", "bad-harmonics"],
 )
 def test_inconsistent_heading_metadata_is_a_model_file_error(saved, tmp_path, edit, match):
     _, path = saved

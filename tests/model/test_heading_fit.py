@@ -71,8 +71,6 @@ def test_heading_settings_are_checked_before_any_work(road) -> None:
     train, test = road
     with pytest.raises(InvalidInputError, match="inputs must be one of"):
         dpgp.DPGP(inputs="heading").fit(train)
-    with pytest.raises(InvalidInputError, match="does not choose its engine yet"):
-        dpgp.DPGP(inputs="position+heading").fit(train)
     with pytest.raises(InvalidInputError, match="collapsed sampler"):
         dpgp.DPGP(inputs="position+heading", likelihood="hsgp", sampler="subcluster").fit(train)
     no_tracks = dpgp.Frames(train.ids, train.offsets, train.xy, train.v)

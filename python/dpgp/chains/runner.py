@@ -394,7 +394,7 @@ def fit_chains(
     settings : passed to :class:`dpgp.DPGP` (``assignment``, ``alpha``, ...); ``n_threads``
         defaults to 1 (one core per chain).
     """
-    from ..model.estimator import DPGP
+    from ..model.estimator import DPGP, choose_inputs
     from ..model.sharded import ShardSource, check_client, manifest_of
 
     manifest = manifest_of(frames)
@@ -426,6 +426,12 @@ def fit_chains(
         raise InvalidInputError(
             "fit_chains does not run fields over heading yet (issue 34): fit one chain with "
             "DPGP(inputs='position+heading').fit"
+        )
+    if settings.get("inputs") == "auto" and choose_inputs(True)["inputs"] == "position+heading":
+        # auto would pick fields over heading on frames with tracks (HEADING_EVIDENCE): the same refusal
+        raise InvalidInputError(
+            "fit_chains does not run fields over heading yet (issue 34), which inputs='auto' picks for frames "
+            "with tracks: pass inputs='position' to fit_chains, or fit one chain with DPGP(inputs='auto').fit"
         )
     if init not in ("sequential", "one", "many", "dispersed"):
         raise InvalidInputError(f"init must be 'sequential', 'one', 'many' or 'dispersed', got {init!r}")

@@ -55,6 +55,13 @@ know; the first readers that knew it (which wrote no such model files, only chec
 heading length scales) fail to rebuild the fields rather than build other ones. Files without
 ``inputs`` (written before it) are fields over position.
 
+``engine`` also holds ``inputs``, the fields' input the fit ran with: ``settings`` keeps the
+setting as given, which may be ``"auto"`` (``DPGP(inputs="auto")`` decides from the data, and a
+loaded model must not decide again). A file whose settings say ``"auto"`` needs it; an explicit
+setting must agree with it; files without it ran their setting. A reader from before ``"auto"``
+refuses a file whose settings say ``"auto"`` (an unknown input) rather than misread it, and
+reads the others as before, so the version stays 2.
+
 ``metadata`` holds ``format`` (``"dpgp-model"``), ``format_version``, ``dpgp_version``,
 ``settings`` (``DPGP.get_params()``), ``params`` (the global GP parameters), ``alpha``,
 ``history`` (per-sweep lists), ``n_iter``, ``converged``, ``init_seconds``, ``timings``,
@@ -365,6 +372,7 @@ class ModelFile:
     shards: dict[str, Any] | None = None  # frames left in shards: directory, sizes, data_sha256 (frames is None)
     heading_scales: np.ndarray | None = None  # (K,): each pattern's w_h (fields over heading)
     heading: dict[str, Any] | None = None  # the w_h prior and heading harmonics the fit ran with (None: the defaults)
+    inputs: str = "position"  # the fields' input the fit ran with (settings' "auto" resolved)
 
 
 def read_model_file(path: str | os.PathLike) -> ModelFile:
@@ -460,7 +468,8 @@ def _parse_rest(
             f"the model's numbers are beyond what a fit accepts ({e}); the file is corrupted"
         ) from None
     likelihood, basis = _engine(meta)
-    heading_scales, heading = _heading(meta, arrays, settings, frames, len(ls), likelihood)
+    inputs = _inputs(meta, settings)
+    heading_scales, heading = _heading(meta, arrays, inputs, frames, len(ls), likelihood)
     history = {k: list(v) for k, v in meta.get("history", {}).items()}
     for key, values in history.items():
         if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in values):
@@ -495,7 +504,7 @@ def _parse_rest(
         None if d is None else EmpiricalDistributions.from_dict(d), parse_resume(meta, arrays, frames, n_frames),
         None if meta.get("motion") is None else MotionModel.from_dict(meta["motion"]), transitions,
         _sticky(meta.get("sticky"), n_frames), _pattern_noise(arrays, len(ls)), _sampler(meta), shards,
-        heading_scales, heading,
+        heading_scales, heading, inputs,
     )  # fmt: skip
 
 
@@ -596,19 +605,35 @@ def _engine(meta: dict[str, Any]) -> tuple[str, Any]:
     return e["likelihood"], None if e.get("basis") is None else Basis.from_dict(e["basis"])
 
 
+def _inputs(meta: dict[str, Any], settings: dict[str, Any]) -> str:
+    """The fields' input the fit ran with: the engine entry's ``inputs`` (written since
+    ``inputs="auto"``), which must agree with an explicit setting; files without it ran the
+    setting (``"position"`` before the setting existed)."""
+    given = settings.get("inputs", "position")
+    ran = (meta.get("engine") or {}).get("inputs", None if given == "auto" else given)
+    if ran not in ("position", "position+heading"):
+        raise ModelFileError(
+            f"the engine's inputs {ran!r} (settings: {given!r}) is not a fields' input the fit can have run with "
+            "('position' or 'position+heading'); the file is corrupted"
+        )
+    if given != "auto" and ran != given:
+        raise ModelFileError(f"the settings give inputs={given!r} but the engine ran {ran!r}; the file is corrupted")
+    return ran
+
+
 def _heading(
-    meta: dict[str, Any], arrays: dict[str, np.ndarray], settings: dict[str, Any], frames: Any, k: int, likelihood: str
+    meta: dict[str, Any], arrays: dict[str, np.ndarray], inputs: str, frames: Any, k: int, likelihood: str
 ) -> tuple[np.ndarray | None, dict[str, Any] | None]:
     """Fields over heading: each pattern's ``w_h`` and the engine's heading entry (the prior and
-    harmonics the fit ran with; None in a file without it), checked against the settings and the
-    frames; ``(None, None)`` for fields over position."""
+    harmonics the fit ran with; None in a file without it), checked against the fields' input
+    (:func:`_inputs`) and the frames; ``(None, None)`` for fields over position."""
     from .checkpoint import heading_array
 
-    headed = settings.get("inputs", "position") == "position+heading"
+    headed = inputs == "position+heading"
     scales = heading_array(arrays, "heading_scales", k)
     if scales is not None and not headed:
         raise ModelFileError(
-            f"the file holds heading length scales but its fields are over {settings.get('inputs', 'position')!r}, "
+            f"the file holds heading length scales but its fields are over {inputs!r}, "
             "not 'position+heading'; it is corrupted"
         )
     if not headed:

@@ -50,6 +50,39 @@ switched mid-fit:
    and exact runs when it fits the memory budget. So auto picks the faster engine *among those
    accurate on the data*.
 
+**Fields over heading** (``inputs="position+heading"``, docs/heading.md). Same rule, same
+coefficients, with these changes:
+
+- hsgp's basis is the position basis times ``2J + 1`` heading functions (``1, cos h, sin h, …,
+  cos Jh, sin Jh``, ``J`` the estimator's harmonics rule), so ``M`` in every hsgp term is
+  ``(2J + 1) m_x m_y`` (:func:`heading_basis_size`): its per-frame kernels sum ``(2J + 1)`` times
+  as many terms, its ``s_k = min(n_k, M)`` factors grow to match, and so does its memory
+  (``K M²``; the core's memory budget checks it as the chain runs, as for position fits). With
+  ``J = 3`` that is 7 times the position basis, so exact wins on more data than over position.
+  ``Choice.basis`` records that ``M`` and ``Choice.heading_functions`` the ``2J + 1``.
+- exact's terms are unchanged: the product kernel is one fused exponential per entry
+  (``exp(−r² + z (cos h cos h' + sin h sin h' − 1))`` with the cosines and sines computed once
+  per point), about what the position kernel costs, and its factors are the same ``n_k × n_k``.
+  Its memory is the same too.
+- the sub-cluster sampler does not run fields over heading: hsgp is costed on the collapsed one.
+- the accuracy probe runs **with the headings**: both GPs of :func:`resolution_gap` get each
+  point's previous heading (``NaN`` where a vehicle has none, as the fit treats it), hsgp's basis
+  the fit's ``J`` harmonics, and the grid adds heading length scales :data:`PROBE_HEADING_SCALES`
+  times the prior's mean. A probe over positions alone judges a different kernel from the one
+  the fit runs: where opposite lanes lie closer than the basis resolves, the position GP must
+  bend between opposite velocities within centimetres, which only exact can, so that probe sends
+  the fit to exact for a structure the heading input separates at coarse length scales (a
+  two-way road with lanes 0.2 m apart, 240 points, a 150-function position basis: 0.75 nats per
+  point over positions, 0.002 with the headings; ``tests/model/test_heading_auto.py``). It also
+  could not see what the heading cut costs (``J`` harmonics keep 99% of the periodic kernel's
+  variance only down to the prior's 5% quantile, less with the cap of 3). The tolerance stays
+  :data:`PROBE_TOLERANCE` nats per point, set on fields over position (the same units: exact's
+  best fit less hsgp's); it has not been recalibrated on fits over heading. **Cost:** hsgp's
+  marginal likelihoods of a probe sample sum ``M`` terms per kernel entry, so the probe costs
+  about ``2 (2J + 1)`` times the position one (two heading scales, seven times the functions):
+  on that road 11-13 s against 0.1-0.2 s. It runs only when auto gets to step 2 (exact's worst
+  case predicted well over hsgp's best), on data whose sweeps cost seconds.
+
 Accuracy: hsgp's kernel stays within its documented error of the squared exponential where the
 basis resolves the data's length scales (README, "How it is fast": median 0.011 nats per frame on
 US-101; ``tests/test_hsgp.py``); the probe is what checks "where".
@@ -122,6 +155,14 @@ def subcluster_moves(n_frames: int) -> int:
     return int(np.clip(SUBCLUSTER_MOVE_FRAMES // max(int(n_frames), 1), 1, SPLIT_MERGE_MOVES))
 
 
+def heading_basis_size(position_size: int, harmonics: int) -> int:
+    """hsgp's ``M`` for fields over heading: the position basis times the ``2J + 1`` heading
+    functions of ``J = harmonics`` (``harmonics = 0``: the position basis itself)."""
+    if harmonics < 0:
+        raise ValueError(f"heading harmonics must be non-negative, got {harmonics}")
+    return int(position_size) * (2 * int(harmonics) + 1)
+
+
 def sweep_seconds(engine: str, pattern_points: object, frame_sizes: object, basis_size: int | None = None) -> float:
     """Predicted seconds of one sweep of ``engine`` with patterns of these sizes (points) over
     frames of these sizes (vehicles)."""
@@ -151,7 +192,8 @@ def exact_peak_bytes(n_points: int) -> int:
 
 @dataclass(frozen=True)
 class Choice:
-    """What :func:`choose` decided and why: ``engine``; ``basis`` (hsgp's M); ``sizes_from``
+    """What :func:`choose` decided and why: ``engine``; ``basis`` (hsgp's M, heading functions
+    included); ``sizes_from``
     (``"worst case"`` or ``"hsgp initialisation"``); the predicted seconds per sweep of both
     engines on those sizes; ``exact_fits`` (exact's peak, :func:`exact_peak_bytes`, within the
     memory budget)."""
@@ -166,6 +208,9 @@ class Choice:
     resolution_gap: float | None = None
     #: the probe's gap on each initialisation of :data:`PROBE_SEEDS`; ``resolution_gap`` is their median
     probe_gaps: tuple[float, ...] | None = None
+    #: heading functions per position function in hsgp's basis (``2J + 1`` for fields over
+    #: heading, 1 over position): ``basis`` is the position basis times this
+    heading_functions: int = 1
 
     def to_dict(self) -> dict:
         out = asdict(self)
@@ -174,12 +219,16 @@ class Choice:
 
 
 def choose_upfront(
-    frame_sizes: object, basis_size: int, memory_budget: int | None, subcluster: bool = False
+    frame_sizes: object, basis_size: int, memory_budget: int | None, subcluster: bool = False, harmonics: int = 0
 ) -> Choice | None:
     """Step 1 of the rule: exact if its worst case (all points in one pattern) is predicted no
     slower than hsgp's least cost over all partitions (its per-frame term alone) and fits the
     budget; None when the pattern sizes must be predicted first. ``subcluster``: hsgp would run
-    on the sub-cluster sampler, and its least cost is one pattern's sweep on that sampler."""
+    on the sub-cluster sampler, and its least cost is one pattern's sweep on that sampler.
+    ``basis_size``: the position basis; ``harmonics``: the heading harmonics ``J`` of a field over
+    heading, whose hsgp ``M`` is :func:`heading_basis_size`."""
+    functions = 2 * int(harmonics) + 1
+    basis_size = heading_basis_size(basis_size, harmonics)
     n_points = int(np.sum(np.asarray(frame_sizes)))
     exact = sweep_seconds("exact", [n_points], frame_sizes)
     hsgp = sweep_seconds(
@@ -187,22 +236,30 @@ def choose_upfront(
     )
     fits = memory_budget is None or exact_peak_bytes(n_points) <= memory_budget
     if fits and (exact <= HSGP_MARGIN * hsgp or exact <= EXACT_FAST_ENOUGH):
-        return Choice("exact", basis_size, "worst case", exact, hsgp, fits)
+        return Choice("exact", basis_size, "worst case", exact, hsgp, fits, heading_functions=functions)
     return None
 
 
 def choose(
-    pattern_points: object, frame_sizes: object, basis_size: int, memory_budget: int | None, subcluster: bool = False
+    pattern_points: object,
+    frame_sizes: object,
+    basis_size: int,
+    memory_budget: int | None,
+    subcluster: bool = False,
+    harmonics: int = 0,
 ) -> Choice:
     """Step 2 of the rule: hsgp if it is predicted :data:`HSGP_MARGIN` times faster on these
     pattern sizes (points) or exact's peak (:func:`exact_peak_bytes`) does not fit the memory
-    budget; else exact. ``subcluster``: hsgp's sweep is the sub-cluster sampler's."""
+    budget; else exact. ``subcluster``: hsgp's sweep is the sub-cluster sampler's.
+    ``basis_size`` and ``harmonics`` as in :func:`choose_upfront`."""
+    functions = 2 * int(harmonics) + 1
+    basis_size = heading_basis_size(basis_size, harmonics)
     n = np.asarray(pattern_points, dtype=np.float64).ravel()
     exact = sweep_seconds("exact", n, frame_sizes)
     hsgp = sweep_seconds("subcluster" if subcluster else "hsgp", n, frame_sizes, basis_size)
     fits = memory_budget is None or exact_peak_bytes(int(n.sum())) <= memory_budget
     engine = "exact" if fits and (exact <= HSGP_MARGIN * hsgp or exact <= EXACT_FAST_ENOUGH) else "hsgp"
-    return Choice(engine, basis_size, "hsgp initialisation", exact, hsgp, fits)
+    return Choice(engine, basis_size, "hsgp initialisation", exact, hsgp, fits, heading_functions=functions)
 
 
 #: Points of the accuracy probe (per initialisation): enough for the data's length scales to show,
@@ -218,6 +275,11 @@ PROBE_TOLERANCE = 0.22
 #: simulated junction's velocities are nearly a function of place and lane, and exact's advantage
 #: shows only at such noise (with 3% the lowest, the SUMO grid read 0.15-0.22 and kept hsgp).
 PROBE_NOISE = (0.003, 0.01, 0.03, 0.1, 0.3)
+#: Heading length scales of the probe's grid for fields over heading, as multiples of the ``w_h``
+#: prior's mean: 0.6 and 1.2 rad under :data:`dpgp.model.estimator.HEADING_PRIOR` (about its 5%
+#: quantile, 0.52, and its mean). The lower is where the heading harmonics' cut shows, if the data
+#: want it; each scale adds a full grid of hsgp's costliest probe evaluations, so two, not more.
+PROBE_HEADING_SCALES = (0.5, 1.0)
 #: Seeds of the initialisations the probe reads: fixed, so that auto's engine is a function of the
 #: data and the settings, never of the fit's seed.
 PROBE_SEEDS = (0, 1, 2, 3, 4)
@@ -237,23 +299,42 @@ def probe_points(
     return np.concatenate([f.xy for f in chosen]), np.concatenate([f.v for f in chosen])
 
 
-def resolution_gap(xy: np.ndarray, v: np.ndarray, params: Any, basis: Any) -> float:
+def resolution_gap(
+    xy: np.ndarray,
+    v: np.ndarray,
+    params: Any,
+    basis: Any,
+    h: np.ndarray | None = None,
+    heading_scales: tuple[float, ...] = (),
+) -> float:
     """``(max exact − max hsgp) / points``: the best log marginal likelihood of ``(xy, v)`` under
     the exact GP over a grid of isotropic length scales and noise, less hsgp's best on the same
     grid, per point. The grid's length scales run from an eighth of the basis resolution (its
     shortest wavelength over π: ``2 L / m``) to four times it, so data that want shorter length
     scales than the basis holds show a gap; the noise takes :data:`PROBE_NOISE` of each
-    component's signal variance; the means and signal variances are ``params``'."""
+    component's signal variance; the means and signal variances are ``params``'.
+
+    Fields over heading: ``h``, the points' previous headings (``NaN``: none), and
+    ``heading_scales``, the grid's heading length scales ``w_h`` (radians); ``basis`` then carries
+    the fit's heading harmonics (module docstring: why the probe runs with headings)."""
     from ..gp import exact, hsgp
 
-    res = float(min(2.0 * h / m for h, m in zip(basis.half_widths, basis.counts)))
+    if (h is None) != (len(heading_scales) == 0):
+        raise ValueError("give the headings h and the grid's heading_scales together")
+    res = float(min(2.0 * half / m for half, m in zip(basis.half_widths, basis.counts)))
     best = {"exact": -np.inf, "hsgp": -np.inf}
     s2 = np.asarray(params.signal_var, dtype=np.float64)
-    for share in PROBE_NOISE:
-        for w in np.geomspace(res / 8.0, 4.0 * res, 8):
-            p = dataclasses.replace(params, length_scales=(float(w), float(w)), noise_var=tuple(map(float, share * s2)))
-            best["exact"] = max(best["exact"], exact.log_marginal_likelihood(xy, v, p))
-            best["hsgp"] = max(best["hsgp"], hsgp.log_marginal_likelihood(xy, v, p, basis))
+    for wh in heading_scales or (float("inf"),):
+        for share in PROBE_NOISE:
+            for w in np.geomspace(res / 8.0, 4.0 * res, 8):
+                p = dataclasses.replace(
+                    params,
+                    length_scales=(float(w), float(w)),
+                    noise_var=tuple(map(float, share * s2)),
+                    heading_scale=float(wh),
+                )
+                best["exact"] = max(best["exact"], exact.log_marginal_likelihood(xy, v, p, h))
+                best["hsgp"] = max(best["hsgp"], hsgp.log_marginal_likelihood(xy, v, p, basis, h))
     return (best["exact"] - best["hsgp"]) / len(xy)
 
 
@@ -264,6 +345,7 @@ def partition_gap(
     basis: Any,
     limit: int = PROBE_POINTS,
     cache: dict[bytes, float] | None = None,
+    heading_scales: tuple[float, ...] = (),
 ) -> float:
     """The probe's gap on one partition: :func:`resolution_gap` of each pattern on its frames at
     the stride ``s`` that keeps the whole data under about ``limit`` points (every ``s``-th of the
@@ -272,7 +354,9 @@ def partition_gap(
     the mixture's marginal likelihood, pattern by pattern. Every pattern counts, so a few small
     patterns that only the exact GP can fit (a queue at the scene's edge, a turn) weigh in, and
     no single pattern decides. ``cache`` (frames sampled -> gap) lets the initialisations of
-    several seeds share the gaps of the patterns they have in common."""
+    several seeds share the gaps of the patterns they have in common. ``heading_scales`` (fields
+    over heading; ``basis`` with the fit's harmonics): probe with the frames' previous headings
+    over these ``w_h`` (:func:`resolution_gap`)."""
     labels = np.asarray(labels, dtype=np.int64)
     sizes = np.asarray(frames.sizes, dtype=np.int64)
     points = pattern_points(labels, sizes)
@@ -285,7 +369,8 @@ def partition_gap(
         if key not in cache:
             chosen = [frames[int(i)] for i in rows]
             xy, v = np.concatenate([f.xy for f in chosen]), np.concatenate([f.v for f in chosen])
-            cache[key] = resolution_gap(xy, v, params, basis)
+            h = np.concatenate([f.prev_heading for f in chosen]) if heading_scales else None
+            cache[key] = resolution_gap(xy, v, params, basis, h, heading_scales)
         total += points[k] * cache[key]
     return float(total / points.sum())
 
@@ -307,6 +392,7 @@ def pattern_points(labels: np.ndarray, frame_sizes: np.ndarray) -> np.ndarray:
 
 __all__ = [
     "COEFFICIENTS",
+    "PROBE_HEADING_SCALES",
     "PROBE_SEEDS",
     "PROBE_TOLERANCE",
     "Choice",
@@ -316,6 +402,7 @@ __all__ = [
     "exact_bytes",
     "exact_peak_bytes",
     "features",
+    "heading_basis_size",
     "partition_gap",
     "pattern_points",
     "probe_points",

@@ -40,13 +40,24 @@ if TYPE_CHECKING:
 
 _DYNAMICS = (None, "sticky")
 _SAMPLERS = ("auto", "subcluster", "collapsed")
-_INPUTS = ("position", "position+heading")
+_INPUTS = ("position", "position+heading", "auto")
 #: Gamma(shape, scale) prior of a pattern's heading length scale w_h (radians): mean 1.2, 5% and
 #: 95% quantiles 0.52 and 2.1. Headings π apart then correlate at exp(-2/w_h²) ≈ 0.25 at the
 #: mean (opposite lanes are told apart), π/2 apart (a turn) at 0.5.
 HEADING_PRIOR = (6.0, 0.2)
 #: Most heading harmonics of a reduced-rank basis: the position basis is multiplied by 2J + 1.
 MAX_HEADING_HARMONICS = 3
+#: The evidence ``inputs="auto"`` decides by (issue 34: the heading form where the data have tracks
+#: only if the held-out comparison shows it better on every shared vehicle set): held-out log
+#: density of the velocities given the positions, nats per vehicle, of ``inputs="position+heading"``
+#: less ``inputs="position"`` (``python benches/heading.py``, 20 sweeps, the same engine, sampler
+#: and seed for both, one margin per seed). Auto takes the heading form only when every margin is
+#: positive; these are not (Peachtree's seed 1 and the SUMO junction favour position), so today
+#: auto fits fields over position. Measure again and update this table when the model changes.
+HEADING_EVIDENCE: dict[str, tuple[float, ...]] = {
+    "peachtree": (0.05, -1.13),  # seeds 0 and 1
+    "sumo_grid": (-1.29,),  # the SUMO junction, seed 0
+}
 _INITS = ("sequential", "one", "many")
 #: Why ``sampler="auto"`` runs the sub-cluster sampler where it can (engine_choice_["sampler"]).
 SUBCLUSTER_REASON = (
@@ -55,6 +66,37 @@ SUBCLUSTER_REASON = (
     "3 sweeps unfinished in 600 s); on 1,000 US-101 frames its chains mix no worse "
     "(docs/subcluster.md#measured)"
 )
+
+
+def choose_inputs(
+    has_tracks: bool, evidence: dict[str, tuple[float, ...]] | None = None, blocked: str | None = None
+) -> dict[str, Any]:
+    """``inputs="auto"``'s rule (issue 34), as ``engine_choice_["inputs"]`` records it:
+    ``{"inputs", "why", "evidence"}``. Frames without previous headings (no tracks):
+    ``"position"``. Else ``"position+heading"`` only if every held-out margin of ``evidence``
+    (default :data:`HEADING_EVIDENCE`: set -> heading minus position, nats per vehicle, one per
+    seed) is positive and nothing in the settings (``blocked``: why not) keeps the heading form
+    from running; otherwise ``"position"``, saying which sets it lost on."""
+    evidence = HEADING_EVIDENCE if evidence is None else evidence
+    figures = {name: [float(m) for m in margins] for name, margins in evidence.items()}
+    if not has_tracks:
+        return {"inputs": "position", "why": "auto: the frames carry no previous headings (no tracks)"}
+    shown = "; ".join(f"{name} {', '.join(f'{m:+.2f}' for m in margins)}" for name, margins in figures.items())
+    losing = [name for name, margins in figures.items() if not margins or min(margins) <= 0]
+    if losing or not figures:
+        why = (
+            "auto: the held-out comparison (benches/heading.py; heading minus position, nats per vehicle: "
+            f"{shown or 'none measured'}) does not show fields over heading better on every set "
+            f"(not on {', '.join(losing) or 'any'})"
+        )
+        return {"inputs": "position", "why": why, "evidence": figures}
+    if blocked is not None:
+        why = f"auto: the held-out comparison favours fields over heading on every set ({shown}), but {blocked}"
+        return {"inputs": "position", "why": why, "evidence": figures}
+    why = f"auto: the frames have tracks and fields over heading were better held out on every set ({shown})"
+    return {"inputs": "position+heading", "why": why, "evidence": figures}
+
+
 # ρ ~ Beta(1, 1) under dynamics="sticky": uniform, so the recording decides how sticky its scene is
 # (thousands of links outweigh it); a prior favouring stickiness would hide a scene that flickers.
 STICKINESS_PRIOR = (1.0, 1.0)
@@ -74,7 +116,10 @@ class DPGP:
         pattern's size (memory ``K · M²``); ``"auto"`` (default): the engine whose sweep a cost
         model calibrated on both predicts to be faster, decided before the chain starts (from
         the worst case, else from hsgp's initialisation) and never switched mid-fit
-        (:mod:`dpgp.engine_cost`). Which one ran: ``likelihood_``; why: ``engine_choice_``.
+        (:mod:`dpgp.engine_cost`). Which one ran: ``likelihood_``; why: ``engine_choice_``. For
+        fields over heading the same rule with hsgp's basis ``2J + 1`` times the position one
+        (``engine_choice_["heading_functions"]``) and an accuracy probe that uses the headings
+        (:mod:`dpgp.model.engine_cost`).
     n_basis : ``(m_x, m_y)`` basis functions per axis for hsgp; ``None`` sizes them from the data's
         extent and the lower tail of the length-scale prior (:func:`dpgp.hsgp.basis_for`).
     proposal : ``"informed"`` (default): Metropolis-within-Gibbs; each frame proposes a pattern
@@ -131,9 +176,13 @@ class DPGP:
         average; the kernel is the squared exponential times a periodic kernel in heading, whose
         length scale each pattern samples (``heading_scales_``, prior :data:`HEADING_PRIOR`).
         Needs frames made by :func:`dpgp.make_frames` from tracks (they carry ``prev_heading``);
-        runs on the collapsed sampler, ``likelihood="exact"`` or ``"hsgp"`` given explicitly.
-        Model files, checkpoints and posterior draws keep each pattern's heading length scale.
-        Not yet: ``likelihood="auto"``, the sub-cluster sampler, ``fit_chains``.
+        runs on the collapsed sampler, with either engine or ``likelihood="auto"``. Model files,
+        checkpoints and posterior draws keep each pattern's heading length scale. Not yet: the
+        sub-cluster sampler, ``dynamics``, ``fit_chains``. ``"auto"``: fields over position for
+        frames without previous headings (no tracks); for frames with them, the heading form
+        only if the held-out comparison :data:`HEADING_EVIDENCE` favours it on every set (today
+        it does not: ``"position"``), and only where the other settings can run it. The input
+        that ran: ``inputs_``; why: ``engine_choice_["inputs"]``.
     dynamics : ``None`` (default): frames are exchangeable, the paper's independent DP.
         ``"sticky"``: a Markov prior on consecutive frames' labels (docs/dynamics.md): each
         frame stays in its predecessor's pattern with probability ρ (``stickiness_``, sampled
@@ -305,7 +354,7 @@ class DPGP:
         # Pilots are small: with likelihood="auto" they keep the previous rule (exact up to 3,000
         # points) rather than pay auto's hsgp probe 24 times (dpgp.engine_cost).
         likelihood = self.likelihood if self.likelihood != "auto" else ("exact" if train.n_points <= 3000 else "hsgp")
-        settings = {**self.get_params(), "likelihood": likelihood, "iterations": PILOT_SWEEPS, "assignment": "map", "noise_var": noise_var,
+        settings = {**self.get_params(), "inputs": self.inputs_, "likelihood": likelihood, "iterations": PILOT_SWEEPS, "assignment": "map", "noise_var": noise_var,
                     "length_scale_prior": length_scale_prior, "preset": None, "progress": False,
                     "n_iter_no_change": None, "store_labels": False, "proposal": "full", "checkpoint": None, "split_merge": 0}  # fmt: skip
         pilot = type(self)(**settings)
@@ -341,11 +390,7 @@ class DPGP:
             raise InvalidInputError(f"init must be one of {_INITS}, got {self.init!r}")
         if self.inputs not in _INPUTS:
             raise InvalidInputError(f"inputs must be one of {_INPUTS}, got {self.inputs!r}")
-        if self._headed():
-            if _is_auto(self.likelihood):
-                raise InvalidInputError(
-                    "inputs='position+heading' does not choose its engine yet: pass likelihood='exact' or 'hsgp'"
-                )
+        if self.inputs == "position+heading":  # as given: "auto" only picks it where it can run
             if self.sampler == "subcluster" or self.dynamics is not None:
                 raise InvalidInputError(
                     "inputs='position+heading' runs on the collapsed sampler without dynamics for now: "
@@ -356,8 +401,25 @@ class DPGP:
         _core.check_settings(self._sampler_settings())
 
     def _headed(self) -> bool:
-        """Whether the fields take the vehicles' previous headings as input."""
-        return self.inputs == "position+heading"
+        """Whether the fields take the vehicles' previous headings as input: the input the fit
+        resolved (``inputs_``), else the setting (``"auto"`` before a fit: not yet)."""
+        return self.__dict__.get("inputs_", self.inputs) == "position+heading"
+
+    def _resolve_inputs(self, frames: Frames, sharded: bool = False) -> None:
+        """``inputs_`` for the training ``frames``, and why (``engine_choice_["inputs"]``, added
+        once the engine is resolved): ``inputs="auto"`` decided by :func:`choose_inputs`, else as given."""
+        if self.inputs != "auto":
+            self.inputs_, self._inputs_choice = self.inputs, {"inputs": self.inputs, "why": "given"}
+            return
+        blocked = None
+        if sharded:
+            blocked = "frames in shards run on the sub-cluster sampler, which fields over heading do not run on yet"
+        elif self.sampler == "subcluster":
+            blocked = "sampler='subcluster': fields over heading run on the collapsed sampler only, for now"
+        elif self.dynamics is not None:
+            blocked = "dynamics='sticky': fields over heading run without dynamics, for now"
+        choice = choose_inputs(frames.prev_heading is not None, blocked=blocked)
+        self.inputs_, self._inputs_choice = choice["inputs"], choice
 
     def _sampler_settings(self) -> _core._SamplerSettings:
         """The settings of the core sampler as the user gave them (``"auto"`` resolved where no
@@ -411,6 +473,7 @@ class DPGP:
             client = given.client
         if warm_start and hasattr(self, "_sampler"):
             return self._continue(frames)
+        self.__dict__.pop("inputs_", None)  # a fresh chain resolves its inputs afresh
         self._check_settings()
         self.__dict__.pop("_heading_stored", None)  # a fresh chain runs with this dpgp's heading prior
         sharded = manifest is not None and self._runs_on_shards(client)
@@ -427,6 +490,7 @@ class DPGP:
         else:
             frames = as_frames(frames if given is None else given.directory)
         _check_magnitudes(frames, "the training data")
+        self._resolve_inputs(frames, sharded)
         self._resolve_defaults(frames)
         signal_var = frames.v.var(axis=0) if self.signal_var is None else _pair("signal_var", self.signal_var)
         mean = frames.v.mean(axis=0) if self.mean is None else _pair("mean", self.mean)
@@ -728,7 +792,9 @@ class DPGP:
             from .engine_cost import choose_upfront
 
             basis = self._basis(frames)
-            choice = choose_upfront(frames.sizes, basis.size, self.memory_budget_, self._subcluster_possible())
+            choice = choose_upfront(
+                frames.sizes, basis.size, self.memory_budget_, self._subcluster_possible(), self._auto_harmonics()
+            )
             if choice is None:  # fit predicts the pattern sizes by hsgp's initialisation
                 likelihood, self._auto_pending = "hsgp", True
             else:
@@ -777,7 +843,12 @@ class DPGP:
 
     def _subcluster_possible(self) -> bool:
         """Whether settings other than the likelihood let the sub-cluster sampler run."""
-        return self.sampler != "collapsed" and self.dynamics is None and not self.pattern_moments
+        return self.sampler != "collapsed" and self.dynamics is None and not self.pattern_moments and not self._headed()
+
+    def _auto_harmonics(self) -> int:
+        """The heading harmonics ``J`` hsgp would run with, for ``likelihood="auto"``'s cost model
+        (0 for fields over position): the basis is the position basis times ``2J + 1``."""
+        return self._heading_harmonics() if self._headed() else 0
 
     def _resolve_sampler(self) -> None:
         """``sampler_`` for ``likelihood_``, and why in ``engine_choice_["sampler"]``."""
@@ -796,6 +867,9 @@ class DPGP:
         self.sampler_ = sampler
         choice = dict(self.engine_choice_ or {})
         choice["sampler"] = {"sampler": sampler, "why": why}
+        inputs = self.__dict__.get("_inputs_choice")
+        if inputs is not None:  # what inputs ran and why (inputs="auto": choose_inputs)
+            choice["inputs"] = dict(inputs)
         self.engine_choice_ = choice
 
     def _basis(self, frames: Frames) -> Any:
@@ -811,6 +885,7 @@ class DPGP:
         predict both engines' sweeps from its pattern sizes; if exact is faster, start the exact
         sampler afresh (its own initialisation: the chain is then ``likelihood="exact"``'s)."""
         from .engine_cost import (
+            PROBE_HEADING_SCALES,
             PROBE_SEEDS,
             PROBE_TOLERANCE,
             check_accuracy,
@@ -824,9 +899,25 @@ class DPGP:
         labels = np.asarray(self._sampler.labels(), dtype=np.int64)
         points = pattern_points(labels, frames.sizes)
         assert self.basis_ is not None  # hsgp ran the initialisation
+        harmonics = self._auto_harmonics()
         choice = choose(
-            points[points > 0], frames.sizes, self.basis_.size, self.memory_budget_, self.sampler_ == "subcluster"
+            points[points > 0],
+            frames.sizes,
+            self.basis_.size,
+            self.memory_budget_,
+            self.sampler_ == "subcluster",
+            harmonics,
         )
+        # Fields over heading: the probe runs with the frames' headings, over heading length scales
+        # about the w_h prior's (dpgp.model.engine_cost says why), on the basis with its harmonics.
+        probe_basis = self.basis_
+        heading_scales: tuple[float, ...] = ()
+        if harmonics:
+            heading = self._heading_engine()
+            assert heading is not None
+            mean = float(heading["prior"][0] * heading["prior"][1])
+            probe_basis = dataclasses.replace(self.basis_, harmonics=harmonics)
+            heading_scales = tuple(share * mean for share in PROBE_HEADING_SCALES)
         if choice.engine == "hsgp":  # faster, or exact over budget: is hsgp accurate on these data?
             # Where exact fits: on the initialisations of fixed seeds, not this fit's, a decision
             # about the data. Over budget the probe only informs a warning: this fit's own
@@ -838,8 +929,9 @@ class DPGP:
                     labels if s == self.seed else self._probe_labels(frames, s),
                     frames,
                     self.params_,
-                    self.basis_,
+                    probe_basis,
                     cache=cache,
+                    heading_scales=heading_scales,
                 )
                 for s in seeds
             ]
@@ -847,15 +939,16 @@ class DPGP:
             gap, budget = choice.resolution_gap or 0.0, self.memory_budget_ or 0
             if choice.engine == "hsgp" and not choice.exact_fits and gap > PROBE_TOLERANCE:
                 warnings.warn(
-                    f"the hsgp basis ({self.basis_.size} functions) cannot hold these data's length scales "
+                    f"the hsgp basis ({choice.basis} functions) cannot hold these data's length scales "
                     f"(accuracy probe {gap:.2f} nats/point > {PROBE_TOLERANCE}), and exact's worst "
                     f"case ({exact_peak_bytes(int(points.sum())) / 1e9:.1f} GB) is over the memory budget "
                     f"({budget / 1e9:.1f} GB): held-out densities may be well below exact's. Pass "
                     "likelihood='exact' with a larger memory_budget, or fit fewer frames",
                     stacklevel=3,
                 )
-        # The sampler's entry stays (hsgp kept) or is rewritten for exact below.
-        self.engine_choice_ = {**choice.to_dict(), "sampler": (self.engine_choice_ or {}).get("sampler")}
+        # The sampler's and inputs' entries stay (hsgp kept) or are rewritten for exact below.
+        kept = {k: v for k, v in (self.engine_choice_ or {}).items() if k in ("sampler", "inputs")}
+        self.engine_choice_ = {**choice.to_dict(), "sampler": kept.get("sampler"), **kept}
         if choice.engine == "exact":
             self.likelihood_, self.basis_ = "exact", None
             self._resolve_sampler()
@@ -1376,6 +1469,7 @@ class DPGP:
             "memory_budget": getattr(self, "memory_budget_", None),
             "choice": getattr(self, "engine_choice_", None),  # likelihood="auto"'s decision (dpgp.model.engine_cost)
             "sampler": getattr(self, "sampler_", "collapsed"),
+            "inputs": self.__dict__.get("inputs_", self.inputs),  # what ran (inputs="auto": resolved)
         }
         heading = self._heading_engine() if hasattr(self, "likelihood_") else None
         if heading is not None:  # fields over heading: the w_h prior and heading harmonics
@@ -1469,6 +1563,7 @@ class DPGP:
         )  # fmt: skip
         model.likelihood_, model.basis_ = file.likelihood, file.basis
         model.sampler_ = file.sampler
+        model.inputs_ = file.inputs  # the input the fit ran with (its settings may say "auto")
         if model._headed():  # the file's w_h per pattern, and the prior and harmonics the fit ran with
             if file.heading_scales is None:
                 raise ModelFileError("a model of fields over heading needs each pattern's heading length scale")
