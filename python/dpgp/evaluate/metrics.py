@@ -48,13 +48,39 @@ def adjusted_rand_index(a: object, b: object) -> float:
         counts += np.bincount(code, minlength=na * nb)
     table = counts.reshape(na, nb)
     # Groups that are empty in one labeling (gaps in its numbers) add no pairs.
+    return _ari_of(table, table.sum(axis=1), table.sum(axis=0), n)
+
+
+def adjusted_rand_index_of_table(rows: object) -> float:
+    """:func:`adjusted_rand_index` from the counts of the two labelings' pairs: ``rows`` of
+    ``(a, b, count)``, each pair of labels once (a sharded chain's shards count them; the same
+    value as from the labels, bitwise)."""
+    t = np.asarray(rows, dtype=np.int64).reshape(-1, 3)
+    a, b, count = t[:, 0], t[:, 1], t[:, 2]
+    n = int(count.sum())
+    if n < 2:
+        return 1.0
+    return _ari_of(count, _grouped_sum(a, count), _grouped_sum(b, count), n)
+
+
+def _grouped_sum(key: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """The sum of ``count`` per distinct ``key`` (exact integers)."""
+    codes = np.unique(key, return_inverse=True)[1]
+    out = np.zeros(int(codes.max(initial=-1)) + 1, dtype=np.int64)
+    np.add.at(out, codes, count)
+    return out
+
+
+def _ari_of(cells: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int) -> float:
+    """The ARI from the contingency counts (any order: the sums are of integers) and the two
+    labelings' group sizes."""
 
     def pairs(x: np.ndarray) -> float:
         return float((x * (x - 1) // 2).sum())
 
-    index, rows, cols = pairs(table), pairs(table.sum(axis=1)), pairs(table.sum(axis=0))
-    expected = rows * cols / (n * (n - 1) / 2)
-    maximum = 0.5 * (rows + cols)
+    index, row_pairs, col_pairs = pairs(cells), pairs(rows), pairs(cols)
+    expected = row_pairs * col_pairs / (n * (n - 1) / 2)
+    maximum = 0.5 * (row_pairs + col_pairs)
     if maximum == expected:
         return 1.0
     return (index - expected) / (maximum - expected)

@@ -18,7 +18,7 @@ from .._arrays import compact_labels
 from .._constants import LOW_DATA_THRESHOLD
 from .._resources import check_thread_reservations, default_memory_budget, parse_bytes
 from ..data.frames import Frames, as_frames
-from ..evaluate.metrics import adjusted_rand_index, canonical_labels
+from ..evaluate.metrics import adjusted_rand_index, adjusted_rand_index_of_table, canonical_labels
 from ..evaluate.transitions import Transitions, count_transitions
 from ..exceptions import (
     DpgpError,
@@ -100,6 +100,10 @@ def choose_inputs(
 # ρ ~ Beta(1, 1) under dynamics="sticky": uniform, so the recording decides how sticky its scene is
 # (thousands of links outweigh it); a prior favouring stickiness would hide a scene that flickers.
 STICKINESS_PRIOR = (1.0, 1.0)
+
+#: Times a fit sets its shards' labels again and redoes its sweeps (a worker replaced) before it
+#: gives up and raises :class:`dpgp.model.sharded.LabelsLost`.
+_MAX_REDOS = 3
 
 
 class DPGP:
@@ -652,43 +656,62 @@ class DPGP:
         """Sweep until ``until`` sweeps are done (default ``iterations``; a resumed chain's
         included) or the stopping rule holds (``stable`` sweeps so far), checkpointing on the way;
         end in the canonical state."""
+        from .sharded import LabelsLost
+
         interrupted, bar = False, None
         total = self.iterations if until is None else until
+        # Labels held by the shards: each sweep's ARI from the counts the shards return (no label
+        # crosses), the labels gathered at each rebuild alone, and a lost shard's labels set again
+        # from that copy, the sweeps since redone (the same chain).
+        held = self._sampler.labels_held()
+        redos = 0
         try:
-            previous = (
-                self._save_checkpoint(stable, traces) if checkpoint_now else compact_labels(self._sampler.labels())
-            )
+            previous = self._save_checkpoint(stable, traces) if checkpoint_now else self._mark_labels()
+            self._keep_rebuild_copy(stable, len(traces))
             bar = _progress(total, self.progress, initial=self.n_iter_)
             while self.n_iter_ < total and not self.converged_:
-                source = self.__dict__.get("_shard_source")
-                if source is not None and source.stopping.is_set():  # fit_chains stops its chains' threads
-                    raise KeyboardInterrupt
-                t = time.perf_counter()
-                counts = self._sampler.split_merge_counts()
-                moves, k, alpha, log_joint = self._sampler.sweep()
-                seconds = time.perf_counter() - t
-                labels = compact_labels(self._sampler.labels())  # 1 byte a frame: N can be 10M
-                ari = adjusted_rand_index(previous, labels)
-                extra: tuple[float, ...] = tuple(b - a for a, b in zip(counts, self._sampler.split_merge_counts()))
-                extra += _noise_summary(self._sampler, self._per_pattern_noise())
-                for key, val in zip(ckpt.HISTORY_KEYS, (k, alpha, log_joint, moves, ari, seconds, *extra)):
-                    self.history_[key].append(val)
-                rho = self._sampler.stickiness()
-                if rho is not None:
-                    self.history_.setdefault("stickiness", []).append(rho)
-                if self.store_labels:
-                    traces.append(canonical_labels(labels))
-                self.n_iter_ += 1
-                self._keep_draw()
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix(K=k, alpha=f"{alpha:.3g}", moved=moves)
-                same_k = len(self.history_["n_patterns"]) > 1 and self.history_["n_patterns"][-2] == k
-                stable = stable + 1 if (same_k and ari >= self.ari_tol) else 0
-                previous = labels
-                self.converged_ = self.n_iter_no_change is not None and stable >= self.n_iter_no_change
-                if self.n_iter_ % self.checkpoint_every == 0:  # with or without a file: one result
-                    previous = self._save_checkpoint(stable, traces)
+                try:
+                    source = self.__dict__.get("_shard_source")
+                    if source is not None and source.stopping.is_set():  # fit_chains stops its chains' threads
+                        raise KeyboardInterrupt
+                    t = time.perf_counter()
+                    counts = self._sampler.split_merge_counts()
+                    moves, k, alpha, log_joint = self._sampler.sweep()
+                    table = self._sampler.label_table() if held else None
+                    seconds = time.perf_counter() - t
+                    if table is not None:
+                        labels = compact_labels(self._sampler.labels()) if self.store_labels else None
+                        ari = adjusted_rand_index_of_table(table)
+                    else:
+                        labels = compact_labels(self._sampler.labels())  # 1 byte a frame: N can be 10M
+                        ari = adjusted_rand_index(previous, labels)
+                    extra: tuple[float, ...] = tuple(b - a for a, b in zip(counts, self._sampler.split_merge_counts()))
+                    extra += _noise_summary(self._sampler, self._per_pattern_noise())
+                    for key, val in zip(ckpt.HISTORY_KEYS, (k, alpha, log_joint, moves, ari, seconds, *extra)):
+                        self.history_[key].append(val)
+                    rho = self._sampler.stickiness()
+                    if rho is not None:
+                        self.history_.setdefault("stickiness", []).append(rho)
+                    if self.store_labels:
+                        traces.append(canonical_labels(labels))
+                    self.n_iter_ += 1
+                    self._keep_draw()
+                    if bar is not None:
+                        bar.update(1)
+                        bar.set_postfix(K=k, alpha=f"{alpha:.3g}", moved=moves)
+                    same_k = len(self.history_["n_patterns"]) > 1 and self.history_["n_patterns"][-2] == k
+                    stable = stable + 1 if (same_k and ari >= self.ari_tol) else 0
+                    previous = labels
+                    self.converged_ = self.n_iter_no_change is not None and stable >= self.n_iter_no_change
+                    if self.n_iter_ % self.checkpoint_every == 0:  # with or without a file: one result
+                        previous = self._save_checkpoint(stable, traces)
+                        self._keep_rebuild_copy(stable, len(traces))
+                except LabelsLost:
+                    # Anywhere in the sweep, its ARI, draw or rebuild: back to the last rebuild.
+                    redos += 1
+                    if not held or redos > _MAX_REDOS:
+                        raise
+                    stable, previous = self._redo_from_rebuild(traces, bar)
         except KeyboardInterrupt:
             if not getattr(self, "_keep_state_on_interrupt", True):
                 raise
@@ -708,13 +731,67 @@ class DPGP:
                 bar.close()
         if self.store_labels:
             self.label_trace_ = _trace_array(traces, self._n_training())
-        self._sync()
         # Refactor every pattern in canonical order (patterns by size, frames by index), which is
         # also what loading a saved model does: both then compute with identical factors.
-        self._set_state(self.labels_, self.length_scales_, self.alpha_, self.pattern_noise_var_)
-        self._sync()
+        self._rebuild()
         if self.checkpoint is not None and not interrupted and self._resume_point.sweeps_done != self.n_iter_:
             self._write_checkpoint(traces)  # the finished model, with the last resume point
+
+    def _rebuild(self) -> None:
+        """The canonical rebuild: every pattern refactored in canonical order (patterns by size,
+        frames by index), then the public state read. Labels held by shards are relabelled there
+        (``regroup``: none crosses), then gathered once into ``labels_``."""
+        if self._sampler.labels_held():
+            self._sync(labels=False)
+            wh = [float(x) for x in self.heading_scales_] if self._headed() else None
+            noise = None
+            if self._per_pattern_noise():
+                noise = np.asarray(self.pattern_noise_var_, dtype=np.float64).reshape(-1, 2)
+            self._sampler.regroup(self._slot_to_label, self.length_scales_, self.alpha_, noise, heading_scales=wh)
+        else:
+            self._sync()
+            self._set_state(self.labels_, self.length_scales_, self.alpha_, self.pattern_noise_var_)
+        self._sync()
+
+    def _mark_labels(self) -> np.ndarray | None:
+        """The labels the next sweep's ARI compares with: this process's copy, or (labels held by
+        the shards) ``None``, the shards marking theirs."""
+        if self._sampler.labels_held():
+            self._sampler.label_table()
+            return None
+        return compact_labels(self._sampler.labels())
+
+    def _keep_rebuild_copy(self, stable: int, n_traces: int) -> None:
+        """Remember the state of the last rebuild (``labels_`` and the rest, just read), from
+        which a chain whose shards lost their labels redoes its sweeps."""
+        nx, ny = self.params_.noise_var
+        self._rebuilt = (self.n_iter_, stable, n_traces, (float(nx), float(ny)), self.converged_)
+
+    def _redo_from_rebuild(self, traces: list[np.ndarray], bar: Any) -> tuple[int, np.ndarray | None]:
+        """A shard lost the chain's labels (its worker was replaced): set the state of the last
+        rebuild again (every shard gets its labels under a fresh chain number) and go back to its
+        sweep; the sweeps since are redone, with the same result (the chain after a rebuild is a
+        function of its state). Returns the stable count and the ARI's reference then."""
+        n_iter, stable, n_traces, noise, converged = self._rebuilt
+        redone = self.n_iter_ - n_iter
+        warnings.warn(
+            f"a shard's worker was replaced: the chain's labels are set again from sweep {n_iter} "
+            f"and {redone} sweep(s) redone",
+            stacklevel=4,
+        )
+        for values in self.history_.values():
+            if redone:
+                del values[len(values) - redone :]
+        del traces[n_traces:]
+        self.draws_ = self.draws_.up_to(n_iter)
+        self.n_iter_, self.converged_ = n_iter, converged
+        self._sampler.set_noise_var(noise)
+        self._set_state(self.labels_, self.length_scales_, self.alpha_, self.pattern_noise_var_)
+        self._sampler.set_sweeps_done(n_iter)
+        if bar is not None:
+            bar.n = n_iter
+            bar.refresh()
+        return stable, self._mark_labels()
 
     def _keep_draw(self) -> None:
         """Keep the state after this sweep if the thinning asks for it (:mod:`dpgp.posterior`)."""
@@ -738,19 +815,17 @@ class DPGP:
         else:
             self._sampler.set_state(labels, length_scales, alpha, heading_scales=wh)
 
-    def _save_checkpoint(self, stable: int, traces: list[np.ndarray]) -> np.ndarray:
+    def _save_checkpoint(self, stable: int, traces: list[np.ndarray]) -> np.ndarray | None:
         """Rebuild the sampler from its own state in canonical order, as a resumed chain does
         (:mod:`dpgp.checkpoint` says why), and with ``checkpoint`` set write that state there.
         Every fit rebuilds at this cadence whether or not it writes a file, so that writing
         checkpoints never changes the result. Returns the sampler's labels after the rebuild."""
         t = time.perf_counter()
-        self._sync()
-        self._set_state(self.labels_, self.length_scales_, self.alpha_, self.pattern_noise_var_)
-        self._sync()
+        self._rebuild()
         reset = time.perf_counter()
         self.checkpoint_seconds_["reset"].append(reset - t)
         if self.checkpoint is None:
-            return compact_labels(self._sampler.labels())
+            return self._mark_labels()
         self._resume_point = ckpt.ResumePoint(
             self.n_iter_,
             self.labels_,
@@ -763,7 +838,7 @@ class DPGP:
         )
         self._write_checkpoint(traces)
         self.checkpoint_seconds_["write"].append(time.perf_counter() - reset)
-        return compact_labels(self._sampler.labels())
+        return self._mark_labels()
 
     def _write_checkpoint(self, traces: list[np.ndarray]) -> None:
         from ..io.modelfile import save
@@ -1036,16 +1111,19 @@ class DPGP:
         cut makes the heading kernel smoother, still a valid kernel: resolution, not correctness)."""
         return min(_core.heading_harmonics(HEADING_PRIOR), MAX_HEADING_HARMONICS)
 
-    def _sync(self) -> None:
-        """Read the sampler's state into the public attributes, patterns by decreasing size."""
+    def _sync(self, labels: bool = True) -> None:
+        """Read the sampler's state into the public attributes, patterns by decreasing size
+        (``labels``: with ``labels_``, which a chain whose shards hold its labels gathers)."""
         patterns = self._sampler.patterns()  # (slot, id, n_frames, wx, wy)
         order = sorted(range(len(patterns)), key=lambda j: (-patterns[j][2], patterns[j][0]))
         self._slots = np.array([patterns[j][0] for j in order], dtype=np.int64)
         self._slot_order = np.array(order, dtype=np.int64)  # core slot-order index of each pattern
         slot_to_label = np.full(int(self._slots.max(initial=-1)) + 1, -1, dtype=np.int64)
         slot_to_label[self._slots] = np.arange(len(self._slots))
-        # Indexed by the core's own unsigned labels (no int64 copy: at 10M frames each is 80 MB).
-        self.labels_ = slot_to_label[np.asarray(self._sampler.labels())]
+        self._slot_to_label = slot_to_label
+        if labels:
+            # Indexed by the core's own unsigned labels (no int64 copy: at 10M frames each is 80 MB).
+            self.labels_ = slot_to_label[np.asarray(self._sampler.labels())]
         self.n_patterns_ = len(self._slots)
         counts = np.array([patterns[j][2] for j in order], dtype=np.float64)
         self.weights_ = counts / counts.sum()

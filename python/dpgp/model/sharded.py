@@ -1,8 +1,9 @@
 """One sub-cluster chain over frames stored as shards (issue 33): in this process, or with each
 shard served by a Dask worker.
 
-The chain's leader (this process) holds the labels, the patterns' sums and parameters and runs
-every global step; the frames stay in their shards. Each sweep it sends requests to the shards
+The chain's leader (this process) holds the patterns' sums and parameters and runs every global
+step; the frames stay in their shards, and so do their labels (the shards draw, move and regroup
+them on request, and answer with sums, counts and the few frames a move needs). Each sweep it sends requests to the shards
 (draw every frame's label given the drawn fields, sum these frames, score those), and a shard
 answers from its frames alone (the protocol: ``rust/core/src/subcluster_shard.rs``). A shard's
 answer depends only on its frames and the request, and answers are added up in shard order, so
@@ -34,6 +35,12 @@ from ..exceptions import InvalidInputError
 
 #: Frames from which a sharded fit resolves its data-dependent settings.
 SAMPLE_FRAMES = 20_000
+
+
+class LabelsLost(RuntimeError):
+    """A shard does not hold the chain's labels: the worker serving it replaced a lost one (or a
+    request ran beside another copy of the shard). The fit sets the labels again from its copy of
+    the last rebuild and redoes the sweeps since, which gives the same chain."""
 
 
 def settings_sample(
@@ -236,8 +243,17 @@ class DaskShards:
         if self.closed:
             raise RuntimeError("the shards' link is closed: the workers have dropped the shards")
         t = time.perf_counter()
-        # Beside its shard: the load's worker (any other if that one is gone; it reads the shard).
+        # Beside its shard, which holds the chain's labels: the load's worker. A load whose worker
+        # was lost is read again first (Dask recomputes it), so that the requests of a shard keep
+        # going to one worker; one that runs elsewhere finds no labels and the fit redoes its
+        # sweeps (LabelsLost), never computes with another copy's.
         where = self._client.who_has(self._loads)
+        lost = [self._loads[s] for s, _ in jobs if not where.get(self._loads[s].key)]
+        if lost:
+            from distributed import wait
+
+            wait(lost)
+            where = self._client.who_has(self._loads)
         futures = []
         for s, request in jobs:
             near = list(where.get(self._loads[s].key, ()))

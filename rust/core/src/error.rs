@@ -42,6 +42,10 @@ pub enum Error {
     /// Shards served elsewhere could not answer (a worker or the scheduler failed).
     #[error("the frames' shards could not be reached: {0}")]
     Link(String),
+    /// A shard does not hold a chain's labels (a worker that replaced a lost one): the leader
+    /// sets them again and redoes the sweeps since its copy.
+    #[error("{0}")]
+    LabelsLost(String),
 }
 
 pub type Result<T> = std::result::Result<T, Error>;

@@ -204,7 +204,11 @@ pub struct SubclusterSampler {
     coarse: Arc<Basis>,
     slots: Vec<Option<Part>>,
     generations: Vec<u32>,
+    /// Each frame's slot, when the leader holds the labels (empty when the shards hold them).
     labels: Vec<usize>,
+    /// The chain's number on the shards when they hold its labels (`subcluster_held.rs`): every
+    /// step that selects frames by label is then a request the shards answer.
+    held: Option<u64>,
     alpha: f64,
     sweep: u64,
     pub timings: Timings,
@@ -252,6 +256,7 @@ impl SubclusterSampler {
             slots: Vec::new(),
             generations: Vec::new(),
             labels: vec![NONE; n],
+            held: None,
             alpha,
             sweep: 0,
             timings: Timings::default(),
@@ -291,9 +296,56 @@ impl SubclusterSampler {
         self.sweep = sweeps;
     }
 
-    /// The slot of each frame's pattern.
+    /// The slot of each frame's pattern, when the leader holds the labels (empty when the
+    /// shards hold them: [`Self::gather_labels`]).
     pub fn labels(&self) -> &[usize] {
         &self.labels
+    }
+
+    /// The slot of each frame's pattern, wherever the labels are (gathered from the shards when
+    /// they hold them).
+    pub fn gather_labels(&self) -> Result<Vec<usize>> {
+        match self.held {
+            Some(chain) => self.store.held_labels(chain),
+            None => Ok(self.labels.clone()),
+        }
+    }
+
+    /// The chain's number on the shards when they hold its labels.
+    pub fn held_chain(&self) -> Option<u64> {
+        self.held
+    }
+
+    /// Leave the frames' labels with the shards that hold the frames: from now on the pass, the
+    /// moves and the rebuilds send requests that the shards answer from their labels, and the
+    /// leader keeps only the patterns' sums (the same chain, bitwise). Each state set afterwards
+    /// gets a fresh chain number, so that labels a replaced worker held can never be used again.
+    pub fn hold_labels_on_shards(&mut self) -> Result<()> {
+        if self.held.is_some() {
+            return Ok(());
+        }
+        let chain = shard::fresh_chain_id();
+        if self.is_initialized() {
+            self.store.set_held_labels(chain, &self.labels)?;
+        }
+        self.labels = Vec::new();
+        self.held = Some(chain);
+        Ok(())
+    }
+
+    /// Counts of (label at the last mark, label now) over every frame, increasing, when the
+    /// shards hold the labels (`None` otherwise); the shards then mark their labels. The mark is
+    /// set with the labels and at each call: the previous sweep's labels, for its ARI.
+    pub fn label_table(&self) -> Result<Option<Vec<[u64; 3]>>> {
+        self.held.map(|c| self.store.held_table(c)).transpose()
+    }
+
+    /// Whether every frame has a pattern.
+    fn is_initialized(&self) -> bool {
+        match self.held {
+            Some(_) => self.live().next().is_some(),
+            None => !self.labels.contains(&NONE),
+        }
     }
 
     fn live(&self) -> impl Iterator<Item = (usize, &Part)> {
@@ -417,7 +469,7 @@ impl SubclusterSampler {
     /// Where a chain starts: the collapsed sampler's sequential initialisation, or one or many
     /// patterns ([`Start`]). Frames already assigned (a state that was set) keep their labels.
     pub fn initialize(&mut self, start: Start, stop: &dyn Fn() -> bool) -> Result<()> {
-        if !self.labels.contains(&NONE) {
+        if self.is_initialized() {
             return Ok(());
         }
         let n = self.store.len();
@@ -489,9 +541,27 @@ impl SubclusterSampler {
         self.slots.clear();
         self.generations.clear();
         self.check_memory(groups.len() * 8 * (m * m * 3 + 8 * m))?;
-        let sums = self
-            .store
-            .sums_of_groups(&self.basis, labels, &index, groups.len())?;
+        let sums = match self.held {
+            // The shards take the labels (group `j` is slot `j` below) and sum them: a fresh chain
+            // number, the last one's labels dropped.
+            Some(old) => {
+                let chain = shard::fresh_chain_id();
+                let slots: Vec<usize> = labels.iter().map(|&g| index[g]).collect();
+                self.store.set_held_labels(chain, &slots)?;
+                drop(slots);
+                let identity: Vec<usize> = (0..groups.len()).collect();
+                let sums = self
+                    .store
+                    .held_regroup(chain, &self.basis, &identity, groups.len())?;
+                self.held = Some(chain);
+                // A shard that cannot drop them (a lost worker) has lost them already.
+                let _ = self.store.forget_held(old);
+                sums
+            }
+            None => self
+                .store
+                .sums_of_groups(&self.basis, labels, &index, groups.len())?,
+        };
         self.alpha = alpha;
         let mut slot = Vec::with_capacity(groups.len());
         for (&g, s) in groups.iter().zip(sums) {
@@ -501,9 +571,69 @@ impl SubclusterSampler {
             }
             slot.push(self.add_part(s, params, None));
         }
-        // In place: a second label vector would be the largest transient of a rebuild.
-        self.labels.clear();
-        self.labels.extend(labels.iter().map(|&g| slot[index[g]]));
+        if self.held.is_none() {
+            // In place: a second label vector would be the largest transient of a rebuild.
+            self.labels.clear();
+            self.labels.extend(labels.iter().map(|&g| slot[index[g]]));
+        }
+        self.refresh_fits()
+    }
+
+    /// [`Self::set_state`] with every frame in group `group[slot]` of its pattern's slot (a
+    /// fit's canonical rebuild): when the shards hold the labels, they relabel their frames and
+    /// sum them, and no label crosses. `group` maps every live slot.
+    pub fn regroup(
+        &mut self,
+        group: &[usize],
+        length_scales: &[LengthScales],
+        noise_var: Option<&[[f64; 2]]>,
+        alpha: f64,
+    ) -> Result<()> {
+        let live: Vec<(usize, usize)> = self.live().map(|(k, p)| (k, p.sums.n_frames)).collect();
+        if let Some(&(k, _)) = live
+            .iter()
+            .find(|(k, _)| group.get(*k).is_none_or(|&g| g >= length_scales.len()))
+        {
+            return Err(Error::InvalidInput(format!(
+                "a regrouping gives pattern slot {k} no group of the {} given",
+                length_scales.len()
+            )));
+        }
+        let Some(chain) = self.held else {
+            let labels: Vec<usize> = self.labels.iter().map(|&l| group[l]).collect();
+            return self.set_state(&labels, length_scales, noise_var, alpha);
+        };
+        // The checks of `set_state` but the labels' (the shards hold them).
+        crate::gibbs::check_state(0, &[], length_scales, noise_var, alpha)?;
+        // As `set_state`: the non-empty groups in order, group `j` in slot `j`.
+        let mut size = vec![0usize; length_scales.len()];
+        for &(k, n) in &live {
+            size[group[k]] += n;
+        }
+        let groups: Vec<usize> = (0..size.len()).filter(|&g| size[g] > 0).collect();
+        let mut index = vec![usize::MAX; size.len()];
+        for (j, &g) in groups.iter().enumerate() {
+            index[g] = j;
+        }
+        let mut map = vec![usize::MAX; self.slots.len()];
+        for &(k, _) in &live {
+            map[k] = index[group[k]];
+        }
+        let m = self.basis.len();
+        self.slots.clear();
+        self.generations.clear();
+        self.check_memory(groups.len() * 8 * (m * m * 3 + 8 * m))?;
+        let sums = self
+            .store
+            .held_regroup(chain, &self.basis, &map, groups.len())?;
+        self.alpha = alpha;
+        for (&g, s) in groups.iter().zip(sums) {
+            let mut params = self.settings.pattern_params(length_scales[g]);
+            if let Some(nv) = noise_var {
+                params.noise_var = nv[g];
+            }
+            self.add_part(s, params, None);
+        }
         self.refresh_fits()
     }
 
@@ -517,7 +647,7 @@ impl SubclusterSampler {
     /// One sweep: the parallel assignment pass, split–merge moves, the noise, the length scales
     /// and α.
     pub fn sweep(&mut self, stop: &dyn Fn() -> bool) -> Result<SweepStats> {
-        if self.labels.contains(&NONE) {
+        if !self.is_initialized() {
             self.initialize(Start::Sequential, stop)?;
         }
         if stop() {

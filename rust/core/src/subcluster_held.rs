@@ -31,6 +31,8 @@ pub(super) struct Held {
     labels: Vec<u32>,
     picks: Vec<u32>,
     slots: Vec<u32>,
+    /// The labels when they were set or last marked ([`Request::Table`]).
+    mark: Vec<u32>,
 }
 
 /// What the leader learns from a pass over held labels.
@@ -50,7 +52,7 @@ impl Shard {
         let mut all = self.held.lock().unwrap_or_else(|e| e.into_inner());
         match all.get_mut(&chain) {
             Some(h) => f(h),
-            None => Err(Error::InvalidInput(format!(
+            None => Err(Error::LabelsLost(format!(
                 "a shard holds no labels of chain {chain} (a replaced worker: set them again)"
             ))),
         }
@@ -69,6 +71,7 @@ impl Shard {
                 }
                 let held = Held {
                     labels: labels.clone(),
+                    mark: labels.clone(),
                     ..Held::default()
                 };
                 let mut all = self.held.lock().unwrap_or_else(|e| e.into_inner());
@@ -161,6 +164,100 @@ impl Shard {
                 all.remove(chain);
                 Reply::Done
             }
+            Request::LabelsOf { chain, frames } => self.held(*chain, |h| {
+                let labels = frames
+                    .iter()
+                    .map(|&f| {
+                        h.labels
+                            .get(f as usize)
+                            .copied()
+                            .ok_or_else(|| outside(f, n))
+                    })
+                    .collect::<Result<_>>()?;
+                Ok(Reply::Labels(labels))
+            })?,
+            Request::Members { chain, slots } => self.held(*chain, |h| {
+                let (mut frames, mut which) = (Vec::new(), Vec::new());
+                for (i, l) in h.labels.iter().enumerate() {
+                    if let Some(w) = slots.iter().position(|s| s == l) {
+                        frames.push(i as u32);
+                        which.push(w as u32);
+                    }
+                }
+                Ok(Reply::Members { frames, which })
+            })?,
+            Request::Find { chain, slots, nth } => self.held(*chain, |h| {
+                let inside = mask(slots, &h.labels);
+                let mut count = 0u64;
+                let mut hit = None;
+                for (i, &l) in h.labels.iter().enumerate() {
+                    if inside[l as usize] {
+                        if count == *nth {
+                            hit = Some([i as u32, l]);
+                        }
+                        count += 1;
+                    }
+                }
+                Ok(Reply::Found { count, hit })
+            })?,
+            Request::Relabel {
+                chain,
+                map,
+                frames,
+                to,
+            } => self.held(*chain, |h| {
+                if let Some(&f) = frames.iter().find(|&&f| f as usize >= n) {
+                    return Err(outside(f, n));
+                }
+                if !map.is_empty() {
+                    for l in h.labels.iter_mut() {
+                        if let Some(m) = map.iter().find(|m| m[0] == *l) {
+                            *l = m[1];
+                        }
+                    }
+                }
+                for &f in frames {
+                    h.labels[f as usize] = *to;
+                }
+                Ok(Reply::Done)
+            })?,
+            Request::Regroup {
+                chain,
+                basis,
+                map,
+                n: groups,
+            } => {
+                let sets = self.held(*chain, |h| {
+                    let new: Vec<u32> = h
+                        .labels
+                        .iter()
+                        .map(|&l| match map.get(l as usize) {
+                            Some(&g) if g < *groups => Ok(g),
+                            _ => Err(Error::InvalidInput(
+                                "a regrouping leaves a frame's label without a group".into(),
+                            )),
+                        })
+                        .collect::<Result<_>>()?;
+                    let mut sets = vec![Vec::new(); *groups as usize];
+                    for (i, &g) in new.iter().enumerate() {
+                        sets[g as usize].push(i as u32);
+                    }
+                    h.labels = new;
+                    h.picks = Vec::new();
+                    Ok(sets)
+                })?;
+                Reply::Sums(self.sums(basis, &sets))
+            }
+            Request::Table { chain } => self.held(*chain, |h| {
+                let mut table: BTreeMap<(u32, u32), u32> = BTreeMap::new();
+                for (&a, &b) in h.mark.iter().zip(&h.labels) {
+                    *table.entry((a, b)).or_default() += 1;
+                }
+                h.mark = h.labels.clone();
+                Ok(Reply::Table(
+                    table.into_iter().map(|((a, b), c)| [a, b, c]).collect(),
+                ))
+            })?,
             _ => return Ok(None),
         }))
     }
@@ -183,6 +280,26 @@ fn slot_index(slots: &[u32], labels: &[u32]) -> Result<Vec<u32>> {
         ));
     }
     Ok(index)
+}
+
+/// Whether each label up to the largest of `slots` and `labels` is one of `slots`.
+fn mask(slots: &[u32], labels: &[u32]) -> Vec<bool> {
+    let top = slots
+        .iter()
+        .chain(labels)
+        .max()
+        .map_or(0, |&m| m as usize + 1);
+    let mut inside = vec![false; top];
+    for &s in slots {
+        inside[s as usize] = true;
+    }
+    inside
+}
+
+fn outside(f: u32, n: usize) -> Error {
+    Error::InvalidInput(format!(
+        "a shard request names frame {f} of a shard of {n} frames"
+    ))
 }
 
 fn check_drawn(h: &Held, k: usize) -> Result<()> {
@@ -349,4 +466,245 @@ fn valid_events(events: &[Event], k: usize) -> bool {
         && events
             .iter()
             .all(|&(_, f, t)| (f as usize) < k && (t as usize) < k && f != t)
+}
+
+/// A chain number for labels held by shards: unique among the chains of this process and, with
+/// the process id and the clock mixed in, practically among the leaders sharing workers.
+pub fn fresh_chain_id() -> u64 {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static NEXT: AtomicU64 = AtomicU64::new(1);
+    let n = NEXT.fetch_add(1, Ordering::Relaxed);
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64);
+    let mut h = (u64::from(std::process::id()) << 32) ^ nanos.rotate_left(17) ^ n;
+    // splitmix64's finaliser: nearby inputs give unrelated numbers.
+    h = (h ^ (h >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    h = (h ^ (h >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    h ^ (h >> 31)
+}
+
+impl Store {
+    /// The labels the shards hold for `chain` of the frames `frames` (any order).
+    pub fn held_labels_of(&self, chain: u64, frames: &[usize]) -> Result<Vec<usize>> {
+        self.check_frames(frames)?;
+        let parts = self.split(frames);
+        let jobs = parts
+            .iter()
+            .map(|(s, local)| {
+                let frames = local.clone();
+                (*s, Request::LabelsOf { chain, frames })
+            })
+            .collect();
+        let mut by_shard: Vec<Vec<u32>> = vec![Vec::new(); self.n_shards()];
+        for ((s, local), reply) in parts.iter().zip(self.link.run(jobs)?) {
+            match reply {
+                Reply::Labels(l) if l.len() == local.len() => by_shard[*s] = l,
+                _ => return Err(wrong_reply("labels")),
+            }
+        }
+        let mut cursor = vec![0usize; self.n_shards()];
+        Ok(frames
+            .iter()
+            .map(|&f| {
+                let s = self.shard_of(f);
+                cursor[s] += 1;
+                by_shard[s][cursor[s] - 1] as usize
+            })
+            .collect())
+    }
+
+    fn check_frames(&self, frames: &[usize]) -> Result<()> {
+        match frames.iter().find(|&&f| f >= self.len()) {
+            Some(f) => Err(Error::InvalidInput(format!(
+                "frame {f} of {} frames",
+                self.len()
+            ))),
+            None => Ok(()),
+        }
+    }
+
+    /// The frames (in frame order) whose held label is one of `slots`, and for each its index
+    /// in `slots`.
+    pub fn held_members(&self, chain: u64, slots: &[usize]) -> Result<(Vec<usize>, Vec<u32>)> {
+        let slots: Vec<u32> = slots.iter().map(|&s| s as u32).collect();
+        let jobs = (0..self.n_shards())
+            .map(|s| {
+                let slots = slots.clone();
+                (s, Request::Members { chain, slots })
+            })
+            .collect();
+        let (mut frames, mut which) = (Vec::new(), Vec::new());
+        for (reply, r) in self.link.run(jobs)?.into_iter().zip(self.shard_ranges()) {
+            let Reply::Members {
+                frames: f,
+                which: w,
+            } = reply
+            else {
+                return Err(wrong_reply("members"));
+            };
+            if f.iter().any(|&i| i as usize >= r.len())
+                || w.iter().any(|&k| k as usize >= slots.len())
+            {
+                return Err(wrong_reply("members"));
+            }
+            frames.extend(f.into_iter().map(|i| r.start + i as usize));
+            which.extend(w);
+        }
+        Ok((frames, which))
+    }
+
+    /// The `nth` frame (in frame order) whose held label is one of `slots`, and its label.
+    pub fn held_find(&self, chain: u64, slots: &[usize], nth: usize) -> Result<(usize, usize)> {
+        let slots: Vec<u32> = slots.iter().map(|&s| s as u32).collect();
+        let ask = |shards: Vec<usize>, nth: u64| -> Result<Vec<(u64, Option<[u32; 2]>)>> {
+            let jobs = shards
+                .into_iter()
+                .map(|s| {
+                    let slots = slots.clone();
+                    (s, Request::Find { chain, slots, nth })
+                })
+                .collect();
+            self.link
+                .run(jobs)?
+                .into_iter()
+                .map(|r| match r {
+                    Reply::Found { count, hit } => Ok((count, hit)),
+                    _ => Err(wrong_reply("a frame found")),
+                })
+                .collect()
+        };
+        // Each shard's count, then the frame from the shard that holds it.
+        let counts = ask((0..self.n_shards()).collect(), u64::MAX)?;
+        let mut rest = nth as u64;
+        for (s, (count, _)) in counts.into_iter().enumerate() {
+            if rest < count {
+                let (_, hit) = ask(vec![s], rest)?
+                    .pop()
+                    .ok_or_else(|| wrong_reply("a frame found"))?;
+                let [f, l] = hit.ok_or_else(|| wrong_reply("a frame found"))?;
+                if f as usize >= self.starts[s + 1] - self.starts[s] {
+                    return Err(wrong_reply("a frame found"));
+                }
+                return Ok((self.starts[s] + f as usize, l as usize));
+            }
+            rest -= count;
+        }
+        Err(Error::InvalidInput(format!(
+            "the shards hold fewer than {} frames of those patterns",
+            nth + 1
+        )))
+    }
+
+    /// Relabel the held labels: every frame labelled `map[j].0` takes `map[j].1`, then `frames`
+    /// take `to`.
+    pub fn held_relabel(
+        &self,
+        chain: u64,
+        map: &[(usize, usize)],
+        frames: &[usize],
+        to: usize,
+    ) -> Result<()> {
+        self.check_frames(frames)?;
+        let map: Vec<[u32; 2]> = map.iter().map(|&(a, b)| [a as u32, b as u32]).collect();
+        let mut local: Vec<Vec<u32>> = vec![Vec::new(); self.n_shards()];
+        for (s, l) in self.split(frames) {
+            local[s] = l;
+        }
+        let jobs: Vec<(usize, Request)> = local
+            .into_iter()
+            .enumerate()
+            .filter(|(_, f)| !map.is_empty() || !f.is_empty())
+            .map(|(s, frames)| {
+                let req = Request::Relabel {
+                    chain,
+                    map: map.clone(),
+                    frames,
+                    to: to as u32,
+                };
+                (s, req)
+            })
+            .collect();
+        for reply in self.link.run(jobs)? {
+            let Reply::Done = reply else {
+                return Err(wrong_reply("a relabelling"));
+            };
+        }
+        Ok(())
+    }
+
+    /// Relabel every held label `l` as `map[l]` (each below `n`) and return the sums of the
+    /// frames of each new label: [`Store::sums_of_groups`] of the relabelled frames, bitwise.
+    pub fn held_regroup(
+        &self,
+        chain: u64,
+        basis: &Basis,
+        map: &[usize],
+        n: usize,
+    ) -> Result<Vec<Sums>> {
+        let map: Vec<u32> = map
+            .iter()
+            .map(|&g| if g < n { g as u32 } else { u32::MAX })
+            .collect();
+        let jobs = (0..self.n_shards())
+            .map(|s| {
+                let req = Request::Regroup {
+                    chain,
+                    basis: basis.clone(),
+                    map: map.clone(),
+                    n: n as u32,
+                };
+                (s, req)
+            })
+            .collect();
+        let mut out: Vec<Sums> = (0..n).map(|_| Sums::zeros(basis)).collect();
+        for reply in self.link.run(jobs)? {
+            let Reply::Sums(parts) = reply else {
+                return Err(wrong_reply("sums"));
+            };
+            if parts.len() != n
+                || parts
+                    .iter()
+                    .any(|p| !super::same_shape(p, &Sums::zeros(basis)))
+            {
+                return Err(wrong_reply("sums"));
+            }
+            for (o, p) in out.iter_mut().zip(&parts) {
+                o.add(p);
+            }
+        }
+        Ok(out)
+    }
+
+    /// The counts of (marked label, label) pairs over every frame since the last mark, in
+    /// increasing order; the shards then mark their labels.
+    pub fn held_table(&self, chain: u64) -> Result<Vec<[u64; 3]>> {
+        let jobs = (0..self.n_shards())
+            .map(|s| (s, Request::Table { chain }))
+            .collect();
+        let mut table: BTreeMap<(u32, u32), u64> = BTreeMap::new();
+        for reply in self.link.run(jobs)? {
+            let Reply::Table(t) = reply else {
+                return Err(wrong_reply("a table"));
+            };
+            for [a, b, c] in t {
+                *table.entry((a, b)).or_default() += u64::from(c);
+            }
+        }
+        if table.values().sum::<u64>() != self.len() as u64 {
+            return Err(wrong_reply("a table"));
+        }
+        Ok(table
+            .into_iter()
+            .map(|((a, b), c)| [u64::from(a), u64::from(b), c])
+            .collect())
+    }
+
+    /// Drop `chain`'s labels from every shard.
+    pub fn forget_held(&self, chain: u64) -> Result<()> {
+        let jobs = (0..self.n_shards())
+            .map(|s| (s, Request::Forget { chain }))
+            .collect();
+        self.link.run(jobs).map(|_| ())
+    }
 }

@@ -73,7 +73,13 @@ impl SubclusterSampler {
             let j = self
                 .settings
                 .pair_partner(i, &self.frame_means()?, &mut rng);
-            let (ki, kj) = (self.labels[i], self.labels[j]);
+            let (ki, kj) = match self.held {
+                Some(chain) => {
+                    let l = self.store.held_labels_of(chain, &[i, j])?;
+                    (l[0], l[1])
+                }
+                None => (self.labels[i], self.labels[j]),
+            };
             if ki == kj {
                 self.try_split(i, j, ki, &mut rng)?;
             } else {
@@ -88,10 +94,38 @@ impl SubclusterSampler {
         self.alpha.ln() + ln_gamma(na as f64) + ln_gamma(nb as f64) - ln_gamma((na + nb) as f64)
     }
 
-    fn members(&self, k: usize) -> Vec<usize> {
-        (0..self.labels.len())
-            .filter(|&f| self.labels[f] == k)
-            .collect()
+    /// The frames of pattern `k`, in order.
+    fn members(&self, k: usize) -> Result<Vec<usize>> {
+        Ok(match self.held {
+            Some(chain) => self.store.held_members(chain, &[k])?.0,
+            None => (0..self.labels.len())
+                .filter(|&f| self.labels[f] == k)
+                .collect(),
+        })
+    }
+
+    /// Relabel: the frames of the patterns `map[j].0` go to `map[j].1`, then `frames` go to
+    /// `to` (on the shards, when they hold the labels).
+    pub(super) fn relabel(
+        &mut self,
+        map: &[(usize, usize)],
+        frames: &[usize],
+        to: usize,
+    ) -> Result<()> {
+        if let Some(chain) = self.held {
+            return self.store.held_relabel(chain, map, frames, to);
+        }
+        if !map.is_empty() {
+            for l in self.labels.iter_mut() {
+                if let Some(&(_, b)) = map.iter().find(|(a, _)| a == l) {
+                    *l = b;
+                }
+            }
+        }
+        for &f in frames {
+            self.labels[f] = to;
+        }
+        Ok(())
     }
 
     fn try_split(&mut self, i: usize, j: usize, k: usize, rng: &mut impl rand::Rng) -> Result<()> {
@@ -100,7 +134,7 @@ impl SubclusterSampler {
         let Some((theta_j, prior_over_q)) = self.settings.split_params(&parent, rng)? else {
             return Ok(());
         };
-        let frames = self.members(k);
+        let frames = self.members(k)?;
         let div = self.launch(
             &frames,
             i,
@@ -124,10 +158,18 @@ impl SubclusterSampler {
         self.slots[k] = None;
         let a = self.add_part(sl, parent, Some(fit_l));
         let b = self.add_part(sr, theta_j, Some(fit_r));
-        for (f, left) in frames.iter().zip(&div.left) {
-            self.labels[*f] = if *left { a } else { b };
-        }
-        Ok(())
+        // The pattern's frames to the larger side's slot, then the smaller side's frames to
+        // theirs (the fewest frame numbers to send).
+        let n_left = div.left.iter().filter(|&&l| l).count();
+        let small_left = 2 * n_left <= frames.len();
+        let small: Vec<usize> = frames
+            .iter()
+            .zip(&div.left)
+            .filter(|&(_, &l)| l == small_left)
+            .map(|(&f, _)| f)
+            .collect();
+        let (big, to) = if small_left { (b, a) } else { (a, b) };
+        self.relabel(&[(k, big)], &small, to)
     }
 
     fn try_merge(
@@ -159,11 +201,19 @@ impl SubclusterSampler {
             return Ok(());
         }
         if self.settings.assignment == Assignment::Gibbs {
-            let mut frames: Vec<usize> = (0..self.labels.len())
-                .filter(|&f| self.labels[f] == ki || self.labels[f] == kj)
-                .collect();
-            frames.sort_unstable();
-            let side: Vec<bool> = frames.iter().map(|&f| self.labels[f] == ki).collect();
+            let (frames, side): (Vec<usize>, Vec<bool>) = match self.held {
+                Some(chain) => {
+                    let (frames, which) = self.store.held_members(chain, &[ki, kj])?;
+                    (frames, which.iter().map(|&w| w == 0).collect())
+                }
+                None => {
+                    let frames: Vec<usize> = (0..self.labels.len())
+                        .filter(|&f| self.labels[f] == ki || self.labels[f] == kj)
+                        .collect();
+                    let side = frames.iter().map(|&f| self.labels[f] == ki).collect();
+                    (frames, side)
+                }
+            };
             let div = self.launch(&frames, i, j, [pa, pb], Some(&side), &merged, rng)?;
             if log_u >= log_target + q_over_prior + self.log_q(&div) {
                 return Ok(());
@@ -173,12 +223,7 @@ impl SubclusterSampler {
         self.slots[ki] = None;
         self.slots[kj] = None;
         let s = self.add_part(merged, pa, Some(fit));
-        for l in self.labels.iter_mut() {
-            if *l == ki || *l == kj {
-                *l = s;
-            }
-        }
-        Ok(())
+        self.relabel(&[(ki, s), (kj, s)], &[], s)
     }
 
     /// `log q` of a division as the ratio takes it.

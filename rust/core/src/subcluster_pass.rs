@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::shard::{Bank, DrawKey};
+use super::shard::{Bank, DrawKey, Moved};
 use super::stays::{self, Event, Proposal};
 use super::{Fit, SubclusterSampler, gamma};
 use crate::basis::Basis;
@@ -115,6 +115,9 @@ impl SubclusterSampler {
         if stop() {
             return Err(Error::Interrupted);
         }
+        if let Some(chain) = self.held {
+            return self.held_assignment_pass(chain, &slots, &bank, &log_w);
+        }
 
         let t = Instant::now();
         let proposed = self.propose_labels(&bank, &log_w, stop)?;
@@ -129,6 +132,48 @@ impl SubclusterSampler {
         self.apply_moves(&moved)?;
         self.timings.sums += t.elapsed().as_secs_f64();
         Ok(moved.len())
+    }
+
+    /// The pass over labels the shards hold: they draw, resolve the "last frame" rule with the
+    /// leader and move their frames, and return the moved frames' sums per pair of patterns (or
+    /// every pattern's, when most frames moved), which are added and taken here in the order of
+    /// [`Self::apply_moves`]: the same sums, bitwise. Once the shards have drawn, the pass runs
+    /// to its end (Ctrl-C is honoured before it).
+    fn held_assignment_pass(
+        &mut self,
+        chain: u64,
+        slots: &[usize],
+        bank: &Bank,
+        log_w: &[f64],
+    ) -> Result<usize> {
+        let t = Instant::now();
+        let counts: Vec<usize> = slots.iter().map(|&k| self.part(k).sums.n_frames).collect();
+        let key = self.draw_key(self.sweep, Phase::Labels);
+        let moved = self
+            .store
+            .held_pass(chain, &self.basis, bank, log_w, slots, &counts, key)?;
+        self.timings.assign += t.elapsed().as_secs_f64();
+        Ok(match moved {
+            Moved::Pairs { moved, sums } => {
+                for (&(from, to), s) in &sums {
+                    let dest = self.part_mut(to);
+                    dest.sums.add(s);
+                    dest.fit = None;
+                    let src = self.part_mut(from);
+                    src.sums.sub(s);
+                    src.fit = None;
+                }
+                moved
+            }
+            Moved::Rebuilt { moved, sums } => {
+                for (&k, s) in slots.iter().zip(sums) {
+                    let p = self.part_mut(k);
+                    p.sums = s;
+                    p.fit = None;
+                }
+                moved
+            }
+        })
     }
 
     /// The live slots, and the bank and log mixture weights a pass draws under: the patterns'

@@ -104,11 +104,19 @@ impl SubclusterSampler {
         self.peels.absorb_proposed += 1;
         let s =
             singles[((rng.random::<f64>() * singles.len() as f64) as usize).min(singles.len() - 1)];
-        let i = self
-            .labels
-            .iter()
-            .position(|&l| l == s)
-            .expect("a pattern holds a frame");
+        let i = match self.held {
+            Some(chain) => *self
+                .store
+                .held_members(chain, &[s])?
+                .0
+                .first()
+                .ok_or_else(|| crate::error::Error::Link("a pattern's frame is missing".into()))?,
+            None => self
+                .labels
+                .iter()
+                .position(|&l| l == s)
+                .expect("a pattern holds a frame"),
+        };
         let (slots, logq) = self.affinity(i, s, None)?;
         let pick = super::pass::pick_log(&logq, rng.random::<f64>());
         let (k, log_qk) = (slots[pick], logq[pick]);
@@ -135,7 +143,7 @@ impl SubclusterSampler {
         let p = self.part_mut(k);
         p.sums = merged;
         p.fit = Some(fit);
-        self.labels[i] = k;
+        self.relabel(&[], &[i], k)?;
         self.peels.absorb_accepted += 1;
         Ok(())
     }
@@ -149,15 +157,27 @@ impl SubclusterSampler {
         self.peels.peel_proposed += 1;
         // The r-th frame (in frame order) of the patterns of two or more.
         let r = ((rng.random::<f64>() * n_ns as f64) as usize).min(n_ns - 1);
-        let i = self
-            .labels
-            .iter()
-            .enumerate()
-            .filter(|&(_, &l)| self.part(l).sums.n_frames >= 2)
-            .nth(r)
-            .map(|(f, _)| f)
-            .expect("r is below the count");
-        let k = self.labels[i];
+        let (i, k) = match self.held {
+            Some(chain) => {
+                let many: Vec<usize> = self
+                    .live()
+                    .filter(|(_, p)| p.sums.n_frames >= 2)
+                    .map(|(k, _)| k)
+                    .collect();
+                self.store.held_find(chain, &many, r)?
+            }
+            None => {
+                let i = self
+                    .labels
+                    .iter()
+                    .enumerate()
+                    .filter(|&(_, &l)| self.part(l).sums.n_frames >= 2)
+                    .nth(r)
+                    .map(|(f, _)| f)
+                    .expect("r is below the count");
+                (i, self.labels[i])
+            }
+        };
         let pk = self.part(k).params;
         let Some((theta, prior_over_q)) = self.settings.split_params(&pk, rng)? else {
             return Ok(());
@@ -193,7 +213,7 @@ impl SubclusterSampler {
         p.sums = rest;
         p.fit = Some(fit_rest);
         let s = self.add_part(own, theta, Some(fit_own));
-        self.labels[i] = s;
+        self.relabel(&[], &[i], s)?;
         self.peels.peel_accepted += 1;
         Ok(())
     }

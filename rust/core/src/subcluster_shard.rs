@@ -99,6 +99,35 @@ pub enum Request {
     Labels { chain: u64 },
     /// Drop the chain's labels.
     Forget { chain: u64 },
+    /// The held labels of some frames.
+    LabelsOf { chain: u64, frames: Vec<u32> },
+    /// The frames (in order) whose label is one of `slots`, and for each its index in `slots`.
+    Members { chain: u64, slots: Vec<u32> },
+    /// How many frames hold a label among `slots`, and the `nth` of them (in frame order) with
+    /// its label, if the shard has that many.
+    Find {
+        chain: u64,
+        slots: Vec<u32>,
+        nth: u64,
+    },
+    /// Relabel: every frame labelled `map[j][0]` becomes `map[j][1]`, then `frames` become `to`.
+    Relabel {
+        chain: u64,
+        map: Vec<[u32; 2]>,
+        frames: Vec<u32>,
+        to: u32,
+    },
+    /// Label every frame `map[label]` (all below `n`), and answer with the sums of the frames
+    /// of each new label `0..n`.
+    Regroup {
+        chain: u64,
+        basis: Basis,
+        map: Vec<u32>,
+        n: u32,
+    },
+    /// The counts of (marked label, label) pairs since the last mark (frames' labels when they
+    /// were set or last marked), then mark the labels.
+    Table { chain: u64 },
 }
 
 /// A shard's answer to a [`Request`] of the same kind.
@@ -124,6 +153,16 @@ pub enum Reply {
         sums: Vec<Sums>,
     },
     Labels(Vec<u32>),
+    Members {
+        frames: Vec<u32>,
+        which: Vec<u32>,
+    },
+    Found {
+        count: u64,
+        hit: Option<[u32; 2]>,
+    },
+    /// `(marked label, label, count)` triples, increasing.
+    Table(Vec<[u32; 3]>),
 }
 
 /// Consecutive frames of the data, the first being frame `first` of all, and the labels of its
@@ -137,7 +176,7 @@ pub struct Shard {
 
 #[path = "subcluster_held.rs"]
 mod held;
-pub use held::Moved;
+pub use held::{Moved, fresh_chain_id};
 
 /// Frames summed per parallel task (the sums of a set are those of its chunks, in order).
 const SUM_CHUNK: usize = 64;
@@ -775,6 +814,9 @@ impl Reader<'_> {
         }
         Ok(n)
     }
+    fn u32_value(&mut self) -> Result<u32> {
+        u32::try_from(self.u64()?).map_err(|_| malformed())
+    }
     fn f64(&mut self) -> Result<f64> {
         Ok(f64::from_le_bytes(self.take(8)?.try_into().unwrap()))
     }
@@ -970,6 +1012,50 @@ impl Request {
                 header(&mut w, 11);
                 w.u64(*chain);
             }
+            Request::LabelsOf { chain, frames } => {
+                header(&mut w, 12);
+                w.u64(*chain);
+                w.u32s(frames);
+            }
+            Request::Members { chain, slots } => {
+                header(&mut w, 13);
+                w.u64(*chain);
+                w.u32s(slots);
+            }
+            Request::Find { chain, slots, nth } => {
+                header(&mut w, 14);
+                w.u64(*chain);
+                w.u32s(slots);
+                w.u64(*nth);
+            }
+            Request::Relabel {
+                chain,
+                map,
+                frames,
+                to,
+            } => {
+                header(&mut w, 15);
+                w.u64(*chain);
+                w.u32s(&map.iter().flatten().copied().collect::<Vec<_>>());
+                w.u32s(frames);
+                w.u64(u64::from(*to));
+            }
+            Request::Regroup {
+                chain,
+                basis,
+                map,
+                n,
+            } => {
+                header(&mut w, 16);
+                w.u64(*chain);
+                w.basis(basis);
+                w.u32s(map);
+                w.u64(u64::from(*n));
+            }
+            Request::Table { chain } => {
+                header(&mut w, 17);
+                w.u64(*chain);
+            }
         }
         w.0
     }
@@ -1031,6 +1117,39 @@ impl Request {
             },
             10 => Request::Labels { chain: r.u64()? },
             11 => Request::Forget { chain: r.u64()? },
+            12 => Request::LabelsOf {
+                chain: r.u64()?,
+                frames: r.u32s()?,
+            },
+            13 => Request::Members {
+                chain: r.u64()?,
+                slots: r.u32s()?,
+            },
+            14 => Request::Find {
+                chain: r.u64()?,
+                slots: r.u32s()?,
+                nth: r.u64()?,
+            },
+            15 => {
+                let chain = r.u64()?;
+                let flat = r.u32s()?;
+                if flat.len() % 2 != 0 {
+                    return Err(malformed());
+                }
+                Request::Relabel {
+                    chain,
+                    map: flat.chunks(2).map(|c| [c[0], c[1]]).collect(),
+                    frames: r.u32s()?,
+                    to: r.u32_value()?,
+                }
+            }
+            16 => Request::Regroup {
+                chain: r.u64()?,
+                basis: r.basis()?,
+                map: r.u32s()?,
+                n: r.u32_value()?,
+            },
+            17 => Request::Table { chain: r.u64()? },
             _ => return Err(malformed()),
         };
         r.done()?;
@@ -1091,6 +1210,20 @@ impl Reply {
                 header(&mut w, 10);
                 w.u32s(l);
             }
+            Reply::Members { frames, which } => {
+                header(&mut w, 11);
+                w.u32s(frames);
+                w.u32s(which);
+            }
+            Reply::Found { count, hit } => {
+                header(&mut w, 12);
+                w.u64(*count);
+                w.u32s(hit.as_ref().map_or(&[][..], |h| &h[..]));
+            }
+            Reply::Table(t) => {
+                header(&mut w, 13);
+                w.u32s(&t.iter().flatten().copied().collect::<Vec<_>>());
+            }
         }
         w.0
     }
@@ -1134,6 +1267,30 @@ impl Reply {
                 }
             }
             10 => Reply::Labels(r.u32s()?),
+            11 => {
+                let frames = r.u32s()?;
+                let which = r.u32s()?;
+                if frames.len() != which.len() {
+                    return Err(malformed());
+                }
+                Reply::Members { frames, which }
+            }
+            12 => {
+                let count = r.u64()?;
+                let hit = match r.u32s()?[..] {
+                    [] => None,
+                    [f, l] => Some([f, l]),
+                    _ => return Err(malformed()),
+                };
+                Reply::Found { count, hit }
+            }
+            13 => {
+                let flat = r.u32s()?;
+                if flat.len() % 3 != 0 {
+                    return Err(malformed());
+                }
+                Reply::Table(flat.chunks(3).map(|c| [c[0], c[1], c[2]]).collect())
+            }
             _ => return Err(malformed()),
         };
         r.done()?;

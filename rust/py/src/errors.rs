@@ -8,6 +8,7 @@ pyo3::import_exception!(dpgp.exceptions, InvalidInputError);
 pyo3::import_exception!(dpgp.exceptions, ShapeError);
 pyo3::import_exception!(dpgp.exceptions, NotPositiveDefiniteError);
 pyo3::import_exception!(dpgp.exceptions, MemoryBudgetError);
+pyo3::import_exception!(dpgp.model.sharded, LabelsLost);
 
 /// Newtype for the orphan rule: `From<dpgp_core::Error> for PyErr` cannot live here.
 pub struct CoreError(pub dpgp_core::Error);
@@ -29,6 +30,7 @@ impl From<CoreError> for PyErr {
             E::MemoryBudget { .. } => MemoryBudgetError::new_err(msg),
             E::Interrupted => PyKeyboardInterrupt::new_err(msg),
             E::Link(_) => pyo3::exceptions::PyRuntimeError::new_err(msg),
+            E::LabelsLost(_) => LabelsLost::new_err(msg),
         }
     }
 }

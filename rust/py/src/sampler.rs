@@ -92,7 +92,7 @@ fn collapsed_at(chain: &SubclusterSampler) -> dpgp_core::Result<Sampler> {
     let infos = chain.patterns();
     let group: std::collections::HashMap<usize, usize> =
         infos.iter().enumerate().map(|(g, p)| (p.slot, g)).collect();
-    let labels: Vec<usize> = chain.labels().iter().map(|l| group[l]).collect();
+    let labels: Vec<usize> = chain.gather_labels()?.iter().map(|l| group[l]).collect();
     let ls: Vec<LengthScales> = infos.iter().map(|p| p.length_scales).collect();
     let noise: Vec<[f64; 2]> = infos.iter().map(|p| p.noise_var).collect();
     s.set_state_with_noise(&labels, &ls, Some(&noise), chain.alpha())?;
@@ -244,8 +244,13 @@ impl PySampler {
             ))
             .into());
         }
+        // The shards keep the frames' labels: the leader holds the patterns' sums alone.
         let chain = py
-            .detach(|| SubclusterSampler::with_store(store, settings))
+            .detach(|| {
+                let mut chain = SubclusterSampler::with_store(store, settings)?;
+                chain.hold_labels_on_shards()?;
+                Ok(chain)
+            })
             .map_err(CoreError)?;
         Ok(Self {
             inner: Mutex::new(Engine::Subcluster(chain, None)),
@@ -400,13 +405,39 @@ impl PySampler {
         })
     }
 
-    /// The arena slot of each frame's pattern.
-    fn labels<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<usize>> {
-        let labels = match &*self.lock() {
-            Engine::Collapsed(s) => s.labels().to_vec(),
-            Engine::Subcluster(c, _) => c.labels().to_vec(),
-        };
-        labels.into_pyarray(py)
+    /// The arena slot of each frame's pattern (gathered from the shards when they hold them).
+    fn labels<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<usize>>> {
+        let labels = self.run_engine(py, |e, _| match e {
+            Engine::Collapsed(s) => Ok(s.labels().to_vec()),
+            Engine::Subcluster(c, _) => c.gather_labels(),
+        })?;
+        Ok(labels.into_pyarray(py))
+    }
+
+    /// Whether the shards hold the frames' labels (a sharded chain): the leader then has only
+    /// the patterns' sums, and `labels()` gathers them.
+    fn labels_held(&self) -> bool {
+        match &*self.lock() {
+            Engine::Subcluster(c, _) => c.held_chain().is_some(),
+            Engine::Collapsed(_) => false,
+        }
+    }
+
+    /// When the shards hold the labels: the counts of (label at the last mark, label now) as
+    /// rows `(a, b, count)`, and the shards mark their labels (set with the labels, and at each
+    /// call); `None` otherwise. The previous sweep's ARI without a label crossing.
+    fn label_table<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyArray2<u64>>>> {
+        let table = self.run_engine(py, |e, _| match e {
+            Engine::Subcluster(c, _) => c.label_table(),
+            Engine::Collapsed(_) => Ok(None),
+        })?;
+        Ok(table.map(|t| {
+            let n = t.len();
+            let flat: Vec<u64> = t.into_iter().flatten().collect();
+            numpy::ndarray::Array2::from_shape_vec((n, 3), flat)
+                .expect("three columns")
+                .into_pyarray(py)
+        }))
     }
 
     /// (slot, stable id, n_frames, w_x, w_y) for each pattern, in slot order.
@@ -628,33 +659,7 @@ impl PySampler {
         heading_scales: Option<Vec<f64>>,
     ) -> PyResult<()> {
         let labels = offsets_vec("labels", &labels)?;
-        let pos = pairs("length_scales", &length_scales)?;
-        if let Some(wh) = &heading_scales
-            && wh.len() != pos.len()
-        {
-            return Err(CoreError(Error::Shape(format!(
-                "{} heading length scales for {} groups",
-                wh.len(),
-                pos.len()
-            )))
-            .into());
-        }
-        let ls: Vec<LengthScales> = pos
-            .iter()
-            .enumerate()
-            .map(|(g, w)| {
-                let ls = LengthScales::new(w[0], w[1])?;
-                match &heading_scales {
-                    Some(wh) => ls.with_heading(wh[g]),
-                    None => Ok(ls),
-                }
-            })
-            .collect::<dpgp_core::Result<_>>()
-            .map_err(CoreError)?;
-        let noise: Option<Vec<[f64; 2]>> = match &noise_var {
-            Some(n) => Some(pairs("noise_var", n)?.to_vec()),
-            None => None,
-        };
+        let (ls, noise) = group_settings(&length_scales, &noise_var, &heading_scales)?;
         self.run_engine(py, |e, _| match e.chain_mut() {
             Some(c) => c.set_state(&labels, &ls, noise.as_deref(), alpha),
             None => e
@@ -662,6 +667,70 @@ impl PySampler {
                 .set_state_with_noise(&labels, &ls, noise.as_deref(), alpha),
         })
     }
+
+    /// `set_state` with each frame in group `group[slot]` of its pattern's slot (a canonical
+    /// rebuild): over shards that hold the labels, no label crosses. Sub-cluster chains only.
+    #[pyo3(signature = (group, length_scales, alpha, noise_var=None, heading_scales=None))]
+    fn regroup(
+        &self,
+        py: Python<'_>,
+        group: PyReadonlyArray1<'_, i64>,
+        length_scales: PyReadonlyArray2<'_, f64>,
+        alpha: f64,
+        noise_var: Option<PyReadonlyArray2<'_, f64>>,
+        heading_scales: Option<Vec<f64>>,
+    ) -> PyResult<()> {
+        // Slots that hold no pattern may map anywhere (negative: nowhere).
+        let group: Vec<usize> = group
+            .as_array()
+            .iter()
+            .map(|&g| usize::try_from(g).unwrap_or(usize::MAX))
+            .collect();
+        let (ls, noise) = group_settings(&length_scales, &noise_var, &heading_scales)?;
+        self.run_engine(py, |e, _| match e.chain_mut() {
+            Some(c) => c.regroup(&group, &ls, noise.as_deref(), alpha),
+            None => Err(Error::InvalidInput(
+                "regroup is the sub-cluster chain's; the collapsed sampler takes set_state".into(),
+            )),
+        })
+    }
+}
+
+/// Each group's length scales (with its heading scale) and noise pair, as `set_state` takes them.
+#[allow(clippy::type_complexity)]
+fn group_settings(
+    length_scales: &PyReadonlyArray2<'_, f64>,
+    noise_var: &Option<PyReadonlyArray2<'_, f64>>,
+    heading_scales: &Option<Vec<f64>>,
+) -> PyResult<(Vec<LengthScales>, Option<Vec<[f64; 2]>>)> {
+    let pos = pairs("length_scales", length_scales)?;
+    if let Some(wh) = &heading_scales
+        && wh.len() != pos.len()
+    {
+        return Err(CoreError(Error::Shape(format!(
+            "{} heading length scales for {} groups",
+            wh.len(),
+            pos.len()
+        )))
+        .into());
+    }
+    let ls: Vec<LengthScales> = pos
+        .iter()
+        .enumerate()
+        .map(|(g, w)| {
+            let ls = LengthScales::new(w[0], w[1])?;
+            match &heading_scales {
+                Some(wh) => ls.with_heading(wh[g]),
+                None => Ok(ls),
+            }
+        })
+        .collect::<dpgp_core::Result<_>>()
+        .map_err(CoreError)?;
+    let noise: Option<Vec<[f64; 2]>> = match &noise_var {
+        Some(n) => Some(pairs("noise_var", n)?.to_vec()),
+        None => None,
+    };
+    Ok((ls, noise))
 }
 
 impl PySampler {

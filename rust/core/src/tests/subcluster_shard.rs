@@ -465,3 +465,175 @@ fn a_pass_over_held_labels_is_the_leaders_pass() {
     fresh.set_held_labels(chain, s.labels()).unwrap();
     assert_eq!(fresh.held_labels(chain).unwrap(), s.labels());
 }
+
+/// A chain's state as numbers: labels, α, log joint, and every pattern's slot, id, size, length
+/// scales and noise, as bits.
+fn state(s: &SubclusterSampler) -> (Vec<usize>, Vec<u64>, String) {
+    let patterns = format!("{:?}", s.patterns());
+    (
+        s.gather_labels().unwrap(),
+        vec![s.alpha().to_bits(), s.log_joint().to_bits()],
+        patterns,
+    )
+}
+
+/// The canonical order a fit rebuilds in: patterns by decreasing size, then slot.
+fn canonical_groups(s: &SubclusterSampler) -> (Vec<usize>, Vec<crate::frame::LengthScales>) {
+    let mut p = s.patterns();
+    p.sort_by_key(|p| (std::cmp::Reverse(p.n_frames), p.slot));
+    let top = p.iter().map(|p| p.slot).max().unwrap() + 1;
+    let mut group = vec![usize::MAX; top];
+    for (g, info) in p.iter().enumerate() {
+        group[info.slot] = g;
+    }
+    (group, p.iter().map(|p| p.length_scales).collect())
+}
+
+/// The chain over 600 frames in 3 shards from `start`, with the labels on the leader and on the
+/// shards (through bytes), compared at every step; the moves' counts.
+fn compare_held(start: Start) -> (crate::gibbs::SplitMergeStats, super::super::PeelStats) {
+    let data = frames(600);
+    let sizes = [200, 250, 150];
+    let mut st = settings(9);
+    st.fixed_length_scales = false;
+    st.alpha = None;
+    st.split_merge.moves_per_sweep = 6;
+    let leader = Store::in_process_shards(cut(&data, &sizes)).unwrap();
+    let mut a = SubclusterSampler::with_store(leader, st.clone()).unwrap();
+    let link = Arc::new(Bytes(cut(&data, &sizes)));
+    let held = Store::sharded(&sizes, Arc::clone(&link) as Arc<dyn Link>).unwrap();
+    let mut b = SubclusterSampler::with_store(held, st).unwrap();
+    b.hold_labels_on_shards().unwrap();
+    a.initialize(start, &|| false).unwrap();
+    b.initialize(start, &|| false).unwrap();
+    assert!(b.labels().is_empty(), "the leader keeps no label");
+    assert_eq!(state(&a), state(&b));
+    let mut previous = a.labels().to_vec();
+    for sweep in 0..60 {
+        let ra = a.sweep(&|| false).unwrap();
+        let rb = b.sweep(&|| false).unwrap();
+        assert_eq!(ra.moves, rb.moves, "sweep {sweep}");
+        assert_eq!(state(&a), state(&b), "sweep {sweep}");
+        assert!(b.labels().is_empty());
+        // The table since the last mark is the contingency of the leader's two labellings.
+        let mut want: std::collections::BTreeMap<(usize, usize), u64> = Default::default();
+        for (&x, &y) in previous.iter().zip(a.labels()) {
+            *want.entry((x, y)).or_default() += 1;
+        }
+        let got: Vec<[u64; 3]> = b.label_table().unwrap().unwrap();
+        let want: Vec<[u64; 3]> = want
+            .into_iter()
+            .map(|((x, y), c)| [x as u64, y as u64, c])
+            .collect();
+        assert_eq!(got, want, "sweep {sweep}");
+        previous = a.labels().to_vec();
+        if sweep % 7 == 3 {
+            // A canonical rebuild: the shards relabel and sum, no label crosses.
+            let (group, ls) = canonical_groups(&a);
+            let labels: Vec<usize> = a.labels().iter().map(|&l| group[l]).collect();
+            let (alpha, noise) = (a.alpha(), a.noise_var());
+            a.set_state(&labels, &ls, None, alpha).unwrap();
+            b.regroup(&group, &ls, None, alpha).unwrap();
+            assert_eq!(state(&a), state(&b), "rebuild at sweep {sweep}");
+            assert_eq!(a.noise_var(), noise);
+        }
+        if sweep % 11 == 5 {
+            // The state set again (a replaced worker, a resume): a new chain number.
+            let before = b.held_chain();
+            let labels = a.labels().to_vec();
+            let infos = a.patterns();
+            let slot_group: std::collections::HashMap<usize, usize> =
+                infos.iter().enumerate().map(|(g, p)| (p.slot, g)).collect();
+            let groups: Vec<usize> = labels.iter().map(|l| slot_group[l]).collect();
+            let ls: Vec<_> = infos.iter().map(|p| p.length_scales).collect();
+            a.set_state(&groups, &ls, None, a.alpha()).unwrap();
+            b.set_state(&groups, &ls, None, b.alpha()).unwrap();
+            assert_ne!(b.held_chain(), before);
+            assert_eq!(state(&a), state(&b), "set at sweep {sweep}");
+            // The labels under the last number are gone from every shard.
+            let err = b.store().held_labels(before.unwrap()).unwrap_err();
+            assert!(err.to_string().contains("holds no labels"), "{err}");
+            previous = a.labels().to_vec();
+            b.label_table().unwrap();
+        }
+    }
+    assert_eq!((b.split_merge, b.peels), (a.split_merge, a.peels));
+    (b.split_merge, b.peels)
+}
+
+#[test]
+fn a_chain_whose_shards_hold_its_labels_is_the_leaders_chain() {
+    // From one pattern (splits) and from many (merges), with peels and absorbs on the way.
+    let (one, peels) = compare_held(Start::One);
+    let (many, _) = compare_held(Start::Many);
+    eprintln!("{one:?} {many:?} {peels:?}");
+    assert!(
+        one.split_accepted >= 1 && many.merge_accepted >= 1,
+        "{one:?} {many:?}"
+    );
+    assert!(
+        peels.peel_accepted >= 1 && peels.absorb_accepted >= 1,
+        "{peels:?}"
+    );
+}
+
+#[test]
+fn new_held_label_requests_cross_as_bytes() {
+    let requests = [
+        Request::LabelsOf {
+            chain: 1,
+            frames: vec![3, 0],
+        },
+        Request::Members {
+            chain: 1,
+            slots: vec![2, 5],
+        },
+        Request::Find {
+            chain: 1,
+            slots: vec![2],
+            nth: u64::MAX,
+        },
+        Request::Relabel {
+            chain: 1,
+            map: vec![[1, 4], [2, 4]],
+            frames: vec![7],
+            to: 3,
+        },
+        Request::Regroup {
+            chain: 1,
+            basis: basis(),
+            map: vec![1, u32::MAX, 0],
+            n: 2,
+        },
+        Request::Table { chain: 4 },
+    ];
+    for r in requests {
+        let bytes = r.encode();
+        assert_eq!(Request::decode(&bytes).unwrap(), r);
+        for cut in 0..bytes.len() {
+            assert!(Request::decode(&bytes[..cut]).is_err());
+        }
+    }
+    let replies = [
+        Reply::Members {
+            frames: vec![1, 4],
+            which: vec![0, 1],
+        },
+        Reply::Found {
+            count: 3,
+            hit: Some([2, 9]),
+        },
+        Reply::Found {
+            count: 0,
+            hit: None,
+        },
+        Reply::Table(vec![[0, 1, 5], [2, 2, 1]]),
+    ];
+    for r in replies {
+        let bytes = r.encode();
+        assert_eq!(Reply::decode(&bytes).unwrap(), r);
+        for cut in 0..bytes.len() {
+            assert!(Reply::decode(&bytes[..cut]).is_err());
+        }
+    }
+}
