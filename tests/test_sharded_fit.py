@@ -427,7 +427,9 @@ def test_ctrl_c_keeps_the_state_reached_on_a_cluster(tmp_path):
     )
     try:
         assert proc.stdout is not None and proc.stdout.readline().strip() == "fitting"
-        time.sleep(12)  # the cluster's start and the fit's: sweeps under way
+        # the cluster's start and the fit's, then sweeps under way: a small fit on a cluster is
+        # round trips (several per split-merge move), seconds a sweep on a loaded 2-core machine
+        time.sleep(35)
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=180)
     finally:
