@@ -20,6 +20,7 @@ from dpgp.gp import exact
 from dpgp.gp.draws import used
 from dpgp.model.estimator import HEADING_PRIOR
 
+from heading_roads import two_way_road as road_tracks
 from model_files import _rewrite, _rewrite_metadata
 
 HEADED = "position+heading"
@@ -29,20 +30,8 @@ SETTINGS = dict(inputs=HEADED, seed=3, progress=False, noise_var=(0.02, 0.02), p
 
 
 def two_way_road(n_vehicles: int = 24, seed: int = 0) -> dpgp.Frames:
-    """Opposite lanes 3 m apart, one vehicle entering every 2 s on alternate lanes, tracks
-    sampled at 1 s (as tests/model/test_heading_fit.py), framed with previous headings."""
-    import pandas as pd
-
-    rng = np.random.default_rng(seed)
-    rows = []
-    for i in range(n_vehicles):
-        east = i % 2 == 0
-        speed = 10.0 + rng.normal(0, 0.5)
-        for t in range(2 * i, 2 * i + 8):
-            s = speed * (t - 2 * i)
-            rows.append((i, float(t), s if east else 70.0 - s, 0.0 if east else 3.0, speed if east else -speed,
-                         rng.normal(0, 0.1)))  # fmt: skip
-    frames = dpgp.make_frames(pd.DataFrame(rows, columns=["track", "t", "x", "y", "vx", "vy"]), dt=1.0)
+    """The two-way road of :mod:`heading_roads`, framed with previous headings."""
+    frames = dpgp.make_frames(road_tracks(n_vehicles, seed), dt=1.0)
     assert frames.prev_heading is not None and np.isnan(frames.prev_heading).any()  # unknown headings too
     return frames
 

@@ -9,13 +9,14 @@ import dataclasses
 
 import numpy as np
 import pytest
-from test_heading_fit import two_way_road
 
 import dpgp
 from dpgp.exceptions import InvalidInputError
 from dpgp.model import engine_cost as ec
 from dpgp.model import estimator
 from dpgp.model.estimator import DPGP, HEADING_EVIDENCE, choose_inputs
+
+from heading_roads import two_way_road
 
 HEADED = "position+heading"
 J = DPGP._heading_harmonics()  # the harmonics rule: 3 under today's prior and cap

@@ -363,6 +363,16 @@ impl SubclusterSampler {
         self.slots[k].as_mut().expect("a live pattern slot")
     }
 
+    /// Frames whose sums are `s` moved from pattern `from` to `to` (both fits to redo).
+    fn move_sums(&mut self, from: usize, to: usize, s: &Sums) {
+        let dest = self.part_mut(to);
+        dest.sums.add(s);
+        dest.fit = None;
+        let src = self.part_mut(from);
+        src.sums.sub(s);
+        src.fit = None;
+    }
+
     fn id(&self, k: usize) -> u64 {
         (u64::from(self.part(k).generation) << 32) | k as u64
     }

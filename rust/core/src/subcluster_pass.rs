@@ -156,12 +156,7 @@ impl SubclusterSampler {
         Ok(match moved {
             Moved::Pairs { moved, sums } => {
                 for (&(from, to), s) in &sums {
-                    let dest = self.part_mut(to);
-                    dest.sums.add(s);
-                    dest.fit = None;
-                    let src = self.part_mut(from);
-                    src.sums.sub(s);
-                    src.fit = None;
+                    self.move_sums(from, to, s);
                 }
                 moved
             }
@@ -396,12 +391,7 @@ impl SubclusterSampler {
         let sets: Vec<&[usize]> = groups.values().map(|g| &g[..]).collect();
         let sums = self.sums_of_sets(&sets)?;
         for (&(from, to), s) in groups.keys().zip(&sums) {
-            let dest = self.part_mut(to);
-            dest.sums.add(s);
-            dest.fit = None;
-            let src = self.part_mut(from);
-            src.sums.sub(s);
-            src.fit = None;
+            self.move_sums(from, to, s);
         }
         Ok(())
     }
