@@ -358,7 +358,7 @@ class DPGP:
         # Pilots are small: with likelihood="auto" they keep the previous rule (exact up to 3,000
         # points) rather than pay auto's hsgp probe 24 times (dpgp.engine_cost).
         likelihood = self.likelihood if self.likelihood != "auto" else ("exact" if train.n_points <= 3000 else "hsgp")
-        settings = {**self.get_params(), "inputs": self.inputs_, "likelihood": likelihood, "iterations": PILOT_SWEEPS, "assignment": "map", "noise_var": noise_var,
+        settings = {**self.get_params(), "inputs": self.__dict__.get("inputs_", self.inputs), "likelihood": likelihood, "iterations": PILOT_SWEEPS, "assignment": "map", "noise_var": noise_var,
                     "length_scale_prior": length_scale_prior, "preset": None, "progress": False,
                     "n_iter_no_change": None, "store_labels": False, "proposal": "full", "checkpoint": None, "split_merge": 0}  # fmt: skip
         pilot = type(self)(**settings)
