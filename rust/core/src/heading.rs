@@ -53,7 +53,7 @@ impl HeadingKernel {
         let z = concentration(wh);
         Self {
             z,
-            q0: bessel_ive(0, z)[0],
+            q0: bessel_q0(z),
         }
     }
 

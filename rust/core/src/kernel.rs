@@ -52,23 +52,36 @@ fn fill_column(a: &[Point], q: Point, ls: LengthScales, scale: f64, col: &mut [f
 /// With `parallel`, large matrices are split over rayon in blocks of columns; every entry is
 /// computed the same way either way, so the result does not depend on the thread count.
 pub fn cross(a: &[Point], b: &[Point], ls: LengthScales, scale: f64, parallel: bool) -> Vec<f64> {
-    let n = a.len();
-    let mut out = vec![0.0; n * b.len()];
+    columns(a.len(), b.len(), parallel, |j, col| {
+        fill_column(a, b[j], ls, scale, col)
+    })
+}
+
+/// An `n x m` column-major buffer whose column `j` is `fill(j, column)`: over rayon in blocks of
+/// columns when `parallel` and large, else in order; each column is filled the same way either
+/// way, so the result does not depend on the thread count.
+fn columns(
+    n: usize,
+    m: usize,
+    parallel: bool,
+    fill: impl Fn(usize, &mut [f64]) + Sync,
+) -> Vec<f64> {
+    let mut out = vec![0.0; n * m];
     if n == 0 {
         return out;
     }
-    if parallel && n * b.len() >= PAR_MIN_ENTRIES {
+    if parallel && n * m >= PAR_MIN_ENTRIES {
         let cols_per_block = (PAR_MIN_ENTRIES / 8 / n).max(1);
         out.par_chunks_mut(n * cols_per_block)
-            .zip(b.par_chunks(cols_per_block))
-            .for_each(|(block, qs)| {
-                for (col, &q) in block.chunks_mut(n).zip(qs) {
-                    fill_column(a, q, ls, scale, col);
+            .enumerate()
+            .for_each(|(blk, block)| {
+                for (c, col) in block.chunks_mut(n).enumerate() {
+                    fill(blk * cols_per_block + c, col);
                 }
             });
     } else {
-        for (col, &q) in out.chunks_mut(n).zip(b) {
-            fill_column(a, q, ls, scale, col);
+        for (j, col) in out.chunks_mut(n).enumerate() {
+            fill(j, col);
         }
     }
     out
@@ -180,26 +193,9 @@ pub fn cross_headed(
         log_q0: heading::bessel_q0(z).ln(),
     };
     let (ah, bh) = (heading_terms(a), heading_terms(b));
-    let n = a.len();
-    let mut out = vec![0.0; n * b.len()];
-    if parallel && n * b.len() >= PAR_MIN_ENTRIES {
-        let cols_per_block = (PAR_MIN_ENTRIES / 8 / n).max(1);
-        out.par_chunks_mut(n * cols_per_block)
-            .zip(
-                b.xy.par_chunks(cols_per_block)
-                    .zip(bh.par_chunks(cols_per_block)),
-            )
-            .for_each(|(block, (qs, qh))| {
-                for ((col, &q), &g) in block.chunks_mut(n).zip(qs).zip(qh) {
-                    fill_headed(a.xy, &ah, q, g, k, scale, col);
-                }
-            });
-    } else {
-        for ((col, &q), &g) in out.chunks_mut(n).zip(b.xy).zip(&bh) {
-            fill_headed(a.xy, &ah, q, g, k, scale, col);
-        }
-    }
-    out
+    columns(a.len(), b.len(), parallel, |j, col| {
+        fill_headed(a.xy, &ah, b.xy[j], bh[j], k, scale, col)
+    })
 }
 
 /// `scale * R(a, a) + noise * I` as a column-major `n x n` buffer (both triangles filled).
