@@ -1,12 +1,13 @@
 """Fields over position against fields over position and previous heading (issue 34), held out.
 
-    python benches/heading.py [--only peachtree,sumo_grid,eth,zara01] [--seeds 1] [--iterations 20]
+    python benches/heading.py [--only peachtree,sumo_grid,eth,zara01] [--seeds 1] [--iterations 20] [--average]
 
 Each data set with tracks is framed by ``make_frames`` (which gives every vehicle's previous
 heading), split in time (``dpgp.evaluate.split_in_time``), and fitted twice with the same engine,
 sampler and seed, ``inputs="position"`` and ``inputs="position+heading"``. Printed per fit: the
 held-out log density of the velocities given the positions per vehicle (the last state's:
-``score_samples(test, positions=False)``), K, the median sweep and the fit's seconds; then the
+``score_samples(test, positions=False)``; with ``--average`` the posterior predictive, averaged
+over the kept draws after burn-in), K, the median sweep and the fit's seconds; then the
 heading fit's gain per vehicle. Both fits run the collapsed sampler (the only sampler fields over
 heading have so far).
 
@@ -53,6 +54,7 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=20)
     ap.add_argument("--likelihood", default="exact", choices=("exact", "hsgp"))
     ap.add_argument("--sumo-dt", type=float, default=2.0, help="frame step of the SUMO junction (s)")
+    ap.add_argument("--average", action="store_true", help="score the posterior predictive (kept draws)")
     ap.add_argument("--same-partition", action="store_true", help="also score the position fit's state over heading")
     ap.add_argument(
         "--sweep-cost", type=int, default=0, metavar="S",
@@ -66,6 +68,7 @@ def main() -> None:
         known = float(np.mean(~np.isnan(train.prev_heading)))
         print(f"{name}: {len(train)}/{len(test)} frames, {train.sizes.sum()}/{test.sizes.sum()} vehicles, "
               f"{known:.0%} of training vehicles with a previous heading", flush=True)  # fmt: skip
+        gains: list[float] = []
         for seed in range(args.seeds):
             scores = {}
             for inputs in ("position", "position+heading"):
@@ -75,16 +78,24 @@ def main() -> None:
                     sampler="collapsed", inputs=inputs,
                 ).fit(train)  # fmt: skip
                 seconds = time.perf_counter() - t0
-                scores[inputs] = float(model.score_samples(test, positions=False).sum() / test.sizes.sum())
+                held = model.score_samples(test, positions=False, average=args.average)
+                scores[inputs] = float(held.sum() / test.sizes.sum())
                 wh = getattr(model, "heading_scales_", None)
                 extra = "" if wh is None else f", median w_h {np.median(wh):.2f} rad"
                 print(f"  seed {seed} {inputs:17s} held-out {scores[inputs]:+.3f} nats/vehicle, K {model.n_patterns_}, "
                       f"median sweep {np.median(model.history_['seconds']):.2f} s, fit {seconds:.0f} s{extra}", flush=True)  # fmt: skip
-            print(f"  seed {seed} gain {scores['position+heading'] - scores['position']:+.3f} nats/vehicle", flush=True)
+            gains.append(scores["position+heading"] - scores["position"])
+            print(f"  seed {seed} gain {gains[-1]:+.3f} nats/vehicle", flush=True)
             if args.same_partition:
                 same_partition(train, test, seed, args)
             if args.sweep_cost:
                 sweep_cost(train, seed, args)
+        if len(gains) > 1:
+            se = np.std(gains, ddof=1) / np.sqrt(len(gains))
+            print(
+                f"{name}: mean gain {np.mean(gains):+.3f} ± {se:.3f} (s.e.) nats/vehicle over {len(gains)} seeds",
+                flush=True,
+            )
 
 
 def same_partition(train, test, seed: int, args) -> None:

@@ -6,18 +6,23 @@
 such velocity), while it is inside the ROI. The recordings' share is the same rule over the same
 vehicles' own tracks for the same span. Prints one table: shares, vehicles, seconds.
 
-    python benches/uturns.py [--only peachtree,sumo_junction] [--seconds 20] [--frames 150]
+    python benches/uturns.py [--only peachtree,sumo_junction] [--seconds 20] [--frames 150] [--models DIR]
+
+``--models DIR`` keeps the fits as model files there (and loads them when present), so that a
+change to generation alone is compared before and after on the same fits.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 import dpgp
+from dpgp.data._previous import in_frame_units
 from dpgp.evaluate import split_in_time
 from realism import datasets as realism_datasets  # benches/realism.py, this folder
 
@@ -72,6 +77,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=150, help="recorded test frames to start from")
     ap.add_argument("--iterations", type=int, default=20)
     ap.add_argument("--likelihood", default="exact", choices=("exact", "hsgp"))
+    ap.add_argument("--models", type=Path, help="folder to keep the fits in (loaded from there when present)")
     args = ap.parse_args()
     sets = realism_datasets()
     rows = []
@@ -82,16 +88,24 @@ def main() -> None:
         train, test = split_in_time(frames)
         dt = test.summary.dt
         steps = int(round(args.seconds / dt))
-        speed = test.heading_min_speed if test.heading_min_speed is not None else 0.5
+        mps = test.heading_min_speed if test.heading_min_speed is not None else 0.5
+        speed = in_frame_units(mps, test.summary.length_unit)
         starts = np.unique(np.linspace(0, len(test) - 1, min(args.frames, len(test))).round().astype(np.int64))
         share, n = reversed_share(recorded(test, starts, steps, speed))
         rows.append({"data": name, "source": "recorded", "reversed": share, "vehicles": n, "seconds": 0.0})
         for inputs in ("position", "position+heading"):
             t0 = time.perf_counter()
-            model = dpgp.DPGP(
-                iterations=args.iterations, seed=0, progress=False, likelihood=args.likelihood, sampler="collapsed",
-                inputs=inputs,
-            ).fit(train)  # fmt: skip
+            kept = None if args.models is None else args.models / f"{name}-{inputs}-{args.iterations}.npz"
+            if kept is not None and kept.exists():
+                model = dpgp.DPGP.load(kept)
+            else:
+                model = dpgp.DPGP(
+                    iterations=args.iterations, seed=0, progress=False, likelihood=args.likelihood,
+                    sampler="collapsed", inputs=inputs,
+                ).fit(train)  # fmt: skip
+                if kept is not None:
+                    kept.parent.mkdir(parents=True, exist_ok=True)
+                    model.save(kept)
             share, n = reversed_share(simulated(model, test, starts, steps, speed))
             rows.append(
                 {"data": name, "source": inputs, "reversed": share, "vehicles": n, "seconds": time.perf_counter() - t0}

@@ -15,4 +15,7 @@ TRAIN_FRACTION = 0.7
 #: there is mostly the prior).
 LOW_DATA_THRESHOLD = 0.5
 
-__all__ = ["DEFAULT_DT", "TRAIN_FRACTION", "LOW_DATA_THRESHOLD"]
+#: Metres in an international foot (NGSIM and other US recordings give feet).
+FT_TO_M = 0.3048
+
+__all__ = ["DEFAULT_DT", "TRAIN_FRACTION", "LOW_DATA_THRESHOLD", "FT_TO_M"]

@@ -388,3 +388,31 @@ def test_frames_refuses_a_heading_without_velocities():
         dpgp.Frames(np.array([0]), np.array([0, 1]), np.zeros((1, 2)), np.zeros((1, 2)), prev_heading=np.zeros(1))
     with pytest.raises(dpgp.ShapeError, match=r"\(n, 2\)"):
         dpgp.Frames(np.array([0]), np.array([0, 1]), np.zeros((1, 2)), np.zeros((1, 2)), prev_v=np.zeros((2, 2)))
+
+
+def test_generation_takes_headings_from_the_speed_the_frames_were_made_with_in_their_units():
+    """Frames in feet: the framing's floor is 0.5 m/s = 1.64 ft/s, and generation (which keeps
+    headings as rollouts run) must use the same floor in the same units, not 0.5 ft/s."""
+    from types import SimpleNamespace
+
+    from dpgp.generate.headings import heading_speed
+
+    # one vehicle east at 1.0 ft/s (0.30 m/s: no heading), then north at 2.0 ft/s (0.61 m/s)
+    v = [(1.0, 0.0)] * 3 + [(0.0, 2.0)] * 3
+    rows = [(1, t, float(t), 0.0, vx, vy) for t, (vx, vy) in enumerate(v)]
+    tracks = pd.DataFrame(rows, columns=["track", "t", "x", "y", "vx", "vy"])
+    tracks.attrs["dpgp"] = {"units": "ft"}
+    frames = dpgp.make_frames(tracks, dt=1.0)
+    assert frames.summary.length_unit == "ft"
+    speed = heading_speed(SimpleNamespace(frames=frames))
+    assert speed == pytest.approx(0.5 / 0.3048)
+    # the framing's own headings: none from the slow steps, north once the fast ones start
+    got = _by_track_time(frames)
+    assert all(math.isnan(got[(1, t)][2]) for t in (1, 2, 3))
+    assert got[(1, 4)][2] == pytest.approx(math.pi / 2)
+    # the floor generation uses gives the same verdict on each step's velocity
+    fast = np.hypot(frames.v[:, 0], frames.v[:, 1]) >= speed
+    np.testing.assert_array_equal(fast, [False] * 3 + [True] * 3)
+    metres = tracks.copy()
+    metres.attrs["dpgp"] = {"units": "m"}
+    assert heading_speed(SimpleNamespace(frames=dpgp.make_frames(metres, dt=1.0))) == 0.5

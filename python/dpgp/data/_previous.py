@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from .._constants import FT_TO_M
 from ..exceptions import InvalidInputError, ShapeError
 
 #: m/s: slower than this a step's direction is not a heading (as the realism checks' own floor).
@@ -40,6 +41,12 @@ def check_min_speed(value: Any) -> float:
     if isinstance(value, (bool, np.bool_)) or not (np.isfinite(v) and v >= 0):
         raise InvalidInputError(f"heading_min_speed must be a finite number of m/s, 0 or more, got {value!r}")
     return v
+
+
+def in_frame_units(min_speed: float, length_unit: str | None) -> float:
+    """``min_speed`` m/s in the frames' units per second: feet when their ``length_unit`` says so,
+    else metres (frames of unknown unit are taken as metres, as the framing takes them)."""
+    return min_speed / FT_TO_M if length_unit == "ft" else min_speed
 
 
 def own_headings(vx: np.ndarray, vy: np.ndarray, floor: float) -> np.ndarray:

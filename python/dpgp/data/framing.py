@@ -14,10 +14,10 @@ from typing import TYPE_CHECKING, Any, Literal, overload
 
 import numpy as np
 
-from .._constants import DEFAULT_DT
+from .._constants import DEFAULT_DT, FT_TO_M
 from .._validate import check_roi
 from ..exceptions import DataFormatError, InvalidInputError
-from ._previous import HEADING_MIN_SPEED, LastRow, check_min_speed, previous_steps
+from ._previous import HEADING_MIN_SPEED, LastRow, check_min_speed, in_frame_units, previous_steps
 from ._shardfile import check_shards, check_target
 from .frames import Frames
 from .provenance import FramingSummary, describe_tracks
@@ -25,7 +25,6 @@ from .provenance import FramingSummary, describe_tracks
 if TYPE_CHECKING:
     import pandas as pd
 
-FT_TO_M = 0.3048
 _UNITS = {"ft->m": FT_TO_M, "feet->metres": FT_TO_M, "feet->meters": FT_TO_M, "m->ft": 1 / FT_TO_M}
 _GRID_EPS = 1e-6  # a sample within 1e-6 dt of a grid time counts as on it (float rounding)
 _CHUNK = 1 << 18  # rows per batch in the smoothing solve (bounds its memory)
@@ -374,7 +373,7 @@ def _resample(
 
     # The heading floor in the table's units (velocities are scaled to the frames' units last).
     unit = counts["length_unit"] if length_unit == "table" else length_unit
-    floor = heading_min_speed / (FT_TO_M if unit == "ft" else 1.0) / scale
+    floor = in_frame_units(heading_min_speed, unit) / scale
     if carry is None:
         carry, seg_id = LastRow(), seg_track
     else:

@@ -55,6 +55,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .._constants import FT_TO_M
 from ..data.frames import Frames
 from ..exceptions import DataFormatError, InvalidInputError, ShapeError
 
@@ -62,7 +63,6 @@ if TYPE_CHECKING:
     import pandas as pd
     from matplotlib.figure import Figure
 
-FT_TO_M = 0.3048
 #: Feature weights of the meta-score (issue 15; WOSAC's, without the map features).
 WEIGHTS = {
     "speed": 0.05,

@@ -18,14 +18,17 @@ from typing import Any
 
 import numpy as np
 
-from ..data._previous import HEADING_MIN_SPEED, own_headings
+from ..data._previous import HEADING_MIN_SPEED, in_frame_units, own_headings
 
 
 def heading_speed(fit: Any) -> float:
-    """The speed (the frames' units per second) from which a velocity gives a heading: the one the
-    training frames were framed with, else :data:`~dpgp.data._previous.HEADING_MIN_SPEED`."""
+    """The speed, in the frames' units per second, from which a velocity gives a heading: the one
+    the training frames were framed with (m/s, so 1.64 ft/s for frames in feet), else
+    :data:`~dpgp.data._previous.HEADING_MIN_SPEED`."""
     speed = getattr(fit.frames, "heading_min_speed", None)
-    return float(speed) if speed is not None else HEADING_MIN_SPEED
+    summary = getattr(fit.frames, "summary", None)
+    mps = float(speed) if speed is not None else HEADING_MIN_SPEED
+    return in_frame_units(mps, getattr(summary, "length_unit", None))
 
 
 def start_headings(v: np.ndarray | None, prev_heading: np.ndarray | None, min_speed: float, n: int) -> np.ndarray:
