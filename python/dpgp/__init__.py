@@ -18,6 +18,7 @@ from .chains import Chains, ChainsFailedError, diagnostics, fit_chains, partitio
 from .data import datasets
 from .data.frames import Frame, Frames, read_frames
 from .data.framing import FramingSummary, make_frames, resample_tracks
+from .data.linking import link_tracks
 from .data.read import read
 from .data.tracks import read_ngsim, read_tracks
 from .evaluate.metrics import adjusted_rand_index
@@ -83,6 +84,7 @@ __all__ = [
     "EmpiricalDistributions",
     "FramingSummary",
     "make_frames",
+    "link_tracks",
     "read_ngsim",
     "read_tracks",
     "resample_tracks",

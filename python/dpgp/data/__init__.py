@@ -5,4 +5,4 @@ and reads it into frames, :mod:`.shards` stores frames as a directory of Parquet
 
 from . import datasets, frames, framing, provenance, read, shards, tracks
 
-__all__ = ["datasets", "frames", "framing", "provenance", "read", "shards", "tracks"]
+__all__ = ["datasets", "frames", "framing", "linking", "provenance", "read", "shards", "tracks"]
