@@ -1,9 +1,9 @@
 """Fields over position against fields over position and previous heading (issue 34), held out.
 
-    python benches/heading.py [--only peachtree,sumo_grid,eth,zara01] [--seeds 1] [--iterations 20] [--average]
+    python benches/heading.py [--only peachtree,sumo_grid,us101,lankershim,left_turn,eth,zara01] [--seeds 1] [--iterations 20] [--average]
 
 Each data set with tracks is framed by ``make_frames`` (which gives every vehicle's previous
-heading), split in time (``dpgp.evaluate.split_in_time``), and fitted twice with the same engine,
+heading; the three frame files without vehicle ids are linked by ``dpgp.link_tracks``), split in time (``dpgp.evaluate.split_in_time``), and fitted twice with the same engine,
 sampler and seed, ``inputs="position"`` and ``inputs="position+heading"``. Printed per fit: the
 held-out log density of the velocities given the positions per vehicle (the last state's:
 ``score_samples(test, positions=False)``; with ``--average`` the posterior predictive, averaged
@@ -42,6 +42,12 @@ def datasets(sumo_dt: float) -> dict:
         "sumo_grid": lambda: dpgp.make_frames(
             dpgp.read_tracks(DATA / "sumo_grid_intersection_fcd.xml.gz", preset="sumo"), dt=sumo_dt
         ),
+        # frames without vehicle ids, linked frame to frame by their velocities (dpgp.link_tracks)
+        "us101": lambda: dpgp.link_tracks(dpgp.read_frames(DATA / "ngsim_us101_frames.tsv"), length_unit="ft"),
+        "lankershim": lambda: dpgp.link_tracks(
+            dpgp.read_frames(DATA / "ngsim_lankershim_frames.csv"), length_unit="ft"
+        ),
+        "left_turn": lambda: dpgp.link_tracks(dpgp.read_frames(DATA / "sumo_left_turn_frames.csv"), length_unit="m"),
         "eth": eth_ucy("eth_ucy_biwi_eth.txt"),
         "zara01": eth_ucy("eth_ucy_crowds_zara01.txt"),
     }

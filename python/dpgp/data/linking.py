@@ -26,6 +26,7 @@ import numpy as np
 from ..exceptions import InvalidInputError
 from ._previous import HEADING_MIN_SPEED, LastRow, check_min_speed, in_frame_units, previous_steps
 from .frames import Frames, as_frames
+from .framing import _positive
 from .provenance import FramingSummary
 
 _DT_GRID = np.geomspace(0.02, 5.0, 190)  # 3 % apart
@@ -66,10 +67,8 @@ def link_tracks(
     pairs = np.flatnonzero(np.diff(k) == 1)
     if dt is None:
         dt = float(summary.dt) if summary is not None else _estimate_dt(frames, pairs)
-    dt = _positive("dt", dt)
-    if gate is None:
-        gate = _default_gate(frames)
-    gate = _positive("gate", gate)
+    dt = _positive("dt", dt, "seconds between consecutive frames")
+    gate = _default_gate(frames) if gate is None else _positive("gate", gate, "the largest error of a link")
 
     tracks = np.full(frames.n_points, -1, dtype=np.int64)
     next_id = 0
@@ -151,16 +150,6 @@ def _default_gate(frames: Frames) -> float:
         return float("inf")  # one vehicle a frame: whatever is there is the same vehicle
     spacing = float(np.quantile(np.concatenate(nearest), 0.05))
     return 0.5 * spacing if spacing > 0 else float("inf")
-
-
-def _positive(name: str, value: Any) -> float:
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        x = float("nan")
-    if isinstance(value, (bool, np.bool_)) or not (x > 0):
-        raise InvalidInputError(f"{name} must be a positive number, got {value!r}")
-    return x
 
 
 def _summary(frames: Frames, summary: Any, dt: float, unit: str | None, n_tracks: int) -> FramingSummary:
