@@ -3,6 +3,6 @@ cuts tracks into frames, :mod:`.frames` holds them, :mod:`.datasets` draws synth
 :mod:`.provenance` describes where tracks came from, :mod:`.read` recognises a file's format
 and reads it into frames, :mod:`.shards` stores frames as a directory of Parquet shards)."""
 
-from . import datasets, frames, framing, provenance, read, shards, tracks
+from . import datasets, frames, framing, linking, provenance, read, shards, tracks
 
 __all__ = ["datasets", "frames", "framing", "linking", "provenance", "read", "shards", "tracks"]

@@ -101,8 +101,7 @@ def _match(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rows of the earlier frame (``p``, ``v``) and of the later (``q``, ``w``) linked: greedy by
     the trapezoid prediction's error, smallest first, each row once, errors below ``gate``."""
-    pred = p[:, None, :] + 0.5 * dt * (v[:, None, :] + w[None, :, :])
-    err = np.hypot(*(pred - q[None, :, :]).transpose(2, 0, 1))
+    err = _link_errors(p, v, q, w, dt)
     a_all, b_all = np.nonzero(err < gate)
     keep = np.argsort(err[a_all, b_all], kind="stable")
     used_a, used_b = np.zeros(len(p), bool), np.zeros(len(q), bool)
@@ -115,6 +114,13 @@ def _match(
     return np.asarray(a_out, dtype=np.int64), np.asarray(b_out, dtype=np.int64)
 
 
+def _link_errors(p: np.ndarray, v: np.ndarray, q: np.ndarray, w: np.ndarray, dt: float) -> np.ndarray:
+    """(len(p), len(q)): how far each later vehicle lies from where each earlier one would be had
+    it become that vehicle, ``p + dt (v + w) / 2`` (the trapezoid rule)."""
+    pred = p[:, None, :] + 0.5 * dt * (v[:, None, :] + w[None, :, :])
+    return np.hypot(*(pred - q[None, :, :]).transpose(2, 0, 1))
+
+
 def _nearest_errors(frames: Frames, pairs: np.ndarray, dt: float) -> np.ndarray:
     """Each moving vehicle's error under the best link it could have: the smallest trapezoid
     prediction error over the vehicles of the next frame, over ``pairs``. Standing vehicles are
@@ -123,8 +129,7 @@ def _nearest_errors(frames: Frames, pairs: np.ndarray, dt: float) -> np.ndarray:
     for i in pairs:
         p, v = frames.xy[off[i] : off[i + 1]], frames.v[off[i] : off[i + 1]]
         q, w = frames.xy[off[i + 1] : off[i + 2]], frames.v[off[i + 1] : off[i + 2]]
-        pred = p[:, None, :] + 0.5 * dt * (v[:, None, :] + w[None, :, :])
-        d = np.hypot(*(pred - q[None, :, :]).transpose(2, 0, 1)).min(axis=1)
+        d = _link_errors(p, v, q, w, dt).min(axis=1)
         out.append(d[np.hypot(v[:, 0], v[:, 1]) > 0])
     return np.concatenate(out) if out else np.empty(0)
 
