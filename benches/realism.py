@@ -8,9 +8,20 @@ Prints one table, then the issue's targets met or missed.
 
     python benches/realism.py [--iterations 20] [--only peachtree,eth,zara01,sumo_junction] [--plots DIR]
                               [--inputs position,position+heading] [--heading-likelihood exact]
+                              [--thin N] [--noise-ratio R] [--models DIR] [--harmonics J]
 
 ``--inputs``: the fields' inputs to compare, one fit each (issue 34); a fit over heading runs the
-collapsed sampler on ``--heading-likelihood`` (it does not choose its engine yet).
+collapsed sampler on ``--heading-likelihood`` (it does not choose its engine yet). ``--thin N``:
+fit on every N-th training frame (each keeps its own previous step, so the model's step is the
+framing's), for fits over heading too slow on every frame; scoring uses every test frame. What
+generation learns from consecutive training frames (the residual's and the heading's time
+constants) then falls back to its defaults: compare inputs at the same ``N``, not with ``N = 1``.
+``--noise-ratio R``: a fixed noise variance of ``R`` times each velocity component's variance in
+the training frames, instead of the sampled noise per pattern (issue 34's queue patterns).
+``--harmonics J``: at most ``J`` heading harmonics on the reduced-rank engine (the estimator's
+cap, ``MAX_HEADING_HARMONICS``, set for this run): its basis is the position basis times ``2J + 1``.
+``--models DIR`` keeps each fit as a model file there (and loads it when present), so that a
+change to generation alone is compared before and after on the same fits.
 
 Scores are WOSAC-style likelihoods (higher is better); collision rates are shares of object
 steps; FDE in the data's length units (Peachtree: feet; the others: metres).
@@ -48,13 +59,36 @@ def datasets() -> dict:
 
 
 def measure(
-    name: str, load, unit: str, iterations: int, plots: Path | None, inputs: str = "position", likelihood: str = "exact"
+    name: str,
+    load,
+    unit: str,
+    iterations: int,
+    plots: Path | None,
+    inputs: str = "position",
+    likelihood: str = "exact",
+    thin: int = 1,
+    noise_ratio: float | None = None,
+    models: Path | None = None,
 ) -> dict:
     t0 = time.perf_counter()
     frames, tracks = load()
     train, test = split_in_time(frames)
-    options = {} if inputs == "position" else {"inputs": inputs, "likelihood": likelihood, "sampler": "collapsed"}
-    model = dpgp.DPGP(iterations=iterations, seed=0, progress=False, **options).fit(train)
+    train = train[::thin]
+    options: dict = {} if inputs == "position" else {"inputs": inputs, "likelihood": likelihood, "sampler": "collapsed"}
+    if noise_ratio is not None:
+        sv = train.v.var(axis=0)
+        options["noise_var"] = (noise_ratio * float(sv[0]), noise_ratio * float(sv[1]))
+    tag = f"{name}-{inputs}-{likelihood}-{iterations}-thin{thin}" + (
+        "" if noise_ratio is None else f"-noise{noise_ratio:g}"
+    )
+    kept = None if models is None else models / f"{tag}.npz"
+    if kept is not None and kept.exists():
+        model = dpgp.DPGP.load(kept)
+    else:
+        model = dpgp.DPGP(iterations=iterations, seed=0, progress=False, **options).fit(train)
+        if kept is not None:
+            kept.parent.mkdir(parents=True, exist_ok=True)
+            model.save(kept)
     fit_s = time.perf_counter() - t0
     ev = model.evaluate(test, tracks=tracks, horizons=(1, 4))
     r, t = ev.realism, ev.table
@@ -121,13 +155,32 @@ def main() -> None:
         "--inputs", default="position", help="comma-separated inputs to compare (position, position+heading)"
     )
     ap.add_argument("--heading-likelihood", default="exact", choices=("exact", "hsgp"))
+    ap.add_argument("--thin", type=int, default=1, help="fit on every N-th training frame")
+    ap.add_argument("--models", type=Path, help="folder to keep the fits in (loaded from there when present)")
+    ap.add_argument("--noise-ratio", type=float, help="fixed noise variance, as a share of the velocity variance")
+    ap.add_argument("--harmonics", type=int, help="cap on the heading harmonics of the reduced-rank engine")
     args = ap.parse_args()
+    if args.harmonics is not None:
+        import dpgp.model.estimator as estimator
+
+        estimator.MAX_HEADING_HARMONICS = args.harmonics
     rows, checks = [], {}
     for name, (load, unit) in datasets().items():
         if args.only and name not in args.only.split(","):
             continue
         for inputs in args.inputs.split(","):
-            row = measure(name, load, unit, args.iterations, args.plots, inputs, args.heading_likelihood)
+            row = measure(
+                name,
+                load,
+                unit,
+                args.iterations,
+                args.plots,
+                inputs,
+                args.heading_likelihood,
+                args.thin,
+                args.noise_ratio,
+                args.models,
+            )
             rows.append(row)
             checks[row["data"]] = targets(row, unit)
             print(f"{row['data']}: done in {row['seconds']:.0f} s", flush=True)
