@@ -55,8 +55,10 @@ MAX_HEADING_HARMONICS = 3
 #: margin per seed; the three frame files linked by ``dpgp.link_tracks``). Auto takes the heading
 #: form only when every margin is positive. The frame files (US-101, Lankershim, the left turn)
 #: gain on every seed; Peachtree is split and the SUMO junction (2 s frames) loses on 4 of 5, so
-#: today auto fits fields over position. The pedestrian sets are not in the table (their fits over
-#: heading on the exact engine did not finish in the time measured), so they could not tip it.
+#: today auto fits fields over position. The pedestrian sets are judged on their own and are not
+#: in this table: ETH +1.28 ± 0.03, Zara 01 +1.98 ± 0.03 on every seed (every 2nd training frame,
+#: docs/heading.md), but auto does not yet fit pedestrians over heading (20-200 times the sweep;
+#: generation over heading on them unmeasured).
 #: Measure again and update this table when the model changes.
 HEADING_EVIDENCE: dict[str, tuple[float, ...]] = {
     "peachtree": (-0.188, -0.088, 1.555, -0.641, -2.235),
