@@ -57,7 +57,7 @@ MAX_HEADING_HARMONICS = 3
 #: gain on every seed; Peachtree is split and the SUMO junction (2 s frames) loses on 4 of 5, so
 #: today auto fits fields over position. The pedestrian sets are judged on their own and are not
 #: in this table: ETH +1.28 ± 0.03, Zara 01 +1.98 ± 0.03 on every seed (every 2nd training frame,
-#: docs/heading.md), but auto does not yet fit pedestrians over heading (20-200 times the sweep;
+#: docs/heading.md), but auto does not yet fit pedestrians over heading (10-330 times the sweep;
 #: generation over heading on them unmeasured).
 #: Measure again and update this table when the model changes.
 HEADING_EVIDENCE: dict[str, tuple[float, ...]] = {
