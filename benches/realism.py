@@ -170,17 +170,9 @@ def main() -> None:
             continue
         for inputs in args.inputs.split(","):
             row = measure(
-                name,
-                load,
-                unit,
-                args.iterations,
-                args.plots,
-                inputs,
-                args.heading_likelihood,
-                args.thin,
-                args.noise_ratio,
-                args.models,
-            )
+                name, load, unit, args.iterations, args.plots, inputs, args.heading_likelihood,
+                thin=args.thin, noise_ratio=args.noise_ratio, models=args.models,
+            )  # fmt: skip
             rows.append(row)
             checks[row["data"]] = targets(row, unit)
             print(f"{row['data']}: done in {row['seconds']:.0f} s", flush=True)

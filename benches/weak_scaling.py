@@ -11,21 +11,22 @@ cluster`` in a process of its own (every default, seed 1): the median sweep, the
 waited for its shards, the leader's own part and its split by step, the round trips and the bytes
 per sweep. One JSON line per run, then the model.
 
-**The model.** A sweep is the leader's own work plus the rounds it waits for. With one core per
-worker, a round's compute is a shard's (constant under weak scaling); this machine has ``--cores``
-cores (default: the machine's count), so with more workers than cores the measured wait holds
-``W / cores`` times the compute of one worker. Fitted per run:
+**The model.** A sweep is the leader's own work, its round trips to the shards, and the shards'
+compute. With one core per worker, a worker's compute a sweep is constant under weak scaling;
+this machine has ``--cores`` cores (default: the machine's count), so with more workers than cores
+each does its part ``W / cores`` times slower. Fitted to the runs, by non-negative least squares:
 
-- ``wait = rounds x latency + compute x max(1, W / cores)``: ``compute`` (a worker's seconds of
-  work a sweep) and ``latency`` (seconds a round trip costs beyond its compute) by non-negative
-  least squares over the runs (the runs past the core count tell the two apart);
-- the leader's own seconds ``leader = a + b x N`` (``N`` frames), by non-negative least squares;
-- the received bytes ``bytes = c x shards``: each shard answers with its own sums.
+- the leader's own seconds ``leader = a + b x N`` (``N`` frames; what it computes between waiting
+  for its shards);
+- the rest of the median sweep, ``sweep - leader(N) = calls x latency + compute x max(1, W /
+  cores)``: ``latency`` (a round trip's seconds beyond the compute) and ``compute`` (a worker's
+  seconds of work a sweep); the runs past the core count tell the two apart;
+- the received bytes ``bytes = c x shards``: each shard answers with its own sums;
 
-and predicted at ``W`` workers (``N = W x per-worker``, one core each, the rounds of the largest
-run): ``sweep = leader(N) + rounds x latency + compute``. The step that stops scaling first is the
-term that grows with ``W`` and first reaches the constant compute; the model prints when each
-does.
+and predicted at ``W`` workers (``N = W x per-worker``, one core each, the runs' median round
+trips a sweep): ``sweep = leader(N) + calls x latency + compute``, with the bytes received and
+their seconds at 1 Gbit/s beside it. The step that stops scaling first is the term that grows with
+``W`` and first reaches the constant compute; the model says when the leader's own work does.
 """
 
 from __future__ import annotations
