@@ -104,6 +104,7 @@ def one_defaults(kind: str, n: int, sweeps: int, sampler: str) -> dict:
         "median_sweep_s": float(np.median(sec)), "max_sweep_s": float(np.max(sec)), "fit_s": wall,
         "cores_busy": cpu / wall, "init_s": m.init_seconds_, "data_s": data_s, "data_rss_gb": data_rss,
         "peak_rss_gb": _peak_gb(), "K": m.n_patterns_, "ari": dpgp.adjusted_rand_index(m.labels_, frames.labels),
+        "log_joint": float(m.history_["log_joint"][-1]),
     }  # fmt: skip
 
 

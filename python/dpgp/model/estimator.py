@@ -180,7 +180,9 @@ class DPGP:
         chosen for it (:mod:`dpgp.engine_cost`). Which ran: ``sampler_``; why:
         ``engine_choice_["sampler"]``.
     init : where the chain starts: ``"sequential"`` (default): frames placed one by one by the
-        conditional (then, past 1,000 frames, by cheap score); ``"one"``: every frame in one
+        conditional (then, past 1,000 frames, by cheap score; on the sub-cluster sampler, pairs
+        of the patterns found are then merged while a merge raises the log joint, because its
+        moves rarely undo a pattern the start divided); ``"one"``: every frame in one
         pattern; ``"many"``: every frame its own pattern, or 256 contiguous blocks of frames on
         larger data. ``fit_chains(init="dispersed")`` starts chains from one and from many.
     inputs : ``"position"`` (default): each pattern's field maps a position to a velocity, the

@@ -51,6 +51,8 @@ use crate::pattern_model::Likelihood;
 use crate::rng::{Phase, stream};
 use crate::special::ln_gamma;
 
+#[path = "subcluster_coalesce.rs"]
+mod coalesce;
 #[path = "subcluster_moves.rs"]
 mod moves;
 #[path = "subcluster_pass.rs"]
@@ -523,7 +525,8 @@ impl SubclusterSampler {
             let later = self.place_later(&labels, &ls, &noise, stop)?;
             labels.extend(later);
         }
-        self.set_state(&labels, &ls, Some(&noise), self.alpha)
+        self.set_state(&labels, &ls, Some(&noise), self.alpha)?;
+        self.coalesce(stop)
     }
 
     /// Set a state directly: `labels` as group numbers (equal numbers share a pattern), each
@@ -843,25 +846,37 @@ impl SubclusterSampler {
         if self.settings.alpha.is_none() {
             total += -0.5 * (2.0 * std::f64::consts::PI).ln() - 1.5 * a.ln() - 0.5 / a;
         }
-        if let Some(prior) = self.settings.noise_prior {
-            let scale = self.settings.base.signal_var;
-            let pair = |nv: [f64; 2]| -> f64 {
-                (0..2)
-                    .map(|d| prior.log_density(nv[d].ln(), scale[d]))
-                    .sum()
-            };
-            total += match self.settings.noise_scope {
-                NoiseScope::Global => pair(self.settings.base.noise_var),
-                NoiseScope::PerPattern => self.live().map(|(_, p)| pair(p.params.noise_var)).sum(),
-            };
+        if self.settings.noise_scope == NoiseScope::Global {
+            total += self.noise_log_prior(self.settings.base.noise_var);
         }
         for (k, p) in self.live() {
-            total += a.ln() + ln_gamma(p.sums.n_frames as f64) + self.log_marginal_of(k);
-            if !self.settings.fixed_length_scales {
-                total += self.settings.length_scale_log_prior(p.params.length_scales);
-            }
+            total += self.pattern_term(p.sums.n_frames, &p.params, self.log_marginal_of(k));
         }
         total
+    }
+
+    /// A pattern's terms of [`Self::log_joint`]: `log α + log Γ(n)`, its marginal likelihood
+    /// `log_marginal`, the priors of its length scales and (per-pattern noise) of its noise.
+    fn pattern_term(&self, n: usize, params: &GpParams, log_marginal: f64) -> f64 {
+        let mut t = self.alpha.ln() + ln_gamma(n as f64) + log_marginal;
+        if !self.settings.fixed_length_scales {
+            t += self.settings.length_scale_log_prior(params.length_scales);
+        }
+        if self.settings.noise_scope == NoiseScope::PerPattern {
+            t += self.noise_log_prior(params.noise_var);
+        }
+        t
+    }
+
+    /// The noise prior's log density at a pair (0 when the noise is fixed).
+    fn noise_log_prior(&self, nv: [f64; 2]) -> f64 {
+        let Some(prior) = self.settings.noise_prior else {
+            return 0.0;
+        };
+        let scale = self.settings.base.signal_var;
+        (0..2)
+            .map(|d| prior.log_density(nv[d].ln(), scale[d]))
+            .sum()
     }
 
     fn frame_means(&self) -> Result<Arc<Vec<[f64; 2]>>> {

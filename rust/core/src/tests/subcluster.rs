@@ -237,3 +237,57 @@ fn the_exact_likelihood_is_refused() {
     let err = SubclusterSampler::new(Arc::new(tiny()), st).unwrap_err();
     assert!(err.to_string().contains("hsgp"), "{err}");
 }
+
+/// The coarsened start (`coalesce`), checked by states set afresh from the frames: from all
+/// singletons it raises the log joint, its incremental sums give the log joint of the state set
+/// from its labels, and no pair of its patterns merges (the larger side's hyperparameters kept)
+/// to a higher log joint.
+#[test]
+fn the_coarsened_start_leaves_no_merge_that_raises_the_log_joint() {
+    for alpha in [0.2, 0.7] {
+        let mut st = settings(1);
+        st.noise_scope = NoiseScope::PerPattern;
+        st.noise_prior = Some(NOISE_PRIOR);
+        let mut s = SubclusterSampler::new(Arc::new(tiny()), st).unwrap();
+        let ls = s.settings.base.length_scales;
+        s.set_state(&[0, 1, 2, 3, 4], &[ls; 5], None, alpha)
+            .unwrap();
+        let start = s.log_joint();
+        s.coalesce(&|| false).unwrap();
+        let after = s.log_joint();
+        assert!(after > start, "{after} <= {start}");
+        let infos = s.patterns();
+        assert!(infos.len() < 5, "nothing merged from singletons");
+        let slot: HashMap<usize, usize> =
+            infos.iter().enumerate().map(|(g, p)| (p.slot, g)).collect();
+        let labels: Vec<usize> = s.labels().iter().map(|l| slot[l]).collect();
+        let lss: Vec<_> = infos.iter().map(|p| p.length_scales).collect();
+        let noise: Vec<[f64; 2]> = infos.iter().map(|p| p.noise_var).collect();
+        let mut fresh = SubclusterSampler::new(Arc::new(tiny()), s.settings.clone()).unwrap();
+        fresh.set_state(&labels, &lss, Some(&noise), alpha).unwrap();
+        assert!(
+            (fresh.log_joint() - after).abs() < 1e-8 * after.abs(),
+            "{} != {after}",
+            fresh.log_joint()
+        );
+        for a in 0..infos.len() {
+            for b in a + 1..infos.len() {
+                let keep = if infos[b].n_frames > infos[a].n_frames {
+                    b
+                } else {
+                    a
+                };
+                let merged: Vec<usize> =
+                    labels.iter().map(|&g| if g == b { a } else { g }).collect();
+                let (mut l2, mut n2) = (lss.clone(), noise.clone());
+                l2[a] = lss[keep];
+                n2[a] = noise[keep];
+                fresh.set_state(&merged, &l2, Some(&n2), alpha).unwrap();
+                assert!(
+                    fresh.log_joint() <= after,
+                    "merging {a} and {b} raises the log joint"
+                );
+            }
+        }
+    }
+}

@@ -637,3 +637,32 @@ fn new_held_label_requests_cross_as_bytes() {
         }
     }
 }
+
+/// The coarsened start relabels on the shards as on the leader: from six interleaved groups of
+/// 600 frames in 3 shards, both chains merge the same patterns, then sweep alike.
+#[test]
+fn the_coarsened_start_is_the_same_with_the_labels_on_the_shards() {
+    let data = frames(600);
+    let sizes = [200, 250, 150];
+    let st = settings(4);
+    let leader = Store::in_process_shards(cut(&data, &sizes)).unwrap();
+    let mut a = SubclusterSampler::with_store(leader, st.clone()).unwrap();
+    let link = Arc::new(Bytes(cut(&data, &sizes)));
+    let held = Store::sharded(&sizes, Arc::clone(&link) as Arc<dyn Link>).unwrap();
+    let mut b = SubclusterSampler::with_store(held, st).unwrap();
+    b.hold_labels_on_shards().unwrap();
+    let groups: Vec<usize> = (0..600).map(|f| f % 6).collect();
+    let ls = vec![a.settings().base.length_scales; 6];
+    for s in [&mut a, &mut b] {
+        s.set_state(&groups, &ls, None, 1.0).unwrap();
+        s.coalesce(&|| false).unwrap();
+    }
+    assert!(a.patterns().len() < 6, "nothing merged: {:?}", a.patterns());
+    assert!(b.labels().is_empty(), "the leader keeps no label");
+    assert_eq!(state(&a), state(&b));
+    for sweep in 0..10 {
+        a.sweep(&|| false).unwrap();
+        b.sweep(&|| false).unwrap();
+        assert_eq!(state(&a), state(&b), "sweep {sweep}");
+    }
+}
