@@ -97,3 +97,32 @@ def test_a_shard_that_lost_its_labels_is_set_again_and_the_chain_is_unchanged(sh
     reference = dpgp.DPGP(iterations=ITERATIONS, seed=SEED, progress=False, checkpoint_every=2).fit(shard_dir)
     assert digest(reference) == EXPECTED["gibbs"]
     assert digest(model, counts=False) == digest(reference, counts=False)
+
+
+def test_draws_of_a_sharded_fit_keep_their_labels_on_disk(shard_dir, monkeypatch):
+    """The kept draws' labels are files of a temporary directory, read through memory maps: the
+    thinning deletes the files of the draws it drops, the last draw is the final state, the same
+    chain with its draws kept in memory keeps the same draws, and the directory goes with the
+    model."""
+    import gc
+    import os
+
+    from dpgp.gp.draws import Draws
+
+    kw = dict(iterations=8, seed=SEED, progress=False, posterior_draws=3)
+    model = dpgp.DPGP(**kw).fit(shard_dir)
+    draws = model.draws_
+    assert draws.spill and all(isinstance(a, np.memmap) for a in draws.labels)
+    directory = draws._files.path
+    assert sorted(os.listdir(directory)) == sorted(os.path.basename(a.filename) for a in draws.labels)
+    assert draws.sweeps == [4, 8]  # at most 3: every 4th sweep after 8
+    np.testing.assert_array_equal(draws.labels[-1], model.labels_)
+    monkeypatch.setattr(dpgp.DPGP, "_new_draws", lambda self: Draws(self._n_training()))
+    memory = dpgp.DPGP(**kw).fit(shard_dir).draws_
+    assert not memory.spill and memory.sweeps == draws.sweeps
+    for a, b in zip(memory.labels, draws.labels):
+        assert type(a) is np.ndarray and a.dtype == b.dtype
+        np.testing.assert_array_equal(a, b)
+    del model, draws
+    gc.collect()
+    assert not os.path.exists(directory)

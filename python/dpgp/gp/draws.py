@@ -15,6 +15,11 @@ function of ``t`` alone, so a resumed chain keeps what the uninterrupted one wou
 fields over heading), with each draw's labels in the smallest unsigned type that holds them
 (``b = 1`` byte below 256 patterns; model files store them as int32).
 
+**Spilled to disk.** A fit whose labels stay on the shards (``fit(directory)``) keeps its draws'
+labels in files of a temporary directory, read back through memory maps (``Draws(spill=True)``):
+at ten million frames the 40 draws' labels are 400 MB, more than the rest of what the chain's
+leader holds. The directory goes with the draws.
+
 **Averaging.** Scores use the kept draws after a burn-in of the first half of the sweeps, and
 the final state (itself a draw); ``S`` states in all. For a test frame ``V`` and state ``s``,
 ``log p_s(V) = log Σ_j π_sj p(V | D_sj) `` (the DP's predictive weights, a new pattern included),
@@ -32,6 +37,11 @@ state's conditional exactly.
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
+import uuid
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -72,6 +82,8 @@ class Draws:
     alpha: list[float] = field(default_factory=list)
     noise_var: list[Any] = field(default_factory=list)  # a pair, a (K_d, 2) array per pattern, or None
     heading_scales: list[np.ndarray | None] = field(default_factory=list)  # (K_d,) w_h; None: over position
+    spill: bool = False  # labels kept in files (module docstring), not in memory
+    _files: _SpillDir | None = field(default=None, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.sweeps)
@@ -89,11 +101,19 @@ class Draws:
         step = thin_for(sweep, max_draws)
         keep = [i for i, s in enumerate(self.sweeps) if step and s % step == 0]
         if len(keep) != len(self):
+            if self._files is not None:  # the dropped draws' files go now, not with the directory
+                self._files.remove([a for i, a in enumerate(self.labels) if i not in keep])
             self._select(keep)
         if step and sweep % step == 0 and (not self.sweeps or self.sweeps[-1] != sweep):
             labels, length_scales, alpha, noise, heading = state()
             self.sweeps.append(int(sweep))
-            self.labels.append(compact_labels(labels))
+            kept = compact_labels(labels)
+            del labels
+            if self.spill:
+                if self._files is None:
+                    self._files = _SpillDir()
+                kept = self._files.keep(kept)
+            self.labels.append(kept)
             self.length_scales.append(np.asarray(length_scales, dtype=np.float64).reshape(-1, 2).copy())
             self.alpha.append(float(alpha))
             self.noise_var.append(_noise_entry(noise))
@@ -104,7 +124,7 @@ class Draws:
     def up_to(self, sweep: int) -> Draws:
         """The draws of sweeps ``<= sweep`` (a checkpoint's resume point)."""
         out = Draws(self.n_frames, list(self.sweeps), list(self.labels), list(self.length_scales), list(self.alpha),
-                    list(self.noise_var), list(self.heading_scales))  # fmt: skip
+                    list(self.noise_var), list(self.heading_scales), self.spill, self._files)  # fmt: skip
         out._select([i for i, s in enumerate(self.sweeps) if s <= sweep])
         return out
 
@@ -202,6 +222,31 @@ class Draws:
             heading = list(np.split(wh.astype(np.float64), np.cumsum(counts)[:-1])) if d else []
         return cls(n_frames, [int(s) for s in sweeps], [compact_labels(x) for x in labels], list(parts),
                    [float(a) for a in alpha], noise, heading)  # fmt: skip
+
+
+class _SpillDir:
+    """A temporary directory of draws' labels, removed with the last :class:`Draws` that uses it
+    (or at exit). Each array is written to a file of its own and read back as a memory map, whose
+    pages the system reads when they are used and may drop again."""
+
+    def __init__(self) -> None:
+        self.path = tempfile.mkdtemp(prefix="dpgp-draws-")
+        self._finalizer = weakref.finalize(self, shutil.rmtree, self.path, True)
+
+    def keep(self, labels: np.ndarray) -> np.ndarray:
+        name = os.path.join(self.path, f"{uuid.uuid4().hex}.npy")
+        np.save(name, labels)
+        return np.load(name, mmap_mode="r")
+
+    def remove(self, arrays: list[np.ndarray]) -> None:
+        """Delete the files of ``arrays`` (their maps stay readable until dropped)."""
+        for a in arrays:
+            name = getattr(a, "filename", None)
+            if name is not None and os.path.dirname(name) == self.path:
+                try:
+                    os.remove(name)
+                except FileNotFoundError:
+                    pass
 
 
 #: One kept state: labels, length scales (K, 2), α, the noise: a pair, each pattern's pairs

@@ -239,7 +239,8 @@ class DPGP:
         keeps, thinned evenly over the chain, for posterior-averaged scores (``average=True`` of
         :meth:`score_samples` and :meth:`predict_proba`; :meth:`evaluate` by default). Memory:
         ``posterior_draws · (b N + 16 K + 16)`` bytes, ``b = 1`` below 256 patterns
-        (:mod:`dpgp.posterior`). 0 keeps none.
+        (:mod:`dpgp.posterior`); a fit over shards keeps the ``b N`` in a temporary directory on
+        disk instead. 0 keeps none.
     """
 
     def __init__(
@@ -534,7 +535,7 @@ class DPGP:
         self.history_: dict[str, list] = {k: [] for k in ckpt.HISTORY_KEYS}
         if self.dynamics is not None:
             self.history_["stickiness"] = []
-        self.draws_ = Draws(self._n_training())
+        self.draws_ = self._new_draws()
         self.__dict__.pop("label_trace_", None)
         self.converged_ = False
         self.n_iter_ = 0
@@ -808,10 +809,17 @@ class DPGP:
         """Keep the state after this sweep if the thinning asks for it (:mod:`dpgp.posterior`)."""
         from ..gp.draws import state_of
 
-        draws = self.__dict__.setdefault("draws_", Draws(self._n_training()))
+        draws = self.__dict__.get("draws_")
+        if draws is None:
+            draws = self.draws_ = self._new_draws()
         per = self._per_pattern_noise()
         headed = self._headed()
         draws.record(self.n_iter_, lambda: state_of(self._sampler, per, headed), int(self.posterior_draws))
+
+    def _new_draws(self) -> Draws:
+        """No draws yet; their labels spilled to disk when the shards hold the chain's labels
+        (:mod:`dpgp.gp.draws`)."""
+        return Draws(self._n_training(), spill=bool(self._sampler.labels_held()))
 
     def _per_pattern_noise(self) -> bool:
         """Whether each pattern samples its own noise pair (``noise_var="per_pattern"``)."""
