@@ -489,6 +489,22 @@ fn canonical_groups(s: &SubclusterSampler) -> (Vec<usize>, Vec<crate::frame::Len
     (group, p.iter().map(|p| p.length_scales).collect())
 }
 
+/// Two chains over `data` cut into shards of `sizes`: one with the labels on the leader, one
+/// with them on the shards (through bytes).
+fn leader_and_held(
+    data: &Data,
+    sizes: &[usize],
+    st: Settings,
+) -> (SubclusterSampler, SubclusterSampler) {
+    let leader = Store::in_process_shards(cut(data, sizes)).unwrap();
+    let a = SubclusterSampler::with_store(leader, st.clone()).unwrap();
+    let link = Arc::new(Bytes(cut(data, sizes)));
+    let held = Store::sharded(sizes, link as Arc<dyn Link>).unwrap();
+    let mut b = SubclusterSampler::with_store(held, st).unwrap();
+    b.hold_labels_on_shards().unwrap();
+    (a, b)
+}
+
 /// The chain over 600 frames in 3 shards from `start`, with the labels on the leader and on the
 /// shards (through bytes), compared at every step; the moves' counts.
 fn compare_held(start: Start) -> (crate::gibbs::SplitMergeStats, super::super::PeelStats) {
@@ -498,12 +514,7 @@ fn compare_held(start: Start) -> (crate::gibbs::SplitMergeStats, super::super::P
     st.fixed_length_scales = false;
     st.alpha = None;
     st.split_merge.moves_per_sweep = 6;
-    let leader = Store::in_process_shards(cut(&data, &sizes)).unwrap();
-    let mut a = SubclusterSampler::with_store(leader, st.clone()).unwrap();
-    let link = Arc::new(Bytes(cut(&data, &sizes)));
-    let held = Store::sharded(&sizes, Arc::clone(&link) as Arc<dyn Link>).unwrap();
-    let mut b = SubclusterSampler::with_store(held, st).unwrap();
-    b.hold_labels_on_shards().unwrap();
+    let (mut a, mut b) = leader_and_held(&data, &sizes, st);
     a.initialize(start, &|| false).unwrap();
     b.initialize(start, &|| false).unwrap();
     assert!(b.labels().is_empty(), "the leader keeps no label");
@@ -645,12 +656,7 @@ fn the_coarsened_start_is_the_same_with_the_labels_on_the_shards() {
     let data = frames(600);
     let sizes = [200, 250, 150];
     let st = settings(4);
-    let leader = Store::in_process_shards(cut(&data, &sizes)).unwrap();
-    let mut a = SubclusterSampler::with_store(leader, st.clone()).unwrap();
-    let link = Arc::new(Bytes(cut(&data, &sizes)));
-    let held = Store::sharded(&sizes, Arc::clone(&link) as Arc<dyn Link>).unwrap();
-    let mut b = SubclusterSampler::with_store(held, st).unwrap();
-    b.hold_labels_on_shards().unwrap();
+    let (mut a, mut b) = leader_and_held(&data, &sizes, st);
     let groups: Vec<usize> = (0..600).map(|f| f % 6).collect();
     let ls = vec![a.settings().base.length_scales; 6];
     for s in [&mut a, &mut b] {
