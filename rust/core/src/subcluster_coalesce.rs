@@ -36,7 +36,8 @@ impl SubclusterSampler {
             if stop() {
                 return Err(Error::Interrupted);
             }
-            // The best pair; ties to the first (the order is fixed: pairs by slot).
+            // The best pair; ties to the earliest listed (a fixed order: the pairs by slot, then
+            // each merge's new pairs appended), so the start is the same for any thread count.
             let best =
                 gains
                     .iter()
