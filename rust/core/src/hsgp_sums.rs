@@ -14,6 +14,13 @@
 //! (`M²`) only when a pattern is factored. This is exact algebra; the two ways differ by
 //! round-off.
 //!
+//! **Heading.** With `J` heading harmonics the basis is `ψ_c(h) φ_jk(x, y)`, `ψ = 1, cos h, sin h,
+//! …, cos Jh, sin Jh`, and a product `ψ_c ψ_c'` is a harmonic of degree at most `2J`
+//! (`cos a cos b = ½ (cos(a − b) + cos(a + b))`, and the like). So `G` is assembled from
+//! `4J + 2` moment slices, each `H` weighted per point: by 1 (every point), by 1 where the heading
+//! is known, and by `cos m h`, `sin m h` (`m = 1..=2J`, zero where the heading is unknown: such a
+//! point observes the field averaged over heading, only `ψ_0 = 1`). Still `O(M)` per point.
+//!
 //! **The posterior of the weights.** A pattern's field is `μ_d + φ(x)ᵀ a_d` per output, with
 //! `a_d ~ N(0, σ_d² diag(s))`. With `D = σ diag(√s)` and `B = σ_n² I + D G D = R Rᵀ`, the weights
 //! given the data are `a_d = D u`, `u ~ N(R⁻ᵀ z_d, σ_n² R⁻ᵀ R⁻¹)`, `z_d = R⁻¹ D b_d`,
@@ -28,8 +35,9 @@ use rand_distr::{Distribution, StandardNormal};
 
 use crate::basis::{AxisValues, Basis};
 use crate::error::Result;
-use crate::frame::Point;
+use crate::frame::{Inputs, Point};
 use crate::gp::{GpParams, LN_2PI};
+use crate::heading;
 use crate::linalg::Chol;
 
 /// Points whose values are computed and summed in one block.
@@ -96,7 +104,8 @@ impl VecSums {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Sums {
     /// `H[a, b] = Σ cos(a θ_x) cos(b θ_y)` over the points in the box, column-major
-    /// `(2 m_x + 1) x (2 m_y + 1)`.
+    /// `(2 m_x + 1) x (2 m_y + 1)`; with heading harmonics, [`n_slices`] such matrices one after
+    /// another, each with its per-point weight ([`Slice`]).
     pub h: Vec<f64>,
     pub vecs: VecSums,
     pub n_frames: usize,
@@ -104,64 +113,111 @@ pub struct Sums {
 
 impl Sums {
     pub fn zeros(basis: &Basis) -> Self {
-        let [mx, my] = basis.counts();
         Self {
-            h: vec![0.0; (2 * mx + 1) * (2 * my + 1)],
+            h: vec![0.0; moment_len(basis) * n_slices(basis)],
             vecs: VecSums::zeros(basis.len()),
             n_frames: 0,
         }
     }
 
-    /// The sums of the points `xy`, `v` of `n_frames` frames.
+    /// The sums of the points `xy`, `v` of `n_frames` frames (headings unknown).
     pub fn of_points(basis: &Basis, xy: &[Point], v: &[[f64; 2]], n_frames: usize) -> Self {
+        Self::of_inputs(basis, Inputs::positions(xy), v, n_frames)
+    }
+
+    /// The sums of the points at `pts` (positions and previous headings), velocities `v`, of
+    /// `n_frames` frames.
+    pub fn of_inputs(basis: &Basis, pts: Inputs<'_>, v: &[[f64; 2]], n_frames: usize) -> Self {
         let mut s = Self::zeros(basis);
-        for (pts, vel) in xy.chunks(BLOCK).zip(v.chunks(BLOCK)) {
-            s.add_values(basis, &AxisValues::with_cosines(basis, pts), vel);
+        for (i0, vel) in (0..pts.len()).step_by(BLOCK).zip(v.chunks(BLOCK)) {
+            let i1 = i0 + vel.len();
+            let h = if pts.h.is_empty() {
+                &[][..]
+            } else {
+                &pts.h[i0..i1]
+            };
+            s.add_values(
+                basis,
+                &AxisValues::with_cosines(basis, &pts.xy[i0..i1]),
+                h,
+                vel,
+            );
         }
         s.n_frames = n_frames;
         s
     }
 
-    /// Add the points whose values (with cosines) are `vals` and velocities `v`.
-    pub fn add_values(&mut self, basis: &Basis, vals: &AxisValues, v: &[[f64; 2]]) {
+    /// Add the points whose values (with cosines) are `vals`, previous headings `h` (empty:
+    /// unknown) and velocities `v`.
+    pub fn add_values(&mut self, basis: &Basis, vals: &AxisValues, h: &[f64], v: &[[f64; 2]]) {
         let [mx, my] = basis.counts();
         let n = vals.n;
         debug_assert_eq!(v.len(), n);
         let (hx, hy) = (2 * mx + 1, 2 * my + 1);
-        matmul(
-            MatMut::from_column_major_slice_mut(&mut self.h, hx, hy),
-            Accum::Add,
-            col(&vals.cx, n, hx).transpose(),
-            col(&vals.cy, n, hy),
-            1.0,
-            Par::Seq,
-        );
-        let m = mx * my;
+        let weights = slice_weights(basis.harmonics(), h, n);
+        let mut scaled = Vec::new();
+        for (s, slice) in self.h.chunks_exact_mut(hx * hy).enumerate() {
+            // Slice 0 weighs every point by 1: the moments of a field over position.
+            let cx = match &weights {
+                Some(w) if s > 0 => {
+                    scaled.clear();
+                    let w = &w[s * n..(s + 1) * n];
+                    for c in vals.cx.chunks_exact(n) {
+                        scaled.extend(c.iter().zip(w).map(|(c, w)| c * w));
+                    }
+                    &scaled[..]
+                }
+                _ => &vals.cx[..],
+            };
+            matmul(
+                MatMut::from_column_major_slice_mut(slice, hx, hy),
+                Accum::Add,
+                col(cx, n, hx).transpose(),
+                col(&vals.cy, n, hy),
+                1.0,
+                Par::Seq,
+            );
+        }
+        let (m, mp) = (basis.len(), mx * my);
         let vs = &mut self.vecs;
         let sx = col(&vals.sx, n, mx);
-        matmul(
-            MatMut::from_column_major_slice_mut(&mut vs.phi_sum, mx, my),
-            Accum::Add,
-            sx.transpose(),
-            col(&vals.sy, n, my),
-            1.0,
-            Par::Seq,
-        );
+        // Per heading function `c`, `Σ ψ_c φ` and `Σ ψ_c φ v_d`: the y values weighted per point.
+        let mut psi = vec![1.0; n];
         let mut weighted = vec![0.0; n * my];
-        for d in 0..2 {
-            for (k, w) in weighted.chunks_mut(n).enumerate() {
-                for ((o, s), vel) in w.iter_mut().zip(&vals.sy[k * n..(k + 1) * n]).zip(v) {
-                    *o = s * vel[d];
+        for c in 0..2 * basis.harmonics() + 1 {
+            if let Some(w) = &weights {
+                heading_weights(c, w, n, &mut psi);
+            }
+            for (k, o) in weighted.chunks_mut(n).enumerate() {
+                for ((o, s), p) in o.iter_mut().zip(&vals.sy[k * n..(k + 1) * n]).zip(&psi) {
+                    *o = s * p;
                 }
             }
             matmul(
-                MatMut::from_column_major_slice_mut(&mut vs.phi_v[d * m..(d + 1) * m], mx, my),
+                MatMut::from_column_major_slice_mut(&mut vs.phi_sum[c * mp..(c + 1) * mp], mx, my),
                 Accum::Add,
                 sx.transpose(),
                 col(&weighted, n, my),
                 1.0,
                 Par::Seq,
             );
+            for d in 0..2 {
+                for (k, o) in weighted.chunks_mut(n).enumerate() {
+                    let sy = &vals.sy[k * n..(k + 1) * n];
+                    for (((o, s), p), vel) in o.iter_mut().zip(sy).zip(&psi).zip(v) {
+                        *o = s * p * vel[d];
+                    }
+                }
+                let at = d * m + c * mp;
+                matmul(
+                    MatMut::from_column_major_slice_mut(&mut vs.phi_v[at..at + mp], mx, my),
+                    Accum::Add,
+                    sx.transpose(),
+                    col(&weighted, n, my),
+                    1.0,
+                    Par::Seq,
+                );
+            }
         }
         for vel in v {
             for d in 0..2 {
@@ -196,11 +252,14 @@ impl Sums {
     /// The sums under `coarse`, a basis on the same box with at most as many functions per axis
     /// (the lowest frequencies): sub-blocks of the moments and of the vector sums.
     pub fn restrict(&self, full: &Basis, coarse: &Basis) -> Self {
+        debug_assert_eq!(full.harmonics(), coarse.harmonics());
         let ([mx, _], [cx, cy]) = (full.counts(), coarse.counts());
         let hx = 2 * mx + 1;
-        let mut h = Vec::with_capacity((2 * cx + 1) * (2 * cy + 1));
-        for b in 0..2 * cy + 1 {
-            h.extend_from_slice(&self.h[b * hx..b * hx + 2 * cx + 1]);
+        let mut h = Vec::with_capacity(moment_len(coarse) * n_slices(coarse));
+        for slice in self.h.chunks_exact(moment_len(full)) {
+            for b in 0..2 * cy + 1 {
+                h.extend_from_slice(&slice[b * hx..b * hx + 2 * cx + 1]);
+            }
         }
         let m = full.len();
         let pick = |v: &[f64]| -> Vec<f64> { coarse_indices(full, coarse).map(|c| v[c]).collect() };
@@ -217,20 +276,28 @@ impl Sums {
 
     /// `G = Σ φ φᵀ` (M x M, both triangles) from the moments.
     pub fn gram(&self, basis: &Basis) -> Vec<f64> {
-        let [mx, my] = basis.counts();
-        let [lx, ly] = basis.half_widths();
-        let (m, hx) = (mx * my, 2 * mx + 1);
-        let scale = 1.0 / (4.0 * lx * ly);
-        let h = |a: usize, b: usize| self.h[a + hx * b];
+        let harmonics = basis.harmonics();
+        let grams: Vec<Vec<f64>> = self
+            .h
+            .chunks_exact(moment_len(basis))
+            .map(|h| position_gram(basis, h))
+            .collect();
+        if harmonics == 0 {
+            return grams.into_iter().next().expect("one moment slice");
+        }
+        // Block (c, c') of heading functions: a combination of the slices' position Grams.
+        let (mp, m) = (grams[0].len().isqrt(), basis.len());
         let mut g = vec![0.0; m * m];
-        for k2 in 0..my {
-            for j2 in 0..mx {
-                let col = &mut g[(j2 + mx * k2) * m..(j2 + mx * k2 + 1) * m];
-                for k in 0..my {
-                    let (em, ep) = (k.abs_diff(k2), k + k2 + 2);
-                    for j in 0..mx {
-                        let (dm, dp) = (j.abs_diff(j2), j + j2 + 2);
-                        col[j + mx * k] = scale * (h(dm, em) - h(dm, ep) - h(dp, em) + h(dp, ep));
+        for c2 in 0..2 * harmonics + 1 {
+            for c in 0..2 * harmonics + 1 {
+                let terms = heading_product(harmonics, c, c2);
+                for col in 0..mp {
+                    let out = &mut g[(c2 * mp + col) * m + c * mp..][..mp];
+                    for &(slice, w) in &terms {
+                        let src = &grams[slice][col * mp..(col + 1) * mp];
+                        for (o, x) in out.iter_mut().zip(src) {
+                            *o += w * x;
+                        }
                     }
                 }
             }
@@ -239,11 +306,124 @@ impl Sums {
     }
 }
 
+/// Entries of one moment slice: `(2 m_x + 1)(2 m_y + 1)`.
+fn moment_len(basis: &Basis) -> usize {
+    let [mx, my] = basis.counts();
+    (2 * mx + 1) * (2 * my + 1)
+}
+
+/// Moment slices of a basis: 1 over position; with `J` heading harmonics, `4J + 2` (every point;
+/// points with a known heading; `cos m h` and `sin m h` for `m = 1..=2J`).
+pub fn n_slices(basis: &Basis) -> usize {
+    match basis.harmonics() {
+        0 => 1,
+        j => 4 * j + 2,
+    }
+}
+
+/// The slice holding `cos m h` (`m = 0`: the points with a known heading).
+fn cos_slice(m: usize) -> usize {
+    1 + m
+}
+
+/// The slice holding `sin m h`, `m ≥ 1`.
+fn sin_slice(harmonics: usize, m: usize) -> usize {
+    1 + 2 * harmonics + m
+}
+
+/// Each slice's weight of each of `n` points (slice-major), `None` over position: 1; 1 where the
+/// heading is known; `cos m h`; `sin m h` (zero where `h` is unknown: empty or `NaN`).
+fn slice_weights(harmonics: usize, h: &[f64], n: usize) -> Option<Vec<f64>> {
+    if harmonics == 0 {
+        return None;
+    }
+    let mut w = vec![0.0; (4 * harmonics + 2) * n];
+    w[..n].fill(1.0);
+    for (i, &hi) in h.iter().enumerate() {
+        if hi.is_nan() {
+            continue;
+        }
+        w[cos_slice(0) * n + i] = 1.0;
+        for m in 1..=2 * harmonics {
+            let (sn, cs) = (m as f64 * hi).sin_cos();
+            w[cos_slice(m) * n + i] = cs;
+            w[sin_slice(harmonics, m) * n + i] = sn;
+        }
+    }
+    Some(w)
+}
+
+/// `ψ_c` of each point from its slice weights `w` (`1` for `c = 0`; [`heading::features`] order).
+fn heading_weights(c: usize, w: &[f64], n: usize, psi: &mut [f64]) {
+    let harmonics = (w.len() / n - 2) / 4;
+    let slice = match c {
+        0 => 0,
+        c if c % 2 == 1 => cos_slice(heading::harmonic_of(c)),
+        c => sin_slice(harmonics, heading::harmonic_of(c)),
+    };
+    psi.copy_from_slice(&w[slice * n..(slice + 1) * n]);
+}
+
+/// `ψ_c ψ_c'` as weighted slices: `(slice, weight)` terms (product-to-sum identities; a term of
+/// `sin 0 h` vanishes).
+fn heading_product(harmonics: usize, c: usize, c2: usize) -> Vec<(usize, f64)> {
+    // (is sine, harmonic) of a heading function; the constant is `cos 0h` over every point.
+    let kind = |c: usize| (c > 0 && c % 2 == 0, heading::harmonic_of(c));
+    match (kind(c), kind(c2)) {
+        ((_, 0), (false, 0)) => vec![(0, 1.0)],
+        ((false, 0), (sine, j)) | ((sine, j), (false, 0)) => {
+            let slice = if sine {
+                sin_slice(harmonics, j)
+            } else {
+                cos_slice(j)
+            };
+            vec![(slice, 1.0)]
+        }
+        ((false, j), (false, k)) => vec![(cos_slice(j.abs_diff(k)), 0.5), (cos_slice(j + k), 0.5)],
+        ((true, j), (true, k)) => vec![(cos_slice(j.abs_diff(k)), 0.5), (cos_slice(j + k), -0.5)],
+        ((false, j), (true, k)) | ((true, k), (false, j)) => {
+            // cos jh sin kh = ½ (sin (k + j) h + sin (k − j) h).
+            let mut t = vec![(sin_slice(harmonics, j + k), 0.5)];
+            if k != j {
+                let sign = if k > j { 0.5 } else { -0.5 };
+                t.push((sin_slice(harmonics, k.abs_diff(j)), sign));
+            }
+            t
+        }
+    }
+}
+
+/// The position Gram `Σ φ φᵀ` (`m_x m_y` square) from one moment slice `h`.
+fn position_gram(basis: &Basis, h: &[f64]) -> Vec<f64> {
+    let [mx, my] = basis.counts();
+    let [lx, ly] = basis.half_widths();
+    let (m, hx) = (mx * my, 2 * mx + 1);
+    let scale = 1.0 / (4.0 * lx * ly);
+    let h = |a: usize, b: usize| h[a + hx * b];
+    let mut g = vec![0.0; m * m];
+    for k2 in 0..my {
+        for j2 in 0..mx {
+            let col = &mut g[(j2 + mx * k2) * m..(j2 + mx * k2 + 1) * m];
+            for k in 0..my {
+                let (em, ep) = (k.abs_diff(k2), k + k2 + 2);
+                for j in 0..mx {
+                    let (dm, dp) = (j.abs_diff(j2), j + j2 + 2);
+                    col[j + mx * k] = scale * (h(dm, em) - h(dm, ep) - h(dp, em) + h(dp, ep));
+                }
+            }
+        }
+    }
+    g
+}
+
 /// Where each function of `coarse` (a basis on the same box with no more functions per axis) sits
-/// in `full`'s feature order.
+/// in `full`'s feature order: with heading harmonics (the same in both), the position block once
+/// per heading function.
 pub fn coarse_indices<'a>(full: &'a Basis, coarse: &'a Basis) -> impl Iterator<Item = usize> + 'a {
-    let ([mx, _], [cx, cy]) = (full.counts(), coarse.counts());
-    (0..cy).flat_map(move |k| (0..cx).map(move |j| j + mx * k))
+    let ([mx, my], [cx, cy]) = (full.counts(), coarse.counts());
+    (0..2 * coarse.harmonics() + 1).flat_map(move |c| {
+        (0..cy).flat_map(move |k| (0..cx).map(move |j| c * mx * my + j + mx * k))
+    })
 }
 
 /// Weights on `coarse`'s functions as weights on `full`'s (zero on the functions it lacks).

@@ -19,13 +19,11 @@ fn basis() -> Basis {
     Basis::new([6.0, 3.0], [8.0, 5.0], [7, 5]).unwrap()
 }
 
-#[test]
-fn the_gram_matrix_from_moments_is_the_sum_of_feature_outer_products() {
-    let b = basis();
-    let (xy, v) = points(300, 3);
-    let sums = Sums::of_points(&b, &xy, &v, 10);
+/// The sums of `b` at `pts` against `Σ φ φᵀ`, `Σ φ`, `Σ φ v` of [`Basis::features_of`].
+fn assert_sums_are_feature_sums(b: &Basis, pts: Inputs<'_>, v: &[[f64; 2]]) -> Sums {
+    let sums = Sums::of_inputs(b, pts, v, 10);
     let m = b.len();
-    let phi = b.features(&xy);
+    let phi = b.features_of(pts);
     let mut want = vec![0.0; m * m];
     let (mut ps, mut pv) = (vec![0.0; m], vec![0.0; 2 * m]);
     for (p, col) in phi.chunks(m).enumerate() {
@@ -39,7 +37,7 @@ fn the_gram_matrix_from_moments_is_the_sum_of_feature_outer_products() {
             }
         }
     }
-    let got = sums.gram(&b);
+    let got = sums.gram(b);
     let scale = want.iter().fold(0.0f64, |a, x| a.max(x.abs()));
     for (g, w) in got.iter().zip(&want) {
         assert!((g - w).abs() <= 1e-11 * scale, "{g} vs {w}");
@@ -53,8 +51,27 @@ fn the_gram_matrix_from_moments_is_the_sum_of_feature_outer_products() {
     {
         assert!((g - w).abs() <= 1e-11 * scale, "{g} vs {w}");
     }
-    assert_eq!(sums.vecs.n_points, 300);
+    assert_eq!(sums.vecs.n_points, pts.len());
     assert_eq!(sums.n_frames, 10);
+    sums
+}
+
+/// Headings for `n` points: every `every`-th unknown (a vehicle's first frame).
+fn headings(n: usize, seed: u64, every: usize) -> Vec<f64> {
+    let mut u = uniform(seed);
+    (0..n)
+        .map(|i| {
+            let h = 7.0 * u() - 3.5;
+            if i % every == 0 { f64::NAN } else { h }
+        })
+        .collect()
+}
+
+#[test]
+fn the_gram_matrix_from_moments_is_the_sum_of_feature_outer_products() {
+    let b = basis();
+    let (xy, v) = points(300, 3);
+    let sums = assert_sums_are_feature_sums(&b, Inputs::positions(&xy), &v);
     let vs: f64 = v.iter().map(|r| r[1]).sum();
     assert!((sums.vecs.v_sum[1] - vs).abs() < 1e-12);
 }
@@ -173,6 +190,49 @@ fn the_log_marginal_from_sums_is_the_patterns() {
         "{} vs {want}",
         post.log_marginal
     );
+}
+
+/// With heading harmonics the Gram matrix is assembled from the heading-weighted moment slices
+/// (product-to-sum identities): the same as `Σ φ φᵀ` of the features over position and heading,
+/// with points whose heading is unknown observing only the constant heading function, and with
+/// more than one block of points.
+#[test]
+fn the_gram_matrix_over_heading_is_the_sum_of_feature_outer_products() {
+    for harmonics in [1, 2, 3] {
+        let b = basis().with_harmonics(harmonics).unwrap();
+        let (xy, v) = points(600, 11);
+        let h = headings(600, 12, 5);
+        let pts = Inputs { xy: &xy, h: &h };
+        assert_sums_are_feature_sums(&b, pts, &v);
+        // Every heading unknown (frames without tracks): the constant block only.
+        assert_sums_are_feature_sums(&b, Inputs::positions(&xy[..40]), &v[..40]);
+    }
+}
+
+/// Restricting sums over heading keeps every heading block's coarse functions.
+#[test]
+fn restricted_sums_over_heading_are_the_coarse_bases_sums() {
+    let b = basis().with_harmonics(2).unwrap();
+    let coarse = Basis::new(b.center(), b.half_widths(), [4, 3])
+        .unwrap()
+        .with_harmonics(2)
+        .unwrap();
+    let (xy, v) = points(120, 6);
+    let h = headings(120, 7, 4);
+    let pts = Inputs { xy: &xy, h: &h };
+    let direct = Sums::of_inputs(&coarse, pts, &v, 4);
+    let restricted = Sums::of_inputs(&b, pts, &v, 4).restrict(&b, &coarse);
+    assert_eq!(direct.h.len(), restricted.h.len());
+    assert_eq!(direct.vecs.phi_v.len(), restricted.vecs.phi_v.len());
+    for (a, c) in direct
+        .h
+        .iter()
+        .zip(&restricted.h)
+        .chain(direct.vecs.phi_v.iter().zip(&restricted.vecs.phi_v))
+        .chain(direct.vecs.phi_sum.iter().zip(&restricted.vecs.phi_sum))
+    {
+        assert!((a - c).abs() < 1e-9, "{a} vs {c}");
+    }
 }
 
 use std::sync::Arc;
