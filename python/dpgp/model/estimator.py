@@ -407,11 +407,8 @@ class DPGP:
         if self.inputs not in _INPUTS:
             raise InvalidInputError(f"inputs must be one of {_INPUTS}, got {self.inputs!r}")
         if self.inputs == "position+heading":  # as given: "auto" only picks it where it can run
-            if self.sampler == "subcluster" or self.dynamics is not None:
-                raise InvalidInputError(
-                    "inputs='position+heading' runs on the collapsed sampler without dynamics for now: "
-                    "use sampler='collapsed' (or 'auto') and dynamics=None"
-                )
+            if self.dynamics is not None:
+                raise InvalidInputError("inputs='position+heading' runs without dynamics for now: use dynamics=None")
         if self.dynamics is not None and self.checkpoint is not None:
             raise InvalidInputError("dynamics='sticky' cannot write checkpoints yet (its links are not stored in them)")
         _core.check_settings(self._sampler_settings())
@@ -430,8 +427,6 @@ class DPGP:
         blocked = None
         if sharded:
             blocked = "frames in shards run on the sub-cluster sampler, which fields over heading do not run on yet"
-        elif self.sampler == "subcluster":
-            blocked = "sampler='subcluster': fields over heading run on the collapsed sampler only, for now"
         elif self.dynamics is not None:
             blocked = "dynamics='sticky': fields over heading run without dynamics, for now"
         choice = choose_inputs(frames.prev_heading is not None, blocked=blocked)
@@ -937,7 +932,7 @@ class DPGP:
 
     def _subcluster_possible(self) -> bool:
         """Whether settings other than the likelihood let the sub-cluster sampler run."""
-        return self.sampler != "collapsed" and self.dynamics is None and not self.pattern_moments and not self._headed()
+        return self.sampler != "collapsed" and self.dynamics is None and not self.pattern_moments
 
     def _auto_harmonics(self) -> int:
         """The heading harmonics ``J`` hsgp would run with, for ``likelihood="auto"``'s cost model
@@ -948,8 +943,6 @@ class DPGP:
         """``sampler_`` for ``likelihood_``, and why in ``engine_choice_["sampler"]``."""
         if self.sampler != "auto":
             sampler, why = self.sampler, "given"
-        elif self._headed():
-            sampler, why = "collapsed", "fields over heading run on the collapsed sampler"
         elif self.likelihood_ != "hsgp":
             sampler, why = "collapsed", "the exact likelihood has no finite weights to draw"
         elif self.dynamics is not None:

@@ -348,13 +348,6 @@ impl Settings {
                      got ({a}, {b})"
                 )));
             }
-            if self.sampler == SamplerKind::Subcluster {
-                return Err(Error::InvalidInput(
-                    "fields over heading run on the collapsed sampler for now: use \
-                     sampler='collapsed' with inputs='position+heading'"
-                        .into(),
-                ));
-            }
             if self.dynamics.is_some() {
                 return Err(Error::InvalidInput(
                     "fields over heading do not run with dynamics='sticky' yet".into(),
@@ -1840,7 +1833,8 @@ mod tests;
 pub(crate) mod enumeration {
     pub(crate) use super::noise::tests::{PRIOR as NOISE_PRIOR, enumerated_noise_integrated};
     pub(crate) use super::split_merge::tests::{
-        canonical, enumerated_by, tiny, tiny_hsgp, tiny_settings,
+        canonical, enumerated, enumerated_by, headed_settings, three_scales_integrated, tiny,
+        tiny_headed, tiny_hsgp, tiny_hsgp_headed, tiny_settings,
     };
 }
 

@@ -242,11 +242,14 @@ impl SubclusterSampler {
         };
         let basis = Arc::clone(basis);
         let [mx, my] = basis.counts();
-        let coarse = Arc::new(Basis::new(
-            basis.center(),
-            basis.half_widths(),
-            [mx.div_ceil(2), my.div_ceil(2)],
-        )?);
+        let coarse = Arc::new(
+            Basis::new(
+                basis.center(),
+                basis.half_widths(),
+                [mx.div_ceil(2), my.div_ceil(2)],
+            )?
+            .with_harmonics(basis.harmonics())?,
+        );
         // The same starting α as the collapsed sampler (the same stream).
         let alpha = crate::gibbs::initial_alpha(&settings)?;
         let n = store.len();

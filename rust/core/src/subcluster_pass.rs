@@ -2,7 +2,8 @@
 //! frame its label in parallel, and update the sums of the patterns frames moved between.
 //!
 //! Every pattern's two fields are evaluated at a frame's points by the fused kernel of
-//! [`crate::field_blocks`] (`2 M` multiply–adds per field and point).
+//! [`crate::field_blocks`] (`2 M` multiply–adds per field and point; a field over heading is
+//! `2J + 1` position fields, combined at each point by its heading functions).
 
 use std::ops::Range;
 use std::time::Instant;
@@ -15,8 +16,9 @@ use super::{Fit, SubclusterSampler, gamma};
 use crate::basis::Basis;
 use crate::error::{Error, Result};
 use crate::field_blocks::{FieldBlocks, LANES};
-use crate::frame::Point;
+use crate::frame::Inputs;
 use crate::gp::LN_2PI;
+use crate::heading;
 use crate::rng::{Phase, stream};
 use crate::special::log_sum_exp;
 
@@ -28,7 +30,9 @@ pub(super) const TILE: usize = 128;
 pub(super) struct FieldBank {
     /// Patterns.
     k: usize,
-    /// Field `2k + d`: pattern k's output d.
+    /// Heading functions per position field (`2J + 1`; 1 over position).
+    nc: usize,
+    /// Field `(2k + d) nc + c`: heading function `c`'s position field of pattern k's output d.
     blocks: FieldBlocks,
     mean: [f64; 2],
     /// Per pattern: `½ / σ_n,d²`, and `−½ Σ_d log(2π σ_n,d²)` per point.
@@ -45,9 +49,14 @@ impl FieldBank {
         noise: &[[f64; 2]],
         mean: [f64; 2],
     ) -> Self {
+        // A field over heading is `Σ_c ψ_c(h) f_c(x, y)`: its position fields, one per heading
+        // function, evaluated by the same kernel and combined per point.
+        let nc = 2 * basis.harmonics() + 1;
+        let mp = basis.len() / nc;
         Self {
             k: weights.len(),
-            blocks: FieldBlocks::new(basis, weights.iter().flatten().map(|a| &a[..])),
+            nc,
+            blocks: FieldBlocks::new(basis, weights.iter().flatten().flat_map(|a| a.chunks(mp))),
             mean,
             half_inv: noise
                 .iter()
@@ -66,16 +75,19 @@ impl FieldBank {
     }
 
     /// Add to `out[f K + k]` the log-likelihood of frame `f`'s velocities under pattern `k`'s
-    /// field and noise, for frames whose points are `xy`, `v` with frame `f` starting at
-    /// `starts[f]` (`starts` ends with `xy.len()`).
+    /// field and noise, for frames whose points are `pts` (positions and previous headings),
+    /// `v` with frame `f` starting at `starts[f]` (`starts` ends with the number of points).
     pub(super) fn frame_logliks(
         &self,
-        xy: &[Point],
+        pts: Inputs<'_>,
         v: &[[f64; 2]],
         starts: &[usize],
         out: &mut [f64],
     ) {
-        let kk = self.k;
+        let (kk, nc, xy) = (self.k, self.nc, pts.xy);
+        let mut psi = vec![0.0; nc];
+        let mut psi_lanes = vec![[0.0; LANES]; nc];
+        let mut f = [[0.0; LANES]; 2];
         let mut frame_of = Vec::with_capacity(xy.len());
         for (f, w) in starts.windows(2).enumerate() {
             frame_of.extend(std::iter::repeat_n(f, w[1] - w[0]));
@@ -89,8 +101,29 @@ impl FieldBank {
                 r[0][l] = v[b0 + l][0] - self.mean[0];
                 r[1][l] = v[b0 + l][1] - self.mean[1];
             }
+            if nc > 1 {
+                for l in 0..n {
+                    heading::features(pts.heading(b0 + l), &mut psi);
+                    for (lanes, p) in psi_lanes.iter_mut().zip(&psi) {
+                        lanes[l] = *p;
+                    }
+                }
+            }
             for (k, h) in self.half_inv.iter().enumerate() {
-                let (fx, fy) = (&vals[2 * k], &vals[2 * k + 1]);
+                let (fx, fy) = if nc == 1 {
+                    (&vals[2 * k], &vals[2 * k + 1])
+                } else {
+                    for (d, fd) in f.iter_mut().enumerate() {
+                        let fields = &vals[(2 * k + d) * nc..(2 * k + d + 1) * nc];
+                        *fd = [0.0; LANES];
+                        for (val, p) in fields.iter().zip(&psi_lanes) {
+                            for l in 0..LANES {
+                                fd[l] = p[l].mul_add(val[l], fd[l]);
+                            }
+                        }
+                    }
+                    (&f[0], &f[1])
+                };
                 let mut ll = [0.0; LANES];
                 for l in 0..LANES {
                     let (e0, e1) = (r[0][l] - fx[l], r[1][l] - fy[l]);

@@ -27,7 +27,7 @@ use rayon::prelude::*;
 use super::pass::{FieldBank, TILE, argmax, pick_log};
 use crate::basis::Basis;
 use crate::error::{Error, Result};
-use crate::frame::Point;
+use crate::frame::{Inputs, Point};
 use crate::gibbs::Data;
 use crate::hsgp_sums::{Sums, VecSums};
 use crate::rng::uniform_code;
@@ -140,6 +140,8 @@ pub enum Reply {
     Points {
         xy: Vec<Point>,
         v: Vec<[f64; 2]>,
+        /// Each point's previous heading, or empty: frames without headings.
+        h: Vec<f64>,
         sizes: Vec<u32>,
     },
     Done,
@@ -249,9 +251,9 @@ impl Shard {
             Request::Means => Reply::Means(crate::gibbs::frame_means(&self.data)),
             Request::Points { frames } => {
                 check(frames.iter().copied())?;
-                let (xy, v, starts) = gather(&self.data, frames);
+                let (xy, v, h, starts) = gather(&self.data, frames);
                 let sizes = starts.windows(2).map(|w| (w[1] - w[0]) as u32).collect();
-                Reply::Points { xy, v, sizes }
+                Reply::Points { xy, v, h, sizes }
             }
             _ => unreachable!("requests about held labels are answered above"),
         })
@@ -267,8 +269,8 @@ impl Shard {
         let parts: Vec<Sums> = jobs
             .par_iter()
             .map(|(_, frames)| {
-                let (xy, v, _) = gather(&self.data, frames);
-                Sums::of_points(basis, &xy, &v, frames.len())
+                let (xy, v, h, _) = gather(&self.data, frames);
+                Sums::of_inputs(basis, Inputs { xy: &xy, h: &h }, &v, frames.len())
             })
             .collect();
         let mut out: Vec<Sums> = sets.iter().map(|_| Sums::zeros(basis)).collect();
@@ -284,9 +286,9 @@ impl Shard {
         let tiles: Vec<Vec<f64>> = frames
             .par_chunks(TILE)
             .map(|tile| {
-                let (xy, v, starts) = gather(&self.data, tile);
+                let (xy, v, h, starts) = gather(&self.data, tile);
                 let mut ll = vec![0.0; kk * tile.len()];
-                bank.frame_logliks(&xy, &v, &starts, &mut ll);
+                bank.frame_logliks(Inputs { xy: &xy, h: &h }, &v, &starts, &mut ll);
                 ll
             })
             .collect();
@@ -310,6 +312,7 @@ impl Shard {
             )));
         }
         let (xy, v) = self.data.points();
+        let h = self.data.headings();
         let offsets = self.data.offsets();
         let (start, end) = (frames.start as usize, frames.end as usize);
         let tiles: Vec<Vec<u32>> = (start..end)
@@ -321,7 +324,11 @@ impl Shard {
                 let (a, b) = (offsets[f0], offsets[f1]);
                 let starts: Vec<usize> = offsets[f0..=f1].iter().map(|o| o - a).collect();
                 let mut ll = vec![0.0; (f1 - f0) * kk];
-                fields.frame_logliks(&xy[a..b], &v[a..b], &starts, &mut ll);
+                let pts = Inputs {
+                    xy: &xy[a..b],
+                    h: if h.is_empty() { h } else { &h[a..b] },
+                };
+                fields.frame_logliks(pts, &v[a..b], &starts, &mut ll);
                 (f0..f1)
                     .zip(ll.chunks(kk))
                     .map(|(i, l)| {
@@ -352,19 +359,21 @@ fn field_bank(basis: &Basis, bank: &Bank) -> Result<FieldBank> {
     Ok(FieldBank::new(basis, &bank.weights, &bank.noise, bank.mean))
 }
 
-/// The points of `frames` one after another, and where each starts (ending with the total).
-pub(super) fn gather<F: Copy + Into<u64>>(
-    data: &Data,
-    frames: &[F],
-) -> (Vec<Point>, Vec<[f64; 2]>, Vec<usize>) {
-    let (mut xy, mut v, mut starts) = (Vec::new(), Vec::new(), vec![0]);
+/// The points of `frames` one after another: positions, velocities, previous headings (empty
+/// when the frames have none), and where each frame starts (ending with the total).
+pub(super) type Gathered = (Vec<Point>, Vec<[f64; 2]>, Vec<f64>, Vec<usize>);
+
+/// The points of `frames` one after another ([`Gathered`]).
+pub(super) fn gather<F: Copy + Into<u64>>(data: &Data, frames: &[F]) -> Gathered {
+    let (mut xy, mut v, mut h, mut starts) = (Vec::new(), Vec::new(), Vec::new(), vec![0]);
     for &f in frames {
         let fr = data.frame(f.into() as usize);
         xy.extend_from_slice(fr.xy);
         v.extend_from_slice(fr.v);
+        h.extend_from_slice(fr.h);
         starts.push(xy.len());
     }
-    (xy, v, starts)
+    (xy, v, h, starts)
 }
 
 /// Runs requests on shards, wherever they are served.
@@ -675,13 +684,15 @@ impl Store {
                 (*s, Request::Points { frames })
             })
             .collect();
-        let mut by_shard: Vec<(Vec<Point>, Vec<[f64; 2]>, Vec<usize>)> =
-            vec![Default::default(); self.n_shards()];
+        let mut by_shard: Vec<Gathered> = vec![Default::default(); self.n_shards()];
         for ((s, local), reply) in parts.iter().zip(self.link.run(jobs)?) {
-            let Reply::Points { xy, v, sizes } = reply else {
+            let Reply::Points { xy, v, h, sizes } = reply else {
                 return Err(wrong_reply("points"));
             };
-            if sizes.len() != local.len() || xy.len() != v.len() {
+            if sizes.len() != local.len()
+                || xy.len() != v.len()
+                || !(h.is_empty() || h.len() == xy.len())
+            {
                 return Err(wrong_reply("points"));
             }
             let mut starts = vec![0];
@@ -691,20 +702,31 @@ impl Store {
             if *starts.last().unwrap() != xy.len() {
                 return Err(wrong_reply("points"));
             }
-            by_shard[*s] = (xy, v, starts);
+            by_shard[*s] = (xy, v, h, starts);
         }
         let mut cursor = vec![0usize; self.n_shards()];
-        let (mut xy, mut v, mut offsets) = (Vec::new(), Vec::new(), vec![0]);
+        let (mut xy, mut v, mut h, mut offsets) = (Vec::new(), Vec::new(), Vec::new(), vec![0]);
         for &f in frames {
             let s = self.shard_of(f);
-            let (sxy, sv, st) = &by_shard[s];
+            let (sxy, sv, sh, st) = &by_shard[s];
             let (a, b) = (st[cursor[s]], st[cursor[s] + 1]);
+            crate::frame::extend_headings(
+                &mut h,
+                xy.len(),
+                if sh.is_empty() { sh } else { &sh[a..b] },
+                b - a,
+            );
             xy.extend_from_slice(&sxy[a..b]);
             v.extend_from_slice(&sv[a..b]);
             offsets.push(xy.len());
             cursor[s] += 1;
         }
-        Data::new(xy, v, offsets)
+        let data = Data::new(xy, v, offsets)?;
+        if h.is_empty() {
+            Ok(data)
+        } else {
+            data.with_headings(h)
+        }
     }
 }
 
@@ -758,6 +780,7 @@ impl Writer {
         self.pairs(&[c, h]);
         self.u64(m[0] as u64);
         self.u64(m[1] as u64);
+        self.u64(b.harmonics() as u64);
     }
     fn bank(&mut self, b: &Bank) {
         self.u64(b.weights.len() as u64);
@@ -867,7 +890,8 @@ impl Reader<'_> {
             return Err(malformed());
         }
         let m = [self.u64()? as usize, self.u64()? as usize];
-        Basis::new(ch[0], ch[1], m)
+        let harmonics = self.u64()? as usize;
+        Basis::new(ch[0], ch[1], m)?.with_harmonics(harmonics)
     }
     fn bank(&mut self) -> Result<Bank> {
         let k = self.len(16)?;
@@ -1180,10 +1204,11 @@ impl Reply {
                 header(&mut w, 4);
                 w.pairs(m);
             }
-            Reply::Points { xy, v, sizes } => {
+            Reply::Points { xy, v, h, sizes } => {
                 header(&mut w, 5);
                 w.pairs(xy);
                 w.pairs(v);
+                w.f64s(h);
                 w.u32s(sizes);
             }
             Reply::Done => header(&mut w, 6),
@@ -1241,6 +1266,7 @@ impl Reply {
             5 => Reply::Points {
                 xy: r.pairs()?,
                 v: r.pairs()?,
+                h: r.f64s()?,
                 sizes: r.u32s()?,
             },
             6 => Reply::Done,

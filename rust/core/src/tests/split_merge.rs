@@ -97,7 +97,7 @@ pub(crate) fn partitions(n: usize) -> Vec<Vec<usize>> {
 }
 
 /// `log [α^K Π Γ(n_k) p(D_k | w)]` of every partition, normalised.
-fn enumerated(data: &Data, st: &Settings) -> HashMap<Vec<usize>, f64> {
+pub(crate) fn enumerated(data: &Data, st: &Settings) -> HashMap<Vec<usize>, f64> {
     enumerated_by(data.len(), st.alpha.unwrap(), |members| {
         let m: Vec<(usize, FrameRef)> = members.iter().map(|&i| (i, data.frame(i))).collect();
         st.likelihood.pattern(st.base, &m).unwrap().log_marginal()
@@ -327,7 +327,7 @@ fn split_merge_with_sampled_length_scales_samples_the_enumerated_posterior() {
 
 /// [`tiny`] with each vehicle's previous heading: the frames of the two fields head opposite
 /// ways (one vehicle's heading unknown), so a field over heading tells them apart.
-fn tiny_headed() -> Data {
+pub(crate) fn tiny_headed() -> Data {
     let d = tiny();
     let mut u = crate::test_util::uniform(12u64);
     let mut h = Vec::new();
@@ -340,7 +340,7 @@ fn tiny_headed() -> Data {
     d.with_headings(h).unwrap()
 }
 
-fn tiny_hsgp_headed() -> Likelihood {
+pub(crate) fn tiny_hsgp_headed() -> Likelihood {
     Likelihood::Hsgp(Arc::new(
         Basis::new([3.0, 3.0], [6.0, 6.0], [3, 3])
             .unwrap()
@@ -349,7 +349,7 @@ fn tiny_hsgp_headed() -> Likelihood {
     ))
 }
 
-fn headed_settings(likelihood: Likelihood, seed: u64) -> Settings {
+pub(crate) fn headed_settings(likelihood: Likelihood, seed: u64) -> Settings {
     let mut st = tiny_settings(likelihood, seed);
     st.heading_prior = Some((3.0, 0.4));
     st.base = st
@@ -391,7 +391,7 @@ fn heading_fields_sample_the_enumerated_posterior() {
 }
 
 /// `log ∫ Gamma(w_x) Gamma(w_y) Gamma(w_h) p(D | w) dw` of one pattern, on a grid of `log w`.
-fn three_scales_integrated(data: &Data, st: &Settings, members: &[usize]) -> f64 {
+pub(crate) fn three_scales_integrated(data: &Data, st: &Settings, members: &[usize]) -> f64 {
     let m: Vec<(usize, FrameRef)> = members.iter().map(|&i| (i, data.frame(i))).collect();
     let priors = st.length_scale_priors();
     let (half, n) = (4.0, 36);

@@ -9,7 +9,8 @@ use std::collections::HashMap;
 use super::*;
 use crate::frame::FrameRef;
 use crate::gibbs::enumeration::{
-    NOISE_PRIOR, canonical, enumerated_by, enumerated_noise_integrated, tiny, tiny_hsgp,
+    NOISE_PRIOR, canonical, enumerated, enumerated_by, enumerated_noise_integrated,
+    headed_settings, three_scales_integrated, tiny, tiny_headed, tiny_hsgp, tiny_hsgp_headed,
     tiny_settings,
 };
 use crate::gibbs::{NoiseScope, PairChoice, SamplerKind, Settings};
@@ -26,7 +27,16 @@ fn settings(seed: u64) -> Settings {
 
 /// Partition frequencies of `sweeps` sweeps from all singletons, and the move counts.
 fn chain(st: Settings, sweeps: usize) -> (HashMap<Vec<usize>, f64>, SplitMergeStats) {
-    let data = Arc::new(tiny());
+    chain_on(tiny(), st, sweeps)
+}
+
+/// [`chain`] on other frames.
+fn chain_on(
+    data: Data,
+    st: Settings,
+    sweeps: usize,
+) -> (HashMap<Vec<usize>, f64>, SplitMergeStats) {
+    let data = Arc::new(data);
     let mut s = SubclusterSampler::new(data, st).unwrap();
     let ls = s.settings.base.length_scales;
     s.set_state(&[0, 1, 2, 3, 4], &[ls; 5], None, 1.0).unwrap();
@@ -169,6 +179,49 @@ fn subcluster_chain_with_sampled_length_scales_samples_its_posterior() {
     let d = tv(&freq, &exact);
     eprintln!("sampled length scales: TV {d:.4} ({stats:?})");
     assert!(d <= 0.03, "TV {d:.4} > 0.03 ({stats:?})");
+}
+
+/// Fields over position and the previous heading (one vehicle's heading unknown), the
+/// hyperparameters fixed: the partition posterior enumerated from the patterns' marginal
+/// likelihoods, and far from the posterior over position alone (the check has power).
+#[test]
+fn subcluster_chain_over_heading_samples_the_enumerated_posterior() {
+    let data = tiny_headed();
+    let mut st = headed_settings(tiny_hsgp_headed(), 6);
+    st.sampler = SamplerKind::Subcluster;
+    st.split_merge.moves_per_sweep = 2;
+    let exact = enumerated(&data, &st);
+    let mut blind = st.clone();
+    blind.base = st
+        .base
+        .with_length_scales(st.base.length_scales.with_heading(f64::INFINITY).unwrap());
+    let (freq, stats) = chain_on(tiny_headed(), st, 60_000);
+    let (d, other) = (tv(&freq, &exact), tv(&freq, &enumerated(&data, &blind)));
+    eprintln!("over heading: TV {d:.4}; against position only {other:.4} ({stats:?})");
+    assert!(d <= 0.03, "TV {d:.4} > 0.03 ({stats:?})");
+    assert!(other > 0.05, "no power ({other:.4})");
+}
+
+/// The same with every pattern's `w_x`, `w_y` and `w_h` sampled: the posterior with the three
+/// integrated out on a grid.
+#[test]
+fn subcluster_chain_over_heading_with_sampled_length_scales_samples_its_posterior() {
+    let data = tiny_headed();
+    let mut st = headed_settings(tiny_hsgp_headed(), 8);
+    st.sampler = SamplerKind::Subcluster;
+    st.fixed_length_scales = false;
+    st.length_scale_prior = (3.0, 1.2);
+    st.split_merge.moves_per_sweep = 2;
+    let exact = enumerated_by(data.len(), st.alpha.unwrap(), |members| {
+        three_scales_integrated(&data, &st, members)
+    });
+    let fixed = enumerated(&data, &st);
+    let (freq, stats) = chain_on(tiny_headed(), st, 60_000);
+    let d = tv(&freq, &exact);
+    let power = tv(&freq, &fixed);
+    eprintln!("over heading, sampled w: TV {d:.4}; against fixed {power:.4} ({stats:?})");
+    assert!(d <= 0.03, "TV {d:.4} > 0.03 ({stats:?})");
+    assert!(power > 0.04, "no power ({power:.4})");
 }
 
 #[test]

@@ -6,7 +6,10 @@
 use std::collections::HashMap;
 
 use super::*;
-use crate::gibbs::enumeration::{canonical, enumerated_by, tiny, tiny_hsgp, tiny_settings};
+use crate::gibbs::enumeration::{
+    canonical, enumerated_by, headed_settings, tiny, tiny_headed, tiny_hsgp, tiny_hsgp_headed,
+    tiny_settings,
+};
 use crate::gibbs::{SamplerKind, Settings};
 use crate::subcluster::{Start, SubclusterSampler};
 use crate::test_util::tv;
@@ -36,7 +39,10 @@ fn cut(data: &Data, sizes: &[usize]) -> Vec<Shard> {
         .map(|&n| {
             let (a, b) = (o[first], o[first + n]);
             let offsets = o[first..=first + n].iter().map(|x| x - a).collect();
-            let d = Data::new(xy[a..b].to_vec(), v[a..b].to_vec(), offsets).unwrap();
+            let mut d = Data::new(xy[a..b].to_vec(), v[a..b].to_vec(), offsets).unwrap();
+            if !data.headings().is_empty() {
+                d = d.with_headings(data.headings()[a..b].to_vec()).unwrap();
+            }
             let s = Shard::new(Arc::new(d), first);
             first += n;
             s
@@ -86,6 +92,10 @@ fn requests_and_replies_cross_as_bytes() {
         },
         Request::Means,
         Request::Points { frames: vec![5] },
+        Request::Sums {
+            basis: basis().with_harmonics(2).unwrap(),
+            sets: vec![vec![1]],
+        },
     ];
     let data = tiny();
     let shard = Shard::new(Arc::new(data), 0);
@@ -101,6 +111,9 @@ fn requests_and_replies_cross_as_bytes() {
         Reply::Draw(vec![0, 1, 1]),
         Reply::Means(vec![[1.0, 2.0]]),
         shard
+            .handle(&Request::Points { frames: vec![4, 0] })
+            .unwrap(),
+        Shard::new(Arc::new(tiny_headed()), 0)
             .handle(&Request::Points { frames: vec![4, 0] })
             .unwrap(),
     ];
@@ -198,12 +211,16 @@ fn the_store_answers_as_all_frames_in_one_place() {
 
 /// The labels, log joint and α of 150 sweeps from the sequential start.
 fn trace(store: Store, threads: usize) -> Vec<(Vec<usize>, u64, u64)> {
+    trace_with(store, settings(5), threads)
+}
+
+/// [`trace`] under other settings (length scales and α sampled).
+fn trace_with(store: Store, mut st: Settings, threads: usize) -> Vec<(Vec<usize>, u64, u64)> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
         .unwrap();
     pool.install(|| {
-        let mut st = settings(5);
         st.fixed_length_scales = false;
         st.alpha = None;
         let mut s = SubclusterSampler::with_store(store, st).unwrap();
@@ -237,6 +254,38 @@ fn a_sharded_chain_is_the_same_in_process_through_bytes_and_for_any_thread_count
         whole,
         trace(Store::in_process_shards(cut(&data, &[5])).unwrap(), 2)
     );
+}
+
+/// Fields over heading: the shards send their points' headings with the points and sum the
+/// heading moments; the chain is the same in process, through bytes, for any thread count, and
+/// on one shard as on all frames in one place.
+#[test]
+fn a_sharded_chain_over_heading_is_the_chain_over_all_frames() {
+    let data = tiny_headed();
+    let sizes = [3, 2];
+    let mut st = headed_settings(tiny_hsgp_headed(), 5);
+    st.sampler = SamplerKind::Subcluster;
+    st.split_merge.moves_per_sweep = 2;
+    let run = |store: Store, threads| trace_with(store, st.clone(), threads);
+    let reference = run(Store::in_process_shards(cut(&data, &sizes)).unwrap(), 1);
+    let bytes = || Store::sharded(&sizes, Arc::new(Bytes(cut(&data, &sizes)))).unwrap();
+    assert_eq!(reference, run(bytes(), 1));
+    assert_eq!(reference, run(bytes(), 3));
+    // One shard is the chain over all frames in one place (more shards add their sums in
+    // another order: the same chain up to round-off).
+    let whole = run(Store::local(Arc::new(tiny_headed())), 1);
+    assert_eq!(
+        whole,
+        run(Store::in_process_shards(cut(&data, &[5])).unwrap(), 2)
+    );
+    // Not the chain over position: the headings were used.
+    let mut blind = st.clone();
+    blind.heading_prior = None;
+    blind.likelihood = tiny_hsgp();
+    blind.base = st
+        .base
+        .with_length_scales(st.base.length_scales.with_heading(f64::INFINITY).unwrap());
+    assert_ne!(whole, trace_with(Store::local(Arc::new(tiny())), blind, 1));
 }
 
 #[test]
