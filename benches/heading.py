@@ -60,6 +60,8 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=1)
     ap.add_argument("--iterations", type=int, default=20)
     ap.add_argument("--likelihood", default="exact", choices=("exact", "hsgp"))
+    ap.add_argument("--sampler", default="collapsed", choices=("collapsed", "subcluster"))
+    ap.add_argument("--harmonics", type=int, default=None, help="heading harmonics J of hsgp's basis (default: the estimator's)")
     ap.add_argument("--sumo-dt", type=float, default=2.0, help="frame step of the SUMO junction (s)")
     ap.add_argument("--thin", type=int, default=1, help="fit on every N-th training frame")
     ap.add_argument("--average", action="store_true", help="score the posterior predictive (kept draws)")
@@ -69,6 +71,10 @@ def main() -> None:
         help="also time S sweeps of each input from the position fit's state (the same patterns)",
     )  # fmt: skip
     args = ap.parse_args()
+    if args.harmonics is not None:
+        import dpgp.model.estimator as estimator
+
+        estimator.MAX_HEADING_HARMONICS = args.harmonics  # the cap of the estimator's rule, for this run
     for name, load in datasets(args.sumo_dt).items():
         if args.only and name not in args.only.split(","):
             continue
@@ -84,7 +90,7 @@ def main() -> None:
                 t0 = time.perf_counter()
                 model = dpgp.DPGP(
                     iterations=args.iterations, seed=seed, progress=False, likelihood=args.likelihood,
-                    sampler="collapsed", inputs=inputs,
+                    sampler=args.sampler, inputs=inputs,
                 ).fit(train)  # fmt: skip
                 seconds = time.perf_counter() - t0
                 held = model.score_samples(test, positions=False, average=args.average)
@@ -125,10 +131,10 @@ def same_partition(train, test, seed: int, args) -> None:
 
 
 def sweep_cost(train, seed: int, args) -> None:
-    """Median seconds of a collapsed sweep with each input, both chains started from the position
+    """Median seconds of a sweep (``--sampler``) with each input, both chains started from the position
     fit's final state (its partition, length scales, noise and α; ``w_h`` 1 rad): the cost of the
     input at the same number of patterns (issue 34: at most 1.5x)."""
-    kw = dict(seed=seed, progress=False, likelihood=args.likelihood, sampler="collapsed")
+    kw = dict(seed=seed, progress=False, likelihood=args.likelihood, sampler=args.sampler)
     pos = dpgp.DPGP(iterations=args.iterations, **kw).fit(train)
     noise = np.ascontiguousarray(pos.pattern_noise_var_)
     out = {}

@@ -64,7 +64,8 @@ coefficients, with these changes:
   (``exp(−r² + z (cos h cos h' + sin h sin h' − 1))`` with the cosines and sines computed once
   per point), about what the position kernel costs, and its factors are the same ``n_k × n_k``.
   Its memory is the same too.
-- the sub-cluster sampler does not run fields over heading: hsgp is costed on the collapsed one.
+- hsgp is costed on the sampler it would run on, the sub-cluster one by default: its ``K M³``
+  factorisations grow ``(2J + 1)³``-fold and its per-point term ``(2J + 1)``-fold.
 - the accuracy probe runs **with the headings**: both GPs of :func:`resolution_gap` get each
   point's previous heading (``NaN`` where a vehicle has none, as the fit treats it), hsgp's basis
   the fit's ``J`` harmonics, and the grid adds heading length scales :data:`PROBE_HEADING_SCALES`

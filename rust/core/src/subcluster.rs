@@ -505,6 +505,9 @@ impl SubclusterSampler {
     /// in parallel: the collapsed sampler would place them by cheap score and build a pattern
     /// holding a copy of every point, which on a million frames is most of the memory.
     fn initialize_sequential(&mut self, stop: &dyn Fn() -> bool) -> Result<()> {
+        if self.basis.harmonics() > 0 {
+            return self.initialize_over_position(stop);
+        }
         let n = self.store.len();
         let n0 = n.min(crate::gibbs::INIT_SEQUENTIAL);
         let first = match self.store.data() {
@@ -530,6 +533,43 @@ impl SubclusterSampler {
         }
         self.set_state(&labels, &ls, Some(&noise), self.alpha)?;
         self.coalesce(stop)
+    }
+
+    /// Fields over heading start from the start of fields over position on the same position
+    /// basis (the sequential initialisation, the placement of later frames and the coarsened
+    /// start), each pattern at the starting heading length scale. The collapsed sampler's moves
+    /// over the heading basis cost `(2J + 1)²` times the position ones (its factors are `M x M`),
+    /// and the coarsened start one factorisation per pair of patterns; over position both are
+    /// what a position fit pays. Where a chain starts, not a step of it: no effect on the target.
+    fn initialize_over_position(&mut self, stop: &dyn Fn() -> bool) -> Result<()> {
+        let [mx, my] = self.basis.counts();
+        let position = Basis::new(self.basis.center(), self.basis.half_widths(), [mx, my])?;
+        let wh = self.settings.base.length_scales.wh;
+        let mut settings = self.settings.clone();
+        settings.likelihood = Likelihood::Hsgp(Arc::new(position));
+        settings.heading_prior = None;
+        settings.base = settings.base.with_length_scales(LengthScales {
+            wh: f64::INFINITY,
+            ..settings.base.length_scales
+        });
+        let mut start = Self::with_store(self.store.clone(), settings)?;
+        start.alpha = self.alpha;
+        start.initialize_sequential(stop)?;
+        let infos = start.patterns();
+        let group: std::collections::HashMap<usize, usize> =
+            infos.iter().enumerate().map(|(g, p)| (p.slot, g)).collect();
+        let labels: Vec<usize> = start.gather_labels()?.iter().map(|l| group[l]).collect();
+        let ls: Vec<LengthScales> = infos
+            .iter()
+            .map(|p| LengthScales {
+                wh,
+                ..p.length_scales
+            })
+            .collect();
+        let noise: Vec<[f64; 2]> = infos.iter().map(|p| p.noise_var).collect();
+        let alpha = start.alpha;
+        drop(start);
+        self.set_state(&labels, &ls, Some(&noise), alpha)
     }
 
     /// Set a state directly: `labels` as group numbers (equal numbers share a pattern), each
