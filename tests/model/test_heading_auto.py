@@ -69,18 +69,18 @@ def test_the_probe_reads_the_kernel_the_heading_fit_runs():
 
 def test_auto_heading_fit_is_what_the_cost_model_predicts(road):
     """The small two-way road, today's coefficients: exact's worst case is fast enough, so auto
-    runs exact up front; engine_choice_ holds the cost model's figures (hsgp's with M = 7 m_x m_y)
-    and the fit is bitwise likelihood="exact"'s."""
+    runs exact up front; engine_choice_ holds the cost model's figures (hsgp's on the sub-cluster
+    sampler it would run on, with M = 7 m_x m_y) and the fit is bitwise likelihood="exact"'s."""
     kw = dict(iterations=3, seed=1, progress=False, n_basis=(12, 4), inputs=HEADED)
     auto = DPGP(**kw).fit(road)
     m = 12 * 4
-    predicted = ec.choose_upfront(road.sizes, m, auto.memory_budget_, False, J)
+    predicted = ec.choose_upfront(road.sizes, m, auto.memory_budget_, True, J)
     assert predicted is not None and predicted.engine == "exact"
     choice = auto.engine_choice_
     assert {k: choice[k] for k in predicted.to_dict()} == predicted.to_dict()
     assert choice["basis"] == (2 * J + 1) * m and choice["heading_functions"] == 2 * J + 1
     assert choice["exact_seconds"] == ec.sweep_seconds("exact", [road.n_points], road.sizes)
-    assert choice["hsgp_seconds"] == ec.sweep_seconds("hsgp", [], road.sizes, (2 * J + 1) * m)
+    assert choice["hsgp_seconds"] == ec.sweep_seconds("subcluster", [road.n_points], road.sizes, (2 * J + 1) * m)
     assert choice["sampler"]["sampler"] == "collapsed" and choice["inputs"] == {"inputs": HEADED, "why": "given"}
     assert auto.likelihood_ == "exact" and auto.inputs_ == HEADED
     _same_heading_fit(auto, DPGP(**kw, likelihood="exact").fit(road))
@@ -92,11 +92,12 @@ def test_auto_heading_after_the_probe_is_the_engine_it_picks(road, monkeypatch, 
     pattern sizes (hsgp at M = 7 m_x m_y) and, where hsgp is faster, probes with the headings:
     the fit is bitwise the explicit engine's, heading length scales included."""
     m = 12 * 4
-    if winner == "exact":  # exact pays n³, hsgp a flat half of exact's worst case per frame
-        flat = 0.5 * road.n_points**3 / ec.HSGP_MARGIN / ec.features("hsgp", [], road.sizes, 7 * m)[0]
-        coefficients = {"exact": (0.0, 0.0, 1.0), "hsgp": (flat, 0.0, 0.0, 0.0)}
+    # hsgp over heading would run on the sub-cluster sampler: its coefficients are those costed.
+    if winner == "exact":  # exact pays n³, hsgp a flat half of exact's worst case per point
+        flat = 0.5 * road.n_points**3 / ec.HSGP_MARGIN / ec.features("subcluster", [road.n_points], road.sizes, 7 * m)[0]
+        coefficients = {"exact": (0.0, 0.0, 1.0), "subcluster": (flat, 0.0, 0.0)}
     else:  # exact's per-frame cost dwarfs hsgp's
-        coefficients = {"exact": (1.0, 0.0, 0.0), "hsgp": (1e-9, 0.0, 0.0, 0.0)}
+        coefficients = {"exact": (1.0, 0.0, 0.0), "subcluster": (1e-9, 0.0, 0.0)}
     monkeypatch.setattr(ec, "COEFFICIENTS", coefficients)
     kw = dict(iterations=2, seed=2, progress=False, n_basis=(12, 4), inputs=HEADED)
     auto = DPGP(**kw).fit(road)

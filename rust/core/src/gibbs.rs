@@ -337,6 +337,36 @@ impl Settings {
         }
     }
 
+    /// Fields over heading: check that the frames (when at hand) carry previous headings and a
+    /// reduced-rank basis has heading harmonics, and start patterns at the prior's mean heading
+    /// length scale unless one is fixed. Nothing to do over position.
+    pub(crate) fn resolve_heading(&mut self, data: Option<&Data>) -> Result<()> {
+        let Some((a, b)) = self.heading_prior else {
+            return Ok(());
+        };
+        if data.is_some_and(|d| d.headings().is_empty()) {
+            return Err(Error::InvalidInput(
+                "fields over heading need each vehicle's previous heading: frames made by \
+                 dpgp.make_frames from tracks carry them"
+                    .into(),
+            ));
+        }
+        if let Likelihood::Hsgp(basis) = &self.likelihood
+            && basis.harmonics() == 0
+        {
+            return Err(Error::InvalidInput(
+                "fields over heading on the reduced-rank engine need a basis with heading \
+                 harmonics"
+                    .into(),
+            ));
+        }
+        let ls = self.base.length_scales;
+        if !crate::heading::is_headed(ls.wh) {
+            self.base.length_scales = ls.with_heading(a * b)?;
+        }
+        Ok(())
+    }
+
     /// Every rule a setting must keep; [`Sampler::new`] calls it, and callers may call it early
     /// (before work that depends on the settings) with placeholders for what they resolve later.
     pub fn validate(&self) -> Result<()> {
@@ -606,29 +636,7 @@ impl Sampler {
     /// [`Sampler::new`] over frames shared with others (the sub-cluster sampler's, say).
     pub fn new_with_data(data: Arc<Data>, mut settings: Settings) -> Result<Self> {
         settings.validate()?;
-        if let Some((a, b)) = settings.heading_prior {
-            if data.headings().is_empty() {
-                return Err(Error::InvalidInput(
-                    "fields over heading need each vehicle's previous heading: frames made by \
-                     dpgp.make_frames from tracks carry them"
-                        .into(),
-                ));
-            }
-            if let Likelihood::Hsgp(basis) = &settings.likelihood
-                && basis.harmonics() == 0
-            {
-                return Err(Error::InvalidInput(
-                    "fields over heading on the reduced-rank engine need a basis with heading \
-                     harmonics"
-                        .into(),
-                ));
-            }
-            // Patterns start at the prior's mean heading length scale unless one is fixed.
-            let ls = settings.base.length_scales;
-            if !crate::heading::is_headed(ls.wh) {
-                settings.base.length_scales = ls.with_heading(a * b)?;
-            }
-        }
+        settings.resolve_heading(Some(&data))?;
         let n = data.len();
         let alpha = initial_alpha(&settings)?;
         let grid = (settings.proposal == Proposal::Informed).then(|| {

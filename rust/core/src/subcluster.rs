@@ -235,8 +235,9 @@ impl SubclusterSampler {
     }
 
     /// A sampler over frames held by `store` (this process's, or shards served elsewhere).
-    pub fn with_store(store: Store, settings: Settings) -> Result<Self> {
+    pub fn with_store(store: Store, mut settings: Settings) -> Result<Self> {
         settings.validate()?;
+        settings.resolve_heading(store.data().map(|d| &**d))?;
         let Likelihood::Hsgp(basis) = &settings.likelihood else {
             unreachable!("validate() refuses the sub-cluster sampler without a basis");
         };

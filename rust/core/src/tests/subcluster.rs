@@ -344,3 +344,22 @@ fn the_coarsened_start_leaves_no_merge_that_raises_the_log_joint() {
         }
     }
 }
+
+/// Fields over heading on the sub-cluster sampler start every pattern at the prior's mean
+/// heading length scale (as the collapsed sampler does), and refuse frames without headings.
+#[test]
+fn patterns_over_heading_start_at_the_priors_mean_heading_scale() {
+    let mut st = headed_settings(tiny_hsgp_headed(), 3);
+    st.sampler = SamplerKind::Subcluster;
+    st.base = st
+        .base
+        .with_length_scales(st.base.length_scales.with_heading(f64::INFINITY).unwrap());
+    let (a, b) = st.heading_prior.unwrap();
+    let mut s = SubclusterSampler::new(Arc::new(tiny_headed()), st.clone()).unwrap();
+    s.initialize(Start::Sequential, &|| false).unwrap();
+    for p in s.patterns() {
+        assert_eq!(p.length_scales.wh, a * b);
+    }
+    let err = SubclusterSampler::new(Arc::new(tiny()), st).unwrap_err();
+    assert!(err.to_string().contains("previous heading"), "{err}");
+}
