@@ -61,7 +61,9 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=20)
     ap.add_argument("--likelihood", default="exact", choices=("exact", "hsgp"))
     ap.add_argument("--sampler", default="collapsed", choices=("collapsed", "subcluster"))
-    ap.add_argument("--harmonics", type=int, default=None, help="heading harmonics J of hsgp's basis (default: the estimator's)")
+    ap.add_argument(
+        "--harmonics", type=int, default=None, help="heading harmonics J of hsgp's basis (default: the estimator's)"
+    )
     ap.add_argument("--sumo-dt", type=float, default=2.0, help="frame step of the SUMO junction (s)")
     ap.add_argument("--thin", type=int, default=1, help="fit on every N-th training frame")
     ap.add_argument("--average", action="store_true", help="score the posterior predictive (kept draws)")

@@ -94,7 +94,9 @@ def test_auto_heading_after_the_probe_is_the_engine_it_picks(road, monkeypatch, 
     m = 12 * 4
     # hsgp over heading would run on the sub-cluster sampler: its coefficients are those costed.
     if winner == "exact":  # exact pays n³, hsgp a flat half of exact's worst case per point
-        flat = 0.5 * road.n_points**3 / ec.HSGP_MARGIN / ec.features("subcluster", [road.n_points], road.sizes, 7 * m)[0]
+        flat = (
+            0.5 * road.n_points**3 / ec.HSGP_MARGIN / ec.features("subcluster", [road.n_points], road.sizes, 7 * m)[0]
+        )
         coefficients = {"exact": (0.0, 0.0, 1.0), "subcluster": (flat, 0.0, 0.0)}
     else:  # exact's per-frame cost dwarfs hsgp's
         coefficients = {"exact": (1.0, 0.0, 0.0), "subcluster": (1e-9, 0.0, 0.0)}

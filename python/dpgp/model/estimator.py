@@ -191,9 +191,10 @@ class DPGP:
         average; the kernel is the squared exponential times a periodic kernel in heading, whose
         length scale each pattern samples (``heading_scales_``, prior :data:`HEADING_PRIOR`).
         Needs frames made by :func:`dpgp.make_frames` from tracks (they carry ``prev_heading``);
-        runs on the collapsed sampler, with either engine or ``likelihood="auto"``. Model files,
-        checkpoints and posterior draws keep each pattern's heading length scale. Not yet: the
-        sub-cluster sampler, ``dynamics``, ``fit_chains``. ``"auto"``: fields over position for
+        runs with either engine or ``likelihood="auto"``, on the collapsed sampler or (hsgp) the
+        sub-cluster one, which ``sampler="auto"`` picks for hsgp as over position. Model files,
+        checkpoints and posterior draws keep each pattern's heading length scale. Not yet:
+        ``dynamics``, ``fit_chains``, frames in shards. ``"auto"``: fields over position for
         frames without previous headings (no tracks); for frames with them, the heading form
         only if the held-out comparison :data:`HEADING_EVIDENCE` favours it on every set (today
         it does not: ``"position"``), and only where the other settings can run it. The input
@@ -426,7 +427,7 @@ class DPGP:
             return
         blocked = None
         if sharded:
-            blocked = "frames in shards run on the sub-cluster sampler, which fields over heading do not run on yet"
+            blocked = "frames in shards do not carry previous headings yet"
         elif self.dynamics is not None:
             blocked = "dynamics='sticky': fields over heading run without dynamics, for now"
         choice = choose_inputs(frames.prev_heading is not None, blocked=blocked)

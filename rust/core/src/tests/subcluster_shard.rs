@@ -209,12 +209,8 @@ fn the_store_answers_as_all_frames_in_one_place() {
     assert_eq!(f1.offsets(), f2.offsets());
 }
 
-/// The labels, log joint and α of 150 sweeps from the sequential start.
-fn trace(store: Store, threads: usize) -> Vec<(Vec<usize>, u64, u64)> {
-    trace_with(store, settings(5), threads)
-}
-
-/// [`trace`] under other settings (length scales and α sampled).
+/// The labels, log joint and α of 150 sweeps from the sequential start under `st` (length scales
+/// and α sampled).
 fn trace_with(store: Store, mut st: Settings, threads: usize) -> Vec<(Vec<usize>, u64, u64)> {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
@@ -238,46 +234,40 @@ fn trace_with(store: Store, mut st: Settings, threads: usize) -> Vec<(Vec<usize>
     })
 }
 
+/// The chain over shards of `sizes` is the same in process and through bytes and for 1–3
+/// threads, and on one shard the chain over all frames in one place (more shards add their sums
+/// in another order: the same chain up to round-off). Returns the latter's trace.
+fn assert_one_chain_wherever_served(
+    data: &Data,
+    sizes: &[usize],
+    st: &Settings,
+) -> Vec<(Vec<usize>, u64, u64)> {
+    let run = |store: Store, threads| trace_with(store, st.clone(), threads);
+    let in_process = || Store::in_process_shards(cut(data, sizes)).unwrap();
+    let bytes = || Store::sharded(sizes, Arc::new(Bytes(cut(data, sizes)))).unwrap();
+    let reference = run(in_process(), 1);
+    assert_eq!(reference, run(bytes(), 1));
+    assert_eq!(reference, run(bytes(), 3));
+    assert_eq!(reference, run(in_process(), 2));
+    let whole = run(Store::local(Arc::new(data.clone())), 1);
+    let one = Store::in_process_shards(cut(data, &[data.len()])).unwrap();
+    assert_eq!(whole, run(one, 2));
+    whole
+}
+
 #[test]
 fn a_sharded_chain_is_the_same_in_process_through_bytes_and_for_any_thread_count() {
-    let data = tiny();
-    let sizes = [2, 3];
-    let in_process = || Store::in_process_shards(cut(&data, &sizes)).unwrap();
-    let bytes = || Store::sharded(&sizes, Arc::new(Bytes(cut(&data, &sizes)))).unwrap();
-    let reference = trace(in_process(), 1);
-    assert_eq!(reference, trace(bytes(), 1));
-    assert_eq!(reference, trace(bytes(), 3));
-    assert_eq!(reference, trace(in_process(), 2));
-    // One shard is the chain over all frames in one place.
-    let whole = trace(Store::local(Arc::new(tiny())), 1);
-    assert_eq!(
-        whole,
-        trace(Store::in_process_shards(cut(&data, &[5])).unwrap(), 2)
-    );
+    assert_one_chain_wherever_served(&tiny(), &[2, 3], &settings(5));
 }
 
 /// Fields over heading: the shards send their points' headings with the points and sum the
-/// heading moments; the chain is the same in process, through bytes, for any thread count, and
-/// on one shard as on all frames in one place.
+/// heading moments.
 #[test]
 fn a_sharded_chain_over_heading_is_the_chain_over_all_frames() {
-    let data = tiny_headed();
-    let sizes = [3, 2];
     let mut st = headed_settings(tiny_hsgp_headed(), 5);
     st.sampler = SamplerKind::Subcluster;
     st.split_merge.moves_per_sweep = 2;
-    let run = |store: Store, threads| trace_with(store, st.clone(), threads);
-    let reference = run(Store::in_process_shards(cut(&data, &sizes)).unwrap(), 1);
-    let bytes = || Store::sharded(&sizes, Arc::new(Bytes(cut(&data, &sizes)))).unwrap();
-    assert_eq!(reference, run(bytes(), 1));
-    assert_eq!(reference, run(bytes(), 3));
-    // One shard is the chain over all frames in one place (more shards add their sums in
-    // another order: the same chain up to round-off).
-    let whole = run(Store::local(Arc::new(tiny_headed())), 1);
-    assert_eq!(
-        whole,
-        run(Store::in_process_shards(cut(&data, &[5])).unwrap(), 2)
-    );
+    let whole = assert_one_chain_wherever_served(&tiny_headed(), &[3, 2], &st);
     // Not the chain over position: the headings were used.
     let mut blind = st.clone();
     blind.heading_prior = None;
