@@ -11,7 +11,8 @@ Prints one table, then the issue's targets met or missed.
                               [--thin N] [--noise-ratio R] [--models DIR] [--harmonics J]
 
 ``--inputs``: the fields' inputs to compare, one fit each (issue 34); a fit over heading runs the
-collapsed sampler on ``--heading-likelihood`` (it does not choose its engine yet). ``--thin N``:
+sampler of ``--heading-sampler`` (collapsed by default; ``subcluster`` with ``--heading-likelihood
+hsgp``) on ``--heading-likelihood`` (it does not choose its engine yet). ``--thin N``:
 fit on every N-th training frame (each keeps its own previous step, so the model's step is the
 framing's), for fits over heading too slow on every frame; scoring uses every test frame. What
 generation learns from consecutive training frames (the residual's and the heading's time
@@ -69,17 +70,20 @@ def measure(
     thin: int = 1,
     noise_ratio: float | None = None,
     models: Path | None = None,
+    sampler: str = "collapsed",
 ) -> dict:
     t0 = time.perf_counter()
     frames, tracks = load()
     train, test = split_in_time(frames)
     train = train[::thin]
-    options: dict = {} if inputs == "position" else {"inputs": inputs, "likelihood": likelihood, "sampler": "collapsed"}
+    options: dict = {} if inputs == "position" else {"inputs": inputs, "likelihood": likelihood, "sampler": sampler}
     if noise_ratio is not None:
         sv = train.v.var(axis=0)
         options["noise_var"] = (noise_ratio * float(sv[0]), noise_ratio * float(sv[1]))
-    tag = f"{name}-{inputs}-{likelihood}-{iterations}-thin{thin}" + (
-        "" if noise_ratio is None else f"-noise{noise_ratio:g}"
+    tag = (
+        f"{name}-{inputs}-{likelihood}-{iterations}-thin{thin}"
+        + ("" if noise_ratio is None else f"-noise{noise_ratio:g}")
+        + ("" if sampler == "collapsed" or inputs == "position" else f"-{sampler}")
     )
     kept = None if models is None else models / f"{tag}.npz"
     if kept is not None and kept.exists():
@@ -155,6 +159,10 @@ def main() -> None:
         "--inputs", default="position", help="comma-separated inputs to compare (position, position+heading)"
     )
     ap.add_argument("--heading-likelihood", default="exact", choices=("exact", "hsgp"))
+    ap.add_argument(
+        "--heading-sampler", default="collapsed", choices=("collapsed", "subcluster"),
+        help="the sampler of fits over heading (subcluster: with --heading-likelihood hsgp)",
+    )  # fmt: skip
     ap.add_argument("--thin", type=int, default=1, help="fit on every N-th training frame")
     ap.add_argument("--models", type=Path, help="folder to keep the fits in (loaded from there when present)")
     ap.add_argument("--noise-ratio", type=float, help="fixed noise variance, as a share of the velocity variance")
@@ -171,7 +179,7 @@ def main() -> None:
         for inputs in args.inputs.split(","):
             row = measure(
                 name, load, unit, args.iterations, args.plots, inputs, args.heading_likelihood,
-                thin=args.thin, noise_ratio=args.noise_ratio, models=args.models,
+                thin=args.thin, noise_ratio=args.noise_ratio, models=args.models, sampler=args.heading_sampler,
             )  # fmt: skip
             rows.append(row)
             checks[row["data"]] = targets(row, unit)
