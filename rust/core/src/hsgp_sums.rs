@@ -368,7 +368,7 @@ fn heading_weights(c: usize, w: &[f64], n: usize, psi: &mut [f64]) {
 /// `sin 0 h` vanishes).
 fn heading_product(harmonics: usize, c: usize, c2: usize) -> Vec<(usize, f64)> {
     // (is sine, harmonic) of a heading function; the constant is `cos 0h` over every point.
-    let kind = |c: usize| (c > 0 && c % 2 == 0, heading::harmonic_of(c));
+    let kind = |c: usize| (c > 0 && c.is_multiple_of(2), heading::harmonic_of(c));
     match (kind(c), kind(c2)) {
         ((_, 0), (false, 0)) => vec![(0, 1.0)],
         ((false, 0), (sine, j)) | ((sine, j), (false, 0)) => {
