@@ -109,7 +109,9 @@ def test_client_with_frames_not_in_shards_is_refused():
 
 
 @pytest.mark.parametrize(
-    "setting", [{"likelihood": "exact"}, {"sampler": "collapsed"}, {"pattern_moments": True}], ids=str
+    "setting",
+    [{"likelihood": "exact"}, {"sampler": "collapsed"}, {"pattern_moments": True}, {"inputs": "position+heading"}],
+    ids=str,
 )
 def test_client_with_settings_that_need_every_frame_is_refused_before_any_work(shard_dir, setting):
     model = dpgp.DPGP(iterations=1, progress=False, **setting)

@@ -619,11 +619,13 @@ class DPGP:
             and self.sampler in ("auto", "subcluster")
             and self.dynamics is None
             and not self.pattern_moments
+            and self.inputs != "position+heading"  # Parquet shards carry no previous headings yet
         )
         if client is not None and not ok:
             raise InvalidInputError(
                 "a fit with client= runs the sub-cluster sampler on the reduced-rank engine over the shards; "
-                "likelihood must be 'auto' or 'hsgp', sampler 'auto' or 'subcluster', with no dynamics or pattern_moments"
+                "likelihood must be 'auto' or 'hsgp', sampler 'auto' or 'subcluster', with no dynamics or "
+                "pattern_moments, and inputs other than 'position+heading' (shards carry no previous headings yet)"
             )
         return ok
 
