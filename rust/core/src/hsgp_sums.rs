@@ -186,7 +186,7 @@ impl Sums {
         let mut weighted = vec![0.0; n * my];
         for c in 0..2 * basis.harmonics() + 1 {
             if let Some(w) = &weights {
-                heading_weights(c, w, n, &mut psi);
+                heading_weights(basis.harmonics(), c, w, n, &mut psi);
             }
             for (k, o) in weighted.chunks_mut(n).enumerate() {
                 for ((o, s), p) in o.iter_mut().zip(&vals.sy[k * n..(k + 1) * n]).zip(&psi) {
@@ -354,8 +354,7 @@ fn slice_weights(harmonics: usize, h: &[f64], n: usize) -> Option<Vec<f64>> {
 }
 
 /// `ψ_c` of each point from its slice weights `w` (`1` for `c = 0`; [`heading::features`] order).
-fn heading_weights(c: usize, w: &[f64], n: usize, psi: &mut [f64]) {
-    let harmonics = (w.len() / n - 2) / 4;
+fn heading_weights(harmonics: usize, c: usize, w: &[f64], n: usize, psi: &mut [f64]) {
     let slice = match c {
         0 => 0,
         c if c % 2 == 1 => cos_slice(heading::harmonic_of(c)),

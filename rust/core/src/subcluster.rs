@@ -97,6 +97,21 @@ impl std::str::FromStr for Start {
     }
 }
 
+/// A state as groups, for [`SubclusterSampler::set_state`]: each frame's pattern slot (`slots`)
+/// numbered by the patterns' order in `infos`, and each group's length scales and noise pair.
+fn as_groups(
+    infos: &[PatternInfo],
+    slots: &[usize],
+) -> (Vec<usize>, Vec<LengthScales>, Vec<[f64; 2]>) {
+    let group: std::collections::HashMap<usize, usize> =
+        infos.iter().enumerate().map(|(g, p)| (p.slot, g)).collect();
+    (
+        slots.iter().map(|l| group[l]).collect(),
+        infos.iter().map(|p| p.length_scales).collect(),
+        infos.iter().map(|p| p.noise_var).collect(),
+    )
+}
+
 /// Group numbers of a [`Start::One`] or [`Start::Many`] start for `n` frames.
 pub fn start_groups(start: Start, n: usize) -> Vec<usize> {
     match start {
@@ -521,12 +536,7 @@ impl SubclusterSampler {
         };
         let mut s = Sampler::new_with_data(first, settings)?;
         s.initialize(stop)?;
-        let infos = s.patterns();
-        let slot_to_group: std::collections::HashMap<usize, usize> =
-            infos.iter().enumerate().map(|(g, p)| (p.slot, g)).collect();
-        let mut labels: Vec<usize> = s.labels().iter().map(|l| slot_to_group[l]).collect();
-        let ls: Vec<LengthScales> = infos.iter().map(|p| p.length_scales).collect();
-        let noise: Vec<[f64; 2]> = infos.iter().map(|p| p.noise_var).collect();
+        let (mut labels, ls, noise) = as_groups(&s.patterns(), s.labels());
         drop(s);
         if n0 < n {
             let later = self.place_later(&labels, &ls, &noise, stop)?;
@@ -556,18 +566,10 @@ impl SubclusterSampler {
         let mut start = Self::with_store(self.store.clone(), settings)?;
         start.alpha = self.alpha;
         start.initialize_sequential(stop)?;
-        let infos = start.patterns();
-        let group: std::collections::HashMap<usize, usize> =
-            infos.iter().enumerate().map(|(g, p)| (p.slot, g)).collect();
-        let labels: Vec<usize> = start.gather_labels()?.iter().map(|l| group[l]).collect();
-        let ls: Vec<LengthScales> = infos
-            .iter()
-            .map(|p| LengthScales {
-                wh,
-                ..p.length_scales
-            })
-            .collect();
-        let noise: Vec<[f64; 2]> = infos.iter().map(|p| p.noise_var).collect();
+        let (labels, mut ls, noise) = as_groups(&start.patterns(), &start.gather_labels()?);
+        for l in &mut ls {
+            l.wh = wh;
+        }
         let alpha = start.alpha;
         drop(start);
         self.set_state(&labels, &ls, Some(&noise), alpha)
