@@ -277,14 +277,14 @@ impl Sums {
     /// `G = Σ φ φᵀ` (M x M, both triangles) from the moments.
     pub fn gram(&self, basis: &Basis) -> Vec<f64> {
         let harmonics = basis.harmonics();
+        if harmonics == 0 {
+            return position_gram(basis, &self.h);
+        }
         let grams: Vec<Vec<f64>> = self
             .h
             .chunks_exact(moment_len(basis))
             .map(|h| position_gram(basis, h))
             .collect();
-        if harmonics == 0 {
-            return grams.into_iter().next().expect("one moment slice");
-        }
         // Block (c, c') of heading functions: a combination of the slices' position Grams.
         let (mp, m) = (grams[0].len().isqrt(), basis.len());
         let mut g = vec![0.0; m * m];
