@@ -138,6 +138,38 @@ def test_reduced_rank_densities_equal_the_dense_truncated_kernel(p: exact.GPPara
         )
 
 
+@pytest.mark.parametrize("heading_counts", [(3, 2), (1, 1)])
+def test_coarse_heading_blocks_are_the_sum_of_two_dense_kernels(heading_counts: tuple[int, int]) -> None:
+    """Heading blocks on the lowest ``m'`` position functions: the kernel is ``q_0² k_m`` plus the
+    truncated series' harmonics times ``k_m'``, the reduced-rank position kernel on the lowest
+    ``m'`` functions of the same box (two dense oracles added)."""
+    xy, v, h = scene(35)
+    sxy, sv, sh = scene(7)
+    p, harmonics = PARAMS[0], 2
+    box = hsgp.basis_for(np.vstack([xy, sxy]), n_basis=(10, 4))
+    basis = hsgp.Basis(*box.as_tuple(), harmonics=harmonics, heading_counts=heading_counts)
+    assert basis.size == 40 + 2 * harmonics * heading_counts[0] * heading_counts[1]
+    coarse = hsgp.Basis(box.center, box.half_widths, heading_counts)
+    q0 = ive(0, 1.0 / p.heading_scale**2)
+
+    def k(a, ha, b, hb):
+        full = hsgp_oracle.corr(a, b, p.length_scales, box)
+        return q0 * full + (periodic(ha, hb, p.heading_scale, harmonics) - q0) * hsgp_oracle.corr(
+            a, b, p.length_scales, coarse
+        )
+
+    K = k(xy, h, xy, h)
+    assert hsgp.log_marginal_likelihood(xy, v, p, basis, h) == pytest.approx(dense_logml(K, v, p), rel=1e-9)
+    want = dense_predictive(K, k(xy, h, sxy, sh), k(sxy, sh, sxy, sh), v, sv, p)
+    assert hsgp.log_predictive(xy, v, sxy, sv, p, basis, h, sh) == pytest.approx(want, rel=1e-8)
+    # Not the full product's density (the check has power).
+    full = hsgp.Basis(*box.as_tuple(), harmonics=harmonics)
+    assert abs(hsgp.log_marginal_likelihood(xy, v, p, full, h) - dense_logml(K, v, p)) > 1e-3
+    assert hsgp.Basis.from_dict(basis.to_dict()) == basis
+    with pytest.raises(InvalidInputError, match="heading counts"):
+        hsgp.Basis.from_dict({**basis.to_dict(), "heading_counts": [11, 1]})
+
+
 def test_reduced_rank_heading_field_approaches_the_exact_one() -> None:
     xy, v, h = scene(50)
     p = exact.GPParams((10.0, 6.0), 30.0, 0.5, heading_scale=1.0)

@@ -178,6 +178,7 @@ def hsgp_log_marginal_likelihood(
     h: NDArray[np.float64] | None = None,
     wh: float = ...,
     harmonics: int = 0,
+    heading_counts: tuple[int, int] | None = None,
 ) -> float: ...
 def hsgp_log_predictive(
     train_xy: NDArray[np.float64],
@@ -190,6 +191,7 @@ def hsgp_log_predictive(
     test_h: NDArray[np.float64] | None = None,
     wh: float = ...,
     harmonics: int = 0,
+    heading_counts: tuple[int, int] | None = None,
 ) -> float: ...
 def hsgp_posterior(
     train_xy: NDArray[np.float64],
@@ -201,6 +203,7 @@ def hsgp_posterior(
     query_h: NDArray[np.float64] | None = None,
     wh: float = ...,
     harmonics: int = 0,
+    heading_counts: tuple[int, int] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]: ...
 
 class _SamplerSettings(TypedDict):
@@ -231,6 +234,7 @@ class _SamplerSettings(TypedDict):
     sampler: NotRequired[str]  # "collapsed" | "subcluster"
     heading_prior: NotRequired[tuple[float, float] | None]  # Gamma of w_h (radians); None: position only
     heading_harmonics: NotRequired[int | None]  # heading harmonics of an hsgp basis
+    heading_counts: NotRequired[tuple[int, int] | None]  # position functions per axis of its heading blocks
 
 def nearest_neighbour_sq(xy: NDArray[np.float64], offsets: NDArray[np.int64]) -> NDArray[np.float64]: ...
 def check_settings(settings: _SamplerSettings) -> None: ...

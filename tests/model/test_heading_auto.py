@@ -42,6 +42,10 @@ def test_the_heading_basis_multiplies_m_in_hsgp_cost_only():
     n, frames, m = [40, 300, 900], [3, 5, 4] * 50, 60
     pos, head = ec.choose(n, frames, m, None), ec.choose(n, frames, m, None, harmonics=3)
     assert ec.heading_basis_size(m, 3) == 7 * m and head.basis == 7 * m and head.heading_functions == 7
+    assert (
+        ec.heading_basis_size(m, 3, 4) == m + 24
+        and ec.choose(n, frames, m, None, harmonics=3, heading_size=4).basis == m + 24
+    )
     assert pos.basis == m and pos.heading_functions == 1
     assert head.hsgp_seconds == ec.sweep_seconds("hsgp", n, frames, 7 * m)
     assert head.exact_seconds == pos.exact_seconds  # exact's product kernel costs the position one's
@@ -70,17 +74,21 @@ def test_the_probe_reads_the_kernel_the_heading_fit_runs():
 def test_auto_heading_fit_is_what_the_cost_model_predicts(road):
     """The small two-way road, today's coefficients: exact's worst case is fast enough, so auto
     runs exact up front; engine_choice_ holds the cost model's figures (hsgp's on the sub-cluster
-    sampler it would run on, with M = 7 m_x m_y) and the fit is bitwise likelihood="exact"'s."""
+    sampler it would run on, with M = m_x m_y + 2J m'_x m'_y) and the fit is bitwise
+    likelihood="exact"'s."""
     kw = dict(iterations=3, seed=1, progress=False, n_basis=(12, 4), inputs=HEADED)
     auto = DPGP(**kw).fit(road)
     m = 12 * 4
-    predicted = ec.choose_upfront(road.sizes, m, auto.memory_budget_, True, J)
+    heading_size = 3 * 1  # the heading blocks' position functions: ceil(12 / 4) x ceil(4 / 4) (stride 4)
+    assert estimator.HEADING_BASIS_STRIDE == 4
+    predicted = ec.choose_upfront(road.sizes, m, auto.memory_budget_, True, J, heading_size)
     assert predicted is not None and predicted.engine == "exact"
     choice = auto.engine_choice_
     assert {k: choice[k] for k in predicted.to_dict()} == predicted.to_dict()
-    assert choice["basis"] == (2 * J + 1) * m and choice["heading_functions"] == 2 * J + 1
+    big_m = m + 2 * J * heading_size
+    assert choice["basis"] == big_m and choice["heading_functions"] == 2 * J + 1
     assert choice["exact_seconds"] == ec.sweep_seconds("exact", [road.n_points], road.sizes)
-    assert choice["hsgp_seconds"] == ec.sweep_seconds("subcluster", [road.n_points], road.sizes, (2 * J + 1) * m)
+    assert choice["hsgp_seconds"] == ec.sweep_seconds("subcluster", [road.n_points], road.sizes, big_m)
     assert choice["sampler"]["sampler"] == "collapsed" and choice["inputs"] == {"inputs": HEADED, "why": "given"}
     assert auto.likelihood_ == "exact" and auto.inputs_ == HEADED
     _same_heading_fit(auto, DPGP(**kw, likelihood="exact").fit(road))
@@ -89,13 +97,14 @@ def test_auto_heading_fit_is_what_the_cost_model_predicts(road):
 @pytest.mark.parametrize("winner", ["exact", "hsgp"])
 def test_auto_heading_after_the_probe_is_the_engine_it_picks(road, monkeypatch, winner):
     """Undecided up front, auto initialises hsgp over heading, predicts both engines from its
-    pattern sizes (hsgp at M = 7 m_x m_y) and, where hsgp is faster, probes with the headings:
-    the fit is bitwise the explicit engine's, heading length scales included."""
+    pattern sizes (hsgp at M = m_x m_y + 2J m'_x m'_y) and, where hsgp is faster, probes with
+    the headings: the fit is bitwise the explicit engine's, heading length scales included."""
     m = 12 * 4
+    big_m = m + 2 * J * 3  # heading blocks on ceil(12 / 4) x ceil(4 / 4) position functions
     # hsgp over heading would run on the sub-cluster sampler: its coefficients are those costed.
     if winner == "exact":  # exact pays n³, hsgp a flat half of exact's worst case per point
         flat = (
-            0.5 * road.n_points**3 / ec.HSGP_MARGIN / ec.features("subcluster", [road.n_points], road.sizes, 7 * m)[0]
+            0.5 * road.n_points**3 / ec.HSGP_MARGIN / ec.features("subcluster", [road.n_points], road.sizes, big_m)[0]
         )
         coefficients = {"exact": (0.0, 0.0, 1.0), "subcluster": (flat, 0.0, 0.0)}
     else:  # exact's per-frame cost dwarfs hsgp's
@@ -105,11 +114,12 @@ def test_auto_heading_after_the_probe_is_the_engine_it_picks(road, monkeypatch, 
     auto = DPGP(**kw).fit(road)
     choice = auto.engine_choice_
     assert choice["sizes_from"] == "hsgp initialisation" and auto.likelihood_ == winner
-    assert choice["basis"] == (2 * J + 1) * m and choice["heading_functions"] == 2 * J + 1
+    assert choice["basis"] == big_m and choice["heading_functions"] == 2 * J + 1
     if winner == "hsgp":  # the probe ran, with the headings, and found hsgp accurate here
         assert choice["resolution_gap"] is not None and choice["resolution_gap"] <= ec.PROBE_TOLERANCE
         assert len(choice["probe_gaps"]) == len(ec.PROBE_SEEDS)
         assert auto.basis_ is not None and auto.engine_info()["heading"]["harmonics"] == J
+        assert auto.engine_info()["heading"]["heading_counts"] == [3, 1]
     else:
         assert choice["resolution_gap"] is None and auto.basis_ is None
     assert choice["inputs"] == {"inputs": HEADED, "why": "given"}

@@ -21,7 +21,12 @@ frequency is ``π / w_lo``, where the spectral density of ``w_lo`` has fallen to
 **Heading.** For a field over position and previous heading (``GPParams.heading_scale`` finite),
 a basis with ``harmonics = J`` multiplies each position function by ``1, cos h, sin h, …,
 cos Jh, sin Jh`` with prior weights ``q_0² = I_0(z) e^{-z}``, ``q_j² = 2 I_j(z) e^{-z}``,
-``z = w_h⁻²``: the periodic kernel's Fourier series, truncated (``M = (2J + 1) m_x m_y``).
+``z = w_h⁻²``: the periodic kernel's Fourier series, truncated. The heading functions ``j ≥ 1``
+multiply only the lowest ``m'_x m'_y`` position functions (``heading_counts``; all of them when
+None): ``M = m_x m_y + 2J m'_x m'_y``, and the kernel is ``q_0² k_m(p, p') + Σ_{j≥1} q_j²
+cos(j (h − h')) k_m'(p, p')``, a valid kernel whose heading-dependent part varies over longer
+distances than the field (every factorisation is ``M x M``: the full product costs ``(2J + 1)³``
+times a field over position).
 """
 
 from __future__ import annotations
@@ -49,11 +54,14 @@ class Basis:
     counts: tuple[int, int]
     #: Heading harmonics ``J`` (0: a field over position only).
     harmonics: int = 0
+    #: Position functions per axis of the heading blocks ``m'`` (None: ``counts``).
+    heading_counts: tuple[int, int] | None = None
 
     @property
     def size(self) -> int:
-        """``M = (2J + 1) m_x m_y``."""
-        return self.counts[0] * self.counts[1] * (2 * self.harmonics + 1)
+        """``M = m_x m_y + 2J m'_x m'_y``."""
+        hx, hy = self.heading_counts or self.counts
+        return self.counts[0] * self.counts[1] + 2 * self.harmonics * hx * hy
 
     def as_tuple(self) -> tuple[tuple[float, float], tuple[float, float], tuple[int, int]]:
         return (tuple(self.center), tuple(self.half_widths), tuple(self.counts))  # type: ignore[return-value]
@@ -62,6 +70,8 @@ class Basis:
         d = {"center": list(self.center), "half_widths": list(self.half_widths), "counts": list(self.counts)}
         if self.harmonics:
             d["harmonics"] = self.harmonics
+            if self.heading_counts is not None:
+                d["heading_counts"] = list(self.heading_counts)
         return d
 
     @classmethod
@@ -73,7 +83,15 @@ class Basis:
         harmonics = d.get("harmonics", 0)
         if not isinstance(harmonics, (int, np.integer)) or isinstance(harmonics, bool) or harmonics < 0:
             raise InvalidInputError(f"a basis's heading harmonics must be a non-negative integer, got {harmonics!r}")
-        return cls(center, half, _basis_counts(tuple(d["counts"])), int(harmonics))
+        counts = _basis_counts(tuple(d["counts"]))
+        heading_counts = d.get("heading_counts")
+        if heading_counts is not None:
+            heading_counts = _basis_counts(tuple(heading_counts))
+            if heading_counts[0] > counts[0] or heading_counts[1] > counts[1]:
+                raise InvalidInputError(
+                    f"a basis's heading counts {heading_counts} must not exceed its counts {counts}"
+                )
+        return cls(center, half, counts, int(harmonics), heading_counts)
 
 
 def _basis_counts(n_basis: Any) -> tuple[int, int]:
@@ -108,7 +126,7 @@ def log_marginal_likelihood(xy: object, v: object, params: GPParams, basis: Basi
     xy = as_pairs("xy", xy)
     return _core.hsgp_log_marginal_likelihood(
         xy, as_pairs("v", v), params.as_tuple(), basis.as_tuple(),
-        as_headings("h", h, len(xy)), params.heading_scale, basis.harmonics,
+        as_headings("h", h, len(xy)), params.heading_scale, basis.harmonics, basis.heading_counts,
     )  # fmt: skip
 
 
@@ -128,6 +146,7 @@ def log_predictive(
         train_xy, as_pairs("train_v", train_v), test_xy, as_pairs("test_v", test_v), params.as_tuple(),
         basis.as_tuple(), as_headings("train_h", train_h, len(train_xy)),
         as_headings("test_h", test_h, len(test_xy)), params.heading_scale, basis.harmonics,
+        basis.heading_counts,
     )  # fmt: skip
 
 
@@ -146,7 +165,7 @@ def posterior(
     return _core.hsgp_posterior(
         train_xy, as_pairs("train_v", train_v), query_xy, params.as_tuple(), basis.as_tuple(),
         as_headings("train_h", train_h, len(train_xy)), as_headings("query_h", query_h, len(query_xy)),
-        params.heading_scale, basis.harmonics,
+        params.heading_scale, basis.harmonics, basis.heading_counts,
     )  # fmt: skip
 
 

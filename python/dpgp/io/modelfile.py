@@ -46,7 +46,9 @@ readers that know nothing of them read the model as before, so they need no new 
 ``inputs``; the file then holds ``heading_scales``, the frames' ``frame_prev_*`` members (the
 sampler's inputs), ``draw_heading_scales`` when it holds draws and, in a checkpoint,
 ``resume_heading_scales``; ``engine`` adds ``heading`` (``prior``, the Gamma prior of ``w_h``, and
-``harmonics``, the reduced-rank basis's heading harmonics or null), the values the fit ran with.
+``harmonics``, the reduced-rank basis's heading harmonics or null; ``heading_counts``, the
+position functions per axis of its heading blocks, null or absent for all), the values the fit
+ran with.
 Each of these comes with the others: a file of fields over heading without its heading length
 scales or its frames' headings, or with heading length scales but fields over position, is a
 :class:`~dpgp.ModelFileError`. The format version stays 2: no reader of an earlier version
@@ -655,7 +657,9 @@ def _heading(
     h = (meta.get("engine") or {}).get("heading")
     if h is None:
         return scales, None
-    prior, harmonics = (h.get("prior"), h.get("harmonics")) if isinstance(h, dict) else (None, None)
+    prior, harmonics, counts = (
+        (h.get("prior"), h.get("harmonics"), h.get("heading_counts")) if isinstance(h, dict) else (None, None, None)
+    )
     prior_ok = (
         isinstance(prior, list)
         and len(prior) == 2
@@ -664,12 +668,24 @@ def _heading(
     # The core bounds the basis the harmonics make; here only a count it can take.
     count = isinstance(harmonics, int) and not isinstance(harmonics, bool) and 0 <= harmonics <= 10**6
     harmonics_ok = harmonics is None if likelihood == "exact" else count
-    if not (prior_ok and harmonics_ok):
+    # The heading blocks' position counts: absent or null (every position function, as files
+    # before them), else two positive counts (the core checks them against the basis).
+    counts_ok = counts is None or (
+        likelihood != "exact"
+        and isinstance(counts, list)
+        and len(counts) == 2
+        and all(isinstance(x, int) and not isinstance(x, bool) and 0 < x <= 10**6 for x in counts)
+    )
+    if not (prior_ok and harmonics_ok and counts_ok):
         raise ModelFileError(
             f"the engine's heading entry {h!r} needs a prior of two positive numbers and, for the hsgp likelihood "
-            "only, a count of harmonics; the file is corrupted"
+            "only, a count of harmonics and optionally two heading counts; the file is corrupted"
         )
-    return scales, {"prior": (float(prior[0]), float(prior[1])), "harmonics": harmonics}  # type: ignore[index]
+    return scales, {
+        "prior": (float(prior[0]), float(prior[1])),  # type: ignore[index]
+        "harmonics": harmonics,
+        "heading_counts": None if counts is None else (int(counts[0]), int(counts[1])),
+    }
 
 
 def _sampler(meta: dict[str, Any]) -> str:

@@ -53,13 +53,13 @@ switched mid-fit:
 **Fields over heading** (``inputs="position+heading"``, docs/heading.md). Same rule, same
 coefficients, with these changes:
 
-- hsgp's basis is the position basis times ``2J + 1`` heading functions (``1, cos h, sin h, …,
-  cos Jh, sin Jh``, ``J`` the estimator's harmonics rule), so ``M`` in every hsgp term is
-  ``(2J + 1) m_x m_y`` (:func:`heading_basis_size`): its per-frame kernels sum ``(2J + 1)`` times
-  as many terms, its ``s_k = min(n_k, M)`` factors grow to match, and so does its memory
-  (``K M²``; the core's memory budget checks it as the chain runs, as for position fits). With
-  ``J = 3`` that is 7 times the position basis, so exact wins on more data than over position.
-  ``Choice.basis`` records that ``M`` and ``Choice.heading_functions`` the ``2J + 1``.
+- hsgp's basis is the position basis and ``2J`` heading functions (``cos h, sin h, …, cos Jh,
+  sin Jh``, ``J`` the estimator's harmonics rule) each times the lowest ``m'_x m'_y`` position
+  functions (the estimator's stride rule), so ``M`` in every hsgp term is
+  ``m_x m_y + 2J m'_x m'_y`` (:func:`heading_basis_size`): its factors grow to match, and so
+  does its memory (``K M²``; the core's memory budget checks it as the chain runs, as for
+  position fits). ``Choice.basis`` records that ``M`` and ``Choice.heading_functions`` the
+  ``2J + 1``.
 - exact's terms are unchanged: the product kernel is one fused exponential per entry
   (``exp(−r² + z (cos h cos h' + sin h sin h' − 1))`` with the cosines and sines computed once
   per point), about what the position kernel costs, and its factors are the same ``n_k × n_k``.
@@ -156,12 +156,14 @@ def subcluster_moves(n_frames: int) -> int:
     return int(np.clip(SUBCLUSTER_MOVE_FRAMES // max(int(n_frames), 1), 1, SPLIT_MERGE_MOVES))
 
 
-def heading_basis_size(position_size: int, harmonics: int) -> int:
-    """hsgp's ``M`` for fields over heading: the position basis times the ``2J + 1`` heading
-    functions of ``J = harmonics`` (``harmonics = 0``: the position basis itself)."""
+def heading_basis_size(position_size: int, harmonics: int, heading_size: int | None = None) -> int:
+    """hsgp's ``M`` for fields over heading: the position basis and ``2J`` heading functions
+    (``J = harmonics``) times ``heading_size`` position functions each (None: the position basis;
+    ``harmonics = 0``: the position basis itself)."""
     if harmonics < 0:
         raise ValueError(f"heading harmonics must be non-negative, got {harmonics}")
-    return int(position_size) * (2 * int(harmonics) + 1)
+    block = int(position_size) if heading_size is None else int(heading_size)
+    return int(position_size) + 2 * int(harmonics) * block
 
 
 def sweep_seconds(engine: str, pattern_points: object, frame_sizes: object, basis_size: int | None = None) -> float:
@@ -220,16 +222,22 @@ class Choice:
 
 
 def choose_upfront(
-    frame_sizes: object, basis_size: int, memory_budget: int | None, subcluster: bool = False, harmonics: int = 0
+    frame_sizes: object,
+    basis_size: int,
+    memory_budget: int | None,
+    subcluster: bool = False,
+    harmonics: int = 0,
+    heading_size: int | None = None,
 ) -> Choice | None:
     """Step 1 of the rule: exact if its worst case (all points in one pattern) is predicted no
     slower than hsgp's least cost over all partitions (its per-frame term alone) and fits the
     budget; None when the pattern sizes must be predicted first. ``subcluster``: hsgp would run
     on the sub-cluster sampler, and its least cost is one pattern's sweep on that sampler.
     ``basis_size``: the position basis; ``harmonics``: the heading harmonics ``J`` of a field over
-    heading, whose hsgp ``M`` is :func:`heading_basis_size`."""
+    heading, ``heading_size`` its heading blocks' position functions, whose hsgp ``M`` is
+    :func:`heading_basis_size`."""
     functions = 2 * int(harmonics) + 1
-    basis_size = heading_basis_size(basis_size, harmonics)
+    basis_size = heading_basis_size(basis_size, harmonics, heading_size)
     n_points = int(np.sum(np.asarray(frame_sizes)))
     exact = sweep_seconds("exact", [n_points], frame_sizes)
     hsgp = sweep_seconds(
@@ -248,13 +256,14 @@ def choose(
     memory_budget: int | None,
     subcluster: bool = False,
     harmonics: int = 0,
+    heading_size: int | None = None,
 ) -> Choice:
     """Step 2 of the rule: hsgp if it is predicted :data:`HSGP_MARGIN` times faster on these
     pattern sizes (points) or exact's peak (:func:`exact_peak_bytes`) does not fit the memory
     budget; else exact. ``subcluster``: hsgp's sweep is the sub-cluster sampler's.
-    ``basis_size`` and ``harmonics`` as in :func:`choose_upfront`."""
+    ``basis_size``, ``harmonics`` and ``heading_size`` as in :func:`choose_upfront`."""
     functions = 2 * int(harmonics) + 1
-    basis_size = heading_basis_size(basis_size, harmonics)
+    basis_size = heading_basis_size(basis_size, harmonics, heading_size)
     n = np.asarray(pattern_points, dtype=np.float64).ravel()
     exact = sweep_seconds("exact", n, frame_sizes)
     hsgp = sweep_seconds("subcluster" if subcluster else "hsgp", n, frame_sizes, basis_size)

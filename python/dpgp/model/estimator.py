@@ -45,8 +45,14 @@ _INPUTS = ("position", "position+heading", "auto")
 #: 95% quantiles 0.52 and 2.1. Headings π apart then correlate at exp(-2/w_h²) ≈ 0.25 at the
 #: mean (opposite lanes are told apart), π/2 apart (a turn) at 0.5.
 HEADING_PRIOR = (6.0, 0.2)
-#: Most heading harmonics of a reduced-rank basis: the position basis is multiplied by 2J + 1.
+#: Most heading harmonics of a reduced-rank basis: 2J heading functions beside the constant.
 MAX_HEADING_HARMONICS = 3
+#: A reduced-rank basis's heading functions multiply the lowest ``ceil(m / stride)`` position
+#: functions per axis, not all ``m``: the field's dependence on heading (which lane's direction,
+#: which turn) varies over distances ``stride`` times the finest the position basis resolves, and
+#: every factorisation is ``M x M`` (issue 34: with all of them a sweep over heading cost 32 times
+#: one over position at J = 1 on the SUMO junction). docs/heading.md has the measurements.
+HEADING_BASIS_STRIDE = 4
 #: The evidence ``inputs="auto"`` decides by (issue 34: the heading form where the data have tracks
 #: only if the held-out comparison shows it better on every shared vehicle set): held-out log
 #: density of the velocities given the positions, nats per vehicle, of ``inputs="position+heading"``
@@ -113,6 +119,18 @@ STICKINESS_PRIOR = (1.0, 1.0)
 #: Times a fit sets its shards' labels again and redoes its sweeps (a worker replaced) before it
 #: gives up and raises :class:`dpgp.model.sharded.LabelsLost`.
 _MAX_REDOS = 3
+
+
+def _heading_counts(counts: tuple[int, int]) -> tuple[int, int]:
+    """The heading blocks' position functions per axis for position counts ``counts``
+    (:data:`HEADING_BASIS_STRIDE`)."""
+    return (-(-counts[0] // HEADING_BASIS_STRIDE), -(-counts[1] // HEADING_BASIS_STRIDE))
+
+
+def _heading_size(counts: tuple[int, int]) -> int:
+    """``m'_x m'_y`` of :func:`_heading_counts`."""
+    hx, hy = _heading_counts(counts)
+    return hx * hy
 
 
 class DPGP:
@@ -885,7 +903,12 @@ class DPGP:
 
             basis = self._basis(frames)
             choice = choose_upfront(
-                frames.sizes, basis.size, self.memory_budget_, self._subcluster_possible(), self._auto_harmonics()
+                frames.sizes,
+                basis.size,
+                self.memory_budget_,
+                self._subcluster_possible(),
+                self._auto_harmonics(),
+                _heading_size(basis.counts),
             )
             if choice is None:  # fit predicts the pattern sizes by hsgp's initialisation
                 likelihood, self._auto_pending = "hsgp", True
@@ -997,6 +1020,7 @@ class DPGP:
             self.memory_budget_,
             self.sampler_ == "subcluster",
             harmonics,
+            _heading_size(self.basis_.counts),
         )
         # Fields over heading: the probe runs with the frames' headings, over heading length scales
         # about the w_h prior's (dpgp.model.engine_cost says why), on the basis with its harmonics.
@@ -1006,7 +1030,9 @@ class DPGP:
             heading = self._heading_engine()
             assert heading is not None
             mean = float(heading["prior"][0] * heading["prior"][1])
-            probe_basis = dataclasses.replace(self.basis_, harmonics=harmonics)
+            probe_basis = dataclasses.replace(
+                self.basis_, harmonics=harmonics, heading_counts=heading.get("heading_counts")
+            )
             heading_scales = tuple(share * mean for share in PROBE_HEADING_SCALES)
         if choice.engine == "hsgp":  # faster, or exact over budget: is hsgp accurate on these data?
             # Where exact fits: on the initialisations of fixed seeds, not this fit's, a decision
@@ -1104,21 +1130,29 @@ class DPGP:
                 "dynamics": _sticky_prior(frames) if self.dynamics == "sticky" and frames is not None else None,
                 "heading_prior": heading["prior"] if heading else None,
                 "heading_harmonics": heading["harmonics"] if heading else None,
+                "heading_counts": heading.get("heading_counts") if heading else None,
             }
         )
         return settings
 
     def _heading_engine(self) -> dict[str, Any] | None:
-        """Fields over heading: the Gamma prior of ``w_h`` and the reduced-rank basis's heading
-        harmonics (None for the exact likelihood) the chain runs with: those a loaded model file
-        recorded, else :data:`HEADING_PRIOR` and its harmonics rule. None over position."""
+        """Fields over heading: the Gamma prior of ``w_h``, the reduced-rank basis's heading
+        harmonics and its heading blocks' position counts (None for the exact likelihood) the chain
+        runs with: those a loaded model file recorded (a file without the counts ran with all of
+        them: None), else :data:`HEADING_PRIOR` and the harmonics and stride rules. None over
+        position."""
         if not self._headed():
             return None
         stored = self.__dict__.get("_heading_stored")
         if stored is not None:
-            return dict(stored)
-        harmonics = self._heading_harmonics() if self.likelihood_ == "hsgp" else None
-        return {"prior": HEADING_PRIOR, "harmonics": harmonics}
+            return {"heading_counts": None, **stored}
+        hsgp = self.likelihood_ == "hsgp"
+        basis = self.__dict__.get("basis_")
+        return {
+            "prior": HEADING_PRIOR,
+            "harmonics": self._heading_harmonics() if hsgp else None,
+            "heading_counts": _heading_counts(basis.counts) if hsgp and basis is not None else None,
+        }
 
     @staticmethod
     def _heading_harmonics() -> int:
@@ -1566,7 +1600,12 @@ class DPGP:
         }
         heading = self._heading_engine() if hasattr(self, "likelihood_") else None
         if heading is not None:  # fields over heading: the w_h prior and heading harmonics
-            info["heading"] = {"prior": list(heading["prior"]), "harmonics": heading["harmonics"]}
+            counts = heading.get("heading_counts")
+            info["heading"] = {
+                "prior": list(heading["prior"]),
+                "harmonics": heading["harmonics"],
+                "heading_counts": None if counts is None else list(counts),
+            }
         return info
 
     @classmethod

@@ -20,14 +20,24 @@ use crate::heading;
 pub const MAX_BASIS: usize = 4096;
 
 /// The basis: a box per axis and the number of eigenfunctions along each; for a field over
-/// position and heading, also the harmonics in heading (`heading`): each position function
-/// times `1, cos h, sin h, …, cos Jh, sin Jh`, heading-major (index `c M_p + j + m_x k`).
+/// position and heading, also the harmonics in heading (`heading`), heading-major: block `c = 0`
+/// is the position functions (index `j + m_x k`), and each later block is `cos h`, `sin h`, …,
+/// `cos Jh`, `sin Jh` times the lowest `m'_x m'_y` position functions (index `j + m'_x k`
+/// within its block), the *heading counts* `m'` (`m' = m`: the full tensor product).
+///
+/// Why fewer position functions with heading: every factorisation of a pattern is `M x M`, so
+/// the full product costs `(2J + 1)³` times a position fit's; the part of a field that varies
+/// with heading (which lane's direction, which turn) varies over longer distances than the
+/// field itself, and `k̃ = q_0² k_m(p, p') + Σ_{j ≥ 1} q_j² cos(j (h − h')) k_m'(p, p')` is a
+/// kernel in its own right (a sum of two), with `k_m` the position kernel on `m` functions.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Basis {
     center: [f64; 2],
     half: [f64; 2],
     m: [usize; 2],
     harmonics: usize,
+    /// Position functions per axis of each heading block (`≤ m`).
+    heading_m: [usize; 2],
 }
 
 impl Basis {
@@ -48,21 +58,40 @@ impl Basis {
             half,
             m,
             harmonics: 0,
+            heading_m: m,
         })
     }
 
-    /// The same position basis times `2 harmonics + 1` functions of heading (0: position only).
+    /// The same position basis times `2 harmonics + 1` functions of heading (0: position only),
+    /// the full tensor product.
     pub fn with_harmonics(self, harmonics: usize) -> Result<Self> {
-        let total = (self.m[0] * self.m[1]).saturating_mul(2 * harmonics + 1);
-        if total > MAX_BASIS {
+        let m = self.m;
+        self.with_heading(harmonics, m)
+    }
+
+    /// The position basis with `harmonics` heading harmonics, each heading block on the lowest
+    /// `heading_m` position functions per axis (at least 1, at most the position counts).
+    pub fn with_heading(self, harmonics: usize, heading_m: [usize; 2]) -> Result<Self> {
+        if !(1..=self.m[0]).contains(&heading_m[0]) || !(1..=self.m[1]).contains(&heading_m[1]) {
             return Err(Error::InvalidInput(format!(
-                "{} position functions times {} heading functions make {total} basis functions, \
-                 more than {MAX_BASIS}: use fewer heading harmonics or a smaller n_basis",
-                self.m[0] * self.m[1],
-                2 * harmonics + 1
+                "heading counts must be 1 to the position counts {:?} per axis, got {heading_m:?}",
+                self.m
             )));
         }
-        Ok(Self { harmonics, ..self })
+        let blocks = (heading_m[0] * heading_m[1]).saturating_mul(2 * harmonics);
+        let total = (self.m[0] * self.m[1]).saturating_add(blocks);
+        if total > MAX_BASIS {
+            return Err(Error::InvalidInput(format!(
+                "{} position functions and {blocks} heading functions make {total} basis \
+                 functions, more than {MAX_BASIS}: use fewer heading harmonics or a smaller n_basis",
+                self.m[0] * self.m[1],
+            )));
+        }
+        Ok(Self {
+            harmonics,
+            heading_m,
+            ..self
+        })
     }
 
     /// Heading harmonics `J` (0: the field does not depend on heading).
@@ -73,6 +102,56 @@ impl Basis {
     /// Position functions `m_x m_y`.
     pub fn positions_len(&self) -> usize {
         self.m[0] * self.m[1]
+    }
+
+    /// Position functions per axis of each heading block (`m'`).
+    pub fn heading_counts(&self) -> [usize; 2] {
+        self.heading_m
+    }
+
+    /// Heading functions `2J + 1` (1 over position).
+    pub fn n_heading(&self) -> usize {
+        2 * self.harmonics + 1
+    }
+
+    /// Position functions per axis of heading block `c` (`m` for the constant, `m'` after).
+    pub fn block_counts(&self, c: usize) -> [usize; 2] {
+        if c == 0 { self.m } else { self.heading_m }
+    }
+
+    /// Where heading block `c` starts in feature order.
+    pub fn block_offset(&self, c: usize) -> usize {
+        match c {
+            0 => 0,
+            c => self.positions_len() + (c - 1) * self.heading_m[0] * self.heading_m[1],
+        }
+    }
+
+    /// Each feature's index in the full tensor product (`c m_x m_y + j + m_x k`), in feature
+    /// order: how the features, spectra and fields of a basis with fewer heading functions are
+    /// read off the full product's.
+    pub fn tensor_indices(&self) -> impl Iterator<Item = usize> + '_ {
+        let (mx, mp) = (self.m[0], self.positions_len());
+        (0..self.n_heading()).flat_map(move |c| {
+            let [bx, by] = self.block_counts(c);
+            (0..by).flat_map(move |k| (0..bx).map(move |j| c * mp + j + mx * k))
+        })
+    }
+
+    /// Feature-order weights `w` as weights on the full tensor product (zero on the functions
+    /// this basis lacks): `2J + 1` position blocks of `m_x m_y`.
+    pub fn to_tensor(&self, w: &[f64]) -> Vec<f64> {
+        debug_assert_eq!(w.len(), self.len());
+        let mut out = vec![0.0; self.positions_len() * self.n_heading()];
+        for (i, x) in self.tensor_indices().zip(w) {
+            out[i] = *x;
+        }
+        out
+    }
+
+    /// Whether the heading blocks hold every position function (the full tensor product).
+    fn is_tensor(&self) -> bool {
+        self.heading_m == self.m
     }
 
     /// Whether the basis has heading functions and `ls` a finite heading length scale.
@@ -153,7 +232,7 @@ impl Basis {
     }
 
     pub fn len(&self) -> usize {
-        self.m[0] * self.m[1] * (2 * self.harmonics + 1)
+        self.positions_len() + 2 * self.harmonics * self.heading_m[0] * self.heading_m[1]
     }
 
     pub fn is_empty(&self) -> bool {
@@ -202,11 +281,27 @@ impl Basis {
         self.features_of(Inputs::positions(xy))
     }
 
-    /// `Φᵀ` at positions and previous headings (`c M_p + j + m_x k` for `ψ_c(h) φ_j(x) φ_k(y)`).
+    /// `Φᵀ` at positions and previous headings (`ψ_c(h) φ_j(x) φ_k(y)` in feature order).
     pub fn features_of(&self, pts: Inputs<'_>) -> Vec<f64> {
+        let tensor = self.tensor_features(pts);
+        if self.is_tensor() {
+            return tensor;
+        }
+        let (mt, idx) = (
+            self.positions_len() * self.n_heading(),
+            self.tensor_indices().collect::<Vec<_>>(),
+        );
+        tensor
+            .chunks_exact(mt)
+            .flat_map(|col| idx.iter().map(move |&i| col[i]))
+            .collect()
+    }
+
+    /// `Φᵀ` of the full tensor product (`c M_p + j + m_x k` for `ψ_c(h) φ_j(x) φ_k(y)`).
+    fn tensor_features(&self, pts: Inputs<'_>) -> Vec<f64> {
         let (mx, my) = (self.m[0], self.m[1]);
         let mp = mx * my;
-        let mm = self.len();
+        let mm = mp * self.n_heading();
         let mut out = vec![0.0; mm * pts.len()];
         let mut fx = vec![0.0; mx];
         let mut fy = vec![0.0; my];
@@ -257,11 +352,9 @@ impl Basis {
             return pos;
         }
         let q = heading::spectrum(ls.wh, self.harmonics);
-        (0..2 * self.harmonics + 1)
-            .flat_map(|c| {
-                let w = q[heading::harmonic_of(c)].sqrt();
-                pos.iter().map(move |x| x * w)
-            })
+        let mp = pos.len();
+        self.tensor_indices()
+            .map(|i| pos[i % mp] * q[heading::harmonic_of(i / mp)].sqrt())
             .collect()
     }
 
@@ -284,14 +377,27 @@ impl Basis {
         AxisFeatures { n, f }
     }
 
-    /// `scale · k̃(a, b) / σ²`, i.e. `scale Σ s φ(a) φ(b)`, column-major `|a| x |b|`. Separable:
-    /// the product of two one-axis sums, `|a| |b| (m_x + m_y)` work.
+    /// `scale · k̃(a, b) / σ²` of positions, i.e. `scale Σ s φ(a) φ(b)` over the position
+    /// functions, column-major `|a| x |b|`. Separable: the product of two one-axis sums,
+    /// `|a| |b| (m_x + m_y)` work.
     pub fn correlation_between(
         &self,
         a: &AxisFeatures,
         b: &AxisFeatures,
         ls: LengthScales,
         scale: f64,
+    ) -> Vec<f64> {
+        self.position_correlation(a, b, ls, scale, self.m)
+    }
+
+    /// [`Basis::correlation_between`] over the lowest `counts` functions per axis.
+    fn position_correlation(
+        &self,
+        a: &AxisFeatures,
+        b: &AxisFeatures,
+        ls: LengthScales,
+        scale: f64,
+        counts: [usize; 2],
     ) -> Vec<f64> {
         let spectra = self.axis_spectra(ls);
         let mut out = vec![scale; a.n * b.n];
@@ -300,10 +406,10 @@ impl Basis {
         }
         let mut k = vec![0.0; a.n * b.n];
         for d in 0..2 {
-            let m = self.m[d];
-            // a's eigenfunctions weighted by the spectrum, times b's.
-            let mut fa = a.f[d].clone();
-            for (j, s) in spectra[d].iter().enumerate() {
+            let m = counts[d];
+            // a's eigenfunctions weighted by the spectrum, times b's (the first m columns).
+            let mut fa = a.f[d][..a.n * m].to_vec();
+            for (j, s) in spectra[d][..m].iter().enumerate() {
                 for x in &mut fa[j * a.n..(j + 1) * a.n] {
                     *x *= s;
                 }
@@ -312,7 +418,7 @@ impl Basis {
                 MatMut::from_column_major_slice_mut(&mut k, a.n, b.n),
                 Accum::Replace,
                 MatRef::from_column_major_slice(&fa, a.n, m),
-                MatRef::from_column_major_slice(&b.f[d], b.n, m).transpose(),
+                MatRef::from_column_major_slice(&b.f[d][..b.n * m], b.n, m).transpose(),
                 1.0,
                 Par::Seq,
             );
@@ -323,8 +429,8 @@ impl Basis {
         out
     }
 
-    /// `scale · k̃(a, b) / σ²` of two point sets: [`Basis::correlation_between`] of their
-    /// positions, times [`Basis::heading_factor`] of their headings.
+    /// `scale · k̃(a, b) / σ²` of two point sets: [`Basis::headed_correlation`] from their
+    /// per-axis features.
     pub fn correlation(
         &self,
         a: Inputs<'_>,
@@ -333,38 +439,57 @@ impl Basis {
         scale: f64,
     ) -> Vec<f64> {
         let fa = self.axis_features(a.xy);
-        let mut out = if std::ptr::eq(a.xy, b.xy) {
-            self.correlation_between(&fa, &fa, ls, scale)
+        if std::ptr::eq(a.xy, b.xy) {
+            self.headed_correlation(&fa, &fa, a, b, ls, scale)
         } else {
-            self.correlation_between(&fa, &self.axis_features(b.xy), ls, scale)
-        };
-        self.heading_factor(a, b, ls, &mut out);
-        out
+            self.headed_correlation(&fa, &self.axis_features(b.xy), a, b, ls, scale)
+        }
     }
 
-    /// Multiply a column-major `|a| x |b|` correlation of positions by the truncated periodic
-    /// kernel of the points' headings, `Σ_{j ≤ J} q_j² cos(j (h_a − h_b))` (`q_0²` where either
-    /// is unknown): the reduced-rank kernel is separable in position and heading. Nothing to do
-    /// without heading harmonics or with `w_h = ∞`.
-    pub fn heading_factor(&self, a: Inputs<'_>, b: Inputs<'_>, ls: LengthScales, out: &mut [f64]) {
+    /// `scale · k̃(a, b) / σ²` of the point sets `a`, `b` whose per-axis features are `fa`, `fb`:
+    /// the position correlation times the truncated periodic kernel of the headings,
+    /// `Σ_{j ≤ J} q_j² cos(j (h_a − h_b))` (`q_0²` where either is unknown), with the terms
+    /// `j ≥ 1` on the heading blocks' position functions. The position correlation alone without
+    /// heading harmonics or with `w_h = ∞`.
+    pub fn headed_correlation(
+        &self,
+        fa: &AxisFeatures,
+        fb: &AxisFeatures,
+        a: Inputs<'_>,
+        b: Inputs<'_>,
+        ls: LengthScales,
+        scale: f64,
+    ) -> Vec<f64> {
+        let mut out = self.correlation_between(fa, fb, ls, scale);
         if !self.headed(ls) || a.is_empty() {
-            return;
+            return out;
         }
         let q = heading::spectrum(ls.wh, self.harmonics);
+        // `Σ_{j ≥ from} q_j² cos(j d)`.
+        let cos_sum = |from: usize, d: f64| -> f64 {
+            q.iter()
+                .enumerate()
+                .skip(from)
+                .map(|(k, w)| w * (k as f64 * d).cos())
+                .sum()
+        };
+        // The full product is separable: one factor per pair of points.
+        let coarse = (!self.is_tensor())
+            .then(|| self.position_correlation(fa, fb, ls, scale, self.heading_m));
         for (j, col) in out.chunks_mut(a.len()).enumerate() {
             let hb = b.heading(j);
             for (i, c) in col.iter_mut().enumerate() {
                 let d = a.heading(i) - hb;
-                *c *= if d.is_nan() {
-                    q[0]
+                if d.is_nan() {
+                    *c *= q[0];
+                } else if let Some(coarse) = &coarse {
+                    *c = q[0] * *c + cos_sum(1, d) * coarse[j * a.len() + i];
                 } else {
-                    q.iter()
-                        .enumerate()
-                        .map(|(k, w)| w * (k as f64 * d).cos())
-                        .sum::<f64>()
-                };
+                    *c *= cos_sum(0, d);
+                }
             }
         }
+        out
     }
 }
 

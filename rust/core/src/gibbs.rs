@@ -1842,7 +1842,7 @@ pub(crate) mod enumeration {
     pub(crate) use super::noise::tests::{PRIOR as NOISE_PRIOR, enumerated_noise_integrated};
     pub(crate) use super::split_merge::tests::{
         canonical, enumerated, enumerated_by, headed_settings, three_scales_integrated, tiny,
-        tiny_headed, tiny_hsgp, tiny_hsgp_headed, tiny_settings,
+        tiny_headed, tiny_hsgp, tiny_hsgp_headed, tiny_hsgp_headed_coarse, tiny_settings,
     };
 }
 

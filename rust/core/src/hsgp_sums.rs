@@ -181,42 +181,58 @@ impl Sums {
         let (m, mp) = (basis.len(), mx * my);
         let vs = &mut self.vecs;
         let sx = col(&vals.sx, n, mx);
-        // Per heading function `c`, `Σ ψ_c φ` and `Σ ψ_c φ v_d`: the y values weighted per point.
+        // Per heading function `c`, `Σ ψ_c φ` and `Σ ψ_c φ v_d`: the y values weighted per point,
+        // over the full position block, of which a heading block keeps its lowest `m'` per axis.
         let mut psi = vec![1.0; n];
         let mut weighted = vec![0.0; n * my];
-        for c in 0..2 * basis.harmonics() + 1 {
+        let mut block = vec![0.0; mp];
+        for c in 0..basis.n_heading() {
             if let Some(w) = &weights {
                 heading_weights(basis.harmonics(), c, w, n, &mut psi);
             }
-            for (k, o) in weighted.chunks_mut(n).enumerate() {
-                for ((o, s), p) in o.iter_mut().zip(&vals.sy[k * n..(k + 1) * n]).zip(&psi) {
-                    *o = s * p;
-                }
-            }
-            matmul(
-                MatMut::from_column_major_slice_mut(&mut vs.phi_sum[c * mp..(c + 1) * mp], mx, my),
-                Accum::Add,
-                sx.transpose(),
-                col(&weighted, n, my),
-                1.0,
-                Par::Seq,
-            );
-            for d in 0..2 {
+            let (at, [bx, by]) = (basis.block_offset(c), basis.block_counts(c));
+            for d in 0..3 {
+                // d = 0: Σ ψ_c φ; d = 1, 2: Σ ψ_c φ v_{d−1}.
                 for (k, o) in weighted.chunks_mut(n).enumerate() {
                     let sy = &vals.sy[k * n..(k + 1) * n];
-                    for (((o, s), p), vel) in o.iter_mut().zip(sy).zip(&psi).zip(v) {
-                        *o = s * p * vel[d];
+                    if d == 0 {
+                        for ((o, s), p) in o.iter_mut().zip(sy).zip(&psi) {
+                            *o = s * p;
+                        }
+                    } else {
+                        for (((o, s), p), vel) in o.iter_mut().zip(sy).zip(&psi).zip(v) {
+                            *o = s * p * vel[d - 1];
+                        }
                     }
                 }
-                let at = d * m + c * mp;
-                matmul(
-                    MatMut::from_column_major_slice_mut(&mut vs.phi_v[at..at + mp], mx, my),
-                    Accum::Add,
-                    sx.transpose(),
-                    col(&weighted, n, my),
-                    1.0,
-                    Par::Seq,
-                );
+                let out = match d {
+                    0 => &mut vs.phi_sum[at..],
+                    d => &mut vs.phi_v[(d - 1) * m + at..],
+                };
+                if [bx, by] == [mx, my] {
+                    matmul(
+                        MatMut::from_column_major_slice_mut(&mut out[..mp], mx, my),
+                        Accum::Add,
+                        sx.transpose(),
+                        col(&weighted, n, my),
+                        1.0,
+                        Par::Seq,
+                    );
+                } else {
+                    matmul(
+                        MatMut::from_column_major_slice_mut(&mut block, mx, my),
+                        Accum::Replace,
+                        sx.transpose(),
+                        col(&weighted, n, my),
+                        1.0,
+                        Par::Seq,
+                    );
+                    for k in 0..by {
+                        for (o, x) in out[k * bx..(k + 1) * bx].iter_mut().zip(&block[k * mx..]) {
+                            *o += x;
+                        }
+                    }
+                }
             }
         }
         for vel in v {
@@ -253,6 +269,7 @@ impl Sums {
     /// (the lowest frequencies): sub-blocks of the moments and of the vector sums.
     pub fn restrict(&self, full: &Basis, coarse: &Basis) -> Self {
         debug_assert_eq!(full.harmonics(), coarse.harmonics());
+        debug_assert!((0..2).all(|d| coarse.heading_counts()[d] <= full.heading_counts()[d]));
         let ([mx, _], [cx, cy]) = (full.counts(), coarse.counts());
         let hx = 2 * mx + 1;
         let mut h = Vec::with_capacity(moment_len(coarse) * n_slices(coarse));
@@ -285,18 +302,26 @@ impl Sums {
             .chunks_exact(moment_len(basis))
             .map(|h| position_gram(basis, h))
             .collect();
-        // Block (c, c') of heading functions: a combination of the slices' position Grams.
-        let (mp, m) = (grams[0].len().isqrt(), basis.len());
+        // Block (c, c') of heading functions: a combination of the slices' position Grams, over
+        // each block's position functions.
+        let (mp, mx, m) = (basis.positions_len(), basis.counts()[0], basis.len());
         let mut g = vec![0.0; m * m];
-        for c2 in 0..2 * harmonics + 1 {
-            for c in 0..2 * harmonics + 1 {
+        for c2 in 0..basis.n_heading() {
+            let ([bx2, by2], at2) = (basis.block_counts(c2), basis.block_offset(c2));
+            for c in 0..basis.n_heading() {
+                let ([bx, by], at) = (basis.block_counts(c), basis.block_offset(c));
                 let terms = heading_product(harmonics, c, c2);
-                for col in 0..mp {
-                    let out = &mut g[(c2 * mp + col) * m + c * mp..][..mp];
+                for (col, pcol) in (0..by2)
+                    .flat_map(|k| (0..bx2).map(move |j| j + mx * k))
+                    .enumerate()
+                {
+                    let out = &mut g[(at2 + col) * m + at..][..bx * by];
                     for &(slice, w) in &terms {
-                        let src = &grams[slice][col * mp..(col + 1) * mp];
-                        for (o, x) in out.iter_mut().zip(src) {
-                            *o += w * x;
+                        let src = &grams[slice][pcol * mp..(pcol + 1) * mp];
+                        for (k, o) in out.chunks_exact_mut(bx).enumerate() {
+                            for (o, x) in o.iter_mut().zip(&src[k * mx..k * mx + bx]) {
+                                *o += w * x;
+                            }
                         }
                     }
                 }
@@ -415,13 +440,17 @@ fn position_gram(basis: &Basis, h: &[f64]) -> Vec<f64> {
     g
 }
 
-/// Where each function of `coarse` (a basis on the same box with no more functions per axis) sits
-/// in `full`'s feature order: with heading harmonics (the same in both), the position block once
-/// per heading function.
+/// Where each function of `coarse` (a basis on the same box with no more functions per axis, in
+/// the position block and in the heading blocks) sits in `full`'s feature order: with heading
+/// harmonics (the same in both), each heading block's own.
 pub fn coarse_indices<'a>(full: &'a Basis, coarse: &'a Basis) -> impl Iterator<Item = usize> + 'a {
-    let ([mx, my], [cx, cy]) = (full.counts(), coarse.counts());
-    (0..2 * coarse.harmonics() + 1).flat_map(move |c| {
-        (0..cy).flat_map(move |k| (0..cx).map(move |j| c * mx * my + j + mx * k))
+    (0..coarse.n_heading()).flat_map(move |c| {
+        let ([fx, _], [cx, cy], at) = (
+            full.block_counts(c),
+            coarse.block_counts(c),
+            full.block_offset(c),
+        );
+        (0..cy).flat_map(move |k| (0..cx).map(move |j| at + j + fx * k))
     })
 }
 

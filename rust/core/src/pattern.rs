@@ -716,9 +716,7 @@ pub fn prior_scores_with(corr: &Correlation, f: FrameRef<'_>, ps: &[GpParams]) -
         .map(|p| {
             let c = match (corr, &features) {
                 (Correlation::Reduced(basis), Some(ft)) => {
-                    let mut c = basis.correlation_between(ft, ft, p.length_scales, 1.0);
-                    basis.heading_factor(f.inputs(), f.inputs(), p.length_scales, &mut c);
-                    c
+                    basis.headed_correlation(ft, ft, f.inputs(), f.inputs(), p.length_scales, 1.0)
                 }
                 _ => corr.cross(f.inputs(), f.inputs(), p.length_scales, 1.0),
             };

@@ -258,13 +258,11 @@ impl SubclusterSampler {
         };
         let basis = Arc::clone(basis);
         let [mx, my] = basis.counts();
+        let [hx, hy] = basis.heading_counts();
+        let half = [mx.div_ceil(2), my.div_ceil(2)];
         let coarse = Arc::new(
-            Basis::new(
-                basis.center(),
-                basis.half_widths(),
-                [mx.div_ceil(2), my.div_ceil(2)],
-            )?
-            .with_harmonics(basis.harmonics())?,
+            Basis::new(basis.center(), basis.half_widths(), half)?
+                .with_heading(basis.harmonics(), [hx.min(half[0]), hy.min(half[1])])?,
         );
         // The same starting α as the collapsed sampler (the same stream).
         let alpha = crate::gibbs::initial_alpha(&settings)?;

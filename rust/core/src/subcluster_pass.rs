@@ -51,12 +51,26 @@ impl FieldBank {
     ) -> Self {
         // A field over heading is `Σ_c ψ_c(h) f_c(x, y)`: its position fields, one per heading
         // function, evaluated by the same kernel and combined per point.
-        let nc = 2 * basis.harmonics() + 1;
-        let mp = basis.len() / nc;
+        // A heading block on fewer position functions is its position field with zeros there.
+        let (nc, mp) = (basis.n_heading(), basis.positions_len());
+        let tensor: Vec<Vec<f64>> = if basis.len() == nc * mp {
+            Vec::new()
+        } else {
+            weights
+                .iter()
+                .flatten()
+                .map(|a| basis.to_tensor(a))
+                .collect()
+        };
+        let fields: Box<dyn Iterator<Item = &[f64]>> = if tensor.is_empty() {
+            Box::new(weights.iter().flatten().flat_map(|a| a.chunks(mp)))
+        } else {
+            Box::new(tensor.iter().flat_map(|a| a.chunks(mp)))
+        };
         Self {
             k: weights.len(),
             nc,
-            blocks: FieldBlocks::new(basis, weights.iter().flatten().flat_map(|a| a.chunks(mp))),
+            blocks: FieldBlocks::new(basis, fields),
             mean,
             half_inv: noise
                 .iter()

@@ -781,6 +781,9 @@ impl Writer {
         self.u64(m[0] as u64);
         self.u64(m[1] as u64);
         self.u64(b.harmonics() as u64);
+        let hm = b.heading_counts();
+        self.u64(hm[0] as u64);
+        self.u64(hm[1] as u64);
     }
     fn bank(&mut self, b: &Bank) {
         self.u64(b.weights.len() as u64);
@@ -891,7 +894,8 @@ impl Reader<'_> {
         }
         let m = [self.u64()? as usize, self.u64()? as usize];
         let harmonics = self.u64()? as usize;
-        Basis::new(ch[0], ch[1], m)?.with_harmonics(harmonics)
+        let hm = [self.u64()? as usize, self.u64()? as usize];
+        Basis::new(ch[0], ch[1], m)?.with_heading(harmonics, hm)
     }
     fn bank(&mut self) -> Result<Bank> {
         let k = self.len(16)?;

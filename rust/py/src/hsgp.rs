@@ -23,6 +23,18 @@ pub fn basis(t: BasisTuple) -> CoreResult<Basis> {
     Ok(Basis::new([cx, cy], [hx, hy], [mx, my])?)
 }
 
+/// The basis `t` with `harmonics` heading harmonics, each heading block on `heading_counts`
+/// position functions per axis (`None`: all of them).
+pub fn headed_basis(
+    t: BasisTuple,
+    harmonics: usize,
+    heading_counts: Option<(usize, usize)>,
+) -> CoreResult<Basis> {
+    let b = basis(t)?;
+    let hm = heading_counts.map_or(b.counts(), |(x, y)| [x, y]);
+    Ok(b.with_heading(harmonics, hm)?)
+}
+
 fn as_tuple(b: &Basis) -> BasisTuple {
     let (c, h, m) = (b.center(), b.half_widths(), b.counts());
     ((c[0], c[1]), (h[0], h[1]), (m[0], m[1]))
@@ -46,14 +58,17 @@ pub fn hsgp_basis(
     Ok(as_tuple(&b))
 }
 
+/// Heading harmonics of a basis and its heading blocks' position counts (`None`: all).
+type Heading = (usize, Option<(usize, usize)>);
+
 /// A standalone reduced-rank GP over the training frame `f` (headings optional), heading length
-/// scale `wh`, on the basis `b` with `harmonics` heading harmonics.
+/// scale `wh`, on the basis `b` with heading functions `heading`.
 fn pattern(
     f: FrameRef<'_>,
     p: ParamTuple,
     b: BasisTuple,
     wh: f64,
-    harmonics: usize,
+    heading: Heading,
 ) -> CoreResult<HsgpPattern> {
     let (xy, v) = (f.xy, f.v);
     if xy.is_empty() || xy.len() != v.len() {
@@ -68,14 +83,14 @@ fn pattern(
     check_finite("train_v", v.as_flattened())?;
     check_headings("train_h", f.h, xy.len())?;
     Ok(HsgpPattern::new(
-        Arc::new(basis(b)?.with_harmonics(harmonics)?),
+        Arc::new(headed_basis(b, heading.0, heading.1)?),
         params_headed(p, wh)?,
         &[(0, f)],
     )?)
 }
 
 #[pyfunction]
-#[pyo3(signature = (xy, v, p, b, h=None, wh=f64::INFINITY, harmonics=0))]
+#[pyo3(signature = (xy, v, p, b, h=None, wh=f64::INFINITY, harmonics=0, heading_counts=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn hsgp_log_marginal_likelihood(
     py: Python<'_>,
@@ -86,13 +101,16 @@ pub fn hsgp_log_marginal_likelihood(
     h: Option<PyReadonlyArray1<'_, f64>>,
     wh: f64,
     harmonics: usize,
+    heading_counts: Option<(usize, usize)>,
 ) -> CoreResult<f64> {
     let (xy, v, h) = (pairs("xy", &xy)?, pairs("v", &v)?, headings("h", &h)?);
-    py.detach(|| Ok(pattern(FrameRef { xy, v, h }, p, b, wh, harmonics)?.log_marginal()))
+    py.detach(|| {
+        Ok(pattern(FrameRef { xy, v, h }, p, b, wh, (harmonics, heading_counts))?.log_marginal())
+    })
 }
 
 #[pyfunction]
-#[pyo3(signature = (train_xy, train_v, test_xy, test_v, p, b, train_h=None, test_h=None, wh=f64::INFINITY, harmonics=0))]
+#[pyo3(signature = (train_xy, train_v, test_xy, test_v, p, b, train_h=None, test_h=None, wh=f64::INFINITY, harmonics=0, heading_counts=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn hsgp_log_predictive(
     py: Python<'_>,
@@ -106,6 +124,7 @@ pub fn hsgp_log_predictive(
     test_h: Option<PyReadonlyArray1<'_, f64>>,
     wh: f64,
     harmonics: usize,
+    heading_counts: Option<(usize, usize)>,
 ) -> CoreResult<f64> {
     let (txy, tv) = (pairs("train_xy", &train_xy)?, pairs("train_v", &train_v)?);
     let (sxy, sv) = (pairs("test_xy", &test_xy)?, pairs("test_v", &test_v)?);
@@ -124,7 +143,7 @@ pub fn hsgp_log_predictive(
             v: tv,
             h: th,
         };
-        let pat = pattern(train, p, b, wh, harmonics)?;
+        let pat = pattern(train, p, b, wh, (harmonics, heading_counts))?;
         let test = FrameRef {
             xy: sxy,
             v: sv,
@@ -135,7 +154,7 @@ pub fn hsgp_log_predictive(
 }
 
 #[pyfunction]
-#[pyo3(signature = (train_xy, train_v, query_xy, p, b, train_h=None, query_h=None, wh=f64::INFINITY, harmonics=0))]
+#[pyo3(signature = (train_xy, train_v, query_xy, p, b, train_h=None, query_h=None, wh=f64::INFINITY, harmonics=0, heading_counts=None))]
 #[allow(clippy::type_complexity, clippy::too_many_arguments)]
 pub fn hsgp_posterior<'py>(
     py: Python<'py>,
@@ -148,6 +167,7 @@ pub fn hsgp_posterior<'py>(
     query_h: Option<PyReadonlyArray1<'py, f64>>,
     wh: f64,
     harmonics: usize,
+    heading_counts: Option<(usize, usize)>,
 ) -> CoreResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray2<f64>>)> {
     let (txy, tv) = (pairs("train_xy", &train_xy)?, pairs("train_v", &train_v)?);
     let q = pairs("query_xy", &query_xy)?;
@@ -163,7 +183,8 @@ pub fn hsgp_posterior<'py>(
             v: tv,
             h: th,
         };
-        Ok(pattern(train, p, b, wh, harmonics)?.posterior_at(Inputs { xy: q, h: qh }))
+        Ok(pattern(train, p, b, wh, (harmonics, heading_counts))?
+            .posterior_at(Inputs { xy: q, h: qh }))
     })?;
     Ok((to_numpy(py, mean), to_numpy(py, var)))
 }

@@ -72,13 +72,16 @@ pub struct SamplerSettings {
     /// Heading harmonics of the reduced-rank basis (with `heading_prior`); `None`: 0.
     #[pyo3(default)]
     heading_harmonics: Option<usize>,
+    /// Position functions per axis of the basis's heading blocks; `None`: the position counts.
+    #[pyo3(default)]
+    heading_counts: Option<(usize, usize)>,
 }
 
 /// Keys whose value is a bool; anywhere else a bool is a mistake, though Python counts it as 1.
 const BOOL_KEYS: [&str; 2] = ["fixed_length_scales", "pattern_moments"];
 /// The struct's fields: the dict may hold no other key (a misspelt one would silently take its
 /// default), and a field missing here is refused at once as unknown, so the two cannot drift.
-const KEYS: [&str; 22] = [
+const KEYS: [&str; 23] = [
     "assignment",
     "likelihood",
     "proposal",
@@ -101,6 +104,7 @@ const KEYS: [&str; 22] = [
     "sampler",
     "heading_prior",
     "heading_harmonics",
+    "heading_counts",
 ];
 
 /// A value's repr cut to 40 characters (a 300-digit integer says nothing more).
@@ -169,13 +173,15 @@ impl SamplerSettings {
             None => LikelihoodKind::Exact,
         };
         let harmonics = self.heading_harmonics.unwrap_or(0);
+        let heading_counts = self.heading_counts;
         let basis = self
             .basis
             .map(|b| -> PyResult<Arc<Basis>> {
-                let b = crate::hsgp::basis(b)?
-                    .with_harmonics(harmonics)
-                    .map_err(CoreError)?;
-                Ok(Arc::new(b))
+                Ok(Arc::new(crate::hsgp::headed_basis(
+                    b,
+                    harmonics,
+                    heading_counts,
+                )?))
             })
             .transpose()?;
         let sampler: SamplerKind = match self.sampler {

@@ -165,3 +165,62 @@ fn scoring_many_frames_in_blocks_equals_scoring_each_alone() {
         assert!(close(all[j], one, 1e-12), "frame {j}: {} vs {one}", all[j]);
     }
 }
+
+/// A basis whose heading blocks hold fewer position functions: its features are the full
+/// product's at [`Basis::tensor_indices`], and its correlation is `Σ s φ φᵀ` of those features
+/// (one kernel for the sums, the dense path and the prior score), which differs from the full
+/// product's.
+#[test]
+fn coarse_heading_blocks_give_the_kernel_of_their_features() {
+    let (c, h) = ([15.0, 50.0], [25.0, 70.0]);
+    let full = Basis::new(c, h, [6, 8]).unwrap().with_harmonics(2).unwrap();
+    let b = Basis::new(c, h, [6, 8])
+        .unwrap()
+        .with_heading(2, [3, 2])
+        .unwrap();
+    assert_eq!(b.len(), 48 + 4 * 6);
+    let fs = frames(1, 9);
+    let xy: Vec<Point> = fs.iter().flat_map(|f| f.0.iter().copied()).collect();
+    let hd: Vec<f64> = (0..xy.len())
+        .map(|i| {
+            if i == 2 {
+                f64::NAN
+            } else {
+                0.7 * i as f64 - 2.0
+            }
+        })
+        .collect();
+    let pts = Inputs { xy: &xy, h: &hd };
+    let (ft, fb) = (full.features_of(pts), b.features_of(pts));
+    let idx: Vec<usize> = b.tensor_indices().collect();
+    for (cf, cb) in ft.chunks(full.len()).zip(fb.chunks(b.len())) {
+        let picked: Vec<f64> = idx.iter().map(|&i| cf[i]).collect();
+        assert_eq!(picked, cb);
+    }
+    let ls = LengthScales::new(6.0, 20.0)
+        .unwrap()
+        .with_heading(0.8)
+        .unwrap();
+    let s = b.sqrt_spectral(ls);
+    let n = xy.len();
+    let got = b.correlation(pts, pts, ls, 1.0);
+    let dense = full.correlation(pts, pts, ls, 1.0);
+    let mut differs = 0.0f64;
+    for i in 0..n {
+        for j in 0..n {
+            let want: f64 = (0..b.len())
+                .map(|f| s[f] * s[f] * fb[i * b.len() + f] * fb[j * b.len() + f])
+                .sum();
+            let g = got[j * n + i];
+            assert!(
+                (g - want).abs() < 1e-12 * (1.0 + want.abs()),
+                "{g} vs {want}"
+            );
+            differs = differs.max((g - dense[j * n + i]).abs());
+        }
+    }
+    assert!(
+        differs > 1e-3,
+        "the coarse blocks changed nothing ({differs})"
+    );
+}

@@ -283,3 +283,41 @@ fn sin_cos_on_zero_to_pi_matches_libm() {
     }
     assert!(worst < 1e-15, "{worst}");
 }
+
+/// Heading blocks on fewer position functions (the lowest per axis): the Gram matrix and the
+/// vector sums are still those of the basis's features, and restricting to a coarser basis keeps
+/// each block's own lowest functions.
+#[test]
+fn sums_over_coarse_heading_blocks_are_feature_sums() {
+    for (harmonics, hm) in [(1, [4, 3]), (2, [1, 1]), (3, [7, 2])] {
+        let b = basis().with_heading(harmonics, hm).unwrap();
+        assert_eq!(b.len(), 35 + 2 * harmonics * hm[0] * hm[1]);
+        let (xy, v) = points(600, 21);
+        let h = headings(600, 22, 5);
+        assert_sums_are_feature_sums(&b, Inputs { xy: &xy, h: &h }, &v);
+        assert_sums_are_feature_sums(&b, Inputs::positions(&xy[..40]), &v[..40]);
+    }
+    let b = basis().with_heading(2, [4, 3]).unwrap();
+    let coarse = Basis::new(b.center(), b.half_widths(), [4, 3])
+        .unwrap()
+        .with_heading(2, [2, 3])
+        .unwrap();
+    let (xy, v) = points(120, 6);
+    let h = headings(120, 7, 4);
+    let pts = Inputs { xy: &xy, h: &h };
+    let direct = Sums::of_inputs(&coarse, pts, &v, 4);
+    let restricted = Sums::of_inputs(&b, pts, &v, 4).restrict(&b, &coarse);
+    assert_eq!(direct.vecs.phi_v.len(), restricted.vecs.phi_v.len());
+    for (a, c) in direct
+        .h
+        .iter()
+        .zip(&restricted.h)
+        .chain(direct.vecs.phi_v.iter().zip(&restricted.vecs.phi_v))
+        .chain(direct.vecs.phi_sum.iter().zip(&restricted.vecs.phi_sum))
+    {
+        assert!((a - c).abs() < 1e-9, "{a} vs {c}");
+    }
+    // Heading counts past the position counts, or zero, are refused.
+    assert!(basis().with_heading(1, [8, 1]).is_err());
+    assert!(basis().with_heading(1, [0, 2]).is_err());
+}

@@ -349,6 +349,16 @@ pub(crate) fn tiny_hsgp_headed() -> Likelihood {
     ))
 }
 
+/// [`tiny_hsgp_headed`] with its heading blocks on the lowest 2 x 2 position functions.
+pub(crate) fn tiny_hsgp_headed_coarse() -> Likelihood {
+    Likelihood::Hsgp(Arc::new(
+        Basis::new([3.0, 3.0], [6.0, 6.0], [3, 3])
+            .unwrap()
+            .with_heading(2, [2, 2])
+            .unwrap(),
+    ))
+}
+
 pub(crate) fn headed_settings(likelihood: Likelihood, seed: u64) -> Settings {
     let mut st = tiny_settings(likelihood, seed);
     st.heading_prior = Some((3.0, 0.4));

@@ -93,7 +93,7 @@ fn requests_and_replies_cross_as_bytes() {
         Request::Means,
         Request::Points { frames: vec![5] },
         Request::Sums {
-            basis: basis().with_harmonics(2).unwrap(),
+            basis: basis().with_heading(2, [2, 1]).unwrap(),
             sets: vec![vec![1]],
         },
     ];
