@@ -297,24 +297,40 @@ impl Sums {
         if harmonics == 0 {
             return position_gram(basis, &self.h);
         }
-        let grams: Vec<Vec<f64>> = self
-            .h
-            .chunks_exact(moment_len(basis))
-            .map(|h| position_gram(basis, h))
-            .collect();
         // Block (c, c') of heading functions: a combination of the slices' position Grams, over
-        // each block's position functions.
+        // each block's position functions. Slice 0 (every point) enters block (0, 0) only, so it
+        // is the only slice needed over all position functions in both directions; the others
+        // only where one side is a heading block: all rows, the heading blocks' columns. Blocks
+        // (c ≥ 1, 0) are then the transposes of (0, c) (each position Gram is symmetric, bitwise).
         let (mp, mx, m) = (basis.positions_len(), basis.counts()[0], basis.len());
+        let [hx, hy] = basis.heading_counts();
+        let cols: Vec<usize> = (0..hy)
+            .flat_map(|k| (0..hx).map(move |j| j + mx * k))
+            .collect();
+        let slices: Vec<&[f64]> = self.h.chunks_exact(moment_len(basis)).collect();
+        let all: Vec<usize> = (0..mp).collect();
+        let grams: Vec<Vec<f64>> = slices
+            .iter()
+            .enumerate()
+            .map(|(s, h)| position_gram_cols(basis, h, if s == 0 { &all } else { &cols }))
+            .collect();
         let mut g = vec![0.0; m * m];
         for c2 in 0..basis.n_heading() {
             let ([bx2, by2], at2) = (basis.block_counts(c2), basis.block_offset(c2));
             for c in 0..basis.n_heading() {
+                if c2 == 0 && c > 0 {
+                    continue;
+                }
                 let ([bx, by], at) = (basis.block_counts(c), basis.block_offset(c));
                 let terms = heading_product(harmonics, c, c2);
-                for (col, pcol) in (0..by2)
-                    .flat_map(|k| (0..bx2).map(move |j| j + mx * k))
-                    .enumerate()
-                {
+                for col in 0..bx2 * by2 {
+                    // The column's position in the slices' Grams: its own index in slice 0's
+                    // (all columns), its place among the heading columns in the others'.
+                    let pcol = if c2 == 0 {
+                        col % bx2 + mx * (col / bx2)
+                    } else {
+                        col
+                    };
                     let out = &mut g[(at2 + col) * m + at..][..bx * by];
                     for &(slice, w) in &terms {
                         let src = &grams[slice][pcol * mp..(pcol + 1) * mp];
@@ -325,6 +341,13 @@ impl Sums {
                         }
                     }
                 }
+            }
+        }
+        // Blocks (c ≥ 1, 0): the transposes of blocks (0, c).
+        let n0 = mp;
+        for col in 0..n0 {
+            for row in n0..m {
+                g[col * m + row] = g[row * m + col];
             }
         }
         g
@@ -419,21 +442,26 @@ fn heading_product(harmonics: usize, c: usize, c2: usize) -> Vec<(usize, f64)> {
 
 /// The position Gram `Σ φ φᵀ` (`m_x m_y` square) from one moment slice `h`.
 fn position_gram(basis: &Basis, h: &[f64]) -> Vec<f64> {
+    let all: Vec<usize> = (0..basis.positions_len()).collect();
+    position_gram_cols(basis, h, &all)
+}
+
+/// The columns `cols` (position indices `j + m_x k`) of the position Gram from one moment slice
+/// `h`: `m_x m_y` rows per column, column after column.
+fn position_gram_cols(basis: &Basis, h: &[f64], cols: &[usize]) -> Vec<f64> {
     let [mx, my] = basis.counts();
     let [lx, ly] = basis.half_widths();
     let (m, hx) = (mx * my, 2 * mx + 1);
     let scale = 1.0 / (4.0 * lx * ly);
     let h = |a: usize, b: usize| h[a + hx * b];
-    let mut g = vec![0.0; m * m];
-    for k2 in 0..my {
-        for j2 in 0..mx {
-            let col = &mut g[(j2 + mx * k2) * m..(j2 + mx * k2 + 1) * m];
-            for k in 0..my {
-                let (em, ep) = (k.abs_diff(k2), k + k2 + 2);
-                for j in 0..mx {
-                    let (dm, dp) = (j.abs_diff(j2), j + j2 + 2);
-                    col[j + mx * k] = scale * (h(dm, em) - h(dm, ep) - h(dp, em) + h(dp, ep));
-                }
+    let mut g = vec![0.0; m * cols.len()];
+    for (col, &p) in g.chunks_exact_mut(m).zip(cols) {
+        let (j2, k2) = (p % mx, p / mx);
+        for k in 0..my {
+            let (em, ep) = (k.abs_diff(k2), k + k2 + 2);
+            for j in 0..mx {
+                let (dm, dp) = (j.abs_diff(j2), j + j2 + 2);
+                col[j + mx * k] = scale * (h(dm, em) - h(dm, ep) - h(dp, em) + h(dp, ep));
             }
         }
     }
