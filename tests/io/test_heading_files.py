@@ -64,6 +64,8 @@ def test_a_loaded_heading_model_scores_as_the_saved_one(saved, road):
     assert back.alpha_ == model.alpha_ and back.log_joint_ == model.log_joint_
     assert back.engine_info()["heading"] == model.engine_info()["heading"]
     assert model.engine_info()["heading"]["harmonics"] == (None if model.likelihood_ == "exact" else 3)
+    # hsgp's heading blocks on ceil(12 / 4) x ceil(4 / 4) position functions (HEADING_BASIS_STRIDE)
+    assert model.engine_info()["heading"]["heading_counts"] == (None if model.likelihood_ == "exact" else [3, 1])
     close = dict(rtol=1e-10, atol=1e-10)
     for average in (False, True):
         for positions in (False, True):
@@ -140,8 +142,23 @@ def test_damaged_heading_members_are_a_model_file_error(saved, tmp_path, change,
             lambda m: m["engine"]["heading"].update(harmonics=2 if m["engine"]["likelihood"] == "exact" else "3"),
             "heading entry",
         ),
+        # exact: no heading counts; hsgp: two positive counts or none
+        (
+            lambda m: m["engine"]["heading"].update(
+                heading_counts=[2, 1] if m["engine"]["likelihood"] == "exact" else [0, 1]
+            ),
+            "heading entry",
+        ),
     ],
-    ids=["position-inputs", "settings-disagree", "unknown-inputs", "auto-unresolved", "bad-prior", "bad-harmonics"],
+    ids=[
+        "position-inputs",
+        "settings-disagree",
+        "unknown-inputs",
+        "auto-unresolved",
+        "bad-prior",
+        "bad-harmonics",
+        "bad-heading-counts",
+    ],
 )
 def test_inconsistent_heading_metadata_is_a_model_file_error(saved, tmp_path, edit, match):
     _, path = saved
@@ -149,6 +166,21 @@ def test_inconsistent_heading_metadata_is_a_model_file_error(saved, tmp_path, ed
     _rewrite_metadata(path, bad, edit)
     with pytest.raises(ModelFileError, match=match):
         dpgp.DPGP.load(bad)
+
+
+def test_hsgp_heading_files_without_heading_counts_load_as_the_full_product(saved, road, tmp_path):
+    """Files written before the heading blocks had fewer position functions than the constant's
+    hold no ``heading_counts``: they were fitted with every position function in every block, and
+    load so (not with today's stride, which would score their patterns under another kernel)."""
+    model, path = saved
+    if model.likelihood_ == "exact":
+        pytest.skip("the exact engine has no basis")
+    _rewrite_metadata(path, tmp_path / "old.npz", lambda m: m["engine"]["heading"].pop("heading_counts"))
+    old = dpgp.DPGP.load(tmp_path / "old.npz")
+    assert old.engine_info()["heading"]["heading_counts"] is None
+    _, test = road
+    a, b = old.score_samples(test, positions=False), model.score_samples(test, positions=False)
+    assert np.all(np.isfinite(a)) and np.max(np.abs(a - b)) > 1e-6  # another basis: other densities
 
 
 def test_position_files_without_inputs_load_as_fields_over_position(road, tmp_path):
