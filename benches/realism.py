@@ -8,7 +8,7 @@ Prints one table, then the issue's targets met or missed.
 
     python benches/realism.py [--iterations 20] [--only peachtree,eth,zara01,sumo_junction] [--plots DIR]
                               [--inputs position,position+heading] [--heading-likelihood exact]
-                              [--thin N] [--noise-ratio R] [--models DIR] [--harmonics J]
+                              [--thin N] [--noise-ratio R] [--models DIR] [--harmonics J] [--heading-stride N]
 
 ``--inputs``: the fields' inputs to compare, one fit each (issue 34); a fit over heading runs the
 sampler of ``--heading-sampler`` (collapsed by default; ``subcluster`` with ``--heading-likelihood
@@ -20,7 +20,8 @@ constants) then falls back to its defaults: compare inputs at the same ``N``, no
 ``--noise-ratio R``: a fixed noise variance of ``R`` times each velocity component's variance in
 the training frames, instead of the sampled noise per pattern (issue 34's queue patterns).
 ``--harmonics J``: at most ``J`` heading harmonics on the reduced-rank engine (the estimator's
-cap, ``MAX_HEADING_HARMONICS``, set for this run): its basis is the position basis times ``2J + 1``.
+cap, ``MAX_HEADING_HARMONICS``, set for this run). ``--heading-stride N``: its heading blocks
+on the lowest ``ceil(m / N)`` position functions per axis (``HEADING_BASIS_STRIDE``; 1: all).
 ``--models DIR`` keeps each fit as a model file there (and loads it when present), so that a
 change to generation alone is compared before and after on the same fits.
 
@@ -167,11 +168,14 @@ def main() -> None:
     ap.add_argument("--models", type=Path, help="folder to keep the fits in (loaded from there when present)")
     ap.add_argument("--noise-ratio", type=float, help="fixed noise variance, as a share of the velocity variance")
     ap.add_argument("--harmonics", type=int, help="cap on the heading harmonics of the reduced-rank engine")
+    ap.add_argument("--heading-stride", type=int, help="the reduced-rank engine's heading blocks keep m / N functions")
     args = ap.parse_args()
-    if args.harmonics is not None:
-        import dpgp.model.estimator as estimator
+    import dpgp.model.estimator as estimator
 
+    if args.harmonics is not None:
         estimator.MAX_HEADING_HARMONICS = args.harmonics
+    if args.heading_stride is not None:
+        estimator.HEADING_BASIS_STRIDE = args.heading_stride
     rows, checks = [], {}
     for name, (load, unit) in datasets().items():
         if args.only and name not in args.only.split(","):

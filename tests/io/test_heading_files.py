@@ -64,8 +64,8 @@ def test_a_loaded_heading_model_scores_as_the_saved_one(saved, road):
     assert back.alpha_ == model.alpha_ and back.log_joint_ == model.log_joint_
     assert back.engine_info()["heading"] == model.engine_info()["heading"]
     assert model.engine_info()["heading"]["harmonics"] == (None if model.likelihood_ == "exact" else 3)
-    # hsgp's heading blocks on ceil(12 / 4) x ceil(4 / 4) position functions (HEADING_BASIS_STRIDE)
-    assert model.engine_info()["heading"]["heading_counts"] == (None if model.likelihood_ == "exact" else [3, 1])
+    # hsgp's heading blocks on min(m, max(ceil(m / 4), 10)) position functions per axis
+    assert model.engine_info()["heading"]["heading_counts"] == (None if model.likelihood_ == "exact" else [10, 4])
     close = dict(rtol=1e-10, atol=1e-10)
     for average in (False, True):
         for positions in (False, True):

@@ -79,8 +79,9 @@ def test_auto_heading_fit_is_what_the_cost_model_predicts(road):
     kw = dict(iterations=3, seed=1, progress=False, n_basis=(12, 4), inputs=HEADED)
     auto = DPGP(**kw).fit(road)
     m = 12 * 4
-    heading_size = 3 * 1  # the heading blocks' position functions: ceil(12 / 4) x ceil(4 / 4) (stride 4)
-    assert estimator.HEADING_BASIS_STRIDE == 4
+    # The heading blocks' position functions: min(m, max(ceil(m / 4), 10)) per axis.
+    heading_size = 10 * 4
+    assert (estimator.HEADING_BASIS_STRIDE, estimator.HEADING_BASIS_MIN_COUNT) == (4, 10)
     predicted = ec.choose_upfront(road.sizes, m, auto.memory_budget_, True, J, heading_size)
     assert predicted is not None and predicted.engine == "exact"
     choice = auto.engine_choice_
@@ -100,7 +101,7 @@ def test_auto_heading_after_the_probe_is_the_engine_it_picks(road, monkeypatch, 
     pattern sizes (hsgp at M = m_x m_y + 2J m'_x m'_y) and, where hsgp is faster, probes with
     the headings: the fit is bitwise the explicit engine's, heading length scales included."""
     m = 12 * 4
-    big_m = m + 2 * J * 3  # heading blocks on ceil(12 / 4) x ceil(4 / 4) position functions
+    big_m = m + 2 * J * 10 * 4  # heading blocks on min(m, max(ceil(m / 4), 10)) position functions per axis
     # hsgp over heading would run on the sub-cluster sampler: its coefficients are those costed.
     if winner == "exact":  # exact pays n³, hsgp a flat half of exact's worst case per point
         flat = (
@@ -119,7 +120,7 @@ def test_auto_heading_after_the_probe_is_the_engine_it_picks(road, monkeypatch, 
         assert choice["resolution_gap"] is not None and choice["resolution_gap"] <= ec.PROBE_TOLERANCE
         assert len(choice["probe_gaps"]) == len(ec.PROBE_SEEDS)
         assert auto.basis_ is not None and auto.engine_info()["heading"]["harmonics"] == J
-        assert auto.engine_info()["heading"]["heading_counts"] == [3, 1]
+        assert auto.engine_info()["heading"]["heading_counts"] == [10, 4]
     else:
         assert choice["resolution_gap"] is None and auto.basis_ is None
     assert choice["inputs"] == {"inputs": HEADED, "why": "given"}

@@ -47,12 +47,15 @@ _INPUTS = ("position", "position+heading", "auto")
 HEADING_PRIOR = (6.0, 0.2)
 #: Most heading harmonics of a reduced-rank basis: 2J heading functions beside the constant.
 MAX_HEADING_HARMONICS = 3
-#: A reduced-rank basis's heading functions multiply the lowest ``ceil(m / stride)`` position
-#: functions per axis, not all ``m``: the field's dependence on heading (which lane's direction,
-#: which turn) varies over distances ``stride`` times the finest the position basis resolves, and
-#: every factorisation is ``M x M`` (issue 34: with all of them a sweep over heading cost 32 times
-#: one over position at J = 1 on the SUMO junction). docs/heading.md has the measurements.
+#: A reduced-rank basis's heading functions multiply the lowest ``m' = min(m, max(ceil(m / stride),
+#: min_count))`` position functions per axis, not all ``m``: the field's dependence on heading
+#: (which lane's direction, which turn) varies over longer distances than the field, and every
+#: factorisation is ``M x M`` (issue 34: with all of them a sweep over heading cost 32 times one
+#: over position at J = 1 on the SUMO junction, 22 x 22 functions). The floor keeps small bases
+#: whole: Peachtree's 10 x 11 on 3 x 3 heading blocks lost its turns (realism 0.77 against 0.93
+#: whole). docs/heading.md has the measurements.
 HEADING_BASIS_STRIDE = 4
+HEADING_BASIS_MIN_COUNT = 10
 #: The evidence ``inputs="auto"`` decides by (issue 34: the heading form where the data have tracks
 #: only if the held-out comparison shows it better on every shared vehicle set): held-out log
 #: density of the velocities given the positions, nats per vehicle, of ``inputs="position+heading"``
@@ -123,8 +126,9 @@ _MAX_REDOS = 3
 
 def _heading_counts(counts: tuple[int, int]) -> tuple[int, int]:
     """The heading blocks' position functions per axis for position counts ``counts``
-    (:data:`HEADING_BASIS_STRIDE`)."""
-    return (-(-counts[0] // HEADING_BASIS_STRIDE), -(-counts[1] // HEADING_BASIS_STRIDE))
+    (:data:`HEADING_BASIS_STRIDE`, :data:`HEADING_BASIS_MIN_COUNT`)."""
+    coarse = [max(-(-m // HEADING_BASIS_STRIDE), HEADING_BASIS_MIN_COUNT) for m in counts]
+    return (min(counts[0], coarse[0]), min(counts[1], coarse[1]))
 
 
 def _heading_size(counts: tuple[int, int]) -> int:
