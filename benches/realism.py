@@ -8,7 +8,7 @@ Prints one table, then the issue's targets met or missed.
 
     python benches/realism.py [--iterations 20] [--only peachtree,eth,zara01,sumo_junction] [--plots DIR]
                               [--inputs position,position+heading] [--heading-likelihood exact]
-                              [--thin N] [--noise-ratio R] [--models DIR] [--harmonics J] [--heading-stride N]
+                              [--thin N] [--noise-ratio R] [--models DIR] [--harmonics J] [--heading-stride N] [--seed S]
 
 ``--inputs``: the fields' inputs to compare, one fit each (issue 34); a fit over heading runs the
 sampler of ``--heading-sampler`` (collapsed by default; ``subcluster`` with ``--heading-likelihood
@@ -21,7 +21,8 @@ constants) then falls back to its defaults: compare inputs at the same ``N``, no
 the training frames, instead of the sampled noise per pattern (issue 34's queue patterns).
 ``--harmonics J``: at most ``J`` heading harmonics on the reduced-rank engine (the estimator's
 cap, ``MAX_HEADING_HARMONICS``, set for this run). ``--heading-stride N``: its heading blocks
-on the lowest ``ceil(m / N)`` position functions per axis (``HEADING_BASIS_STRIDE``; 1: all).
+on the lowest ``ceil(m / N)`` position functions per axis (``HEADING_BASIS_STRIDE``; 1: all), and
+``--heading-min-count N`` at least ``N`` (``HEADING_BASIS_MIN_COUNT``).
 ``--models DIR`` keeps each fit as a model file there (and loads it when present), so that a
 change to generation alone is compared before and after on the same fits.
 
@@ -72,6 +73,7 @@ def measure(
     noise_ratio: float | None = None,
     models: Path | None = None,
     sampler: str = "collapsed",
+    seed: int = 0,
 ) -> dict:
     t0 = time.perf_counter()
     frames, tracks = load()
@@ -85,12 +87,13 @@ def measure(
         f"{name}-{inputs}-{likelihood}-{iterations}-thin{thin}"
         + ("" if noise_ratio is None else f"-noise{noise_ratio:g}")
         + ("" if sampler == "collapsed" or inputs == "position" else f"-{sampler}")
+        + ("" if seed == 0 else f"-seed{seed}")
     )
     kept = None if models is None else models / f"{tag}.npz"
     if kept is not None and kept.exists():
         model = dpgp.DPGP.load(kept)
     else:
-        model = dpgp.DPGP(iterations=iterations, seed=0, progress=False, **options).fit(train)
+        model = dpgp.DPGP(iterations=iterations, seed=seed, progress=False, **options).fit(train)
         if kept is not None:
             kept.parent.mkdir(parents=True, exist_ok=True)
             model.save(kept)
@@ -168,6 +171,8 @@ def main() -> None:
     ap.add_argument("--models", type=Path, help="folder to keep the fits in (loaded from there when present)")
     ap.add_argument("--noise-ratio", type=float, help="fixed noise variance, as a share of the velocity variance")
     ap.add_argument("--harmonics", type=int, help="cap on the heading harmonics of the reduced-rank engine")
+    ap.add_argument("--seed", type=int, default=0, help="the fits' seed")
+    ap.add_argument("--heading-min-count", type=int, help="... but at least N per axis (HEADING_BASIS_MIN_COUNT)")
     ap.add_argument("--heading-stride", type=int, help="the reduced-rank engine's heading blocks keep m / N functions")
     args = ap.parse_args()
     import dpgp.model.estimator as estimator
@@ -176,6 +181,8 @@ def main() -> None:
         estimator.MAX_HEADING_HARMONICS = args.harmonics
     if args.heading_stride is not None:
         estimator.HEADING_BASIS_STRIDE = args.heading_stride
+    if args.heading_min_count is not None:
+        estimator.HEADING_BASIS_MIN_COUNT = args.heading_min_count
     rows, checks = [], {}
     for name, (load, unit) in datasets().items():
         if args.only and name not in args.only.split(","):
@@ -184,6 +191,7 @@ def main() -> None:
             row = measure(
                 name, load, unit, args.iterations, args.plots, inputs, args.heading_likelihood,
                 thin=args.thin, noise_ratio=args.noise_ratio, models=args.models, sampler=args.heading_sampler,
+                seed=args.seed,
             )  # fmt: skip
             rows.append(row)
             checks[row["data"]] = targets(row, unit)
