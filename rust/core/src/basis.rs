@@ -283,25 +283,10 @@ impl Basis {
 
     /// `Φᵀ` at positions and previous headings (`ψ_c(h) φ_j(x) φ_k(y)` in feature order).
     pub fn features_of(&self, pts: Inputs<'_>) -> Vec<f64> {
-        let tensor = self.tensor_features(pts);
-        if self.is_tensor() {
-            return tensor;
-        }
-        let (mt, idx) = (
-            self.positions_len() * self.n_heading(),
-            self.tensor_indices().collect::<Vec<_>>(),
-        );
-        tensor
-            .chunks_exact(mt)
-            .flat_map(|col| idx.iter().map(move |&i| col[i]))
-            .collect()
-    }
-
-    /// `Φᵀ` of the full tensor product (`c M_p + j + m_x k` for `ψ_c(h) φ_j(x) φ_k(y)`).
-    fn tensor_features(&self, pts: Inputs<'_>) -> Vec<f64> {
         let (mx, my) = (self.m[0], self.m[1]);
         let mp = mx * my;
-        let mm = mp * self.n_heading();
+        let mm = self.len();
+        let [hx, hy] = self.heading_m;
         let mut out = vec![0.0; mm * pts.len()];
         let mut fx = vec![0.0; mx];
         let mut fy = vec![0.0; my];
@@ -315,11 +300,14 @@ impl Basis {
                 }
             }
             if self.harmonics > 0 {
+                // Each heading block: ψ_c(h) times the lowest h_x h_y position values.
                 heading::features(pts.heading(i), &mut psi);
                 let (pos, rest) = col.split_at_mut(mp);
-                for (block, &w) in rest.chunks_mut(mp).zip(&psi[1..]) {
-                    for (b, &x) in block.iter_mut().zip(pos.iter()) {
-                        *b = w * x;
+                for (block, &w) in rest.chunks_mut(hx * hy).zip(&psi[1..]) {
+                    for (row, src) in block.chunks_mut(hx).zip(pos.chunks(mx)) {
+                        for (b, &x) in row.iter_mut().zip(src) {
+                            *b = w * x;
+                        }
                     }
                 }
             }
