@@ -1,6 +1,6 @@
 """Fields over position against fields over position and previous heading (issue 34), held out.
 
-    python benches/heading.py [--only peachtree,sumo_grid,us101,lankershim,left_turn,eth,zara01] [--seeds 1] [--iterations 20] [--average] [--thin N]
+    python benches/heading.py [--only peachtree,sumo_grid,us101,lankershim,left_turn,eth,zara01] [--seeds 1] [--first-seed 0] [--iterations 20] [--average] [--thin N]
 
 Each data set with tracks is framed by ``make_frames`` (which gives every vehicle's previous
 heading; the three frame files without vehicle ids are linked by ``dpgp.link_tracks``), split in time (``dpgp.evaluate.split_in_time``), and fitted twice with the same engine,
@@ -58,6 +58,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--only", help="comma-separated subset of the data sets")
     ap.add_argument("--seeds", type=int, default=1)
+    ap.add_argument("--first-seed", type=int, default=0, help="seeds first-seed, first-seed + 1, ...")
     ap.add_argument("--iterations", type=int, default=20)
     ap.add_argument("--likelihood", default="exact", choices=("exact", "hsgp"))
     ap.add_argument("--sampler", default="collapsed", choices=("collapsed", "subcluster"))
@@ -86,7 +87,7 @@ def main() -> None:
         print(f"{name}: {len(train)}/{len(test)} frames, {train.sizes.sum()}/{test.sizes.sum()} vehicles, "
               f"{known:.0%} of training vehicles with a previous heading", flush=True)  # fmt: skip
         gains: list[float] = []
-        for seed in range(args.seeds):
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
             scores = {}
             for inputs in ("position", "position+heading"):
                 t0 = time.perf_counter()
