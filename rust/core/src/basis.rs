@@ -150,7 +150,7 @@ impl Basis {
     }
 
     /// Whether the heading blocks hold every position function (the full tensor product).
-    fn is_tensor(&self) -> bool {
+    pub fn is_tensor(&self) -> bool {
         self.heading_m == self.m
     }
 

@@ -344,9 +344,8 @@ impl Sums {
             }
         }
         // Blocks (c ≥ 1, 0): the transposes of blocks (0, c).
-        let n0 = mp;
-        for col in 0..n0 {
-            for row in n0..m {
+        for col in 0..mp {
+            for row in mp..m {
                 g[col * m + row] = g[row * m + col];
             }
         }

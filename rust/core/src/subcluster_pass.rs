@@ -53,7 +53,7 @@ impl FieldBank {
         // function, evaluated by the same kernel and combined per point.
         // A heading block on fewer position functions is its position field with zeros there.
         let (nc, mp) = (basis.n_heading(), basis.positions_len());
-        let tensor: Vec<Vec<f64>> = if basis.len() == nc * mp {
+        let tensor: Vec<Vec<f64>> = if basis.is_tensor() {
             Vec::new()
         } else {
             weights
