@@ -110,7 +110,7 @@ def test_client_with_frames_not_in_shards_is_refused():
 
 @pytest.mark.parametrize(
     "setting",
-    [{"likelihood": "exact"}, {"sampler": "collapsed"}, {"pattern_moments": True}, {"inputs": "position+heading"}],
+    [{"likelihood": "exact"}, {"sampler": "collapsed"}, {"pattern_moments": True}],
     ids=str,
 )
 def test_client_with_settings_that_need_every_frame_is_refused_before_any_work(shard_dir, setting):
@@ -118,6 +118,47 @@ def test_client_with_settings_that_need_every_frame_is_refused_before_any_work(s
     with pytest.raises(InvalidInputError, match="client="):
         model.fit(shard_dir, client=_NoWorkClient())
     assert not hasattr(model, "labels_")
+
+
+def test_fields_over_heading_on_shards_without_headings_are_refused_before_any_work(shard_dir):
+    model = dpgp.DPGP(iterations=1, progress=False, inputs="position+heading")
+    with pytest.raises(InvalidInputError, match="carry none"):
+        model.fit(shard_dir, client=_NoWorkClient())
+    assert not hasattr(model, "labels_")
+
+
+# --- fields over heading on shards --------------------------------------------------------------
+HEADED = dict(iterations=3, seed=SEED, progress=False, inputs="position+heading", likelihood="hsgp")
+
+
+@pytest.fixture(scope="module")
+def headed_dir(tmp_path_factory):
+    """A two-way road's frames (they carry previous headings) in 2 shards."""
+    from heading_roads import two_way_road
+
+    frames = dpgp.make_frames(two_way_road(n_vehicles=30), dt=1.0)
+    assert frames.prev_heading is not None
+    directory = tmp_path_factory.mktemp("headed") / "frames"
+    frames.to_parquet(directory, shards=2)
+    return frames, directory
+
+
+def test_fields_over_heading_fit_over_shards_on_a_cluster_as_in_process(headed_dir, cluster):
+    """The shards send their points' previous headings: a fit over heading runs over them (no
+    longer read into memory, no longer refused with client=), the same chain on the cluster's
+    worker processes as in this process, and not the chain over position."""
+    frames, directory = headed_dir
+    here = dpgp.DPGP(**HEADED).fit(directory)
+    assert here.inputs_ == "position+heading" and here._frames_dir is not None  # over the shards
+    on_cluster = dpgp.DPGP(**HEADED).fit(directory, client=cluster[1])
+    assert_same_chain(on_cluster, here)
+    np.testing.assert_array_equal(on_cluster.heading_scales_, here.heading_scales_)
+    blind = dpgp.DPGP(**{**HEADED, "inputs": "position"}).fit(directory)
+    assert blind.history_["log_joint"] != here.history_["log_joint"]  # the headings were used
+    scores = on_cluster.score_samples(frames)
+    assert scores.shape == (len(frames),) and np.all(np.isfinite(scores))
+    auto = dpgp.DPGP(**{**HEADED, "inputs": "auto"}).fit(directory)
+    assert "no previous headings" not in auto.engine_choice_["inputs"]["why"]  # the shards have them
 
 
 # --- checkpoints of a fit over shards ----------------------------------------------------------

@@ -246,7 +246,12 @@ class Shard:
     which answer a sharded chain's requests (rust/py/src/shard.rs)."""
 
     def __new__(
-        cls, xy: NDArray[np.float64], v: NDArray[np.float64], offsets: NDArray[np.int64], first: int
+        cls,
+        xy: NDArray[np.float64],
+        v: NDArray[np.float64],
+        offsets: NDArray[np.int64],
+        first: int,
+        h: NDArray[np.float64] | None = None,
     ) -> Self: ...
     def __len__(self) -> int: ...
     def handle(self, request: bytes) -> bytes: ...

@@ -441,18 +441,19 @@ class DPGP:
         resolved (``inputs_``), else the setting (``"auto"`` before a fit: not yet)."""
         return self.__dict__.get("inputs_", self.inputs) == "position+heading"
 
-    def _resolve_inputs(self, frames: Frames, sharded: bool = False) -> None:
-        """``inputs_`` for the training ``frames``, and why (``engine_choice_["inputs"]``, added
-        once the engine is resolved): ``inputs="auto"`` decided by :func:`choose_inputs`, else as given."""
+    def _resolve_inputs(self, frames: Frames, manifest: Any = None) -> None:
+        """``inputs_`` for the training ``frames`` (or the shards of ``manifest``, whose rows carry
+        previous headings when it names their heading speed), and why (``engine_choice_["inputs"]``,
+        added once the engine is resolved): ``inputs="auto"`` decided by :func:`choose_inputs`,
+        else as given."""
+        tracks = frames.prev_heading is not None if manifest is None else manifest.heading_min_speed is not None
         if self.inputs != "auto":
             self.inputs_, self._inputs_choice = self.inputs, {"inputs": self.inputs, "why": "given"}
             return
         blocked = None
-        if sharded:
-            blocked = "frames in shards do not carry previous headings yet"
-        elif self.dynamics is not None:
+        if self.dynamics is not None:
             blocked = "dynamics='sticky': fields over heading run without dynamics, for now"
-        choice = choose_inputs(frames.prev_heading is not None, blocked=blocked)
+        choice = choose_inputs(tracks, blocked=blocked)
         self.inputs_, self._inputs_choice = choice["inputs"], choice
 
     def _sampler_settings(self) -> _core._SamplerSettings:
@@ -511,6 +512,16 @@ class DPGP:
         self._check_settings()
         self.__dict__.pop("_heading_stored", None)  # a fresh chain runs with this dpgp's heading prior
         sharded = manifest is not None and self._runs_on_shards(client)
+        if (
+            sharded
+            and manifest is not None
+            and self.inputs == "position+heading"
+            and manifest.heading_min_speed is None
+        ):
+            raise InvalidInputError(
+                f"inputs='position+heading' needs previous headings, and the shards in {manifest.directory} carry "
+                "none: write them from frames made by make_frames from tracks, or fit with inputs='position'"
+            )
         if self.checkpoint is not None:
             ckpt.check_path(self.checkpoint)  # before the work, not after the initialisation
         extent, data_sha256, source = None, None, None
@@ -524,7 +535,7 @@ class DPGP:
         else:
             frames = as_frames(frames if given is None else given.directory)
         _check_magnitudes(frames, "the training data")
-        self._resolve_inputs(frames, sharded)
+        self._resolve_inputs(frames, manifest if sharded else None)
         self._resolve_defaults(frames)
         signal_var = frames.v.var(axis=0) if self.signal_var is None else _pair("signal_var", self.signal_var)
         mean = frames.v.mean(axis=0) if self.mean is None else _pair("mean", self.mean)
@@ -641,13 +652,12 @@ class DPGP:
             and self.sampler in ("auto", "subcluster")
             and self.dynamics is None
             and not self.pattern_moments
-            and self.inputs != "position+heading"  # Parquet shards carry no previous headings yet
         )
         if client is not None and not ok:
             raise InvalidInputError(
                 "a fit with client= runs the sub-cluster sampler on the reduced-rank engine over the shards; "
                 "likelihood must be 'auto' or 'hsgp', sampler 'auto' or 'subcluster', with no dynamics or "
-                "pattern_moments, and inputs other than 'position+heading' (shards carry no previous headings yet)"
+                "pattern_moments"
             )
         return ok
 

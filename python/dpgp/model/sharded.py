@@ -125,35 +125,44 @@ def _release_arrow_memory() -> None:
     pa.default_memory_pool().release_unused()
 
 
-def core_shard(directory: str | ShardManifest, i: int) -> Any:
-    """Shard ``i`` read as the core's ``Shard`` (what answers the chain's requests)."""
+def core_shard(directory: str | ShardManifest, i: int, headed: bool = False) -> Any:
+    """Shard ``i`` read as the core's ``Shard`` (what answers the chain's requests); ``headed``:
+    with its points' previous headings, for fields over heading."""
     part, start = read_shard(directory, i)
-    shard = _core.Shard(part.xy, part.v, part.offsets, start)
+    h = None
+    if headed:
+        if part.prev_heading is None:
+            raise InvalidInputError(
+                f"shard {i} has no previous headings (prev_heading): write the shards from frames made by "
+                "make_frames from tracks, or fit with inputs='position'"
+            )
+        h = np.ascontiguousarray(part.prev_heading, dtype=np.float64)
+    shard = _core.Shard(part.xy, part.v, part.offsets, start, h)
     del part
     _release_arrow_memory()
     return shard
 
 
-def local_shards(manifest: ShardManifest) -> list[Any]:
+def local_shards(manifest: ShardManifest, headed: bool = False) -> list[Any]:
     """Every shard read into this process as the core's ``Shard``, in order."""
-    return [core_shard(manifest, i) for i in range(manifest.n_shards)]
+    return [core_shard(manifest, i, headed) for i in range(manifest.n_shards)]
 
 
 # --- served by Dask workers ------------------------------------------------------------------
-#: This worker process's shards, by (directory, shard number): loaded once, kept.
-_LOADED: dict[tuple[str, int], Any] = {}
+#: This worker process's shards, by (directory, shard number, with headings): loaded once, kept.
+_LOADED: dict[tuple[str, int, bool], Any] = {}
 
 
-def load_shard(directory: str, i: int) -> tuple[str, int]:
-    """A worker's task: read shard ``i`` of ``directory`` into this process (once); returns the
-    key the requests name it by."""
-    key = (directory, int(i))
+def load_shard(directory: str, i: int, headed: bool = False) -> tuple[str, int, bool]:
+    """A worker's task: read shard ``i`` of ``directory`` into this process (once; ``headed``:
+    with its previous headings); returns the key the requests name it by."""
+    key = (directory, int(i), bool(headed))
     if key not in _LOADED:
-        _LOADED[key] = core_shard(directory, i)
+        _LOADED[key] = core_shard(directory, i, headed)
     return key
 
 
-def serve_request(key: tuple[str, int], request: bytes) -> bytes:
+def serve_request(key: tuple[str, int, bool], request: bytes) -> bytes:
     """A worker's task: the shard's reply to one request (the shard is read here if this worker
     has not loaded it: a task that moved, or a worker that replaced a lost one)."""
     return _LOADED[load_shard(*key)].handle(request)
@@ -180,7 +189,7 @@ class ShardSource:
         self.manifest, self.client, self._fingerprint = manifest, client, fingerprint
         self.directory = os.path.abspath(manifest.directory)
         self._sample: tuple[Frames, np.ndarray, str | None] | None = None
-        self._local: list[Any] | None = None
+        self._local: dict[bool, list[Any]] = {}  # by whether the shards carry headings
         self.link: DaskShards | None = None
         self._lock = threading.Lock()  # chains in threads ask for samplers at once
         self.stopping = threading.Event()  # set: the chains over it stop before their next sweep
@@ -198,14 +207,18 @@ class ShardSource:
             return self._sample
 
     def sampler(self, settings: Any) -> Any:
-        """A sub-cluster chain with ``settings`` over these shards."""
+        """A sub-cluster chain with ``settings`` over these shards (with their previous headings
+        when the settings are of fields over heading)."""
+        headed = settings.get("heading_prior") is not None
         with self._lock:
             if self.client is None:
-                if self._local is None:
-                    self._local = local_shards(self.manifest)
-                return _core.Sampler.over_shards(self._local, settings)
-            if self.link is None or self.link.closed:
-                self.link = DaskShards(self.client, self.manifest)
+                if headed not in self._local:
+                    self._local[headed] = local_shards(self.manifest, headed)
+                return _core.Sampler.over_shards(self._local[headed], settings)
+            if self.link is None or self.link.closed or self.link.headed != headed:
+                if self.link is not None:
+                    self.link.close()
+                self.link = DaskShards(self.client, self.manifest, headed)
             return _core.Sampler.over_link(self.sizes, self.link, settings)
 
     def close(self) -> None:
@@ -220,12 +233,13 @@ class DaskShards:
     each request runs beside it. Counts the requests, the bytes sent and received, and the
     seconds spent waiting for replies (chains in several threads may share it)."""
 
-    def __init__(self, client: Any, manifest: ShardManifest):
-        self._client = client
+    def __init__(self, client: Any, manifest: ShardManifest, headed: bool = False):
+        self._client, self.headed = client, headed
         directory = self._directory = os.path.abspath(manifest.directory)
         tag = uuid.uuid4().hex[:8]
         self._loads = [
-            client.submit(load_shard, directory, i, key=f"dpgp-shard-{tag}-{i}") for i in range(manifest.n_shards)
+            client.submit(load_shard, directory, i, headed, key=f"dpgp-shard-{tag}-{i}")
+            for i in range(manifest.n_shards)
         ]
         client.gather(self._loads)  # every shard read once, before the chain starts
         self._count = threading.Lock()

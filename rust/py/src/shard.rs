@@ -9,7 +9,7 @@ use numpy::{PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyList};
 
-use crate::convert::pairs;
+use crate::convert::{headings, pairs};
 use crate::errors::CoreError;
 use crate::sampler::offsets_vec;
 use dpgp_core::Error;
@@ -25,16 +25,23 @@ pub struct PyShard {
 
 #[pymethods]
 impl PyShard {
+    /// `h`: each point's previous heading (radians, NaN where unknown), for fields over heading.
     #[new]
+    #[pyo3(signature = (xy, v, offsets, first, h=None))]
     fn new(
         xy: PyReadonlyArray2<'_, f64>,
         v: PyReadonlyArray2<'_, f64>,
         offsets: PyReadonlyArray1<'_, i64>,
         first: usize,
+        h: Option<PyReadonlyArray1<'_, f64>>,
     ) -> PyResult<Self> {
         let (xy, v) = (pairs("xy", &xy)?, pairs("v", &v)?);
         let offsets = offsets_vec("offsets", &offsets)?;
-        let data = Data::new(xy.to_vec(), v.to_vec(), offsets).map_err(CoreError)?;
+        let mut data = Data::new(xy.to_vec(), v.to_vec(), offsets).map_err(CoreError)?;
+        if h.is_some() {
+            let h = headings("h", &h)?;
+            data = data.with_headings(h.to_vec()).map_err(CoreError)?;
+        }
         Ok(Self {
             inner: Shard::new(Arc::new(data), first),
         })
