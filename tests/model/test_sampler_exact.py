@@ -18,7 +18,7 @@ import dpgp
 
 import sampler_oracle as so
 
-SWEEPS, BURN_IN = 30_000, 1_000
+SWEEPS, BURN_IN = 20_000, 1_000
 
 
 def fit_tiny(p: so.Params, alpha: float, **kw) -> dpgp.DPGP:

@@ -314,7 +314,7 @@ fn per_pattern_noise_chain_samples_the_enumerated_posterior() {
         st.split_merge.moves_per_sweep = 2;
         st.new_pattern_samples = 3;
         let exact = enumerated_noise_integrated(&tiny(), &st);
-        let (freq, stats) = per_pattern_chain(st.clone(), 60_000);
+        let (freq, stats) = per_pattern_chain(st.clone(), 40_000);
         let d = tv(&freq, &exact);
         let name = likelihood.name();
         eprintln!("{name}: per-pattern noise TV {d:.4} ({stats:?})");

@@ -302,7 +302,7 @@ fn split_merge_with_sampled_length_scales_samples_the_enumerated_posterior() {
             length_scales_integrated(&data, &st, members)
         });
         let mut s = Sampler::new(tiny(), st.clone()).unwrap();
-        let sweeps = 60_000;
+        let sweeps = 40_000;
         let mut freq: HashMap<Vec<usize>, f64> = HashMap::new();
         for _ in 0..sweeps {
             s.sweep(&|| false).unwrap();
@@ -440,7 +440,7 @@ fn heading_fields_with_sampled_length_scales_sample_the_enumerated_posterior() {
         let exact = enumerated_by(data.len(), st.alpha.unwrap(), |members| {
             three_scales_integrated(&data, &st, members)
         });
-        let freq = chain_frequencies(tiny_headed(), st.clone(), 40_000);
+        let freq = chain_frequencies(tiny_headed(), st.clone(), 25_000);
         let d = tv(&freq, &exact);
         let fixed = tv(&freq, &enumerated(&data, &st));
         let name = likelihood.name();

@@ -66,7 +66,7 @@ fn subcluster_chain_samples_the_enumerated_posterior() {
         let mut st = settings(1);
         st.split_merge.pairs = pairs;
         let exact = enumerated_fixed(&st);
-        let (freq, stats) = chain(st, 60_000);
+        let (freq, stats) = chain(st, 40_000);
         let d = tv(&freq, &exact);
         eprintln!("{pairs:?}: TV {d:.4} ({stats:?})");
         assert!(d <= 0.03, "{pairs:?}: TV {d:.4} > 0.03 ({stats:?})");
@@ -195,7 +195,7 @@ fn subcluster_chain_over_heading_samples_the_enumerated_posterior() {
     blind.base = st
         .base
         .with_length_scales(st.base.length_scales.with_heading(f64::INFINITY).unwrap());
-    let (freq, stats) = chain_on(tiny_headed(), st, 60_000);
+    let (freq, stats) = chain_on(tiny_headed(), st, 30_000);
     let (d, other) = (tv(&freq, &exact), tv(&freq, &enumerated(&data, &blind)));
     eprintln!("over heading: TV {d:.4}; against position only {other:.4} ({stats:?})");
     assert!(d <= 0.03, "TV {d:.4} > 0.03 ({stats:?})");
@@ -216,7 +216,7 @@ fn subcluster_chain_over_heading_with_sampled_length_scales_samples_its_posterio
         three_scales_integrated(&data, &st, members)
     });
     let fixed = enumerated(&data, &st);
-    let (freq, stats) = chain_on(tiny_headed(), st, 60_000);
+    let (freq, stats) = chain_on(tiny_headed(), st, 30_000);
     let d = tv(&freq, &exact);
     let power = tv(&freq, &fixed);
     eprintln!("over heading, sampled w: TV {d:.4}; against fixed {power:.4} ({stats:?})");
