@@ -161,6 +161,17 @@ def test_fields_over_heading_fit_over_shards_on_a_cluster_as_in_process(headed_d
     assert "no previous headings" not in auto.engine_choice_["inputs"]["why"]  # the shards have them
 
 
+def test_a_fit_over_heading_on_one_shard_is_the_chain_over_the_frames_in_memory(headed_dir, tmp_path):
+    """The headings the shard sends are the frames' own: on one shard, the sub-cluster chain over
+    heading is the in-memory one, sweep for sweep."""
+    frames, _ = headed_dir
+    frames.to_parquet(tmp_path / "one", shards=1)
+    kw = {**HEADED, "sampler": "subcluster"}
+    over_shard = dpgp.DPGP(**kw).fit(tmp_path / "one")
+    assert over_shard._frames_dir is not None
+    assert_same_chain(over_shard, dpgp.DPGP(**kw).fit(frames))
+
+
 # --- checkpoints of a fit over shards ----------------------------------------------------------
 CKPT = dict(iterations=5, checkpoint_every=2, seed=SEED, progress=False, store_labels=True)
 
