@@ -172,6 +172,24 @@ def test_a_fit_over_heading_on_one_shard_is_the_chain_over_the_frames_in_memory(
     assert_same_chain(over_shard, dpgp.DPGP(**kw).fit(frames))
 
 
+def test_a_checkpoint_of_a_fit_over_heading_on_shards_resumes_to_the_same_chain(headed_dir, tmp_path):
+    """The checkpoint leaves the frames, headings with them, in their shards (no frame_prev_heading
+    in the file), and the chain resumed from it is the uninterrupted one; the finished model saves
+    and loads with the headings it gathered."""
+    _, directory = headed_dir
+    kw = {**HEADED, "checkpoint_every": 2}
+    full = dpgp.DPGP(**{**kw, "iterations": 6}).fit(directory)
+    dpgp.DPGP(**{**kw, "iterations": 4, "checkpoint": str(tmp_path / "c.ckpt")}).fit(directory)
+    with np.load(tmp_path / "c.ckpt") as archive:
+        assert "frame_prev_heading" not in archive.files and "heading_scales" in archive.files
+    resumed = dpgp.DPGP.resume(tmp_path / "c.ckpt", iterations=6)
+    assert resumed.inputs_ == "position+heading"
+    assert_same_chain(resumed, full)
+    full.save(tmp_path / "m.npz")
+    loaded = dpgp.DPGP.load(tmp_path / "m.npz")
+    np.testing.assert_array_equal(loaded.score_samples(headed_dir[0]), full.score_samples(headed_dir[0]))
+
+
 # --- checkpoints of a fit over shards ----------------------------------------------------------
 CKPT = dict(iterations=5, checkpoint_every=2, seed=SEED, progress=False, store_labels=True)
 

@@ -649,7 +649,8 @@ def _heading(
             "the file's fields are over position and heading (inputs='position+heading') but it holds no heading "
             "length scales ('heading_scales'): it was not written by a dpgp that saves such models, or it is damaged"
         )
-    if frames is None or getattr(frames, "prev_heading", None) is None:
+    # A checkpoint whose frames stay in their shards (frames None): the shards carry the headings.
+    if frames is not None and getattr(frames, "prev_heading", None) is None:
         raise ModelFileError(
             "the file holds heading length scales (fields over heading) but not its frames' previous headings "
             "('frame_prev_heading'), which the fields take as input; the file is corrupted"
