@@ -121,6 +121,11 @@ class ShardManifest:
     def n_shards(self) -> int:
         return len(self.shards)
 
+    @property
+    def has_headings(self) -> bool:
+        """Whether the rows carry previous velocities and headings (the manifest names their speed)."""
+        return self.heading_min_speed is not None
+
     def path(self, i: int) -> str:
         """The file of shard ``i``."""
         return os.path.join(self.directory, self.shards[i].file)

@@ -442,11 +442,10 @@ class DPGP:
         return self.__dict__.get("inputs_", self.inputs) == "position+heading"
 
     def _resolve_inputs(self, frames: Frames, manifest: Any = None) -> None:
-        """``inputs_`` for the training ``frames`` (or the shards of ``manifest``, whose rows carry
-        previous headings when it names their heading speed), and why (``engine_choice_["inputs"]``,
+        """``inputs_`` for the training ``frames`` (or the shards of ``manifest``), and why (``engine_choice_["inputs"]``,
         added once the engine is resolved): ``inputs="auto"`` decided by :func:`choose_inputs`,
         else as given."""
-        tracks = frames.prev_heading is not None if manifest is None else manifest.heading_min_speed is not None
+        tracks = frames.prev_heading is not None if manifest is None else manifest.has_headings
         if self.inputs != "auto":
             self.inputs_, self._inputs_choice = self.inputs, {"inputs": self.inputs, "why": "given"}
             return
@@ -512,12 +511,7 @@ class DPGP:
         self._check_settings()
         self.__dict__.pop("_heading_stored", None)  # a fresh chain runs with this dpgp's heading prior
         sharded = manifest is not None and self._runs_on_shards(client)
-        if (
-            sharded
-            and manifest is not None
-            and self.inputs == "position+heading"
-            and manifest.heading_min_speed is None
-        ):
+        if sharded and manifest is not None and self.inputs == "position+heading" and not manifest.has_headings:
             raise InvalidInputError(
                 f"inputs='position+heading' needs previous headings, and the shards in {manifest.directory} carry "
                 "none: write them from frames made by make_frames from tracks, or fit with inputs='position'"

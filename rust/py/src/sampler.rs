@@ -110,6 +110,24 @@ pub(crate) fn offsets_vec(name: &str, o: &PyReadonlyArray1<'_, i64>) -> CoreResu
         .collect()
 }
 
+/// The core's frames from flat arrays: positions, velocities, frame offsets and, when given
+/// (not empty), each point's previous heading (fields over heading).
+pub(crate) fn frames_data(
+    xy: &PyReadonlyArray2<'_, f64>,
+    v: &PyReadonlyArray2<'_, f64>,
+    offsets: &PyReadonlyArray1<'_, i64>,
+    h: &Option<PyReadonlyArray1<'_, f64>>,
+) -> CoreResult<Data> {
+    let (xy, v) = (pairs("xy", xy)?, pairs("v", v)?);
+    let h = crate::convert::headings("h", h)?;
+    let data = Data::new(xy.to_vec(), v.to_vec(), offsets_vec("offsets", offsets)?)?;
+    Ok(if h.is_empty() {
+        data
+    } else {
+        data.with_headings(h.to_vec())?
+    })
+}
+
 /// Frames as views into flat arrays.
 pub(crate) fn frame_refs<'a>(
     xy: &'a [[f64; 2]],
@@ -276,14 +294,7 @@ impl PySampler {
         h: Option<PyReadonlyArray1<'_, f64>>,
     ) -> PyResult<Self> {
         let (settings, n_threads) = SamplerSettings::extract(settings)?.into_core(false)?;
-        let (xy, v) = (pairs("xy", &xy)?, pairs("v", &v)?);
-        let h = crate::convert::headings("h", &h)?;
-        let offsets = offsets_vec("offsets", &offsets)?;
-        let mut data = Data::new(xy.to_vec(), v.to_vec(), offsets).map_err(CoreError)?;
-        if !h.is_empty() {
-            data = data.with_headings(h.to_vec()).map_err(CoreError)?;
-        }
-        let data = Arc::new(data);
+        let data = Arc::new(frames_data(&xy, &v, &offsets, &h)?);
         let sampler = py
             .detach(|| match settings.sampler {
                 SamplerKind::Collapsed => {

@@ -9,11 +9,9 @@ use numpy::{PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyList};
 
-use crate::convert::{headings, pairs};
 use crate::errors::CoreError;
-use crate::sampler::offsets_vec;
+use crate::sampler::frames_data;
 use dpgp_core::Error;
-use dpgp_core::gibbs::Data;
 use dpgp_core::subcluster::shard::{Link, Reply, Request, Shard};
 
 /// Consecutive frames of a data set (`first`: the number of the first among all frames), which
@@ -35,15 +33,8 @@ impl PyShard {
         first: usize,
         h: Option<PyReadonlyArray1<'_, f64>>,
     ) -> PyResult<Self> {
-        let (xy, v) = (pairs("xy", &xy)?, pairs("v", &v)?);
-        let offsets = offsets_vec("offsets", &offsets)?;
-        let mut data = Data::new(xy.to_vec(), v.to_vec(), offsets).map_err(CoreError)?;
-        if h.is_some() {
-            let h = headings("h", &h)?;
-            data = data.with_headings(h.to_vec()).map_err(CoreError)?;
-        }
         Ok(Self {
-            inner: Shard::new(Arc::new(data), first),
+            inner: Shard::new(Arc::new(frames_data(&xy, &v, &offsets, &h)?), first),
         })
     }
 
