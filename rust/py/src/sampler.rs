@@ -199,28 +199,34 @@ impl PySampler {
         let stop = AtomicBool::new(false);
         let mut interrupt: Option<PyErr> = None;
         let result = py.detach(|| {
-            std::thread::scope(|s| {
-                let (tx, rx) = mpsc::channel();
-                let stop_ref = &stop;
-                let handle = s.spawn(move || {
-                    let mut guard = self.lock();
-                    let sampler: &mut Engine = &mut guard;
-                    let r = self
-                        .pool
-                        .install(|| work(sampler, &|| stop_ref.load(Ordering::Relaxed)));
-                    let _ = tx.send(());
-                    r
+            // The work is spawned onto the pool from this thread (no thread of its own), which
+            // meanwhile polls Ctrl-C; a panic in it is caught there and reported, not unwound.
+            let (tx, rx) = mpsc::channel();
+            let stop_ref = &stop;
+            let interrupt_ref = &mut interrupt;
+            self.pool.in_place_scope(|s| {
+                s.spawn(move |_| {
+                    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                        let mut guard = self.lock();
+                        work(&mut guard, &|| stop_ref.load(Ordering::Relaxed))
+                    }));
+                    let _ = tx.send(r);
                 });
-                while rx.recv_timeout(Duration::from_millis(50)).is_err() {
-                    if handle.is_finished() {
-                        break;
-                    }
-                    if let Err(e) = Python::attach(|py| py.check_signals()) {
-                        stop.store(true, Ordering::Relaxed);
-                        interrupt.get_or_insert(e);
+                loop {
+                    match rx.recv_timeout(Duration::from_millis(50)) {
+                        Ok(r) => return r,
+                        Err(mpsc::RecvTimeoutError::Disconnected) => {
+                            return Err(Box::new("the sampler's job ended without a result")
+                                as Box<dyn std::any::Any + Send>);
+                        }
+                        Err(mpsc::RecvTimeoutError::Timeout) => {
+                            if let Err(e) = Python::attach(|py| py.check_signals()) {
+                                stop.store(true, Ordering::Relaxed);
+                                interrupt_ref.get_or_insert(e);
+                            }
+                        }
                     }
                 }
-                handle.join()
             })
         });
         match result {
