@@ -3,6 +3,8 @@ time split, rollouts against tracks, the figure and the command line."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -16,6 +18,8 @@ from dpgp.evaluate import scores as ev
 from gp_oracle import log_marginal_likelihood as ref_lml
 from gp_oracle import log_predictive as ref_pred
 from test_baselines import oracle_scores as cv_oracle
+
+FIXTURES = Path(__file__).parents[1] / "fixtures"
 
 WS = (6.0, 9.0)
 
@@ -211,6 +215,29 @@ def test_rollout_errors_match_a_numpy_computation():
     assert out.margins["constant_velocity"] is None and "no spread" in out.notes[0]
     fig = out.plot()
     assert len(fig.axes) == 2
+
+
+def test_the_constant_velocity_baseline_stops_at_the_roi_as_the_core_rollouts_do():
+    """The rollouts' constant-velocity baseline is the core's relaxed rollout with τ = ∞ (the
+    residual never relaxes), bit for bit: vehicles that leave the ROI stand at their first
+    position outside it, one that starts outside never moves."""
+    from dpgp.evaluate.scores import constant_velocity_rollout
+    from dpgp.generate import motion
+    from dpgp.generate.rollout import motion_rollouts
+
+    model = dpgp.DPGP.load(FIXTURES / "field_model.npz")
+    fit = model._fitted()
+    xy = np.array([[0.0, 0.0], [8.0, 1.0], [-3.0, 2.0], [12.0, 0.0]])
+    v = np.array([[1.5, 0.2], [3.0, -1.0], [-0.5, 4.0], [1.0, 1.0]])
+    roi = (-5.0, 10.0, -4.0, 6.0)  # the last vehicle starts outside it
+    k = fit.n_patterns
+    still = motion.MotionModel("vehicles", np.full(k, np.inf), np.zeros((k, 2)), np.zeros(k, np.int64), np.ones(k), 1.0)
+    core = motion_rollouts(fit, [0], [xy], [v], steps=12, dt=0.5, seeds=None, roi=roi, low_data_threshold=None,
+                           dynamics="relaxed", motion=still)[0]  # fmt: skip
+    got = constant_velocity_rollout(xy, v, 12, 0.5, roi)
+    np.testing.assert_array_equal(got, core.positions)
+    assert not np.array_equal(got[-1, :3], xy[:3] + 12 * 0.5 * v[:3])  # they did leave and stand
+    np.testing.assert_array_equal(got[:, 3], np.broadcast_to(xy[3], (13, 2)))
 
 
 def test_bad_input_raises_typed_errors(fitted):

@@ -14,7 +14,8 @@ else pooled. Two choices are kept:
 
 - ``tau_rollout``, for rollouts of recorded frames (``simulate``): out of sample. The fields
   are conditioned on the first three quarters of the training frames only and frames of the
-  last quarter are rolled out, as a test frame would be; per pattern from
+  last quarter are rolled out as ``simulate`` rolls out a test frame (with interaction,
+  :data:`ROLLOUT_DYNAMICS`); per pattern from
   :data:`TAU_PATTERN_STEPS` held-out track-steps. On the frames the fields were fitted to, the
   field has already seen each vehicle's velocity, which biases the choice toward short ``τ``
   (Peachtree: 4.8 s in sample, ∞ held out; test rollouts at 4 s 2.03 against 1.27 ft, constant
@@ -122,6 +123,11 @@ TAU_GRID = np.r_[np.geomspace(0.25, 256.0, 11), np.inf]
 TAU_HOLDOUT = 0.25
 TAU_HORIZON = 4.0  # seconds of the training rollouts that choose τ
 TAU_FRAMES = 120  # training frames rolled out to choose τ
+#: how the held-out rollouts that choose ``τ_rollout`` move: as ``simulate`` moves a recorded
+#: frame by default. Chosen without interaction (the batched relaxed rollouts, before), the SUMO
+#: junction's patterns took τ of 0.25-5 s toward fields that car following already beat, and its
+#: test rollouts at 1 s were 1.14x constant velocity (1.02x chosen so; s52 notes)
+ROLLOUT_DYNAMICS = "interactive"
 PEDESTRIAN_SPEED = 5.0  # 99th percentile speed below this (data units per second): pedestrians
 AGENTS = ("auto", "vehicles", "pedestrians")
 #: vehicles moving at least this share of the median speed show their heading (learning τ_h)
@@ -458,9 +464,15 @@ def time_constants(
     grid: np.ndarray = TAU_GRID,
     pattern_steps: int = TAU_PATTERN_STEPS,
     held: tuple[FittedPatterns, int] | None = None,
+    motion: MotionModel | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per pattern, the residual's time constant that best predicts held-out tracks, and how
     many track-steps chose it (0: the pooled choice).
+
+    ``motion`` given: the frames are rolled out as :func:`~dpgp.generate.simulation.simulate`
+    rolls out a recorded frame, by that motion model with interaction (:data:`ROLLOUT_DYNAMICS`,
+    mean mode, the fit's ROI), each ``τ`` of the grid in turn for every pattern; else by the
+    batched relaxed rollouts (no interaction, no ROI).
 
     Out of sample (the default): the fields are conditioned on the first ``1 − holdout`` of the
     training frames only (:meth:`~dpgp.gp.fitted.FittedPatterns.conditioned_on`; same
@@ -510,7 +522,12 @@ def time_constants(
     # rolled out through the pattern of the fields that roll it (a new frame's: predicted)
     through = labels[chosen] if held is None else roll.predict(frames[chosen])
     h0 = None if frames.prev_heading is None else frames.prev_heading[rows]
-    pred = relaxed_mean_rollouts(roll, np.repeat(through, sizes), frames.xy[rows], frames.v[rows], grid, steps, dt, h0)
+    if motion is None:
+        pred = relaxed_mean_rollouts(
+            roll, np.repeat(through, sizes), frames.xy[rows], frames.v[rows], grid, steps, dt, h0
+        )
+    else:
+        pred = interactive_rollouts(roll, motion, frames[chosen], through, grid, steps, dt)
     dist = np.linalg.norm(pred[1:] - frames.xy[np.maximum(truth[1:], 0)][:, :, None, :], axis=-1)  # (steps, n, G)
     dist = np.where(known[:, :, None], dist, 0.0).sum(axis=0)  # (n, G)
     row_pat = np.repeat(labels[chosen], sizes)  # grouped by this fit's pattern of the frame
@@ -532,6 +549,38 @@ def held_out_fields(fit: FittedPatterns, holdout: float) -> tuple[FittedPatterns
     cut = int(round(n * (1.0 - holdout)))
     held = fit.conditioned_on(np.arange(cut)) if 0 < cut < n else None
     return None if held is None else (held[0], cut)
+
+
+def interactive_rollouts(
+    fit: FittedPatterns,
+    motion: MotionModel,
+    frames: Frames,
+    patterns: np.ndarray,
+    taus: np.ndarray,
+    steps: int,
+    dt: float,
+) -> np.ndarray:
+    """(steps + 1, n, len(taus), 2): the mean rollouts ``simulate`` runs of each of ``frames``
+    (its ``n`` rows in order) through ``patterns`` (one per frame), by ``motion`` with every
+    pattern's ``τ_rollout`` set to each of ``taus`` in turn: interaction, the fit's ROI, each
+    vehicle starting from its own velocity and previous heading."""
+    from dataclasses import replace
+
+    from .rollout import motion_rollouts
+
+    speed = heading_speed(fit)
+    starts = [f.xy for f in frames]
+    velocities = [f.v for f in frames]
+    headings = [start_headings(f.v, f.prev_heading, speed, len(f.xy)) for f in frames]
+    out = np.empty((steps + 1, frames.n_points, len(taus), 2))
+    for g, tau in enumerate(taus):
+        candidate = replace(motion, tau_rollout=np.full(len(motion.tau), float(tau)))
+        sims = motion_rollouts(
+            fit, [int(k) for k in patterns], starts, velocities, steps=steps, dt=dt, seeds=None, roi=fit.roi,
+            low_data_threshold=None, dynamics=ROLLOUT_DYNAMICS, motion=candidate, recorded=True, headings=headings,
+        )  # fmt: skip
+        out[:, :, g] = np.concatenate([s.positions for s in sims], axis=1)
+    return out
 
 
 def relaxed_mean_rollouts(
@@ -642,7 +691,6 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     # frames: the held-out choice, which also pays for the fields' error at an unseen vehicle
     tau, pairs = time_constants(fit, holdout=None, pattern_steps=MIN_PAIRS)
     held = held_out_fields(fit, TAU_HOLDOUT)  # conditioning refactors every pattern: once, for τ_rollout and steering
-    roll = time_constants(fit, held=held)[0]
     field_speed = np.hypot(means[:, 0], means[:, 1])
     min_speed = HEADING_SHARE * float(np.median(field_speed)) if len(field_speed) else 0.0
     profile = spread_profile(resid, means, min_speed) if PROFILE else None
@@ -666,10 +714,10 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
         jitter = step_jitter(frames, means, dt, min_speed) if JITTER else None
         personal = max(personal, 1e-9)
         near = rollout_personal_distance(frames, dt, personal) if ROLLOUT_PERSONAL else float("nan")
-        return MotionModel(
-            agents, tau, sigma, pairs, spacing, personal, tau_rollout=roll, tau_across_share=share,
+        return _rollout_choice(fit, held, MotionModel(
+            agents, tau, sigma, pairs, spacing, personal, tau_across_share=share,
             jitter=jitter, personal_rollout=near, **frame,
-        )  # fmt: skip
+        ))  # fmt: skip
     lateral = 0.25 * float(np.median(nn_all)) if len(nn_all) else 1.0
     gap, u, lead = leader_gaps(frames, lateral)
     med = float(np.median(speed[speed > 0])) if np.any(speed > 0) else 1.0
@@ -682,10 +730,18 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     personal = max(min(nn_floor, 0.5 * jam), 1e-9)
     tau_h, tol = steering(fit, held, means, min_speed, med) if STEER else (float("nan"), 0.0)
     stand = stand_speed(frames, dt) if STEER else 0.0
-    return MotionModel(
-        agents, tau, sigma, pairs, spacing, personal, jam, headway, accel, decel, max(lateral, 1e-9), tau_rollout=roll,
+    return _rollout_choice(fit, held, MotionModel(
+        agents, tau, sigma, pairs, spacing, personal, jam, headway, accel, decel, max(lateral, 1e-9),
         tau_across_share=TAU_ACROSS_SHARE["vehicles"], tau_heading=tau_h, heading_tolerance=tol, stand_speed=stand, **frame,
-    )  # fmt: skip
+    ))  # fmt: skip
+
+
+def _rollout_choice(fit: FittedPatterns, held: tuple[FittedPatterns, int] | None, model: MotionModel) -> MotionModel:
+    """``model`` with ``τ_rollout`` chosen on held-out frames rolled out as ``simulate`` rolls
+    them: by this very model (its car following or personal distance), interacting."""
+    from dataclasses import replace
+
+    return replace(model, tau_rollout=time_constants(fit, held=held, motion=model)[0])
 
 
 def steering(
