@@ -9,7 +9,6 @@ import os
 import signal
 import threading
 import time
-import warnings
 from typing import Any
 
 import numpy as np
@@ -18,8 +17,9 @@ import pytest
 import dpgp
 from dpgp import InvalidInputError
 from dpgp.evaluate.metrics import canonical_labels
+from sharded_common import SEED, assert_same_chain, cluster  # noqa: F401  (a fixture)
 
-N_FRAMES, N_SHARDS, ITERATIONS, SEED = 600, 3, 3, 5
+N_FRAMES, N_SHARDS, ITERATIONS = 600, 3, 3
 
 
 @pytest.fixture(scope="module")
@@ -37,27 +37,6 @@ def in_process(directory, iterations: int) -> dpgp.DPGP:
     if iterations not in _IN_PROCESS:
         _IN_PROCESS[iterations] = dpgp.DPGP(iterations=iterations, seed=SEED, progress=False).fit(directory)
     return _IN_PROCESS[iterations]
-
-
-def assert_same_chain(a: dpgp.DPGP, b: dpgp.DPGP) -> None:
-    np.testing.assert_array_equal(a.labels_, b.labels_)
-    np.testing.assert_array_equal(a.length_scales_, b.length_scales_)
-    assert a.alpha_ == b.alpha_
-    assert a.history_["log_joint"] == b.history_["log_joint"]
-
-
-@pytest.fixture(scope="module")
-def cluster():
-    distributed = pytest.importorskip("distributed")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        cluster = distributed.LocalCluster(
-            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=50
-        )
-    client = distributed.Client(cluster)
-    yield cluster, client
-    client.close()
-    cluster.close()
 
 
 class _NoWorkClient:
@@ -127,70 +106,6 @@ def test_fields_over_heading_on_shards_without_headings_are_refused_before_any_w
     assert not hasattr(model, "labels_")
 
 
-# --- fields over heading on shards --------------------------------------------------------------
-HEADED = dict(iterations=3, seed=SEED, progress=False, inputs="position+heading", likelihood="hsgp")
-
-
-@pytest.fixture(scope="module")
-def headed_dir(tmp_path_factory):
-    """A two-way road's frames (they carry previous headings) in 2 shards."""
-    from heading_roads import two_way_road
-
-    frames = dpgp.make_frames(two_way_road(n_vehicles=30), dt=1.0)
-    assert frames.prev_heading is not None
-    directory = tmp_path_factory.mktemp("headed") / "frames"
-    frames.to_parquet(directory, shards=2)
-    return frames, directory
-
-
-def test_fields_over_heading_fit_over_shards_on_a_cluster_as_in_process(headed_dir, cluster):
-    """The shards send their points' previous headings: a fit over heading runs over them (no
-    longer read into memory, no longer refused with client=), the same chain on the cluster's
-    worker processes as in this process, and not the chain over position."""
-    frames, directory = headed_dir
-    here = dpgp.DPGP(**HEADED).fit(directory)
-    assert here.inputs_ == "position+heading" and here._frames_dir is not None  # over the shards
-    on_cluster = dpgp.DPGP(**HEADED).fit(directory, client=cluster[1])
-    assert_same_chain(on_cluster, here)
-    np.testing.assert_array_equal(on_cluster.heading_scales_, here.heading_scales_)
-    blind = dpgp.DPGP(**{**HEADED, "inputs": "position"}).fit(directory)
-    assert blind.history_["log_joint"] != here.history_["log_joint"]  # the headings were used
-    scores = on_cluster.score_samples(frames)
-    assert scores.shape == (len(frames),) and np.all(np.isfinite(scores))
-    auto = dpgp.DPGP(**{**HEADED, "inputs": "auto"}).fit(directory)
-    assert "no previous headings" not in auto.engine_choice_["inputs"]["why"]  # the shards have them
-
-
-def test_a_fit_over_heading_on_one_shard_is_the_chain_over_the_frames_in_memory(headed_dir, tmp_path):
-    """The headings the shard sends are the frames' own: on one shard, the sub-cluster chain over
-    heading is the in-memory one, sweep for sweep."""
-    frames, _ = headed_dir
-    frames.to_parquet(tmp_path / "one", shards=1)
-    kw = {**HEADED, "sampler": "subcluster"}
-    over_shard = dpgp.DPGP(**kw).fit(tmp_path / "one")
-    assert over_shard._frames_dir is not None
-    assert_same_chain(over_shard, dpgp.DPGP(**kw).fit(frames))
-
-
-def test_a_checkpoint_of_a_fit_over_heading_on_shards_resumes_to_the_same_chain(headed_dir, tmp_path):
-    """The checkpoint leaves the frames, headings with them, in their shards (no frame_prev_heading
-    in the file), and the chain resumed from it is the uninterrupted one; the finished model saves
-    and loads with the headings it gathered."""
-    _, directory = headed_dir
-    kw = {**HEADED, "checkpoint_every": 2}
-    full = dpgp.DPGP(**{**kw, "iterations": 6}).fit(directory)
-    dpgp.DPGP(**{**kw, "iterations": 4, "checkpoint": str(tmp_path / "c.ckpt")}).fit(directory)
-    with np.load(tmp_path / "c.ckpt") as archive:
-        assert "frame_prev_heading" not in archive.files and "heading_scales" in archive.files
-    resumed = dpgp.DPGP.resume(tmp_path / "c.ckpt", iterations=6)
-    assert resumed.inputs_ == "position+heading"
-    assert_same_chain(resumed, full)
-    full.save(tmp_path / "m.npz")
-    loaded = dpgp.DPGP.load(tmp_path / "m.npz")
-    np.testing.assert_array_equal(loaded.score_samples(headed_dir[0]), full.score_samples(headed_dir[0]))
-
-
-# --- checkpoints of a fit over shards ----------------------------------------------------------
 CKPT = dict(iterations=5, checkpoint_every=2, seed=SEED, progress=False, store_labels=True)
 
 
@@ -458,98 +373,3 @@ def test_fitting_again_lets_the_workers_drop_the_last_fits_shards(shard_dir, clu
     assert first._loads == [] and model._shard_link is not first
     model._shard_link.close()
     assert _loaded(client, shard_dir) == 0
-
-
-_CTRL_C = """
-import signal, sys
-import dpgp
-
-def main():
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    from distributed import Client, LocalCluster
-    frames = dpgp.datasets.synthetic("highway", n_frames=400, seed=0)
-    frames.to_parquet(sys.argv[1], shards=3)
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
-                      silence_logs=50) as lc, Client(lc) as client:
-        model = dpgp.DPGP(iterations=100000, progress=False, noise_var=0.5)
-        print("fitting", flush=True)
-        model.fit(sys.argv[1], client=client)
-        print("sweeps", model.n_iter_, flush=True)
-        print("predict", model.predict(frames[:3]).tolist(), flush=True)
-
-if __name__ == "__main__":
-    main()
-"""
-
-
-def test_ctrl_c_keeps_the_state_reached_on_a_cluster(tmp_path):
-    """Ctrl-C during a fit on a cluster stops it as a local fit stops (between steps, the state
-    reached kept), and the model it keeps predicts (its frames gathered from the workers)."""
-    pytest.importorskip("distributed")
-    import subprocess
-    import sys
-
-    script = tmp_path / "fit.py"
-    script.write_text(_CTRL_C)
-    proc = subprocess.Popen(
-        [sys.executable, str(script), str(tmp_path / "shards")],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert proc.stdout is not None and proc.stdout.readline().strip() == "fitting"
-        # the cluster's start and the fit's, then sweeps under way: a small fit on a cluster is
-        # round trips (several per split-merge move), seconds a sweep on a loaded 2-core machine
-        time.sleep(35)
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=180)
-    finally:
-        proc.kill()
-    assert proc.returncode == 0, err
-    assert "fit interrupted after" in err and "keeps the state reached" in err
-    assert 1 <= int(out.split("sweeps")[1].split()[0]) < 100000
-    assert "predict [" in out
-
-
-_CHAINS_CTRL_C = """
-import signal, sys, time
-import dpgp
-
-signal.signal(signal.SIGINT, signal.default_int_handler)
-dpgp.datasets.synthetic("highway", n_frames=400, seed=0).to_parquet(sys.argv[1], shards=3)
-print("fitting", flush=True)
-t = time.perf_counter()
-chains = dpgp.fit_chains(sys.argv[1], 2, iterations=100000, block=2, progress=False, noise_var=0.5)
-print("sweeps", chains.n_sweeps, "stopped in", time.perf_counter() - t, flush=True)
-print("patterns", chains.best_model().n_patterns_, flush=True)
-"""
-
-
-def test_ctrl_c_stops_chains_over_shards_and_keeps_their_blocks(tmp_path):
-    """Ctrl-C during fit_chains over shards (the chains' leaders in threads of this process)
-    stops every chain before its next sweep and keeps the blocks that had finished."""
-    import subprocess
-    import sys
-
-    proc = subprocess.Popen(
-        [sys.executable, "-c", _CHAINS_CTRL_C, str(tmp_path / "shards")],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert proc.stdout is not None and proc.stdout.readline().strip() == "fitting"
-        time.sleep(10)  # several 2-sweep blocks of each chain finished
-        sent = time.perf_counter()
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=120)
-        waited = time.perf_counter() - sent
-    finally:
-        proc.kill()
-    assert proc.returncode == 0, err
-    assert "fit_chains interrupted (Ctrl-C)" in err and "keep every finished block" in err
-    sweeps = int(out.split("sweeps")[1].split()[0])
-    assert sweeps >= 2 and sweeps % 2 == 0  # whole blocks only
-    assert "patterns" in out
-    print(f"Ctrl-C to exit: {waited:.1f} s")
