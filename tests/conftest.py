@@ -32,3 +32,23 @@ def us101_path() -> Path:
 @pytest.fixture(scope="session")
 def lankershim_path() -> Path:
     return data_file("ngsim_lankershim_frames.csv")
+
+
+def interrupt_after(args: list[str], seconds: float, timeout: float) -> tuple[int, str, str, float]:
+    """Run ``args`` (a Python fit that prints ``fitting`` when it starts), send it Ctrl-C
+    ``seconds`` after that line, and wait up to ``timeout`` for it to end: (return code, the rest
+    of its stdout, its stderr, seconds from Ctrl-C to its end). The process never outlives this."""
+    import signal
+    import subprocess
+    import time
+
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "fitting"
+        time.sleep(seconds)
+        proc.send_signal(signal.SIGINT)
+        sent = time.perf_counter()
+        out, err = proc.communicate(timeout=timeout)
+        return proc.returncode, out, err, time.perf_counter() - sent
+    finally:
+        proc.kill()

@@ -3,10 +3,11 @@ needs one): the state reached is kept, chains keep their finished blocks."""
 
 from __future__ import annotations
 
-import signal
-import time
+import sys
 
 import pytest
+
+from conftest import interrupt_after
 
 _CTRL_C = """
 import signal, sys
@@ -34,27 +35,13 @@ def test_ctrl_c_keeps_the_state_reached_on_a_cluster(tmp_path):
     """Ctrl-C during a fit on a cluster stops it as a local fit stops (between steps, the state
     reached kept), and the model it keeps predicts (its frames gathered from the workers)."""
     pytest.importorskip("distributed")
-    import subprocess
-    import sys
 
     script = tmp_path / "fit.py"
     script.write_text(_CTRL_C)
-    proc = subprocess.Popen(
-        [sys.executable, str(script), str(tmp_path / "shards")],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert proc.stdout is not None and proc.stdout.readline().strip() == "fitting"
-        # the cluster's start and the fit's, then sweeps under way: a small fit on a cluster is
-        # round trips (several per split-merge move), seconds a sweep on a loaded 2-core machine
-        time.sleep(35)
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=180)
-    finally:
-        proc.kill()
-    assert proc.returncode == 0, err
+    # the cluster's start and the fit's, then sweeps under way: a small fit on a cluster is round
+    # trips (several per split-merge move), seconds a sweep on a loaded 2-core machine
+    code, out, err, _ = interrupt_after([sys.executable, str(script), str(tmp_path / "shards")], 35.0, 180)
+    assert code == 0, err
     assert "fit interrupted after" in err and "keeps the state reached" in err
     assert 1 <= int(out.split("sweeps")[1].split()[0]) < 100000
     assert "predict [" in out
@@ -77,25 +64,12 @@ print("patterns", chains.best_model().n_patterns_, flush=True)
 def test_ctrl_c_stops_chains_over_shards_and_keeps_their_blocks(tmp_path):
     """Ctrl-C during fit_chains over shards (the chains' leaders in threads of this process)
     stops every chain before its next sweep and keeps the blocks that had finished."""
-    import subprocess
-    import sys
 
-    proc = subprocess.Popen(
-        [sys.executable, "-c", _CHAINS_CTRL_C, str(tmp_path / "shards")],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
+    # after 10 s several 2-sweep blocks of each chain have finished
+    code, out, err, waited = interrupt_after(
+        [sys.executable, "-c", _CHAINS_CTRL_C, str(tmp_path / "shards")], 10.0, 120
     )
-    try:
-        assert proc.stdout is not None and proc.stdout.readline().strip() == "fitting"
-        time.sleep(10)  # several 2-sweep blocks of each chain finished
-        sent = time.perf_counter()
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=120)
-        waited = time.perf_counter() - sent
-    finally:
-        proc.kill()
-    assert proc.returncode == 0, err
+    assert code == 0, err
     assert "fit_chains interrupted (Ctrl-C)" in err and "keep every finished block" in err
     sweeps = int(out.split("sweeps")[1].split()[0])
     assert sweeps >= 2 and sweeps % 2 == 0  # whole blocks only

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import signal
-import subprocess
 import sys
-import time
+
+from conftest import interrupt_after
 
 SCRIPT = """
 import signal
@@ -25,15 +24,9 @@ def test_ctrl_c_keeps_the_state_reached():
     # A given noise and engine: no pilot fits and no accuracy probe of likelihood="auto" (five
     # initialisations, several seconds on a loaded machine), so sweeps start at once.
     script = SCRIPT.format(noise=0.5, extra=', likelihood="hsgp"')
-    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout.readline().strip() == "fitting"
-        time.sleep(6)  # initialisation takes well under a second; sweeps are under way
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=120)
-    finally:
-        proc.kill()  # never leave a runaway fit behind
-    assert proc.returncode == 0, err
+    # initialisation takes well under a second: after 6 s sweeps are under way
+    code, out, err, _ = interrupt_after([sys.executable, "-c", script], 6.0, 120)
+    assert code == 0, err
     assert "fit interrupted after" in err and "keeps the state reached" in err
     sweeps = int(out.split("sweeps")[1].split()[0])
     assert 1 <= sweeps < 100000
@@ -44,18 +37,10 @@ def test_ctrl_c_during_the_noise_pilots_stops_the_fit():
     """noise_var="auto" runs short pilot fits first; Ctrl-C there ends the fit (there is no
     state to keep yet) instead of being taken as the end of one pilot."""
     script = SCRIPT.format(noise=repr("pilot"), extra="")
-    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout.readline().strip() == "fitting"
-        time.sleep(1.0)  # the pilots take several seconds
-        proc.send_signal(signal.SIGINT)
-        t = time.perf_counter()
-        out, err = proc.communicate(timeout=60)
-    finally:
-        proc.kill()
-    assert proc.returncode != 0 and "KeyboardInterrupt" in err, (out, err)
+    code, out, err, waited = interrupt_after([sys.executable, "-c", script], 1.0, 60)  # the pilots take seconds
+    assert code != 0 and "KeyboardInterrupt" in err, (out, err)
     assert "sweeps" not in out
-    assert time.perf_counter() - t < 30
+    assert waited < 30
 
 
 SHARDED = """
@@ -75,20 +60,8 @@ print("predict", model.predict(frames[:3]).tolist(), flush=True)
 def test_ctrl_c_keeps_the_state_reached_over_shards(tmp_path):
     """A chain over shards (in this process) stops at Ctrl-C as a local one does, and the model
     it keeps predicts (its frames gathered from the shards)."""
-    proc = subprocess.Popen(
-        [sys.executable, "-c", SHARDED, str(tmp_path / "shards")],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert proc.stdout.readline().strip() == "fitting"
-        time.sleep(6)
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=120)
-    finally:
-        proc.kill()
-    assert proc.returncode == 0, err
+    code, out, err, _ = interrupt_after([sys.executable, "-c", SHARDED, str(tmp_path / "shards")], 6.0, 120)
+    assert code == 0, err
     assert "fit interrupted after" in err and "keeps the state reached" in err
     sweeps = int(out.split("sweeps")[1].split()[0])
     assert 1 <= sweeps < 100000
