@@ -96,7 +96,7 @@ than :data:`MIN_DISTANCES`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -106,6 +106,7 @@ from ..data.frames import Frames
 from ..exceptions import DataFormatError
 from ..gp.fitted import FittedPatterns
 from .headings import carried, heading_speed, start_headings
+from .rollout import motion_rollouts
 
 MIN_PAIRS = 50  # recorded track-steps to learn τ, a and b from at all
 #: held-out track-steps for a pattern's own τ (fewer: the pooled one). Measured on ETH and Zara
@@ -521,8 +522,8 @@ def time_constants(
     sizes = frames.sizes[chosen]
     # rolled out through the pattern of the fields that roll it (a new frame's: predicted)
     through = labels[chosen] if held is None else roll.predict(frames[chosen])
-    h0 = None if frames.prev_heading is None else frames.prev_heading[rows]
     if motion is None:
+        h0 = None if frames.prev_heading is None else frames.prev_heading[rows]
         pred = relaxed_mean_rollouts(
             roll, np.repeat(through, sizes), frames.xy[rows], frames.v[rows], grid, steps, dt, h0
         )
@@ -564,10 +565,6 @@ def interactive_rollouts(
     (its ``n`` rows in order) through ``patterns`` (one per frame), by ``motion`` with every
     pattern's ``τ_rollout`` set to each of ``taus`` in turn: interaction, the fit's ROI, each
     vehicle starting from its own velocity and previous heading."""
-    from dataclasses import replace
-
-    from .rollout import motion_rollouts
-
     speed = heading_speed(fit)
     starts = [f.xy for f in frames]
     velocities = [f.v for f in frames]
@@ -739,8 +736,6 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
 def _rollout_choice(fit: FittedPatterns, held: tuple[FittedPatterns, int] | None, model: MotionModel) -> MotionModel:
     """``model`` with ``τ_rollout`` chosen on held-out frames rolled out as ``simulate`` rolls
     them: by this very model (its car following or personal distance), interacting."""
-    from dataclasses import replace
-
     return replace(model, tau_rollout=time_constants(fit, held=held, motion=model)[0])
 
 

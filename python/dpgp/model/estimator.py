@@ -442,9 +442,9 @@ class DPGP:
         return self.__dict__.get("inputs_", self.inputs) == "position+heading"
 
     def _resolve_inputs(self, frames: Frames, manifest: Any = None) -> None:
-        """``inputs_`` for the training ``frames`` (or the shards of ``manifest``), and why (``engine_choice_["inputs"]``,
-        added once the engine is resolved): ``inputs="auto"`` decided by :func:`choose_inputs`,
-        else as given."""
+        """``inputs_`` for the training ``frames`` (or the shards of ``manifest``), and why
+        (``engine_choice_["inputs"]``, added once the engine is resolved): ``inputs="auto"``
+        decided by :func:`choose_inputs`, else as given."""
         tracks = frames.prev_heading is not None if manifest is None else manifest.has_headings
         if self.inputs != "auto":
             self.inputs_, self._inputs_choice = self.inputs, {"inputs": self.inputs, "why": "given"}
