@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 
 import dpgp
+from dpgp.data.timeorder import time_order
 from dpgp.exceptions import InvalidInputError
+from dpgp.generate.motion import consecutive_pairs
 
 from conftest import data_file as real
 
@@ -66,6 +68,24 @@ def test_hand_built_frames_are_linked_as_their_vehicles_moved():
     assert math.isnan(rows[(3, 20.0, 20.0)].prev_heading)  # D never moved
     assert math.isnan(rows[(5, 30.0, 0.0)].prev_heading)
     assert f.summary.dt == 1.0 and f.summary.n_tracks == len(set(f.tracks.tolist()))
+
+
+def test_linked_frames_are_timed_on_the_grid_of_dt_and_their_tracks_are_consecutive():
+    """Frame numbers two apart at 0.5 s a step (frame 8 of the hand-built 4 missing): ids become
+    seconds, the time order finds each run, and every linked step of a track is one dt pair."""
+    f0 = _hand()
+    numbered = dpgp.Frames(2 * f0.ids + 10, f0.offsets, f0.xy, 0.5 * f0.v)  # 1 m/s at dt = 2 s
+    f = dpgp.link_tracks(numbered, dt=2.0)
+    np.testing.assert_allclose(f.ids, [10.0, 12.0, 14.0, 16.0, 20.0])
+    order = time_order(f)
+    assert order.dt == 2.0 and [s.tolist() for s in order.sequences()] == [[0, 1, 2, 3], [4]]
+    a, b = consecutive_pairs(f, f.summary.dt)
+    fr = f.frame_of_row
+    assert len(a) == 11  # A, B and D three steps each, C two (it appears at the second frame)
+    assert np.all(f.tracks[a] == f.tracks[b]) and np.all(fr[b] == fr[a] + 1)
+    # every row with a previous step is the end of exactly one consecutive pair
+    has_prev = np.flatnonzero(~np.isnan(f.prev_v[:, 0]))
+    assert set(b.tolist()) == set(has_prev.tolist())
 
 
 def test_the_step_is_estimated_when_the_frames_do_not_say_it():

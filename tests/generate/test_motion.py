@@ -187,6 +187,28 @@ def test_heading_time_constant_recovers_a_simulated_one():
     assert motion.heading_time_constant(frames, means, dt, 0.1, 8.0) > 100
 
 
+def test_heading_noise_share_recovers_a_simulated_one():
+    """Headings that walk with step variance q, recorded with white noise of variance s²: each
+    recorded change has variance q + 2 s², of which 2 s² is noise (s² = q: 2/3 within 0.05);
+    without the noise 0 (within 0.06); tracks too short for three consecutive rows: 0."""
+    from dpgp.data.frames import Frames
+
+    rng = np.random.default_rng(6)
+    dt, n_tracks, steps, q = 0.5, 400, 15, 0.01
+
+    def frames_of(s2, steps=steps):
+        walk = np.cumsum(rng.normal(0, np.sqrt(q), (steps, n_tracks)), axis=0) + rng.uniform(-3, 3, n_tracks)
+        th = (walk + rng.normal(0, np.sqrt(s2), walk.shape)).ravel()
+        t = np.repeat(np.arange(steps) * dt, n_tracks)
+        tr = np.tile(np.arange(n_tracks), steps)
+        xy = rng.uniform(0, 100, (len(th), 2))
+        return Frames.from_arrays(t, xy[:, 0], xy[:, 1], 8 * np.cos(th), 8 * np.sin(th), track=tr)
+
+    assert abs(motion.heading_noise_share(frames_of(q), dt, 8.0) - 2 / 3) < 0.05
+    assert motion.heading_noise_share(frames_of(0.0), dt, 8.0) < 0.06  # 4 standard errors
+    assert motion.heading_noise_share(frames_of(q, steps=2), dt, 8.0) == 0.0
+
+
 def test_model_files_keep_steering_and_the_profile():
     import json
 

@@ -42,8 +42,10 @@ def link_tracks(
     heading_min_speed: float = HEADING_MIN_SPEED,
 ) -> Frames:
     """``frames`` with every vehicle linked to itself from frame to frame: track ids
-    (``Frames.tracks``), previous velocities and headings (``prev_v``, ``prev_heading``), as
-    :func:`dpgp.make_frames` gives frames made from tracks.
+    (``Frames.tracks``), previous velocities and headings (``prev_v``, ``prev_heading``), and
+    frame ids that are times in seconds (the frame's number of steps from the first, times ``dt``,
+    from the first id's own number of steps), as :func:`dpgp.make_frames` gives frames made from
+    tracks.
 
     dt : seconds between consecutive frames (ids one step apart); default: the frames' own
         (``summary.dt``), else the step under which the velocities best predict the positions.
@@ -91,7 +93,11 @@ def link_tracks(
     pvx, pvy, ph = previous_steps(tracks[order], row_k[order], frames.v[order, 0], frames.v[order, 1], floor, LastRow())
     prev_v, prev_h = np.empty((frames.n_points, 2)), np.empty(frames.n_points)
     prev_v[order, 0], prev_v[order, 1], prev_h[order] = pvx, pvy, ph
-    out = Frames(frames.ids, frames.offsets, frames.xy, frames.v, frames.labels, tracks, prev_v, prev_h, min_speed)
+    # ids become times in seconds on the grid of dt, as make_frames gives them: what needs
+    # consecutive frames (motion learning, time order, evaluate) reads ids against dt, and frame
+    # numbers one apart are not dt apart
+    times = (ids[0] / step + k) * dt
+    out = Frames(times, frames.offsets, frames.xy, frames.v, frames.labels, tracks, prev_v, prev_h, min_speed)
     out.summary = _summary(frames, summary, dt, unit, next_id)
     return out
 
