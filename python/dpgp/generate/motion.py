@@ -75,7 +75,8 @@ changes). A generated vehicle starts along the field's heading. Rollouts of reco
 **Agents.** ``"pedestrians"`` when 99% of the training speeds are below
 :data:`PEDESTRIAN_SPEED` (data units per second), else ``"vehicles"``.
 
-**Car-following** (vehicles, IDM). In every training frame, a vehicle's leader is the nearest
+**Car-following** (vehicles, IDM+: the core takes the lesser of IDM's free-road and
+interaction terms, so a follower at its desired speed and gap keeps its speed). In every training frame, a vehicle's leader is the nearest
 vehicle ahead along its heading within a corridor of half-width ``lateral`` (a quarter of the
 median nearest-neighbour distance). Jam distance ``s0``: the 5th percentile of the gaps
 (centre to centre) behind a leader of followers slower than a fifth of the median speed (queues;

@@ -475,9 +475,13 @@ fn relax(
     }
 }
 
-/// IDM acceleration of a follower at speed `u` with desired speed `u0`, `gap` (centre to
-/// centre) behind a leader moving at `leader` along the follower's heading; `gap = None` for a
-/// free road.
+/// IDM+ acceleration (Schakel, Knoop, van Arem 2012) of a follower at speed `u` with desired
+/// speed `u0`, `gap` (centre to centre) behind a leader moving at `leader` along the follower's
+/// heading; `gap = None` for a free road: `a min(1 − (u/u0)⁴, 1 − (s*/gap)²)`, the lesser of
+/// IDM's free-road and interaction terms where IDM takes their sum. A follower at its desired
+/// speed and gap keeps its speed (IDM brakes by `a` there), so the dense traffic of a recorded
+/// frame, whose drivers want their own speed, is not braked at once: NGSIM US-101's rollouts at
+/// 1 s were 1.79x constant velocity under IDM, 1.20x under IDM+ (s53 notes).
 pub fn idm_accel(u: f64, u0: f64, gap: Option<(f64, f64)>, p: &Idm) -> f64 {
     let free = if u0 > TINY {
         1.0 - (u / u0).powi(4)
@@ -492,7 +496,10 @@ pub fn idm_accel(u: f64, u0: f64, gap: Option<(f64, f64)>, p: &Idm) -> f64 {
             (s_star / g.max(TINY)).powi(2)
         }
     };
-    p.accel * (free - inter)
+    match gap {
+        None => p.accel * free,
+        Some(_) => p.accel * free.min(1.0 - inter),
+    }
 }
 
 /// A red signal's stop line as the front of its queue sees it (long scenarios by signal stage):

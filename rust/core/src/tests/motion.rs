@@ -28,15 +28,23 @@ fn opts(dt: f64, steps: usize) -> Options {
 }
 
 #[test]
-fn idm_matches_a_hand_computation() {
+fn idm_plus_matches_a_hand_computation() {
     // u = 10, u0 = 15, gap 30 behind a leader at 8:
-    // s* = 7 + 10*1.5 + 10*2/(2*sqrt(2)); free term 1 - (10/15)^4 = 0.8024691
+    // s* = 7 + 10*1.5 + 10*2/(2*sqrt(2)); free term 1 - (10/15)^4 = 0.8024691; IDM+ takes the
+    // lesser of it and the interaction term 1 - (s*/30)^2
     let s_star = 22.0 + 10.0 / 2f64.sqrt();
-    let want = 1.0 * (1.0 - (10.0f64 / 15.0).powi(4) - (s_star / 30.0).powi(2));
+    let want = 1.0 * (1.0 - (10.0f64 / 15.0).powi(4)).min(1.0 - (s_star / 30.0).powi(2));
     let got = idm_accel(10.0, 15.0, Some((30.0, 8.0)), &IDM);
     assert!((got - want).abs() < 1e-12, "{got} vs {want}");
-    // by hand: s* = 29.0710678, (s*/30)² = 0.9390300, a = 0.8024691 - 0.9390300
-    assert!((got - (-0.136_560_846_1)).abs() < 1e-9, "{got}");
+    // by hand: s* = 29.0710678, (s*/30)² = 0.9390300, a = min(0.8024691, 0.0609700)
+    assert!((got - 0.060_970_018_1).abs() < 1e-9, "{got}");
+    // at its desired speed a follower at the desired gap keeps its speed (plain IDM brakes by
+    // a there: it has no equilibrium at the desired speed, and dense traffic braked at once)
+    let s_eq = 7.0 + 15.0 * 1.5; // leader as fast: no approach term
+    assert!(idm_accel(15.0, 15.0, Some((s_eq, 15.0)), &IDM).abs() < 1e-12);
+    // closer than the desired gap: brakes by the interaction term
+    let close = idm_accel(15.0, 15.0, Some((0.5 * s_eq, 15.0)), &IDM);
+    assert!((close - (1.0 - 4.0)).abs() < 1e-12, "{close}");
     // free road: only the desired-speed term; at the desired speed, no acceleration
     assert!((idm_accel(10.0, 15.0, None, &IDM) - 0.802_469_135_802_469).abs() < 1e-12);
     assert_eq!(idm_accel(15.0, 15.0, None, &IDM), 0.0);
@@ -54,10 +62,11 @@ fn follower_brakes_behind_a_slow_leader_and_the_leader_is_free() {
     let v = interact(&x, &current, &desired, &rule, 0.5);
     // the leader (nobody ahead) keeps its desired velocity
     assert_eq!(v[1], [2.0, 0.0]);
-    // the follower: u + dt * idm, in the desired direction
+    // the follower: u + dt * idm+, in the desired direction
     let s_star = 7.0 + 10.0 * 1.5 + 10.0 * 8.0 / (2.0 * 2f64.sqrt());
-    let acc = 1.0 - (10.0f64 / 15.0).powi(4) - (s_star / 20.0).powi(2);
+    let acc = (1.0 - (10.0f64 / 15.0).powi(4)).min(1.0 - (s_star / 20.0).powi(2));
     let want = (10.0 + 0.5 * acc).max(0.0);
+    assert!(acc < 0.0);
     assert!(
         (v[0][0] - want).abs() < 1e-12 && v[0][1] == 0.0,
         "{:?} vs {want}",
@@ -850,9 +859,10 @@ fn renewed_drivers_take_up_the_new_field_as_far_as_it_knows_them() {
 
 #[test]
 fn a_red_stop_line_is_a_standing_leader_for_its_approach_only() {
-    // a vehicle at 8 heading east, wishing 10, 40 behind a line for eastbound traffic: IDM behind
-    // a standing vehicle one jam distance beyond the line (gap 47). By hand: s* = 7 + 8 * 1.5 +
-    // 8 * 8 / (2 √2) = 41.627417, a = 1 - 0.8^4 - (s* / 47)^2 = -0.1940463
+    // a vehicle at 8 heading east, wishing 10, 40 behind a line for eastbound traffic: IDM+
+    // behind a standing vehicle one jam distance beyond the line (gap 47). By hand: s* = 7 + 8 *
+    // 1.5 + 8 * 8 / (2 √2) = 41.627417, a = min(1 - 0.8^4, 1 - (s* / 47)^2) = 0.2155528 (the gap
+    // is still above the desired one: it closes before braking)
     let rule = Rule::Vehicles {
         idm: IDM,
         personal: 2.0,
@@ -871,7 +881,7 @@ fn a_red_stop_line_is_a_standing_leader_for_its_approach_only() {
     let line = Stop::new([40.0, 0.5], [2.0, 0.0]).unwrap();
     assert_eq!(line.heading, [1.0, 0.0]);
     let want = 8.0 + 0.5 * idm_accel(8.0, 10.0, Some((47.0, 0.0)), &IDM);
-    assert!((want - (8.0 - 0.5 * 0.194_046_3)).abs() < 1e-6, "{want}");
+    assert!((want - (8.0 + 0.5 * 0.215_552_8)).abs() < 1e-6, "{want}");
     let got = step(&[line]);
     assert!((got[0] - want).abs() < 1e-12 && got[1] == 0.0, "{got:?}");
     // free road for a line of westbound traffic, beside the corridor, or behind the vehicle
