@@ -200,8 +200,11 @@ def main() -> None:
     if args.heading_min_count is not None:
         estimator.HEADING_BASIS_MIN_COUNT = args.heading_min_count
     rows, checks = [], {}
-    for name, (load, unit) in datasets().items():
-        if (name not in args.only.split(",")) if args.only else name.endswith("_linked"):
+    sets = datasets()
+    # the linked sets run only when named
+    wanted = args.only.split(",") if args.only else [n for n in sets if not n.endswith("_linked")]
+    for name, (load, unit) in sets.items():
+        if name not in wanted:
             continue
         for inputs in args.inputs.split(","):
             row = measure(

@@ -68,7 +68,7 @@ same prediction, kept where it beats none beyond noise; 0 on the current junctio
 fits), and a desired speed below the recorded speed
 next to a stand (:func:`stand_speed`) stands: the field of a queue is slow, not at rest, and
 queued vehicles crept. Vehicles steer only where their recorded headings are not mostly noise
-(:data:`STEER_NOISE_SHARE`, :func:`heading_noise_share`: NGSIM US-101's are, 79 % of their step
+(:data:`STEER_NOISE_SHARE`, :func:`heading_noise_share`: NGSIM US-101's are, 77 % of their step
 changes). A generated vehicle starts along the field's heading. Rollouts of recorded frames do not steer (they keep their own heading and relax with
 ``τ_rollout``).
 
@@ -155,7 +155,7 @@ STEER = True
 #: vehicles steer only where white noise is less than this share of the recorded heading
 #: changes (:func:`heading_noise_share`): a noiseless steered heading cannot give the jitter of
 #: headings that are mostly noise. Measured (realism ratio, steering / none; s53 notes): US-101
-#: linked (share 0.79) 0.790 / 0.895, Peachtree (0.47) 0.837 / 0.781, SUMO left turn linked
+#: linked (share 0.77) 0.790 / 0.895, Peachtree (0.44) 0.837 / 0.781, SUMO left turn linked
 #: (0) 0.544 / 0.465
 STEER_NOISE_SHARE = 0.5
 #: learn the pedestrians' step jitter (:func:`step_jitter`)

@@ -488,17 +488,13 @@ pub fn idm_accel(u: f64, u0: f64, gap: Option<(f64, f64)>, p: &Idm) -> f64 {
     } else {
         -1.0
     };
-    let inter = match gap {
-        None => 0.0,
+    match gap {
+        None => p.accel * free,
         Some((g, leader)) => {
             let s_star = p.jam
                 + (u * p.headway + u * (u - leader) / (2.0 * (p.accel * p.decel).sqrt())).max(0.0);
-            (s_star / g.max(TINY)).powi(2)
+            p.accel * free.min(1.0 - (s_star / g.max(TINY)).powi(2))
         }
-    };
-    match gap {
-        None => p.accel * free,
-        Some(_) => p.accel * free.min(1.0 - inter),
     }
 }
 
