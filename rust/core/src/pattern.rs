@@ -11,6 +11,9 @@
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 
+use std::sync::OnceLock;
+
+use crate::basis::{AxisFeatures, Basis};
 use crate::correlation::Correlation;
 use crate::error::{Error, Result, check_finite};
 use crate::factor::{GrowFactor, capacity};
@@ -46,7 +49,14 @@ pub struct Pattern {
     v: Vec<[f64; 2]>,
     groups: Vec<Group>,
     /// Per group, `K⁻¹ (v − μ)` (n x outputs), computed on first use after each change.
-    weights: std::sync::OnceLock<Vec<Vec<f64>>>,
+    weights: OnceLock<Vec<Vec<f64>>>,
+    /// With a reduced-rank correlation, the points' per-axis basis values (they do not depend
+    /// on the hyperparameters), computed on first use after each change of the points: a cross
+    /// correlation with new points then evaluates no basis functions at the pattern's own.
+    axis: OnceLock<AxisFeatures>,
+    /// With a reduced-rank correlation, per group the posterior mean's weights on the basis
+    /// functions ([`Pattern::basis_weights`]), computed on first use after each change.
+    basis_weights: OnceLock<Vec<Vec<f64>>>,
     /// `Some(par)` for a standalone GP ([`Pattern::single`]): factored without spare room and
     /// solved with `par`. `None` for the sampler's patterns, which run inside parallel loops.
     solo: Option<Par>,
@@ -82,6 +92,8 @@ impl Pattern {
             v: members.iter().flat_map(|m| m.1.v.iter().copied()).collect(),
             groups: Vec::new(),
             weights: Default::default(),
+            axis: Default::default(),
+            basis_weights: Default::default(),
             solo: None,
         };
         p.refactor()?;
@@ -109,6 +121,8 @@ impl Pattern {
             v: v.to_vec(),
             groups: Vec::new(),
             weights: Default::default(),
+            axis: Default::default(),
+            basis_weights: Default::default(),
             solo: Some(par),
         };
         p.refactor()?;
@@ -143,10 +157,18 @@ impl Pattern {
         &self.corr
     }
 
-    /// Bytes held by the factors and the data.
+    /// Bytes held by the factors and the data (with a reduced-rank correlation, and the
+    /// points' basis values it caches).
     pub fn bytes(&self) -> usize {
         let cap: usize = self.groups.iter().map(|g| g.factor.cap().pow(2)).sum();
-        8 * cap + 56 * self.xy.len()
+        8 * cap + self.point_bytes() * self.xy.len()
+    }
+
+    fn point_bytes(&self) -> usize {
+        match &self.corr {
+            Correlation::SquaredExp => 56,
+            Correlation::Reduced(basis) => 56 + 8 * basis.counts().iter().sum::<usize>(),
+        }
     }
 
     /// Bytes after appending a frame of `l` points (the factors grow by [`capacity`]).
@@ -161,7 +183,7 @@ impl Pattern {
             })
             .sum::<usize>()
             .max(self.params.groups().len() * capacity(n).pow(2));
-        8 * cap + 56 * n
+        8 * cap + self.point_bytes() * n
     }
 
     fn clone_data(&self) -> Self {
@@ -175,6 +197,8 @@ impl Pattern {
             v: self.v.clone(),
             groups: Vec::new(),
             weights: Default::default(),
+            axis: self.axis.clone(),
+            basis_weights: Default::default(),
             solo: self.solo,
         }
     }
@@ -187,7 +211,7 @@ impl Pattern {
     /// means) whose outputs and variances are unchanged.
     fn refactor_reusing(&mut self, reuse: &[Group]) -> Result<()> {
         let n = self.xy.len();
-        self.weights = Default::default();
+        self.changed(false);
         self.groups.clear();
         for outs in self.params.groups() {
             let (s2, noise) = self.params.group_vars(outs);
@@ -199,8 +223,19 @@ impl Pattern {
                 continue;
             }
             let (ls, par, parallel) = (self.params.length_scales, self.par(), self.parallel());
-            let chol = Chol::factor(n, "training", par, || {
-                self.corr.gram_par(self.inputs(), ls, s2, noise, parallel)
+            let chol = Chol::factor(n, "training", par, || match &self.corr {
+                Correlation::Reduced(basis) => {
+                    let fx = self.axis.get_or_init(|| basis.axis_features(&self.xy));
+                    let mut k =
+                        basis.headed_correlation(fx, fx, self.inputs(), self.inputs(), ls, s2);
+                    for i in 0..n {
+                        k[i * n + i] += noise;
+                    }
+                    k
+                }
+                Correlation::SquaredExp => {
+                    self.corr.gram_par(self.inputs(), ls, s2, noise, parallel)
+                }
             })?;
             let mut z = centered(&self.v, outs, self.params.mean);
             chol.solve_lower(&mut z, par);
@@ -249,6 +284,8 @@ impl Pattern {
             v: Vec::new(),
             groups: Vec::new(),
             weights: Default::default(),
+            axis: Default::default(),
+            basis_weights: Default::default(),
             solo: None,
         }
     }
@@ -295,13 +332,11 @@ impl Pattern {
             .map(|f| -(f.xy.len() as f64) * LN_2PI)
             .collect();
         let (par, parallel) = (self.par(), self.parallel());
-        let corr = self.corr.cross_par(
-            self.inputs(),
+        let corr = self.cross_to(
             Inputs {
                 xy: &pts,
                 h: &pts_h,
             },
-            self.params.length_scales,
             1.0,
             parallel,
         );
@@ -350,14 +385,93 @@ impl Pattern {
     /// [`Pattern::predict_mean`] at positions and previous headings.
     pub fn predict_mean_at(&self, q: Inputs<'_>) -> Vec<[f64; 2]> {
         let mut out = vec![self.params.mean; q.len()];
-        let ls = self.params.length_scales;
+        if let Correlation::Reduced(basis) = &self.corr {
+            // The same mean in weight space: O(M) a query, against O(n (m_x + m_y)) for the
+            // correlations with every point (most of a rollout over heading).
+            let m = basis.len();
+            let weights = self.basis_weights(basis);
+            for (block, ob) in q.chunks(QUERY_BLOCK).zip(out.chunks_mut(QUERY_BLOCK)) {
+                let phi_t = basis.features_of(block);
+                for (g, w) in self.groups.iter().zip(weights) {
+                    for (c, &d) in g.outs.iter().enumerate() {
+                        let wc = &w[c * m..(c + 1) * m];
+                        for (o, col) in ob.iter_mut().zip(phi_t.chunks(m)) {
+                            o[d] += col.iter().zip(wc).map(|(x, y)| x * y).sum::<f64>();
+                        }
+                    }
+                }
+            }
+            return out;
+        }
         for (block, ob) in q.chunks(QUERY_BLOCK).zip(out.chunks_mut(QUERY_BLOCK)) {
-            let corr = self
-                .corr
-                .cross_par(self.inputs(), block, ls, 1.0, self.parallel());
+            let corr = self.cross_to(block, 1.0, self.parallel());
             self.add_mean(&corr, ob);
         }
         out
+    }
+
+    /// Per group, the posterior mean's weights on a reduced-rank correlation's basis functions,
+    /// `w = σ² S Φ_Xᵀ K⁻¹ (v − μ)` (outputs x M, `S` the spectral weights): the mean at `q` is
+    /// then `μ + φ(q)ᵀ w`, the function-space `μ + σ² R(q, X) K⁻¹ (v − μ)` with
+    /// `R(q, X) = φ(q)ᵀ S Φ_X`. Cached until the pattern changes.
+    fn basis_weights(&self, basis: &Basis) -> &Vec<Vec<f64>> {
+        self.basis_weights.get_or_init(|| {
+            let (n, m) = (self.xy.len(), basis.len());
+            let s: Vec<f64> = (basis.sqrt_spectral(self.params.length_scales).iter())
+                .map(|r| r * r)
+                .collect();
+            let mut out: Vec<Vec<f64>> = (self.groups.iter())
+                .map(|g| vec![0.0; m * g.outs.len()])
+                .collect();
+            // Φ_Xᵀ a in blocks of points, so the features take M x QUERY_BLOCK at most.
+            let mut start = 0;
+            for block in self.inputs().chunks(QUERY_BLOCK) {
+                let phi_t = basis.features_of(block);
+                for ((g, a), w) in self.groups.iter().zip(self.weights()).zip(&mut out) {
+                    for c in 0..g.outs.len() {
+                        let ac = &a[c * n + start..c * n + start + block.len()];
+                        let wc = &mut w[c * m..(c + 1) * m];
+                        for (col, &ai) in phi_t.chunks(m).zip(ac) {
+                            for (x, &f) in wc.iter_mut().zip(col) {
+                                *x += f * ai;
+                            }
+                        }
+                    }
+                }
+                start += block.len();
+            }
+            for (g, w) in self.groups.iter().zip(&mut out) {
+                for wc in w.chunks_mut(m) {
+                    for (x, sj) in wc.iter_mut().zip(&s) {
+                        *x *= g.signal_var * sj;
+                    }
+                }
+            }
+            out
+        })
+    }
+
+    /// `scale · R(X, q)` of the pattern's points `X` and `q` (column-major `n x q.len()`); with a
+    /// reduced-rank correlation, from the points' cached basis values.
+    fn cross_to(&self, q: Inputs<'_>, scale: f64, parallel: bool) -> Vec<f64> {
+        let ls = self.params.length_scales;
+        match &self.corr {
+            Correlation::Reduced(basis) => {
+                let fx = self.axis.get_or_init(|| basis.axis_features(&self.xy));
+                let fq = basis.axis_features(q.xy);
+                basis.headed_correlation(fx, &fq, self.inputs(), q, ls, scale)
+            }
+            Correlation::SquaredExp => self.corr.cross_par(self.inputs(), q, ls, scale, parallel),
+        }
+    }
+
+    /// Drop what is cached of the points' solution (and, when the points changed, of the points).
+    fn changed(&mut self, points: bool) {
+        self.weights = Default::default();
+        self.basis_weights = Default::default();
+        if points {
+            self.axis = Default::default();
+        }
     }
 
     /// `out[j] += σ² R(q_j, X) K⁻¹ (v − μ)` per output, for the correlations `corr = R(X, q)`.
@@ -388,9 +502,7 @@ impl Pattern {
         let mut var = Vec::with_capacity(q.len());
         let ls = self.params.length_scales;
         for (block, mb) in q.chunks(QUERY_BLOCK).zip(mean.chunks_mut(QUERY_BLOCK)) {
-            let corr = self
-                .corr
-                .cross_par(self.inputs(), block, ls, 1.0, self.parallel());
+            let corr = self.cross_to(block, 1.0, self.parallel());
             self.add_mean(&corr, mb);
             let prior = self.corr.diag(block, ls);
             let mut out = vec![[0.0; 2]; block.len()];
@@ -422,9 +534,7 @@ impl Pattern {
     /// [`Pattern::predict_joint`] at positions and previous headings.
     pub fn predict_joint_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
         let (n, m) = (self.xy.len(), q.len());
-        let corr = self
-            .corr
-            .cross(self.inputs(), q, self.params.length_scales, 1.0);
+        let corr = self.cross_to(q, 1.0, false);
         let rqq = self.corr.cross(q, q, self.params.length_scales, 1.0);
         let mut cov = [Vec::new(), Vec::new()];
         for g in &self.groups {
@@ -507,14 +617,11 @@ impl Pattern {
     /// Append frame `id` (not already here) as the last rows of every factor.
     pub fn insert(&mut self, id: usize, f: FrameRef<'_>) -> Result<()> {
         let (n, m) = (self.xy.len(), f.xy.len());
-        self.weights = Default::default();
-        let train = Inputs {
-            xy: &self.xy,
-            h: &self.h,
-        };
-        for g in &mut self.groups {
-            let ls = self.params.length_scales;
-            let mut vbuf = self.corr.cross(train, f.inputs(), ls, g.signal_var);
+        let crosses: Vec<Vec<f64>> = (self.groups.iter())
+            .map(|g| self.cross_to(f.inputs(), g.signal_var, false))
+            .collect();
+        self.changed(true);
+        for (g, mut vbuf) in self.groups.iter_mut().zip(crosses) {
             g.factor.solve_lower(&mut vbuf, Par::Seq);
             let v = MatRef::from_column_major_slice(&vbuf, n, m);
             let k = g.outs.len();
@@ -553,7 +660,7 @@ impl Pattern {
         };
         let start: usize = self.sizes[..pos].iter().sum();
         let l = self.sizes[pos];
-        self.weights = Default::default();
+        self.changed(true);
         self.frames.remove(pos);
         self.sizes.remove(pos);
         self.xy.drain(start..start + l);

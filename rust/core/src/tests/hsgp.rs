@@ -224,3 +224,77 @@ fn coarse_heading_blocks_give_the_kernel_of_their_features() {
         "the coarse blocks changed nothing ({differs})"
     );
 }
+
+/// A small reduced-rank pattern's posterior mean is taken in weight space (`φ(q)ᵀ w`, the
+/// weights cached); it equals the function-space mean `σ² R(q, X) K⁻¹ (v − μ)` of its
+/// correlations (what `posterior_at` computes), and the basis-statistics pattern's, over
+/// heading with coarse heading blocks, and stays so after the points or hyperparameters change.
+#[test]
+fn dense_reduced_mean_in_weight_space_is_the_function_space_mean() {
+    let b = Arc::new(
+        Basis::new([15.0, 50.0], [25.0, 70.0], [6, 8])
+            .unwrap()
+            .with_heading(2, [3, 2])
+            .unwrap(),
+    );
+    let mut p = params()[1];
+    p.length_scales = p.length_scales.with_heading(0.8).unwrap();
+    let fs = frames(3, 8);
+    let hs: Vec<Vec<f64>> = (fs.iter().enumerate())
+        .map(|(k, f)| {
+            (0..f.0.len())
+                .map(|i| {
+                    if (i + k) % 5 == 0 {
+                        f64::NAN
+                    } else {
+                        0.9 * (i + 2 * k) as f64 - 3.0
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    let r: Vec<FrameRef> = (fs.iter().zip(&hs))
+        .map(|(f, h)| FrameRef {
+            xy: &f.0,
+            v: &f.1,
+            h,
+        })
+        .collect();
+    let members: Vec<(usize, FrameRef)> = (0..6).map(|i| (i, r[i])).collect();
+    let q_xy = [[3.0, 10.0], [20.0, 90.0], [-100.0, 0.0], [12.0, 55.0]];
+    let q_h = [0.3, f64::NAN, 2.0, -2.5];
+    let q = Inputs { xy: &q_xy, h: &q_h };
+    let check = |dense: &Pattern, stats: &HsgpPattern| {
+        let w = dense.predict_mean_at(q);
+        let (f, _) = dense.posterior_at(q);
+        let s = stats.predict_mean_at(q);
+        for j in 0..q_xy.len() {
+            for d in 0..2 {
+                assert!(close(w[j][d], f[j][d], 1e-10), "{} vs {}", w[j][d], f[j][d]);
+                assert!(close(w[j][d], s[j][d], 1e-8), "{} vs {}", w[j][d], s[j][d]);
+            }
+        }
+        // Outside the box the basis has no support: the prior mean.
+        assert_eq!(w[2], dense.params.mean);
+    };
+    let corr = Correlation::Reduced(Arc::clone(&b));
+    let mut dense = Pattern::with_correlation(corr.clone(), p, &members).unwrap();
+    let mut stats = HsgpPattern::new(Arc::clone(&b), p, &members).unwrap();
+    check(&dense, &stats);
+    dense.insert(6, r[6]).unwrap();
+    stats.insert(6, r[6]).unwrap();
+    check(&dense, &stats);
+    dense.remove(2).unwrap();
+    stats.remove(2).unwrap();
+    check(&dense, &stats);
+    let mut p2 = p;
+    p2.length_scales = LengthScales::new(4.0, 12.0)
+        .unwrap()
+        .with_heading(1.5)
+        .unwrap();
+    p2.signal_var = [2.0, 0.5];
+    check(
+        &dense.with_params(p2).unwrap(),
+        &stats.with_params(p2).unwrap(),
+    );
+}
