@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use crate::frame::{Inputs, LengthScales, Point};
 use crate::heading::HeadingKernel;
-use crate::hsgp::Basis;
+use crate::basis::Basis;
 use crate::kernel::cross_headed;
 
 /// The correlation function of a pattern's GP: the squared exponential, or its reduced-rank

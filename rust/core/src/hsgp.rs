@@ -24,10 +24,12 @@ use faer::linalg::triangular_solve::solve_lower_triangular_in_place;
 use faer::{Accum, MatMut, MatRef, Par};
 
 pub use crate::basis::{AxisFeatures, Basis, MAX_BASIS};
+use crate::correlation::Correlation;
 use crate::error::Result;
 use crate::frame::{FrameRef, Inputs, Point, concat_headings, extend_headings};
 use crate::gp::{GpParams, LN_2PI};
 use crate::hsgp_sums::{Group, Sums, VecSums, log_marginal, scaled_sqrt_spectrum};
+use crate::low_data::{self, PointGrid};
 use crate::small;
 
 /// Points whose features [`HsgpPattern::score`] holds at once (M doubles each).
@@ -54,6 +56,9 @@ pub struct HsgpPattern {
     groups: Vec<Group>,
     /// Per group, the posterior mean weights `D R⁻ᵀ z` (M x outputs), on first use.
     weights: OnceLock<Vec<Vec<f64>>>,
+    /// The points by grid cell, for the low-data flags' bound; on first use after the points
+    /// change.
+    grid: OnceLock<PointGrid>,
 }
 
 impl HsgpPattern {
@@ -75,6 +80,7 @@ impl HsgpPattern {
             vecs: VecSums::zeros(0),
             groups: Vec::new(),
             weights: OnceLock::new(),
+            grid: OnceLock::new(),
         };
         if p.basis.harmonics() == 0 {
             for &(id, f) in members {
@@ -133,7 +139,9 @@ impl HsgpPattern {
     /// Bytes held by the M x M matrices (the statistics and one factor per group).
     pub fn bytes(&self) -> usize {
         let m = self.m();
-        8 * m * m * (1 + self.params.groups().len()) + 40 * self.xy.len()
+        8 * m * m * (1 + self.params.groups().len())
+            + 40 * self.xy.len()
+            + self.grid.get().map_or(0, PointGrid::bytes)
     }
 
     /// Add (`sign = 1`) or subtract (`sign = −1`) one frame's contribution to the statistics.
@@ -412,6 +420,7 @@ impl HsgpPattern {
 
     /// Add frame `id` (not already here): `O(l M²)`.
     pub fn insert(&mut self, id: usize, f: FrameRef<'_>) -> Result<()> {
+        self.grid = OnceLock::new();
         let phi_t = self.basis.features_of(f.inputs());
         self.add_stats(id, f, &phi_t, 1.0);
         if self.update_factors(&phi_t, f.xy.len(), 1.0) {
@@ -430,6 +439,7 @@ impl HsgpPattern {
         };
         let start: usize = self.sizes[..pos].iter().sum();
         let l = self.sizes[pos];
+        self.grid = OnceLock::new();
         let xy: Vec<Point> = self.xy.drain(start..start + l).collect();
         let v: Vec<[f64; 2]> = self.v.drain(start..start + l).collect();
         let h: Vec<f64> = if self.h.is_empty() {
@@ -464,6 +474,7 @@ impl HsgpPattern {
             params,
             groups: Vec::new(),
             weights: OnceLock::new(),
+            grid: OnceLock::new(),
             ..self.clone_data()
         };
         let same =
@@ -486,6 +497,7 @@ impl HsgpPattern {
             sqrt_s: self.sqrt_s.clone(),
             groups: Vec::new(),
             weights: OnceLock::new(),
+            grid: OnceLock::new(),
         }
     }
 
@@ -552,6 +564,22 @@ impl HsgpPattern {
             var.extend(out);
         }
         (self.predict_mean_at(q), var)
+    }
+
+    /// The low-data flags at `q`, threshold `f` of the prior variance ([`crate::low_data`]): the
+    /// nearest training points' bound, the full solve where it cannot decide.
+    pub fn low_data_at(&self, q: Inputs<'_>, f: f64) -> Vec<bool> {
+        let grid = self.grid.get_or_init(|| PointGrid::new(&self.xy));
+        let corr = Correlation::Reduced(Arc::clone(&self.basis));
+        let model = low_data::Model {
+            train: self.inputs(),
+            params: &self.params,
+            corr: &corr,
+            groups: (self.groups.iter())
+                .map(|g| (g.outs, g.signal_var, g.noise_var))
+                .collect(),
+        };
+        low_data::flags(&model, grid, q, f, |r| self.posterior_at(r).1)
     }
 
     /// Joint posterior of the latent field at `q`: the mean per point and, per output, the

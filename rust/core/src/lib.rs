@@ -33,6 +33,7 @@ pub mod gp;
 pub mod heading;
 pub mod kernel;
 pub mod linalg;
+pub(crate) mod low_data;
 pub mod motion;
 pub mod placement;
 pub mod vexp;

@@ -21,6 +21,7 @@ pub use crate::frame::FrameRef;
 use crate::frame::{Inputs, LengthScales, Point, concat_headings, extend_headings};
 use crate::gp::{GpParams, LN_2PI, centered};
 use crate::linalg::Chol;
+use crate::low_data::{self, PointGrid};
 use crate::small;
 
 #[derive(Clone, Debug)]
@@ -57,6 +58,9 @@ pub struct Pattern {
     /// With a reduced-rank correlation, per group the posterior mean's weights on the basis
     /// functions ([`Pattern::basis_weights`]), computed on first use after each change.
     basis_weights: OnceLock<Vec<Vec<f64>>>,
+    /// The points by grid cell, for the low-data flags' bound; on first use after the points
+    /// change.
+    grid: OnceLock<PointGrid>,
     /// `Some(par)` for a standalone GP ([`Pattern::single`]): factored without spare room and
     /// solved with `par`. `None` for the sampler's patterns, which run inside parallel loops.
     solo: Option<Par>,
@@ -94,6 +98,7 @@ impl Pattern {
             weights: Default::default(),
             axis: Default::default(),
             basis_weights: Default::default(),
+            grid: Default::default(),
             solo: None,
         };
         p.refactor()?;
@@ -123,6 +128,7 @@ impl Pattern {
             weights: Default::default(),
             axis: Default::default(),
             basis_weights: Default::default(),
+            grid: Default::default(),
             solo: Some(par),
         };
         p.refactor()?;
@@ -199,6 +205,7 @@ impl Pattern {
             weights: Default::default(),
             axis: self.axis.clone(),
             basis_weights: Default::default(),
+            grid: Default::default(),
             solo: self.solo,
         }
     }
@@ -286,6 +293,7 @@ impl Pattern {
             weights: Default::default(),
             axis: Default::default(),
             basis_weights: Default::default(),
+            grid: Default::default(),
             solo: None,
         }
     }
@@ -471,6 +479,7 @@ impl Pattern {
         self.basis_weights = Default::default();
         if points {
             self.axis = Default::default();
+            self.grid = Default::default();
         }
     }
 
@@ -523,6 +532,21 @@ impl Pattern {
             var.extend(out);
         }
         (mean, var)
+    }
+
+    /// The low-data flags at `q`, threshold `f` of the prior variance ([`crate::low_data`]): the
+    /// nearest training points' bound, the full solve where it cannot decide.
+    pub fn low_data_at(&self, q: Inputs<'_>, f: f64) -> Vec<bool> {
+        let grid = self.grid.get_or_init(|| PointGrid::new(&self.xy));
+        let model = low_data::Model {
+            train: self.inputs(),
+            params: &self.params,
+            corr: &self.corr,
+            groups: (self.groups.iter())
+                .map(|g| (g.outs, g.signal_var, g.noise_var))
+                .collect(),
+        };
+        low_data::flags(&model, grid, q, f, |r| self.posterior_at(r).1)
     }
 
     /// Joint posterior of the latent field at `q`: the mean per point and, per output, the

@@ -44,6 +44,15 @@ pub trait PatternModel: Send + Sync + std::fmt::Debug {
     fn posterior_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, Vec<[f64; 2]>);
     /// Posterior mean and, per output, the joint latent covariance (column-major).
     fn predict_joint_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, [Vec<f64>; 2]);
+    /// Whether each input's latent posterior variance exceeds `f` times the prior's in either
+    /// output: the low-data flags of a rollout.
+    fn low_data_at(&self, q: Inputs<'_>, f: f64) -> Vec<bool> {
+        let (_, var) = self.posterior_at(q);
+        let s2 = self.params().signal_var;
+        var.iter()
+            .map(|v| (0..2).any(|d| v[d] > f * s2[d]))
+            .collect()
+    }
     /// Whether the field takes a heading beside the position.
     fn headed(&self) -> bool {
         self.params().length_scales.wh.is_finite()
@@ -180,6 +189,9 @@ impl PatternModel for Pattern {
     fn posterior_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
         Pattern::posterior_at(self, q)
     }
+    fn low_data_at(&self, q: Inputs<'_>, f: f64) -> Vec<bool> {
+        Pattern::low_data_at(self, q, f)
+    }
     fn predict_joint_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
         Pattern::predict_joint_at(self, q)
     }
@@ -314,6 +326,9 @@ impl PatternModel for HsgpPattern {
     fn posterior_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
         HsgpPattern::posterior_at(self, q)
     }
+    fn low_data_at(&self, q: Inputs<'_>, f: f64) -> Vec<bool> {
+        HsgpPattern::low_data_at(self, q, f)
+    }
     fn predict_joint_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
         HsgpPattern::predict_joint_at(self, q)
     }
@@ -381,6 +396,9 @@ impl PatternModel for ReducedPattern {
     }
     fn posterior_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, Vec<[f64; 2]>) {
         self.inner().posterior_at(q)
+    }
+    fn low_data_at(&self, q: Inputs<'_>, f: f64) -> Vec<bool> {
+        self.inner().low_data_at(q, f)
     }
     fn predict_joint_at(&self, q: Inputs<'_>) -> (Vec<[f64; 2]>, [Vec<f64>; 2]) {
         self.inner().predict_joint_at(q)

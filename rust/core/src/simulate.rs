@@ -482,12 +482,9 @@ impl Field for PatternField<'_> {
             return Ok(info);
         }
         if let (None, true, Some(f)) = (seed, self.draw_once, self.low_data) {
-            // flags only: the latent variances alone (m triangular solves, no m x m matrix)
-            let (_, var) = self.pattern.posterior_at(self.inputs(q));
-            let s2 = self.pattern.params().signal_var;
-            for (flag, v) in info.low_data.iter_mut().zip(&var) {
-                *flag = (0..2).any(|d| v[d] > f * s2[d]);
-            }
+            // flags only: no m x m matrix (and over the statistics, the full solve only where the
+            // nearest training points' bound cannot decide)
+            info.low_data = self.pattern.low_data_at(self.inputs(q), f);
             return Ok(info);
         }
         // The latent covariance costs n² m (a triangular solve per vehicle); it gives both the
