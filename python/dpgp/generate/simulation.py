@@ -21,9 +21,10 @@ integrates by forward Euler only. ``dynamics="field"`` is the paper's rollout de
 See ``docs/generation.md``.
 
 Cost: following the mean is ``n m`` per step for a pattern of ``n`` observations and ``m``
-moving vehicles. The low-data flags and the stochastic draws need the posterior covariance,
-``n² m`` per step; pass ``low_data_threshold=None`` for fast deterministic rollouts of large
-patterns.
+moving vehicles (``M m`` for a reduced-rank pattern of ``M`` basis functions). The stochastic
+draws need the posterior covariance, ``n² m`` (``M² m``) per step. The low-data flags need it only
+where a cheap exact bound (the variance given a vehicle's nearest training points, never below
+the full one) cannot rule a flag out; pass ``low_data_threshold=None`` to skip them.
 
 Limits: one call records at most :data:`MAX_ROWS` (2·10⁷) rows, ``(steps + 1) × vehicles``
 summed over its rollouts (about 1-2 GB); a larger request is an ``InvalidInputError`` raised
