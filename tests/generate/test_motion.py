@@ -731,5 +731,56 @@ def test_rollout_time_constant_is_chosen_by_the_rollouts_simulate_runs():
     assert not np.allclose(motion.time_constants(fit, held=held, grid=grid)[0], got)
     # and the model learns its τ_rollout so, by its own car following
     learned = motion.learn(fit)
-    mine = motion.time_constants(fit, held=held, motion=dataclasses.replace(learned, tau_rollout=None))[0]
+    # (τ first, each driver wanting its own speed; the acceleration's trust after it)
+    unsure = dataclasses.replace(learned, tau_rollout=None, accel_trust=0.0)
+    mine = motion.time_constants(fit, held=held, motion=unsure)[0]
     np.testing.assert_array_equal(learned.tau_rollout, mine)
+
+
+def test_recorded_drivers_invert_idm_free_road_term():
+    """A recorded vehicle accelerating by a₀ starts with the desired speed at which IDM's free-road
+    term gives κ a₀: by hand, and through the core, whose first step of a free vehicle (τ = ∞, so
+    the driver does not relax) changes its speed by exactly κ a₀ dt."""
+    m = motion.MotionModel("vehicles", np.array([2.0]), np.array([[0.7, 0.3]]), np.zeros(1, np.int64), np.ones(1),
+                           0.5, 7.0, 1.5, 4.0, 2.0, 1.5, accel_trust=1.0)  # fmt: skip
+    v = np.array([[10.0, 0.0], [0.0, 6.0], [5.0, 0.0], [8.0, 0.0], [0.0, 0.0]])
+    prev = np.array([[9.0, 0.0], [0.0, 6.0], [6.0, 0.0], [np.nan, np.nan], [0.0, 0.0]])
+    got = m.recorded_drivers(v, prev, 0.5)
+    # a₀ = 2, 0, −2, unknown, standing; a = 4: u₀ = u (1 − a₀/a)^(−1/4)
+    np.testing.assert_allclose(got[0], [10.0 * 0.5**-0.25, 0.0], rtol=1e-12)
+    np.testing.assert_allclose(got[2], [5.0 * 1.5**-0.25, 0.0], rtol=1e-12)
+    np.testing.assert_array_equal(got[[1, 3, 4]], v[[1, 3, 4]])
+    # the share is capped: a₀ beyond a gives 0.9 of it
+    np.testing.assert_allclose(m.recorded_drivers([[10.0, 0.0]], [[0.0, 0.0]], 0.5), [[10.0 * 0.1**-0.25, 0.0]])
+    half = dataclasses.replace(m, accel_trust=0.5).recorded_drivers(v[:1], prev[:1], 0.5)
+    np.testing.assert_allclose(half, [[10.0 * 0.75**-0.25, 0.0]], rtol=1e-12)
+    for none in (dataclasses.replace(m, accel_trust=0.0), dataclasses.replace(m, agents="pedestrians")):
+        assert none.recorded_drivers(v, prev, 0.5) is None
+    assert m.recorded_drivers(v, None, 0.5) is None
+
+    frames = dpgp.make_frames(ou_tracks(2.0, 0.5, n_tracks=40, steps=20, span=40), dt=0.5)
+    fit = dpgp.DPGP(iterations=1, seed=0, progress=False, noise_var=1.0).fit(frames)._fitted()
+    learned = motion.motion_model(fit)
+    for trust in (1.0, 0.5):
+        fit.cache["motion"] = (fit.frames, dataclasses.replace(
+            learned, accel_trust=trust, tau_rollout=np.full(fit.n_patterns, np.inf)))  # fmt: skip
+        one = dpgp.Frames(np.array([0.0]), np.array([0, 1]), np.array([[20.0, 0.0]]), np.array([[6.0, 0.0]]),
+                          prev_v=np.array([[5.9, 0.0]]))  # fmt: skip
+        sim = dpgp.generate.simulation.simulate(fit, one, pattern=0, steps=1, low_data_threshold=None)
+        a0 = (6.0 - 5.9) / fit.dt
+        assert trust * a0 < motion.MAX_ACCEL_SHARE * learned.accel  # (not capped)
+        np.testing.assert_allclose(sim.velocities[1, 0], [6.0 + trust * a0 * fit.dt, 0.0], atol=1e-9)
+
+
+def test_model_files_keep_the_acceleration_trust():
+    import json
+
+    m = motion.MotionModel("vehicles", np.array([2.0]), np.array([[0.7, 0.3]]), np.zeros(1, np.int64), np.ones(1),
+                           0.5, 7.0, 1.5, 4.0, 2.0, 1.5, accel_trust=0.5)  # fmt: skip
+    d = json.loads(json.dumps(m.to_dict(), allow_nan=False))
+    assert motion.MotionModel.from_dict(d).accel_trust == 0.5
+    # files written before it: each driver wants its own speed
+    assert motion.MotionModel.from_dict({k: v for k, v in d.items() if k != "accel_trust"}).accel_trust == 0.0
+    for bad in (-0.1, 1.5, "x"):
+        with pytest.raises(dpgp.DataFormatError):
+            motion.MotionModel.from_dict({**d, "accel_trust": bad})

@@ -158,6 +158,15 @@ STEER = True
 #: linked (share 0.77) 0.790 / 0.895, Peachtree (0.44) 0.837 / 0.781, SUMO left turn linked
 #: (0) 0.544 / 0.465
 STEER_NOISE_SHARE = 0.5
+#: shares of a recorded vehicle's acceleration its driver's desired speed is started from in
+#: rollouts of recorded frames (:meth:`MotionModel.recorded_drivers`), chosen out of sample as
+#: ``τ_rollout`` is; 0 is a driver that wants its own speed
+ACCEL_TRUSTS = np.array([0.0, 0.5, 1.0])
+#: the largest share of IDM's maximum acceleration inverted into a desired speed (at 0.9 the
+#: desired speed is 1.78 times the current one)
+MAX_ACCEL_SHARE = 0.9
+#: learn :attr:`MotionModel.accel_trust` (:func:`accel_trust`)
+ACCEL_TRUST = True
 #: learn the pedestrians' step jitter (:func:`step_jitter`)
 JITTER = True
 #: learn the pedestrians' personal distance of rollouts of recorded frames
@@ -183,7 +192,9 @@ class MotionModel:
     ``sigma_frame``: ``"heading"``, ``sigma[k]`` is (along, across) the field's local heading,
     isotropic where the field is slower than ``min_speed``, the across part relaxing with
     ``tau_across_share × τ`` in generated scenes (with ``τ_rollout`` in rollouts of recorded
-    frames); ``"xy"`` (files written before it), per x/y component."""
+    frames); ``"xy"`` (files written before it), per x/y component. ``accel_trust``: the share
+    of a recorded vehicle's acceleration its driver's desired speed starts from in rollouts of
+    recorded frames (:meth:`recorded_drivers`; 0, and in files written before it: its own speed)."""
 
     agents: str
     tau: np.ndarray
@@ -206,6 +217,7 @@ class MotionModel:
     stand_speed: float = 0.0
     jitter: np.ndarray | None = None
     personal_rollout: float = float("nan")
+    accel_trust: float = 0.0
 
     @property
     def rollout_tau(self) -> np.ndarray:
@@ -222,6 +234,25 @@ class MotionModel:
         start moving at ``v`` (n, 2) and want to: heading and speed if they steer, else ``v``."""
         v = np.asarray(v, dtype=np.float64).reshape(-1, 2)
         return np.c_[np.arctan2(v[:, 1], v[:, 0]), np.hypot(v[:, 0], v[:, 1])] if self.steers else v.copy()
+
+    def recorded_drivers(self, v: np.ndarray, prev_v: np.ndarray | None, dt: float) -> np.ndarray | None:
+        """The drivers (desired velocities) of a recorded frame's vehicles at ``v`` (n, 2) that
+        moved at ``prev_v`` (n, 2; NaN: unknown) one step ``dt`` before; ``None`` (each wants its
+        own velocity) without trust, previous velocities or car following. A vehicle accelerating
+        by ``a₀`` along its velocity wants more than its speed ``u``: IDM's free-road term
+        ``a (1 − (u / u₀)⁴)`` gives ``a₀`` at the desired speed ``u₀ = u (1 − κ a₀ / a)^(−1/4)``,
+        ``κ`` :attr:`accel_trust` (a braking vehicle's ``u₀`` is below ``u``), in ``v``'s
+        direction. Recorded rollouts do not steer, so a driver is a velocity."""
+        if self.accel_trust <= 0 or prev_v is None or self.agents != "vehicles" or not self.accel > 0:
+            return None
+        v = np.asarray(v, dtype=np.float64).reshape(-1, 2)
+        prev_v = np.asarray(prev_v, dtype=np.float64).reshape(-1, 2)
+        speed = np.hypot(v[:, 0], v[:, 1])
+        known = np.all(np.isfinite(prev_v), axis=1) & (speed > 0)
+        a0 = np.zeros(len(v))
+        a0[known] = np.einsum("ij,ij->i", v[known] - prev_v[known], v[known]) / speed[known] / dt
+        share = np.minimum(self.accel_trust * a0 / self.accel, MAX_ACCEL_SHARE)
+        return v * ((1.0 - share) ** -0.25)[:, None]
 
     def record(self, k: int, interaction: bool = True, recorded: bool = False) -> np.ndarray:
         """Pattern ``k``'s flat record for the core (``motion.rs``: ``MOTION_FIELDS``);
@@ -274,6 +305,7 @@ class MotionModel:
         out["stand_speed"] = float(self.stand_speed)
         out["jitter"] = None if self.jitter is None else [float(x) for x in self.jitter]
         out["personal_rollout"] = None if np.isnan(self.personal_rollout) else float(self.personal_rollout)
+        out["accel_trust"] = float(self.accel_trust)
         return out
 
     @classmethod
@@ -311,6 +343,8 @@ class MotionModel:
                 # files written before the step jitter: none
                 jitter=None if d.get("jitter") is None else np.asarray(d["jitter"], dtype=np.float64).reshape(2),
                 personal_rollout=float("nan") if d.get("personal_rollout") is None else float(d["personal_rollout"]),
+                # files written before it: each driver wants its own speed
+                accel_trust=float(d.get("accel_trust", 0.0)),
             )
         except (KeyError, TypeError, ValueError) as e:
             raise DataFormatError(f"not a stored motion model ({type(e).__name__}: {e})") from None
@@ -324,6 +358,7 @@ class MotionModel:
             or not (np.isfinite(m.stand_speed) and m.stand_speed >= 0)
             or (m.jitter is not None and not (np.all(np.isfinite(m.jitter)) and np.all(m.jitter >= 0)))
             or not (np.isnan(m.personal_rollout) or (np.isfinite(m.personal_rollout) and m.personal_rollout >= 0))
+            or not (0.0 <= m.accel_trust <= 1.0)
             or (
                 m.profile is not None
                 and (
@@ -499,14 +534,40 @@ def time_constants(
     The pooled ``τ`` minimises the error over all patterns (refined by a parabola in ``log τ``
     through the best finite grid point and its finite neighbours); a pattern (of this fit) with
     at least :data:`TAU_PATTERN_STEPS` held-out track-steps takes its own minimiser."""
-    frames, labels, dt, K = fit.frames, fit.labels, fit.dt, fit.n_patterns
-    steps = max(1, int(round(TAU_HORIZON / dt)))
-    a, b = consecutive_pairs(frames, dt)
+    K = fit.n_patterns
     default = np.full(K, DEFAULT_TAU), np.zeros(K, np.int64)
-    if len(a) < MIN_PAIRS:
+    setup = _held_out_setup(fit, holdout, held)
+    if setup is None:
         return default
-    nxt = np.full(frames.n_points, -1, dtype=np.int64)
-    nxt[a] = b
+    roll, chosen, through, rows, steps = setup
+    frames, dt = fit.frames, fit.dt
+    if motion is None:
+        h0 = None if frames.prev_heading is None else frames.prev_heading[rows]
+        pred = relaxed_mean_rollouts(
+            roll, np.repeat(through, frames.sizes[chosen]), frames.xy[rows], frames.v[rows], grid, steps, dt, h0
+        )
+    else:
+        candidates = [replace(motion, tau_rollout=np.full(len(motion.tau), float(t))) for t in grid]
+        pred = interactive_rollouts(roll, candidates, frames[chosen], through, steps, dt)
+    errors, counts = _held_out_errors(fit, setup, pred)
+    pooled = _refined(errors.sum(axis=1), grid)
+    tau = np.full(K, pooled)
+    own = counts >= pattern_steps
+    for k in np.flatnonzero(own):
+        tau[k] = _refined(errors[:, k], grid)
+    return tau, np.where(own, counts, 0).astype(np.int64)
+
+
+def _held_out_setup(
+    fit: FittedPatterns, holdout: float | None, held: tuple[FittedPatterns, int] | None
+) -> tuple[FittedPatterns, np.ndarray, np.ndarray, np.ndarray, int] | None:
+    """What the out-of-sample choices roll out (:func:`time_constants`): the fields that roll
+    (``roll``), the frames rolled out (``chosen``), the pattern each goes through, their rows and
+    the steps; ``None`` with too few recorded track-steps."""
+    frames, labels, dt = fit.frames, fit.labels, fit.dt
+    steps = max(1, int(round(TAU_HORIZON / dt)))
+    if len(consecutive_pairs(frames, dt)[0]) < MIN_PAIRS:
+        return None
     n = len(frames)
     if holdout is None:
         held = None
@@ -519,36 +580,60 @@ def time_constants(
         pool = np.arange(cut, n)
     chosen = pool[np.unique(np.linspace(0, len(pool) - 1, min(TAU_FRAMES, len(pool))).round().astype(np.int64))]
     rows = np.concatenate([np.arange(frames.offsets[f], frames.offsets[f + 1]) for f in chosen])
-    # truth[h, i]: row of vehicle i's track h steps later (-1: not recorded)
+    if (_truth_rows(fit, rows, steps)[1:] >= 0).sum() < MIN_PAIRS:
+        return None
+    # rolled out through the pattern of the fields that roll it (a new frame's: predicted)
+    through = labels[chosen] if held is None else roll.predict(frames[chosen])
+    return roll, chosen, through, rows, steps
+
+
+def _truth_rows(fit: FittedPatterns, rows: np.ndarray, steps: int) -> np.ndarray:
+    """(steps + 1, len(rows)): the row of each vehicle's track h steps later (-1: not recorded)."""
+    a, b = consecutive_pairs(fit.frames, fit.dt)
+    nxt = np.full(fit.frames.n_points, -1, dtype=np.int64)
+    nxt[a] = b
     truth = np.full((steps + 1, len(rows)), -1, dtype=np.int64)
     truth[0] = rows
     for h in range(1, steps + 1):
         prev = truth[h - 1]
         truth[h] = np.where(prev >= 0, nxt[np.maximum(prev, 0)], -1)
+    return truth
+
+
+def _held_out_errors(fit: FittedPatterns, setup: tuple, pred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Of the rollouts ``pred`` (steps + 1, n, G, 2) of :func:`_held_out_setup`'s frames: per
+    candidate and pattern (of this fit) the summed distance to where the tracks really were over
+    the steps they were recorded (G, K), and per pattern how many track-steps (K,)."""
+    frames, K = fit.frames, fit.n_patterns
+    _, chosen, _, rows, steps = setup
+    truth = _truth_rows(fit, rows, steps)
     known = truth[1:] >= 0
-    if known.sum() < MIN_PAIRS:
-        return default
-    sizes = frames.sizes[chosen]
-    # rolled out through the pattern of the fields that roll it (a new frame's: predicted)
-    through = labels[chosen] if held is None else roll.predict(frames[chosen])
-    if motion is None:
-        h0 = None if frames.prev_heading is None else frames.prev_heading[rows]
-        pred = relaxed_mean_rollouts(
-            roll, np.repeat(through, sizes), frames.xy[rows], frames.v[rows], grid, steps, dt, h0
-        )
-    else:
-        pred = interactive_rollouts(roll, motion, frames[chosen], through, grid, steps, dt)
     dist = np.linalg.norm(pred[1:] - frames.xy[np.maximum(truth[1:], 0)][:, :, None, :], axis=-1)  # (steps, n, G)
     dist = np.where(known[:, :, None], dist, 0.0).sum(axis=0)  # (n, G)
-    row_pat = np.repeat(labels[chosen], sizes)  # grouped by this fit's pattern of the frame
-    errors = np.stack([np.bincount(row_pat, weights=dist[:, g], minlength=K) for g in range(len(grid))])
+    row_pat = np.repeat(fit.labels[chosen], frames.sizes[chosen])  # grouped by this fit's pattern of the frame
+    errors = np.stack([np.bincount(row_pat, weights=dist[:, g], minlength=K) for g in range(pred.shape[2])])
     counts = np.bincount(row_pat, weights=known.sum(axis=0), minlength=K)
-    pooled = _refined(errors.sum(axis=1), grid)
-    tau = np.full(K, pooled)
-    own = counts >= pattern_steps
-    for k in np.flatnonzero(own):
-        tau[k] = _refined(errors[:, k], grid)
-    return tau, np.where(own, counts, 0).astype(np.int64)
+    return errors, counts
+
+
+def accel_trust(fit: FittedPatterns, held: tuple[FittedPatterns, int] | None, model: MotionModel) -> float:
+    """The share of recorded accelerations the drivers of rollouts of recorded frames start from
+    (:meth:`MotionModel.recorded_drivers`): of :data:`ACCEL_TRUSTS`, the one whose rollouts
+    (interactive, each pattern at its ``τ_rollout``) predict the held-out tracks best, as
+    :func:`time_constants` chooses ``τ_rollout``; 0 without previous velocities, car following,
+    or enough tracks. On the SUMO junction (a 0.5 s step) the recorded acceleration of a vehicle
+    leaving a queue or a turn says where it will be; on NGSIM's Peachtree it is mostly noise."""
+    frames = fit.frames
+    if frames.prev_v is None or model.agents != "vehicles" or not model.accel > 0:
+        return 0.0
+    setup = _held_out_setup(fit, TAU_HOLDOUT, held)
+    if setup is None:
+        return 0.0
+    roll, chosen, through, _, steps = setup
+    candidates = [replace(model, accel_trust=float(t)) for t in ACCEL_TRUSTS]
+    pred = interactive_rollouts(roll, candidates, frames[chosen], through, steps, fit.dt)
+    errors, _ = _held_out_errors(fit, setup, pred)
+    return float(ACCEL_TRUSTS[int(np.argmin(errors.sum(axis=1)))])
 
 
 def held_out_fields(fit: FittedPatterns, holdout: float) -> tuple[FittedPatterns, int] | None:
@@ -563,30 +648,37 @@ def held_out_fields(fit: FittedPatterns, holdout: float) -> tuple[FittedPatterns
 
 def interactive_rollouts(
     fit: FittedPatterns,
-    motion: MotionModel,
+    candidates: list[MotionModel],
     frames: Frames,
     patterns: np.ndarray,
-    taus: np.ndarray,
     steps: int,
     dt: float,
 ) -> np.ndarray:
-    """(steps + 1, n, len(taus), 2): the mean rollouts ``simulate`` runs of each of ``frames``
-    (its ``n`` rows in order) through ``patterns`` (one per frame), by ``motion`` with every
-    pattern's ``τ_rollout`` set to each of ``taus`` in turn: interaction, the fit's ROI, each
-    vehicle starting from its own velocity and previous heading."""
+    """(steps + 1, n, len(candidates), 2): the mean rollouts ``simulate`` runs of each of
+    ``frames`` (its ``n`` rows in order) through ``patterns`` (one per frame), by each motion model
+    of ``candidates`` in turn: interaction, the fit's ROI, each vehicle starting from its own
+    velocity and previous heading (and its driver from :meth:`MotionModel.recorded_drivers`)."""
     speed = heading_speed(fit)
     starts = [f.xy for f in frames]
     velocities = [f.v for f in frames]
     headings = [start_headings(f.v, f.prev_heading, speed, len(f.xy)) for f in frames]
-    out = np.empty((steps + 1, frames.n_points, len(taus), 2))
-    for g, tau in enumerate(taus):
-        candidate = replace(motion, tau_rollout=np.full(len(motion.tau), float(tau)))
+    out = np.empty((steps + 1, frames.n_points, len(candidates), 2))
+    for g, candidate in enumerate(candidates):
         sims = motion_rollouts(
             fit, [int(k) for k in patterns], starts, velocities, steps=steps, dt=dt, seeds=None, roi=fit.roi,
             low_data_threshold=None, dynamics=ROLLOUT_DYNAMICS, motion=candidate, recorded=True, headings=headings,
+            drivers=recorded_drivers(candidate, frames, dt),
         )  # fmt: skip
         out[:, :, g] = np.concatenate([s.positions for s in sims], axis=1)
     return out
+
+
+def recorded_drivers(motion: MotionModel, frames: Frames, dt: float) -> list[np.ndarray] | None:
+    """Per frame, its vehicles' drivers in a rollout of recorded frames
+    (:meth:`MotionModel.recorded_drivers`); ``None``: each its own velocity."""
+    out = [motion.recorded_drivers(f.v, f.prev_v, dt) for f in frames]
+    known = [d for d in out if d is not None]
+    return known if len(known) == len(out) else None
 
 
 def relaxed_mean_rollouts(
@@ -745,7 +837,8 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
 def _rollout_choice(fit: FittedPatterns, held: tuple[FittedPatterns, int] | None, model: MotionModel) -> MotionModel:
     """``model`` with ``τ_rollout`` chosen on held-out frames rolled out as ``simulate`` rolls
     them: by this very model (its car following or personal distance), interacting."""
-    return replace(model, tau_rollout=time_constants(fit, held=held, motion=model)[0])
+    model = replace(model, tau_rollout=time_constants(fit, held=held, motion=model)[0])
+    return replace(model, accel_trust=accel_trust(fit, held, model)) if ACCEL_TRUST else model
 
 
 def steering(

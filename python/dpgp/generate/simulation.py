@@ -195,6 +195,15 @@ def _start(fit: FittedPatterns, frame: Any) -> tuple[np.ndarray, np.ndarray | No
     return xy, v, index, start_headings(v, prev, heading_speed(fit), len(xy))
 
 
+def _prev_velocities(fit: FittedPatterns, frame: Any) -> np.ndarray | None:
+    """The previous velocities (l, 2) a recorded frame carries (``None``: none, or an array)."""
+    if isinstance(frame, (int, np.integer)) and not isinstance(frame, (bool, np.bool_)):
+        return fit.frames[int(frame)].prev_v
+    if isinstance(frame, Frames):
+        frame = frame[0]
+    return frame.prev_v if isinstance(frame, Frame) else None
+
+
 def _given(fit: FittedPatterns, frame: Any) -> tuple[np.ndarray, np.ndarray | None, int | None, np.ndarray | None]:
     if isinstance(frame, (bool, np.bool_)):
         raise InvalidInputError("frame must be a training frame index, a Frame or an array, not a bool")
@@ -258,9 +267,12 @@ def simulate(
     if dynamics != "field":
         if v is None:  # positions only: start on the field
             v = field_means(fit, xy, np.full(len(xy), k), h)
+        motion = motion_model(fit)
+        driver = motion.recorded_drivers(v, _prev_velocities(fit, frame), dt)
         return motion_rollouts(
             fit, [k], [xy], [v], steps=steps, dt=dt, seeds=_seeds(seed, 1) if stochastic else None, roi=box,
-            low_data_threshold=thr, dynamics=dynamics, motion=motion_model(fit), recorded=True, headings=[h],
+            low_data_threshold=thr, dynamics=dynamics, motion=motion, recorded=True, headings=[h],
+            drivers=None if driver is None else [driver],
         )[0]  # fmt: skip
     return rollouts(
         fit,
