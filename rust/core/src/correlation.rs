@@ -4,9 +4,9 @@
 
 use std::sync::Arc;
 
+use crate::basis::Basis;
 use crate::frame::{Inputs, LengthScales, Point};
 use crate::heading::HeadingKernel;
-use crate::basis::Basis;
 use crate::kernel::cross_headed;
 
 /// The correlation function of a pattern's GP: the squared exponential, or its reduced-rank

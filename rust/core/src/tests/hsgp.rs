@@ -5,7 +5,7 @@ use crate::frame::LengthScales;
 use crate::kernel;
 use crate::pattern::Pattern;
 use crate::pattern_model::{PatternModel, ReducedPattern};
-use crate::test_util::{frames, refs};
+use crate::test_util::{frames, headings, refs, refs_with};
 
 fn basis(m: [usize; 2]) -> Arc<Basis> {
     Arc::new(Basis::new([15.0, 50.0], [25.0, 70.0], m).unwrap())
@@ -240,26 +240,8 @@ fn dense_reduced_mean_in_weight_space_is_the_function_space_mean() {
     let mut p = params()[1];
     p.length_scales = p.length_scales.with_heading(0.8).unwrap();
     let fs = frames(3, 8);
-    let hs: Vec<Vec<f64>> = (fs.iter().enumerate())
-        .map(|(k, f)| {
-            (0..f.0.len())
-                .map(|i| {
-                    if (i + k) % 5 == 0 {
-                        f64::NAN
-                    } else {
-                        0.9 * (i + 2 * k) as f64 - 3.0
-                    }
-                })
-                .collect()
-        })
-        .collect();
-    let r: Vec<FrameRef> = (fs.iter().zip(&hs))
-        .map(|(f, h)| FrameRef {
-            xy: &f.0,
-            v: &f.1,
-            h,
-        })
-        .collect();
+    let hs = headings(&fs, 5, |i, k| 0.9 * (i + 2 * k) as f64 - 3.0);
+    let r = refs_with(&fs, &hs);
     let members: Vec<(usize, FrameRef)> = (0..6).map(|i| (i, r[i])).collect();
     let q_xy = [[3.0, 10.0], [20.0, 90.0], [-100.0, 0.0], [12.0, 55.0]];
     let q_h = [0.3, f64::NAN, 2.0, -2.5];

@@ -6,7 +6,7 @@ use crate::frame::{FrameRef, LengthScales};
 use crate::hsgp::HsgpPattern;
 use crate::pattern::Pattern;
 use crate::pattern_model::PatternModel;
-use crate::test_util::{frames, uniform};
+use crate::test_util::{frames, headings, refs_with, uniform};
 
 fn params(noise: f64) -> GpParams {
     let mut p = GpParams::new((6.0, 20.0), (1.5, 0.8), (noise, 0.3), (0.2, 20.0)).unwrap();
@@ -61,26 +61,8 @@ fn full_flags(pat: &dyn PatternModel, q: Inputs<'_>, f: f64) -> Vec<bool> {
 #[test]
 fn the_bound_is_above_the_posterior_variance_and_the_flags_are_the_full_solves() {
     let fs = frames(7, 60);
-    let hs: Vec<Vec<f64>> = (fs.iter().enumerate())
-        .map(|(k, f)| {
-            (0..f.0.len())
-                .map(|i| {
-                    if (i + k) % 6 == 0 {
-                        f64::NAN
-                    } else {
-                        (0.7 * (i + k) as f64).sin() * 3.0
-                    }
-                })
-                .collect()
-        })
-        .collect();
-    let refs: Vec<FrameRef> = (fs.iter().zip(&hs))
-        .map(|(f, h)| FrameRef {
-            xy: &f.0,
-            v: &f.1,
-            h,
-        })
-        .collect();
+    let hs = headings(&fs, 6, |i, k| (0.7 * (i + k) as f64).sin() * 3.0);
+    let refs = refs_with(&fs, &hs);
     let members: Vec<(usize, FrameRef)> = refs.iter().copied().enumerate().collect();
     let mut u = uniform(3);
     let mut qxy: Vec<Point> = (0..150)

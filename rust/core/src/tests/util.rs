@@ -38,6 +38,42 @@ pub fn refs(fs: &[(Vec<Point>, Vec<[f64; 2]>)]) -> Vec<FrameRef<'_>> {
 }
 
 /// Total variation between partition frequencies and the exact posterior over partitions.
+/// Previous headings of every point of `fs`: `NaN` where `(i + k) % nan_every == 0` (point `i`
+/// of frame `k`), else `angle(i, k)`.
+pub fn headings(
+    fs: &[(Vec<Point>, Vec<[f64; 2]>)],
+    nan_every: usize,
+    angle: impl Fn(usize, usize) -> f64,
+) -> Vec<Vec<f64>> {
+    (fs.iter().enumerate())
+        .map(|(k, f)| {
+            (0..f.0.len())
+                .map(|i| {
+                    if (i + k) % nan_every == 0 {
+                        f64::NAN
+                    } else {
+                        angle(i, k)
+                    }
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// [`refs`] with the previous headings `hs` (one vector per frame).
+pub fn refs_with<'a>(
+    fs: &'a [(Vec<Point>, Vec<[f64; 2]>)],
+    hs: &'a [Vec<f64>],
+) -> Vec<FrameRef<'a>> {
+    (fs.iter().zip(hs))
+        .map(|(f, h)| FrameRef {
+            xy: &f.0,
+            v: &f.1,
+            h,
+        })
+        .collect()
+}
+
 pub fn tv(freq: &HashMap<Vec<usize>, f64>, exact: &HashMap<Vec<usize>, f64>) -> f64 {
     0.5 * exact
         .iter()
