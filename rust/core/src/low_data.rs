@@ -24,8 +24,9 @@ const MAX_CELLS: usize = 64;
 const PER_CELL: f64 = 4.0;
 /// Rings of cells searched around a query's own.
 const RINGS: usize = 2;
-/// A bound decides "not low-data" only this far below the threshold, so that rounding in the
-/// two computations never clears a flag the full solve would set.
+/// A bound decides "not low-data" only this far (a share of the prior variance) below the
+/// threshold, so that rounding in the two computations never clears a flag the full solve would
+/// set (and at a threshold of 0, where any variance is a flag, it decides nothing).
 const MARGIN: f64 = 1e-9;
 
 /// A pattern's training points by grid cell over their bounding box (CSR: `starts` per cell).
@@ -162,7 +163,7 @@ pub(crate) fn flags(
         let decided = !m.corr.unsupported(p)
             && bound_at(m, grid, p, q.heading(j), &mut cand).is_some_and(|var| {
                 (m.groups.iter().zip(&var))
-                    .all(|(g, v)| g.0.iter().all(|&d| *v <= f * s2[d] * (1.0 - MARGIN)))
+                    .all(|(g, v)| g.0.iter().all(|&d| *v <= (f - MARGIN) * s2[d]))
             });
         if !decided {
             open.push(j);

@@ -124,7 +124,7 @@ fn the_bound_is_above_the_posterior_variance_and_the_flags_are_the_full_solves()
             }
             assert!(below > 50, "the bound decided almost nothing ({below})");
             let s2 = p.signal_var;
-            let mut thresholds = vec![0.02, 0.2, 0.5, 0.9];
+            let mut thresholds = vec![0.0, 0.02, 0.2, 0.5, 0.9];
             thresholds.extend([3, 40, 152].map(|j| var[j][0] / s2[0]));
             for f in thresholds {
                 let want = full_flags(&*pat, q, f);
