@@ -100,7 +100,7 @@ than :data:`MIN_DISTANCES`).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -510,9 +510,11 @@ def time_constants(
     pattern_steps: int = TAU_PATTERN_STEPS,
     held: tuple[FittedPatterns, int] | None = None,
     motion: MotionModel | None = None,
+    setup: HeldOut | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per pattern, the residual's time constant that best predicts held-out tracks, and how
-    many track-steps chose it (0: the pooled choice).
+    many track-steps chose it (0: the pooled choice). ``setup``: the caller's
+    :func:`_held_out_setup` of ``fit``, ``holdout`` and ``held``, when it has one.
 
     ``motion`` given: the frames are rolled out as :func:`~dpgp.generate.simulation.simulate`
     rolls out a recorded frame, by that motion model with interaction (:data:`ROLLOUT_DYNAMICS`,
@@ -536,10 +538,10 @@ def time_constants(
     at least :data:`TAU_PATTERN_STEPS` held-out track-steps takes its own minimiser."""
     K = fit.n_patterns
     default = np.full(K, DEFAULT_TAU), np.zeros(K, np.int64)
-    setup = _held_out_setup(fit, holdout, held)
+    setup = setup if setup is not None else _held_out_setup(fit, holdout, held)
     if setup is None:
         return default
-    roll, chosen, through, rows, steps = setup
+    roll, chosen, through, rows, steps = setup.roll, setup.chosen, setup.through, setup.rows, setup.steps
     frames, dt = fit.frames, fit.dt
     if motion is None:
         h0 = None if frames.prev_heading is None else frames.prev_heading[rows]
@@ -558,15 +560,26 @@ def time_constants(
     return tau, np.where(own, counts, 0).astype(np.int64)
 
 
+class HeldOut(NamedTuple):
+    """What the out-of-sample choices roll out (:func:`_held_out_setup`)."""
+
+    roll: FittedPatterns  # the fields that roll
+    chosen: np.ndarray  # the frames rolled out
+    through: np.ndarray  # the pattern each goes through
+    rows: np.ndarray  # their rows
+    steps: int
+    truth: np.ndarray  # (steps + 1, len(rows)): each vehicle's row h steps later (-1: not recorded)
+
+
 def _held_out_setup(
     fit: FittedPatterns, holdout: float | None, held: tuple[FittedPatterns, int] | None
-) -> tuple[FittedPatterns, np.ndarray, np.ndarray, np.ndarray, int] | None:
-    """What the out-of-sample choices roll out (:func:`time_constants`): the fields that roll
-    (``roll``), the frames rolled out (``chosen``), the pattern each goes through, their rows and
-    the steps; ``None`` with too few recorded track-steps."""
+) -> HeldOut | None:
+    """What :func:`time_constants` and :func:`accel_trust` roll out; ``None`` with too few
+    recorded track-steps."""
     frames, labels, dt = fit.frames, fit.labels, fit.dt
     steps = max(1, int(round(TAU_HORIZON / dt)))
-    if len(consecutive_pairs(frames, dt)[0]) < MIN_PAIRS:
+    a, b = consecutive_pairs(frames, dt)
+    if len(a) < MIN_PAIRS:
         return None
     n = len(frames)
     if holdout is None:
@@ -580,33 +593,25 @@ def _held_out_setup(
         pool = np.arange(cut, n)
     chosen = pool[np.unique(np.linspace(0, len(pool) - 1, min(TAU_FRAMES, len(pool))).round().astype(np.int64))]
     rows = np.concatenate([np.arange(frames.offsets[f], frames.offsets[f + 1]) for f in chosen])
-    if (_truth_rows(fit, rows, steps)[1:] >= 0).sum() < MIN_PAIRS:
-        return None
-    # rolled out through the pattern of the fields that roll it (a new frame's: predicted)
-    through = labels[chosen] if held is None else roll.predict(frames[chosen])
-    return roll, chosen, through, rows, steps
-
-
-def _truth_rows(fit: FittedPatterns, rows: np.ndarray, steps: int) -> np.ndarray:
-    """(steps + 1, len(rows)): the row of each vehicle's track h steps later (-1: not recorded)."""
-    a, b = consecutive_pairs(fit.frames, fit.dt)
-    nxt = np.full(fit.frames.n_points, -1, dtype=np.int64)
+    nxt = np.full(frames.n_points, -1, dtype=np.int64)
     nxt[a] = b
     truth = np.full((steps + 1, len(rows)), -1, dtype=np.int64)
     truth[0] = rows
     for h in range(1, steps + 1):
         prev = truth[h - 1]
         truth[h] = np.where(prev >= 0, nxt[np.maximum(prev, 0)], -1)
-    return truth
+    if (truth[1:] >= 0).sum() < MIN_PAIRS:
+        return None
+    # rolled out through the pattern of the fields that roll it (a new frame's: predicted)
+    through = labels[chosen] if held is None else roll.predict(frames[chosen])
+    return HeldOut(roll, chosen, through, rows, steps, truth)
 
 
-def _held_out_errors(fit: FittedPatterns, setup: tuple, pred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _held_out_errors(fit: FittedPatterns, setup: HeldOut, pred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Of the rollouts ``pred`` (steps + 1, n, G, 2) of :func:`_held_out_setup`'s frames: per
     candidate and pattern (of this fit) the summed distance to where the tracks really were over
     the steps they were recorded (G, K), and per pattern how many track-steps (K,)."""
-    frames, K = fit.frames, fit.n_patterns
-    _, chosen, _, rows, steps = setup
-    truth = _truth_rows(fit, rows, steps)
+    frames, K, chosen, truth = fit.frames, fit.n_patterns, setup.chosen, setup.truth
     known = truth[1:] >= 0
     dist = np.linalg.norm(pred[1:] - frames.xy[np.maximum(truth[1:], 0)][:, :, None, :], axis=-1)  # (steps, n, G)
     dist = np.where(known[:, :, None], dist, 0.0).sum(axis=0)  # (n, G)
@@ -616,22 +621,24 @@ def _held_out_errors(fit: FittedPatterns, setup: tuple, pred: np.ndarray) -> tup
     return errors, counts
 
 
-def accel_trust(fit: FittedPatterns, held: tuple[FittedPatterns, int] | None, model: MotionModel) -> float:
+def accel_trust(
+    fit: FittedPatterns, held: tuple[FittedPatterns, int] | None, model: MotionModel, setup: HeldOut | None = None
+) -> float:
     """The share of recorded accelerations the drivers of rollouts of recorded frames start from
     (:meth:`MotionModel.recorded_drivers`): of :data:`ACCEL_TRUSTS`, the one whose rollouts
     (interactive, each pattern at its ``τ_rollout``) predict the held-out tracks best, as
     :func:`time_constants` chooses ``τ_rollout``; 0 without previous velocities, car following,
     or enough tracks. On the SUMO junction (a 0.5 s step) the recorded acceleration of a vehicle
-    leaving a queue or a turn says where it will be; on NGSIM's Peachtree it is mostly noise."""
+    leaving a queue or a turn says where it will be; on NGSIM's Peachtree it is mostly noise.
+    ``setup``: as :func:`time_constants` takes it."""
     frames = fit.frames
     if frames.prev_v is None or model.agents != "vehicles" or not model.accel > 0:
         return 0.0
-    setup = _held_out_setup(fit, TAU_HOLDOUT, held)
+    setup = setup if setup is not None else _held_out_setup(fit, TAU_HOLDOUT, held)
     if setup is None:
         return 0.0
-    roll, chosen, through, _, steps = setup
     candidates = [replace(model, accel_trust=float(t)) for t in ACCEL_TRUSTS]
-    pred = interactive_rollouts(roll, candidates, frames[chosen], through, steps, fit.dt)
+    pred = interactive_rollouts(setup.roll, candidates, frames[setup.chosen], setup.through, setup.steps, fit.dt)
     errors, _ = _held_out_errors(fit, setup, pred)
     return float(ACCEL_TRUSTS[int(np.argmin(errors.sum(axis=1)))])
 
@@ -836,9 +843,11 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
 
 def _rollout_choice(fit: FittedPatterns, held: tuple[FittedPatterns, int] | None, model: MotionModel) -> MotionModel:
     """``model`` with ``τ_rollout`` chosen on held-out frames rolled out as ``simulate`` rolls
-    them: by this very model (its car following or personal distance), interacting."""
-    model = replace(model, tau_rollout=time_constants(fit, held=held, motion=model)[0])
-    return replace(model, accel_trust=accel_trust(fit, held, model)) if ACCEL_TRUST else model
+    them: by this very model (its car following or personal distance), interacting; then its
+    ``accel_trust`` on the same frames."""
+    setup = _held_out_setup(fit, TAU_HOLDOUT, held)
+    model = replace(model, tau_rollout=time_constants(fit, held=held, motion=model, setup=setup)[0])
+    return replace(model, accel_trust=accel_trust(fit, held, model, setup)) if ACCEL_TRUST else model
 
 
 def steering(

@@ -136,6 +136,12 @@ impl PointGrid {
     }
 }
 
+/// Whether latent variances `v` exceed `f` times the prior's `s2` in either output: the
+/// low-data flag of one point.
+pub(crate) fn is_low(v: [f64; 2], s2: [f64; 2], f: f64) -> bool {
+    (0..2).any(|d| v[d] > f * s2[d])
+}
+
 /// What the bound needs of a pattern: its training inputs, hyperparameters and kernel, and per
 /// output group `(outputs, σ², σ_n²)`.
 pub(crate) struct Model<'a> {
@@ -180,7 +186,7 @@ pub(crate) fn flags(
     };
     let var = full(Inputs { xy: &xy, h: &h });
     for (&j, v) in open.iter().zip(&var) {
-        out[j] = (0..2).any(|d| v[d] > f * s2[d]);
+        out[j] = is_low(*v, s2, f);
     }
     out
 }

@@ -50,7 +50,7 @@ pub trait PatternModel: Send + Sync + std::fmt::Debug {
         let (_, var) = self.posterior_at(q);
         let s2 = self.params().signal_var;
         var.iter()
-            .map(|v| (0..2).any(|d| v[d] > f * s2[d]))
+            .map(|&v| crate::low_data::is_low(v, s2, f))
             .collect()
     }
     /// Whether the field takes a heading beside the position.

@@ -493,7 +493,7 @@ impl Field for PatternField<'_> {
         let s2 = self.pattern.params().signal_var;
         if let Some(f) = self.low_data {
             for (j, flag) in info.low_data.iter_mut().enumerate() {
-                *flag = (0..2).any(|d| cov[d][j * m + j] > f * s2[d]);
+                *flag = crate::low_data::is_low([cov[0][j * m + j], cov[1][j * m + j]], s2, f);
             }
         }
         if let Some(seed) = seed {
