@@ -7,9 +7,12 @@ such velocity), while it is inside the ROI. The recordings' share is the same ru
 vehicles' own tracks for the same span. Prints one table: shares, vehicles, seconds.
 
     python benches/uturns.py [--only peachtree,sumo_junction] [--seconds 20] [--frames 150] [--models DIR]
+        [--max-curvature recorded]
 
 ``--models DIR`` keeps the fits as model files there (and loads them when present), so that a
-change to generation alone is compared before and after on the same fits.
+change to generation alone is compared before and after on the same fits. ``--max-curvature``
+adds a row for the fields over heading rolled out under that turning limit (``"recorded"`` or a
+number per unit length: :meth:`dpgp.DPGP.simulate`).
 """
 
 from __future__ import annotations
@@ -60,10 +63,12 @@ def recorded(test: dpgp.Frames, starts: np.ndarray, steps: int, speed: float) ->
     return out
 
 
-def simulated(model: dpgp.DPGP, test: dpgp.Frames, starts: np.ndarray, steps: int, speed: float) -> list[np.ndarray]:
+def simulated(
+    model: dpgp.DPGP, test: dpgp.Frames, starts: np.ndarray, steps: int, speed: float, limit: float | str | None = None
+) -> list[np.ndarray]:
     out = []
     for i in starts:
-        sim = model.simulate(test[int(i)], steps=steps, dynamics="field")
+        sim = model.simulate(test[int(i)], steps=steps, dynamics="field", max_curvature=limit)
         for j in range(sim.positions.shape[1]):
             inside = sim.in_roi[:, j]
             out.append(own_headings(sim.velocities[inside, j], speed))
@@ -78,6 +83,7 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=20)
     ap.add_argument("--likelihood", default="exact", choices=("exact", "hsgp"))
     ap.add_argument("--models", type=Path, help="folder to keep the fits in (loaded from there when present)")
+    ap.add_argument("--max-curvature", help="also roll the fields over heading out under this turning limit")
     args = ap.parse_args()
     sets = realism_datasets()
     rows = []
@@ -106,11 +112,22 @@ def main() -> None:
                 if kept is not None:
                     kept.parent.mkdir(parents=True, exist_ok=True)
                     model.save(kept)
-            share, n = reversed_share(simulated(model, test, starts, steps, speed))
-            rows.append(
-                {"data": name, "source": inputs, "reversed": share, "vehicles": n, "seconds": time.perf_counter() - t0}
-            )
-            print(rows[-1], flush=True)
+            limits: list[float | str | None] = [None]
+            if args.max_curvature is not None and inputs == "position+heading":
+                limits.append(args.max_curvature if args.max_curvature == "recorded" else float(args.max_curvature))
+            for limit in limits:
+                share, n = reversed_share(simulated(model, test, starts, steps, speed, limit))
+                source = inputs if limit is None else f"{inputs}, turning limit {limit}"
+                rows.append(
+                    {
+                        "data": name,
+                        "source": source,
+                        "reversed": share,
+                        "vehicles": n,
+                        "seconds": time.perf_counter() - t0,
+                    }
+                )
+                print(rows[-1], flush=True)
     print(pd.DataFrame(rows).to_string(index=False, float_format=lambda x: f"{x:.3g}"))
 
 

@@ -103,6 +103,7 @@ def rollouts(
     seeds: list[int] | None = None,
     low_data: float | None = None,
     headings: _Headings | None = None,
+    max_curvature: float | None = None,
 ) -> _RolloutArrays: ...
 def motion_rollouts(
     sampler: Sampler,

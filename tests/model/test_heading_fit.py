@@ -4,6 +4,8 @@ scored with the frames' headings."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -166,3 +168,52 @@ def test_long_scenarios_and_exports_run_through_fields_over_heading(one_line, tm
     scenes = headed.sample_scenarios(3, steps=6, seed=6, roi=ROI)
     scenes.to_sumo(tmp_path / "routes.xml")
     assert (tmp_path / "routes.xml").stat().st_size > 0
+
+
+def test_the_recorded_turning_limit_is_the_frames_curvature_quantile(one_line) -> None:
+    """``max_curvature="recorded"``: the 99th percentile of |heading change| / (speed dt) over the
+    moving rows of known previous heading, against a plain loop over the rows."""
+    from dpgp.generate.headings import recorded_curvature
+
+    _, headed, frames = one_line
+    fit = headed._fitted()
+    curvatures = []
+    for (vx, vy), h in zip(frames.v, frames.prev_heading):
+        speed = math.hypot(vx, vy)
+        if math.isnan(h) or speed < 0.5:
+            continue
+        turn = abs(math.remainder(math.atan2(vy, vx) - h, 2 * math.pi))
+        curvatures.append(turn / (speed * fit.dt))
+    assert len(curvatures) > 100
+    assert recorded_curvature(fit) == pytest.approx(np.percentile(curvatures, 99), rel=1e-12, abs=1e-15)
+
+
+def test_a_turning_limit_turns_pure_field_vehicles_only_with_their_path(one_line) -> None:
+    _, headed, frames = one_line
+    i = int(np.argmax(frames.sizes))
+    free = headed.simulate(i, steps=6, dynamics="field", roi=ROI)
+    # a limit beyond any turn the field asks for is the pure field, to the bit
+    loose = headed.simulate(i, steps=6, dynamics="field", roi=ROI, max_curvature=1e9)
+    np.testing.assert_array_equal(loose.positions, free.positions)
+    np.testing.assert_array_equal(loose.velocities, free.velocities)
+    # a limit of almost nothing: every velocity keeps its vehicle's start heading, or stands
+    stiff = headed.simulate(i, steps=6, dynamics="field", roi=ROI, max_curvature=1e-12)
+    f = frames[i]  # start headings: the recorded ones, at a first appearance the own velocity's
+    start = np.where(np.isnan(f.prev_heading), np.arctan2(f.v[:, 1], f.v[:, 0]), f.prev_heading)
+    v = stiff.velocities[stiff.in_roi]
+    h = np.broadcast_to(start, stiff.in_roi.shape)[stiff.in_roi]
+    across = -np.sin(h) * v[:, 0] + np.cos(h) * v[:, 1]
+    along = np.cos(h) * v[:, 0] + np.sin(h) * v[:, 1]
+    assert np.all(np.abs(across) <= 1e-9 * (1 + np.abs(along))) and np.all(along >= 0), (across, along)
+    assert np.any(along > 3.0)  # the vehicles still drive
+
+
+def test_a_turning_limit_is_checked(one_line) -> None:
+    blind, headed, _ = one_line
+    with pytest.raises(InvalidInputError, match="over position"):
+        blind.simulate(0, steps=2, dynamics="field", max_curvature="recorded")
+    with pytest.raises(InvalidInputError, match="pure field"):
+        headed.simulate(0, steps=2, dynamics="relaxed", max_curvature=0.1)
+    for bad in ("fast", -1.0, 0.0, float("nan"), float("inf"), True):
+        with pytest.raises(InvalidInputError, match="max_curvature"):
+            headed.simulate(0, steps=2, dynamics="field", max_curvature=bad)

@@ -18,7 +18,9 @@ from typing import Any
 
 import numpy as np
 
+from .._validate import real_number
 from ..data._previous import HEADING_MIN_SPEED, in_frame_units, own_headings
+from ..exceptions import InvalidInputError
 
 
 def heading_speed(fit: Any) -> float:
@@ -60,3 +62,52 @@ def carried(velocities: np.ndarray, start: np.ndarray, min_speed: float) -> np.n
 
 
 __all__ = ["heading_speed", "start_headings", "for_core", "carried"]
+
+
+#: The share of recorded moving steps whose curvature the learned turning limit allows.
+CURVATURE_QUANTILE = 99.0
+
+
+def recorded_curvature(fit: Any, quantile: float = CURVATURE_QUANTILE) -> float:
+    """The turning limit the training frames show (per unit of their length): the ``quantile``-th
+    percentile of ``|Δheading| / (speed · dt)`` over the rows whose previous heading is known
+    and whose velocity is at least the heading speed fast (``Δheading``: from the previous heading
+    to the velocity's, wrapped to ``[0, π]``; ``dt`` the frames' time step). A minimum turning radius
+    of ``1 / κ``: vehicles turn with the path they drive."""
+    frames = fit.frames
+    h = frames.prev_heading
+    speed = np.hypot(frames.v[:, 0], frames.v[:, 1])
+    rows = np.isfinite(h) & (speed >= max(heading_speed(fit), np.finfo(float).tiny))
+    if not rows.any():
+        raise InvalidInputError(
+            "the training frames hold no moving vehicle with a previous heading to learn a turning "
+            "limit from: pass max_curvature as a number (per unit length)"
+        )
+    turn = np.abs(np.angle(np.exp(1j * (np.arctan2(frames.v[rows, 1], frames.v[rows, 0]) - h[rows]))))
+    return float(np.percentile(turn / (speed[rows] * fit.dt), quantile))
+
+
+def check_max_curvature(value: Any, fit: Any, dynamics: str) -> float | None:
+    """``max_curvature`` checked: ``None`` (the pure field), ``"recorded"``
+    (:func:`recorded_curvature`) or a positive number per unit length; a limit needs the pure
+    field (``dynamics="field"``) of a fit over heading."""
+    if value is None:
+        return None
+    if not getattr(fit, "headed", False):
+        raise InvalidInputError(
+            "max_curvature limits the turning of vehicles in fields over heading; this model's fields "
+            "are over position (fit with inputs='position+heading')"
+        )
+    if dynamics != "field":
+        raise InvalidInputError(
+            f"max_curvature is a limit of the pure field (dynamics='field'), not of {dynamics!r} dynamics, "
+            "whose drivers steer with their own time constant"
+        )
+    if isinstance(value, str):
+        if value != "recorded":
+            raise InvalidInputError(f"max_curvature must be 'recorded', a positive number or None, got {value!r}")
+        return recorded_curvature(fit)
+    k = real_number("max_curvature", value)
+    if not (np.isfinite(k) and k > 0):
+        raise InvalidInputError(f"max_curvature must be a positive number per unit length, got {value!r}")
+    return k

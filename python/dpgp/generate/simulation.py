@@ -45,7 +45,7 @@ from .._validate import check_roi, real_number
 from ..data.frames import Frame, Frames
 from ..exceptions import InvalidInputError, ShapeError
 from ..gp.fitted import DEFAULT_DT, FittedPatterns, as_fitted, frames_dt, frames_roi
-from .headings import for_core, heading_speed, start_headings
+from .headings import check_max_curvature, for_core, heading_speed, start_headings
 from .motion import field_means, motion_model
 from .rollout import Simulation, motion_rollouts, split
 from .rollout import motion_records as motion_records  # re-exported: its home before rollout.py
@@ -135,11 +135,12 @@ def rollouts(
     roi: tuple[float, float, float, float],
     low_data_threshold: float | None,
     headings: list[np.ndarray] | None = None,
+    max_curvature: float | None = None,
 ) -> list[Simulation]:
     """Many rollouts in one call into the core (run in parallel): ``starts[i]`` (l_i, 2) through
     pattern ``patterns[i]``, stochastic with ``seeds[i]`` when ``seeds`` is given; a fit over
     heading starts the vehicles at ``headings[i]`` (l_i,) (:mod:`.headings`; ``NaN`` or none:
-    unknown)."""
+    unknown); ``max_curvature``: the turning limit of fields over heading (:mod:`.headings`)."""
     _check_rows(int(steps) + 1, f"a time axis of {steps} steps", "ask for fewer steps")  # allocated even for no rollout
     sizes = np.array([len(s) for s in starts], dtype=np.int64)
     offsets = np.r_[0, np.cumsum(sizes)].astype(np.int64)
@@ -157,6 +158,7 @@ def rollouts(
         seeds,
         low_data_threshold,
         for_core(fit, np.concatenate(headings) if headings else None),
+        max_curvature,
     )
     return split(
         pos,
@@ -243,6 +245,7 @@ def simulate(
     roi: tuple[float, float, float, float] | None = None,
     low_data_threshold: float | None = LOW_DATA_THRESHOLD,
     dynamics: str | None = None,
+    max_curvature: float | str | None = None,
 ) -> Simulation:
     """Roll the vehicles of ``frame`` forward through a pattern; see :meth:`dpgp.DPGP.simulate`.
     ``model``: a :class:`~dpgp.fitted.FittedPatterns` (or a fitted estimator, which hands one down)."""
@@ -264,6 +267,7 @@ def simulate(
     box = fit.roi if roi is None else check_roi(roi)
     dt = fit.dt if dt is None else float(dt)
     dynamics = check_dynamics(dynamics, method)
+    kappa = check_max_curvature(max_curvature, fit, dynamics)
     if dynamics != "field":
         if v is None:  # positions only: start on the field
             v = field_means(fit, xy, np.full(len(xy), k), h)
@@ -285,6 +289,7 @@ def simulate(
         roi=box,
         low_data_threshold=thr,
         headings=[h],
+        max_curvature=kappa,
     )[0]
 
 

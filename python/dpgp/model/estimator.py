@@ -1465,6 +1465,7 @@ class DPGP:
         roi: tuple[float, float, float, float] | None = None,
         low_data_threshold: float | None = LOW_DATA_THRESHOLD,
         dynamics: str | None = None,
+        max_curvature: float | str | None = None,
     ) -> Any:
         """Roll the vehicles of ``frame`` (a training frame's index, a :class:`Frame`, or an
         ``(l, 2)``/``(l, 4)`` array) forward through pattern ``pattern`` (default: a training
@@ -1478,12 +1479,16 @@ class DPGP:
         model, vehicles keeping their gaps; ``"relaxed"`` without interaction; ``"field"`` the
         paper's rollout (the mean field itself; ``method="rk4"`` needs it, and ``None``, the
         default, means ``"interactive"``, or ``"field"`` with ``method="rk4"``).
-        Returns a :class:`dpgp.simulation.Simulation`."""
+        ``max_curvature`` (the pure field over heading): a vehicle turns by at most this many
+        radians per unit of the path the field asks it to drive, and never drives backward
+        (``"recorded"``: the 99th percentile of the training frames' curvature; ``None``: the pure
+        field; docs/heading.md). Returns a :class:`dpgp.simulation.Simulation`."""
         from ..generate.simulation import simulate
 
         return simulate(
-            self._fitted(), frame, pattern, steps, dt, method, stochastic, seed, roi, low_data_threshold, dynamics
-        )
+            self._fitted(), frame, pattern, steps, dt, method, stochastic, seed, roi, low_data_threshold, dynamics,
+            max_curvature,
+        )  # fmt: skip
 
     def sample_scenarios(
         self, n: int, steps: int = 100, pattern: int | None = None, seed: int | None = None, **options: Any

@@ -13,8 +13,9 @@
 // Module layers, bottom to top; a module uses only modules of a lower layer (checked by
 // tests/test_layout_rust.py, which fails on any circle):
 //   1. error, special, vexp, rng, slice        (no crate imports but error)
-//   2. frame, heading                          (Point, LengthScales, FrameRef; the periodic
-//                                              kernel over the previous heading)
+//   2. frame, heading, turning                 (Point, LengthScales, FrameRef; the periodic
+//                                              kernel over the previous heading; the turning
+//                                              limit of pure-field rollouts)
 //   3. linalg, small, factor, kernel           (dense algebra, the squared-exponential kernel)
 //   4. gp                                      (a pattern's GP parameters)
 //   5. basis, hsgp_sums, hsgp                  (the reduced-rank basis, its sums, its patterns)
@@ -54,6 +55,7 @@ pub mod slice;
 pub mod small;
 pub mod special;
 pub mod subcluster;
+pub mod turning;
 
 #[cfg(test)]
 #[path = "tests/util.rs"]

@@ -92,10 +92,20 @@ pub struct Options {
     pub steps: usize,
     pub method: Method,
     pub roi: Roi,
+    /// Fields over heading: the turning limit `κ_max` (per unit length) of each step
+    /// ([`crate::turning`]); `None`: the pure field.
+    pub max_curvature: Option<f64>,
 }
 
 impl Options {
     fn validate(&self, vehicles: usize) -> Result<()> {
+        if let Some(k) = self.max_curvature
+            && !(k.is_finite() && k > 0.0)
+        {
+            return Err(Error::InvalidInput(format!(
+                "max_curvature must be a positive number per unit length, got {k}"
+            )));
+        }
         if !(self.dt.is_finite() && self.dt > 0.0) {
             return Err(Error::InvalidInput(format!(
                 "dt must be a positive number of seconds, got {}",
@@ -192,6 +202,11 @@ impl HeadingTrack {
         field.set_headings(&h);
     }
 
+    /// Vehicle `j`'s previous heading (`NaN`: unknown).
+    pub fn heading(&self, j: usize) -> f64 {
+        self.h[j]
+    }
+
     /// Vehicle `j` moved with velocity `v`.
     pub fn moved(&mut self, j: usize, v: [f64; 2]) {
         if v[0].hypot(v[1]) >= self.min_speed.max(f64::MIN_POSITIVE) {
@@ -281,6 +296,18 @@ pub fn integrate(start: &[Point], opts: &Options, field: &mut dyn Field) -> Resu
     let (l, dt) = (start.len(), opts.dt);
     let rows = (opts.steps + 1) * l;
     let mut track = HeadingTrack::of(field, l)?;
+    if opts.max_curvature.is_some() && track.is_none() {
+        return Err(Error::InvalidInput(
+            "a turning limit (max_curvature) needs a field over heading: the vehicles' headings"
+                .into(),
+        ));
+    }
+    // With a turning limit, what a vehicle moves with (and is recorded with) is the limited step.
+    let limit =
+        |track: &Option<HeadingTrack>, j: usize, v: [f64; 2]| match (opts.max_curvature, track) {
+            (Some(k), Some(track)) => crate::turning::turn_limited(track.heading(j), v, k, dt),
+            _ => v,
+        };
     for t in 0..=opts.steps {
         let row = t * l;
         let active: Vec<usize> = (0..l).filter(|&j| out.in_roi[row + j]).collect();
@@ -305,7 +332,7 @@ pub fn integrate(start: &[Point], opts: &Options, field: &mut dyn Field) -> Resu
             };
             let k1 = eval(field, &x)?;
             for (a, &j) in active.iter().enumerate() {
-                out.velocities[row + j] = k1[a];
+                out.velocities[row + j] = limit(&track, j, k1[a]);
                 out.low_data[row + j] = info.low_data[a];
             }
             if t == opts.steps {
@@ -328,9 +355,13 @@ pub fn integrate(start: &[Point], opts: &Options, field: &mut dyn Field) -> Resu
                 }
             };
             for (a, &j) in active.iter().enumerate() {
-                next[j] = [x[a][0] + dt * step[a][0], x[a][1] + dt * step[a][1]];
+                let v = limit(&track, j, step[a]);
+                if opts.max_curvature.is_some() {
+                    out.velocities[row + j] = v; // RK4: the limited step, not its first stage
+                }
+                next[j] = [x[a][0] + dt * v[0], x[a][1] + dt * v[1]];
                 if let Some(track) = track.as_mut() {
-                    track.moved(j, step[a]);
+                    track.moved(j, v);
                 }
             }
         } else if t == opts.steps {

@@ -41,6 +41,17 @@ fn options(
     method: &str,
     roi: Option<(f64, f64, f64, f64)>,
 ) -> CoreResult<Options> {
+    limited(dt, steps, method, roi, None)
+}
+
+/// [`options`] with a turning limit (pure-field rollouts over heading).
+fn limited(
+    dt: f64,
+    steps: usize,
+    method: &str,
+    roi: Option<(f64, f64, f64, f64)>,
+    max_curvature: Option<f64>,
+) -> CoreResult<Options> {
     let roi = match roi {
         Some((a, b, c, d)) => Roi::new(a, b, c, d)?,
         None => Roi::everywhere(),
@@ -50,6 +61,7 @@ fn options(
         steps,
         method: Method::parse(method)?,
         roi,
+        max_curvature,
     })
 }
 
@@ -72,9 +84,10 @@ fn arrays(py: Python<'_>, rollouts: Vec<Rollout>) -> Arrays<'_> {
 
 /// Roll out groups of vehicles, group `i` (rows `offsets[i]..offsets[i+1]` of `start`) through
 /// the pattern in `slots[i]`, stochastic with `seeds[i]` if given. Returns positions, velocities
-/// (rows: group, then time, then vehicle), in-ROI and low-data flags.
+/// (rows: group, then time, then vehicle), in-ROI and low-data flags. `max_curvature`: the
+/// turning limit of fields over heading (`dpgp_core::turning`).
 #[pyfunction]
-#[pyo3(signature = (sampler, slots, start, offsets, dt, steps, method, roi=None, seeds=None, low_data=None, headings=None))]
+#[pyo3(signature = (sampler, slots, start, offsets, dt, steps, method, roi=None, seeds=None, low_data=None, headings=None, max_curvature=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn rollouts<'py>(
     py: Python<'py>,
@@ -89,8 +102,9 @@ pub fn rollouts<'py>(
     seeds: Option<Vec<u64>>,
     low_data: Option<f64>,
     headings: Headings<'py>,
+    max_curvature: Option<f64>,
 ) -> PyResult<Arrays<'py>> {
-    let opts = options(dt, steps, method, roi)?;
+    let opts = limited(dt, steps, method, roi, max_curvature)?;
     let start: &[Point] = pairs("start", &start)?;
     let offsets = offsets_of(&offsets, slots.len(), start.len())?;
     check_seeds(&seeds, slots.len())?;

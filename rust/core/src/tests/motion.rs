@@ -24,6 +24,7 @@ fn opts(dt: f64, steps: usize) -> Options {
         steps,
         method: Method::Euler,
         roi: Roi::everywhere(),
+        max_curvature: None,
     }
 }
 

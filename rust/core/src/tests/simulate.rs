@@ -11,6 +11,7 @@ fn opts(dt: f64, steps: usize, method: Method) -> Options {
         steps,
         method,
         roi: Roi::everywhere(),
+        max_curvature: None,
     }
 }
 
@@ -99,6 +100,7 @@ fn vehicles_stop_when_they_leave_the_roi() {
         steps: 8,
         method: Method::Euler,
         roi,
+        max_curvature: None,
     };
     let start = [[0.0, 0.0], [5.0, 0.0], [20.0, 0.0]];
     let r = integrate(&start, &o, &mut |q: &[Point]| Ok(vec![[2.0, 0.0]; q.len()])).unwrap();
@@ -399,4 +401,79 @@ fn a_heading_track_keeps_the_last_heading_fast_enough_to_be_one() {
         .unwrap()
         .with_headings(vec![f64::INFINITY, 0.0], 0.5);
     assert!(HeadingTrack::of(&bad, 2).is_err());
+}
+
+/// A field over heading that always answers `v` (the start headings as given).
+struct Headed {
+    v: [f64; 2],
+    start: Vec<f64>,
+}
+
+impl Field for Headed {
+    fn velocity(&mut self, q: &[Point]) -> Result<Vec<[f64; 2]>> {
+        Ok(vec![self.v; q.len()])
+    }
+    fn start_headings(&self) -> Option<(&[f64], f64)> {
+        Some((&self.start, 0.5))
+    }
+}
+
+/// Under a turning limit a vehicle heading east in a field pointing back west stands; in a field
+/// pointing north it turns by `κ |v| dt` a step at most, the heading it records each step, and
+/// arrives at the field's direction; without the limit it follows the field at once.
+#[test]
+fn a_turning_limit_turns_vehicles_by_their_path_and_never_backward() {
+    let mut o = opts(0.5, 20, Method::Euler);
+    o.max_curvature = Some(0.2);
+    let mut back = Headed {
+        v: [-3.0, 0.1],
+        start: vec![0.0],
+    };
+    let r = integrate(&[[0.0, 0.0]], &o, &mut back).unwrap();
+    assert!(
+        r.positions.iter().all(|p| p == &[0.0, 0.0]),
+        "{:?}",
+        &r.positions[..3]
+    );
+    let mut north = Headed {
+        v: [0.0, 4.0],
+        start: vec![0.0],
+    };
+    let r = integrate(&[[0.0, 0.0]], &o, &mut north).unwrap();
+    let mut h = 0.0f64;
+    for t in 0..20 {
+        let v = r.velocities[t];
+        let (now, speed) = (v[1].atan2(v[0]), v[0].hypot(v[1]));
+        assert!(
+            now - h <= 0.2 * 4.0 * 0.5 + 1e-12 && now >= h - 1e-12,
+            "step {t}: {h} -> {now}"
+        );
+        assert!(speed <= 4.0 + 1e-12);
+        h = now;
+    }
+    assert!((h - std::f64::consts::FRAC_PI_2).abs() < 1e-12, "{h}");
+    o.max_curvature = None;
+    let r = integrate(&[[0.0, 0.0]], &o, &mut north).unwrap();
+    assert_eq!(r.velocities[0], [0.0, 4.0]);
+}
+
+#[test]
+fn a_turning_limit_needs_headings_and_a_positive_curvature() {
+    let mut o = opts(0.5, 2, Method::Euler);
+    o.max_curvature = Some(0.2);
+    let err = integrate(&[[0.0, 0.0]], &o, &mut |q: &[Point]| {
+        Ok(vec![[1.0, 0.0]; q.len()])
+    });
+    assert!(matches!(err, Err(Error::InvalidInput(_))));
+    for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        o.max_curvature = Some(bad);
+        let mut f = Headed {
+            v: [1.0, 0.0],
+            start: vec![0.0],
+        };
+        assert!(matches!(
+            integrate(&[[0.0, 0.0]], &o, &mut f),
+            Err(Error::InvalidInput(_))
+        ));
+    }
 }
