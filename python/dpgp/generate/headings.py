@@ -61,9 +61,6 @@ def carried(velocities: np.ndarray, start: np.ndarray, min_speed: float) -> np.n
     return h
 
 
-__all__ = ["heading_speed", "start_headings", "for_core", "carried"]
-
-
 #: The share of recorded moving steps whose curvature the learned turning limit allows.
 CURVATURE_QUANTILE = 99.0
 
@@ -111,3 +108,14 @@ def check_max_curvature(value: Any, fit: Any, dynamics: str) -> float | None:
     if not (np.isfinite(k) and k > 0):
         raise InvalidInputError(f"max_curvature must be a positive number per unit length, got {value!r}")
     return k
+
+
+__all__ = [
+    "heading_speed",
+    "start_headings",
+    "for_core",
+    "carried",
+    "recorded_curvature",
+    "check_max_curvature",
+    "CURVATURE_QUANTILE",
+]
