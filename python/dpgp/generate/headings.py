@@ -70,8 +70,12 @@ def recorded_curvature(fit: Any, quantile: float = CURVATURE_QUANTILE) -> float:
     percentile of ``|Δheading| / (speed · dt)`` over the rows whose previous heading is known
     and whose velocity is at least the heading speed fast (``Δheading``: from the previous heading
     to the velocity's, wrapped to ``[0, π]``; ``dt`` the frames' time step). A minimum turning radius
-    of ``1 / κ``: vehicles turn with the path they drive."""
+    of ``1 / κ``: vehicles turn with the path they drive. Kept in the fit's cache (for its frames)
+    at the default quantile."""
     frames = fit.frames
+    cached = fit.cache.get("max_curvature")
+    if quantile == CURVATURE_QUANTILE and cached is not None and cached[0] is frames:
+        return float(cached[1])
     h = frames.prev_heading
     speed = np.hypot(frames.v[:, 0], frames.v[:, 1])
     rows = np.isfinite(h) & (speed >= max(heading_speed(fit), np.finfo(float).tiny))
@@ -81,7 +85,10 @@ def recorded_curvature(fit: Any, quantile: float = CURVATURE_QUANTILE) -> float:
             "limit from: pass max_curvature as a number (per unit length)"
         )
     turn = np.abs(np.angle(np.exp(1j * (np.arctan2(frames.v[rows, 1], frames.v[rows, 0]) - h[rows]))))
-    return float(np.percentile(turn / (speed[rows] * fit.dt), quantile))
+    kappa = float(np.percentile(turn / (speed[rows] * fit.dt), quantile))
+    if quantile == CURVATURE_QUANTILE:
+        fit.cache["max_curvature"] = (frames, kappa)
+    return kappa
 
 
 def check_max_curvature(value: Any, fit: Any, dynamics: str) -> float | None:

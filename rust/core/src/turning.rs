@@ -21,7 +21,8 @@ pub fn turn_limited(h: f64, v: [f64; 2], kappa: f64, dt: f64) -> [f64; 2] {
     if !h.is_finite() || speed == 0.0 {
         return v;
     }
-    let want = wrap(v[1].atan2(v[0]) - h);
+    let d = v[1].atan2(v[0]) - h;
+    let want = d.sin().atan2(d.cos()); // wrapped to [−π, π]
     let reach = kappa * speed * dt;
     if want.abs() <= reach {
         return v;
@@ -30,16 +31,6 @@ pub fn turn_limited(h: f64, v: [f64; 2], kappa: f64, dt: f64) -> [f64; 2] {
     let along = (speed * (want - turn).cos()).max(0.0);
     let (s, c) = (h + turn).sin_cos();
     [along * c, along * s]
-}
-
-/// `a` wrapped into `(-π, π]`.
-fn wrap(a: f64) -> f64 {
-    let w = a.rem_euclid(std::f64::consts::TAU);
-    if w > std::f64::consts::PI {
-        w - std::f64::consts::TAU
-    } else {
-        w
-    }
 }
 
 #[cfg(test)]

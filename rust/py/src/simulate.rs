@@ -40,16 +40,6 @@ fn options(
     steps: usize,
     method: &str,
     roi: Option<(f64, f64, f64, f64)>,
-) -> CoreResult<Options> {
-    limited(dt, steps, method, roi, None)
-}
-
-/// [`options`] with a turning limit (pure-field rollouts over heading).
-fn limited(
-    dt: f64,
-    steps: usize,
-    method: &str,
-    roi: Option<(f64, f64, f64, f64)>,
     max_curvature: Option<f64>,
 ) -> CoreResult<Options> {
     let roi = match roi {
@@ -104,7 +94,7 @@ pub fn rollouts<'py>(
     headings: Headings<'py>,
     max_curvature: Option<f64>,
 ) -> PyResult<Arrays<'py>> {
-    let opts = limited(dt, steps, method, roi, max_curvature)?;
+    let opts = options(dt, steps, method, roi, max_curvature)?;
     let start: &[Point] = pairs("start", &start)?;
     let offsets = offsets_of(&offsets, slots.len(), start.len())?;
     check_seeds(&seeds, slots.len())?;
@@ -272,7 +262,7 @@ pub fn motion_rollouts<'py>(
     Bound<'py, PyArray1<bool>>,
     Bound<'py, PyArray2<f64>>,
 )> {
-    let opts = options(dt, steps, "euler", roi)?;
+    let opts = options(dt, steps, "euler", roi, None)?;
     let start: &[Point] = pairs("start", &start)?;
     let vel: &[[f64; 2]] = pairs("velocities", &velocities)?;
     if vel.len() != start.len() {
@@ -426,7 +416,7 @@ pub fn scene_rollouts<'py>(
             .into());
         }
     };
-    let opts = options(dt, steps, "euler", roi)?;
+    let opts = options(dt, steps, "euler", roi, None)?;
     if [counts.len(), grid.len(), spacing.len(), seeds.len()] != [n; 4] {
         return Err(CoreError(Error::Shape(format!(
             "counts, grid, spacing and seeds need one entry per scenario ({n})"
@@ -509,7 +499,7 @@ pub fn integrate_affine<'py>(
     method: &str,
     roi: Option<(f64, f64, f64, f64)>,
 ) -> PyResult<Arrays<'py>> {
-    let opts = options(dt, steps, method, roi)?;
+    let opts = options(dt, steps, method, roi, None)?;
     let start: &[Point] = pairs("start", &start)?;
     let mut field = |q: &[Point]| -> dpgp_core::Result<Vec<[f64; 2]>> {
         Ok(q.iter()
