@@ -97,6 +97,10 @@ impl Field for AtFreeSpeed<'_> {
         self.inner.step_start(step, q)
     }
 
+    fn deferred_low_data(&mut self) -> Result<Vec<bool>> {
+        self.inner.deferred_low_data()
+    }
+
     fn support(&mut self, q: &[Point]) -> Result<Option<Vec<f64>>> {
         self.inner.support(q)
     }

@@ -8,6 +8,9 @@
 //! points (a `k x k` system under the pattern's own kernel) bounds the full one from above: where
 //! that bound is below the threshold the flag is off, exactly. Points the bound cannot decide
 //! (near or over the threshold, no neighbours, outside a reduced basis's box) take the full solve.
+//! A rollout asks for the flags of all its steps at once, after its last step (they move no
+//! vehicle: `simulate::LateFlags`), so those solves are one with many right-hand sides: asked step
+//! by step, each read the pattern's whole factor (9 MB at `M` 1,084) for a few points.
 
 use crate::correlation::Correlation;
 use crate::frame::{Inputs, Point};

@@ -41,7 +41,7 @@ use rand_distr::{Distribution, StandardNormal};
 use crate::error::{Error, Result};
 use crate::frame::Point;
 use crate::rng::{Phase, stream};
-use crate::simulate::{Field, HeadingTrack, Method, Options, Rollout};
+use crate::simulate::{Field, HeadingTrack, LateFlags, Method, Options, Rollout};
 
 /// Stream entity of the residual's innovations (entity 0 is the GP draw at step 0).
 const NOISE_ENTITY: u64 = 1;
@@ -788,6 +788,7 @@ pub fn drive_on(
     let mut vel = vec![[0.0; 2]; l]; // actual velocities
     // a field over heading is asked at each vehicle's previous heading (its last actual velocity's)
     let mut track = HeadingTrack::of(field, l)?;
+    let mut late = LateFlags::default();
     for t in 0..=opts.steps {
         let row = t * l;
         let active: Vec<usize> = (0..l).filter(|&j| out.in_roi[row + j]).collect();
@@ -797,6 +798,7 @@ pub fn drive_on(
                 track.tell(field, &active);
             }
             let info = field.step_start(t, &x)?;
+            late.note(&info, row, &active);
             let mean = field.velocity(&x)?;
             if mean.len() != x.len()
                 || info.low_data.len() != x.len()
@@ -955,6 +957,7 @@ pub fn drive_on(
         }
         out.positions.extend_from_slice(&next);
     }
+    late.fill(field, &mut out.low_data)?;
     out.drivers = if motion.tau_heading.is_some() {
         steering
     } else {

@@ -127,8 +127,11 @@ impl Options {
 pub struct StepInfo {
     /// Added to every stage's velocity during the step (a stochastic draw's deviation from the mean).
     pub offset: Vec<[f64; 2]>,
-    /// The vehicle is where the field has little data.
+    /// The vehicle is where the field has little data (all `false` when `deferred`).
     pub low_data: Vec<bool>,
+    /// The field puts this step's flags off to the end of the rollout, where it answers every
+    /// step's at once ([`Field::deferred_low_data`]): one batched solve instead of one per step.
+    pub deferred: bool,
 }
 
 /// A velocity field the integrator queries in batches.
@@ -142,7 +145,14 @@ pub trait Field {
         Ok(StepInfo {
             offset: vec![[0.0; 2]; q.len()],
             low_data: vec![false; q.len()],
+            deferred: false,
         })
+    }
+
+    /// The flags of every step whose [`StepInfo::deferred`] was set, in the order they were
+    /// asked (step by step, vehicle by vehicle); called once, after the last step.
+    fn deferred_low_data(&mut self) -> Result<Vec<bool>> {
+        Ok(Vec::new())
     }
 
     /// How much the field knows at each point of `q`, from 0 (its prior: no data) to 1, or
@@ -308,6 +318,7 @@ pub fn integrate(start: &[Point], opts: &Options, field: &mut dyn Field) -> Resu
             (Some(k), Some(track)) => crate::turning::turn_limited(track.heading(j), v, k, dt),
             _ => v,
         };
+    let mut late = LateFlags::default();
     for t in 0..=opts.steps {
         let row = t * l;
         let active: Vec<usize> = (0..l).filter(|&j| out.in_roi[row + j]).collect();
@@ -321,6 +332,7 @@ pub fn integrate(start: &[Point], opts: &Options, field: &mut dyn Field) -> Resu
             let info = field.step_start(t, &x)?;
             check_len("step offset", info.offset.len(), x.len())?;
             check_len("low-data flags", info.low_data.len(), x.len())?;
+            late.note(&info, row, &active);
             let off = info.offset;
             let eval = |field: &mut dyn Field, q: &[Point]| -> Result<Vec<[f64; 2]>> {
                 let v = field.velocity(q)?;
@@ -380,6 +392,7 @@ pub fn integrate(start: &[Point], opts: &Options, field: &mut dyn Field) -> Resu
         out.positions.extend_from_within(last..last + l);
         out.in_roi.extend(std::iter::repeat_n(false, l));
     }
+    late.fill(field, &mut out.low_data)?;
     Ok(out)
 }
 
@@ -388,6 +401,34 @@ fn shifted(x: &[Point], k: &[[f64; 2]], h: f64) -> Vec<Point> {
         .zip(k)
         .map(|(p, v)| [p[0] + h * v[0], p[1] + h * v[1]])
         .collect()
+}
+
+/// The rows whose low-data flags a field put off ([`StepInfo::deferred`]), filled from
+/// [`Field::deferred_low_data`] once the rollout has run.
+#[derive(Default)]
+pub(crate) struct LateFlags {
+    rows: Vec<usize>,
+}
+
+impl LateFlags {
+    /// Note the step at `row` whose moving vehicles are `active`.
+    pub(crate) fn note(&mut self, info: &StepInfo, row: usize, active: &[usize]) {
+        if info.deferred {
+            self.rows.extend(active.iter().map(|&j| row + j));
+        }
+    }
+
+    pub(crate) fn fill(self, field: &mut dyn Field, flags: &mut [bool]) -> Result<()> {
+        if self.rows.is_empty() {
+            return Ok(());
+        }
+        let late = field.deferred_low_data()?;
+        check_len("deferred low-data flags", late.len(), self.rows.len())?;
+        for (r, f) in self.rows.into_iter().zip(late) {
+            flags[r] = f;
+        }
+        Ok(())
+    }
 }
 
 fn check_len(what: &str, got: usize, want: usize) -> Result<()> {
@@ -413,6 +454,10 @@ pub struct PatternField<'a> {
     support: bool,
     /// A field over heading: the vehicles' headings ([`Field::start_headings`]).
     headings: Option<HeadingInput>,
+    /// The points (and, over heading, headings) of the flags put off so far
+    /// ([`StepInfo::deferred`]).
+    late: Vec<Point>,
+    late_h: Vec<f64>,
 }
 
 impl<'a> PatternField<'a> {
@@ -435,6 +480,8 @@ impl<'a> PatternField<'a> {
             draw_once: false,
             support: false,
             headings: None,
+            late: Vec::new(),
+            late_h: Vec::new(),
         })
     }
 
@@ -480,6 +527,17 @@ impl Field for PatternField<'_> {
         Ok(self.pattern.predict_mean_at(self.inputs(q)))
     }
 
+    fn deferred_low_data(&mut self) -> Result<Vec<bool>> {
+        let (xy, h) = (
+            std::mem::take(&mut self.late),
+            std::mem::take(&mut self.late_h),
+        );
+        Ok(match self.low_data {
+            Some(f) if !xy.is_empty() => self.pattern.low_data_at(Inputs { xy: &xy, h: &h }, f),
+            _ => Vec::new(),
+        })
+    }
+
     fn support(&mut self, q: &[Point]) -> Result<Option<Vec<f64>>> {
         if !self.support {
             return Ok(None);
@@ -503,6 +561,7 @@ impl Field for PatternField<'_> {
         let mut info = StepInfo {
             offset: vec![[0.0; 2]; m],
             low_data: vec![false; m],
+            deferred: false,
         };
         let seed = if self.draw_once && step > 0 {
             None
@@ -512,10 +571,18 @@ impl Field for PatternField<'_> {
         if seed.is_none() && self.low_data.is_none() {
             return Ok(info);
         }
-        if let (None, true, Some(f)) = (seed, self.draw_once, self.low_data) {
-            // flags only: no m x m matrix (and over the statistics, the full solve only where the
-            // nearest training points' bound cannot decide)
-            info.low_data = self.pattern.low_data_at(self.inputs(q), f);
+        if seed.is_none() {
+            // Flags only (they move no vehicle): put off to the end of the rollout, where every
+            // step's points take the nearest training points' bound and, where it cannot decide,
+            // one batched solve (per step, each solve read the pattern's whole factor for a few
+            // points). No m x m matrix either.
+            if self.headings.is_some() {
+                let input = self.inputs(q);
+                let h: Vec<f64> = (0..m).map(|j| input.heading(j)).collect();
+                self.late_h.extend(h);
+            }
+            self.late.extend_from_slice(q);
+            info.deferred = true;
             return Ok(info);
         }
         // The latent covariance costs n² m (a triangular solve per vehicle); it gives both the

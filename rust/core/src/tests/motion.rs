@@ -219,6 +219,7 @@ fn steering_vehicles_turn_toward_the_field_at_their_time_constant_and_stand() {
             Ok(crate::simulate::StepInfo {
                 offset: vec![[0.0, -8.0]; q.len()],
                 low_data: vec![false; q.len()],
+                deferred: false,
             })
         }
     }
