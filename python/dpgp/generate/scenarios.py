@@ -40,7 +40,7 @@ from .._validate import check_roi
 from ..exceptions import InvalidInputError
 from ..gp.fitted import FittedPatterns, as_fitted
 from .distributions import EmpiricalDistributions
-from .headings import for_core, heading_speed, start_headings
+from .headings import check_max_curvature, for_core, heading_speed, start_headings
 from .motion import motion_model
 from .rollout import motion_records, split
 from .simulation import (
@@ -238,9 +238,11 @@ def sample_scenarios(
     roi: tuple[float, float, float, float] | None = None,
     low_data_threshold: float | None = LOW_DATA_THRESHOLD,
     dynamics: str | None = None,
+    max_curvature: float | str | None = None,
 ) -> Scenarios:
     """Generate ``n`` scenarios; see :meth:`dpgp.DPGP.sample_scenarios`. ``model``: a
-    :class:`~dpgp.fitted.FittedPatterns` (or a fitted estimator, which hands one down)."""
+    :class:`~dpgp.fitted.FittedPatterns` (or a fitted estimator, which hands one down).
+    ``max_curvature``: the pure field's turning limit over heading (:mod:`.headings`)."""
     fit = as_fitted(model)
     if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 0:
         raise InvalidInputError(f"n must be a whole number >= 0, got {n!r}")
@@ -269,6 +271,7 @@ def sample_scenarios(
     else:
         patterns = np.full(n, _check_pattern(fit, pattern), dtype=np.int64)
     dynamics = check_dynamics(dynamics, method)
+    kappa = check_max_curvature(max_curvature, fit, dynamics)
     if dynamics != "field":
         return _interactive(fit, patterns, psi, rng, steps=steps, dt=float(dt), stochastic=stochastic, roi=box,
                             low_data_threshold=thr, dynamics=dynamics)  # fmt: skip
@@ -287,6 +290,10 @@ def sample_scenarios(
         seeds=seeds,
         roi=box,
         low_data_threshold=thr,
+        # over heading: unknown at the start (the first draw is of the field averaged over
+        # heading), then each vehicle's own, tracked from its velocities as simulate tracks them
+        headings=[np.full(len(s), np.nan) for s in starts],
+        max_curvature=kappa,
     )
     return Scenarios(sims, patterns, counts)
 

@@ -1498,7 +1498,8 @@ class DPGP:
         recorded spacing, velocities drawn jointly from its GP, then a rollout of ``steps`` steps
         by the learned residual model with interaction. ``options``: ``dt``, ``method``,
         ``stochastic``, ``roi``, ``low_data_threshold``, ``dynamics`` (``"field"``: the earlier
-        generator — counts from φ, independent positions, the paper's rollout). Returns :class:`dpgp.scenarios.Scenarios`
+        generator — counts from φ, independent positions, the paper's rollout), ``max_curvature``
+        (its turning limit over heading, as in :meth:`simulate`). Returns :class:`dpgp.scenarios.Scenarios`
         (``to_pandas``, ``to_csv``, ``to_sumo``).
 
         ``duration`` (seconds; issue 20): long scenarios that switch pattern by the learned
