@@ -8,6 +8,7 @@ from typing_extensions import NotRequired, Self
 
 __all__ = [
     "check_params",
+    "criticality",
     "heading_harmonics",
     "check_length_scale_prior",
     "log_marginal_likelihood",
@@ -161,6 +162,25 @@ def integrate_affine(
     method: str,
     roi: tuple[float, float, float, float] | None = None,
 ) -> _RolloutArrays: ...
+def criticality(
+    positions: NDArray[np.float64],
+    velocities: NDArray[np.float64],
+    present: NDArray[np.bool_],
+    offsets: NDArray[np.int64],
+    vehicles: list[int],
+    sizes: NDArray[np.float64],
+    dt: float,
+    min_speed: float,
+) -> tuple[
+    NDArray[np.int64],
+    NDArray[np.int64],
+    NDArray[np.int64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.bool_],
+    NDArray[np.float64],
+]: ...
 
 _BasisTuple = tuple[tuple[float, float], tuple[float, float], tuple[int, int]]
 

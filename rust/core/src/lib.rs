@@ -17,6 +17,7 @@
 //                                              kernel over the previous heading; the turning
 //                                              limit of pure-field rollouts)
 //   3. linalg, small, factor, kernel           (dense algebra, the squared-exponential kernel)
+//      criticality                             (how near a scene's vehicles come to colliding)
 //   4. gp                                      (a pattern's GP parameters)
 //   5. basis, hsgp_sums, hsgp                  (the reduced-rank basis, its sums, its patterns)
 //   6. correlation                             (exact or reduced: the choice of the two)
@@ -26,6 +27,7 @@
 //   9. placement, motion, free_speed           (scene generation over simulate)
 pub mod basis;
 pub mod correlation;
+pub mod criticality;
 pub mod error;
 pub mod field_blocks;
 pub mod frame;

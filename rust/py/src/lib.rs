@@ -11,6 +11,7 @@
 )]
 
 mod convert;
+mod criticality;
 mod errors;
 mod gp;
 mod hsgp;
@@ -23,6 +24,8 @@ mod simulate;
 mod _core {
     use pyo3::prelude::*;
 
+    #[pymodule_export]
+    use super::criticality::criticality;
     #[pymodule_export]
     use super::gp::{
         check_params, log_marginal_likelihood, log_predictive, log_predictive_frames,

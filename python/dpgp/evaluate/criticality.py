@@ -1,0 +1,226 @@
+"""Criticality measures of scenes (issue 35): how near their vehicles come to colliding.
+
+:func:`criticality` measures generated :class:`~dpgp.scenarios.Scenarios`, single simulations,
+or recorded :class:`~dpgp.Frames` (cut into windows of consecutive frames by
+:func:`recorded_scenes`). Each vehicle is a rectangle of ``size`` (length, width) along its
+heading: its velocity's direction when at least ``min_speed`` fast, else the last such (before any,
+the first one after; a vehicle that never moves faces +x). Per pair of vehicles, over the times both
+are in the scene:
+
+- ``ttc``: time to collision, the least over the times of how long until their rectangles would
+  touch if both kept their velocities (0 when they touch, ``inf`` when they never would);
+- ``gap``: the least distance between the rectangles (0 when they touch);
+- ``pet``: post-encroachment time, where the centre paths cross, from the first vehicle's rear
+  leaving the crossing point to the second's front reaching it (0 when both are on it at once),
+  the least over the crossings (``inf`` without one);
+- ``collision``: the rectangles touch at one of the times.
+
+Per vehicle, ``deceleration``: the largest drop of its speed per second between consecutive
+times (0 when it never slows). The geometry runs in the core (``dpgp_core::criticality``), scenes
+in parallel.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .. import _core
+from ..exceptions import InvalidInputError
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+#: A passenger car's (length, width) in metres, for scenes whose data carry no size.
+DEFAULT_SIZE = (4.5, 1.8)
+#: Speed (the data's length unit per second) from which a velocity gives a heading.
+MIN_SPEED = 0.5
+#: The measures of a pair, and how a scene's pairs combine into the scene's.
+PAIR_MEASURES = {"ttc": "min", "gap": "min", "pet": "min", "collision": "any"}
+
+
+@dataclass(frozen=True)
+class Criticality:
+    """Measures of ``n_scenes`` scenes: ``pairs`` (columns ``scene``, ``a``, ``b``, ``ttc``,
+    ``gap``, ``pet``, ``collision``; one row per pair of vehicles in a scene together) and
+    ``vehicles`` (``scene``, ``vehicle``, ``deceleration``). :meth:`per_scene` combines them."""
+
+    pairs: dict[str, np.ndarray]
+    vehicles: dict[str, np.ndarray]
+    n_scenes: int
+
+    def per_scene(self) -> dict[str, np.ndarray]:
+        """Per scene: the least ``ttc``, ``gap`` and ``pet`` over its pairs (``inf`` without a
+        pair), whether any pair collided, and its hardest ``deceleration`` (0 without vehicles)."""
+        n, s = self.n_scenes, self.pairs["scene"]
+        out: dict[str, np.ndarray] = {}
+        for name, how in PAIR_MEASURES.items():
+            if how == "min":
+                col = np.full(n, np.inf)
+                np.minimum.at(col, s, self.pairs[name])
+            else:
+                col = np.zeros(n, dtype=bool)
+                np.logical_or.at(col, s, self.pairs[name])
+            out[name] = col
+        decel = np.zeros(n)
+        np.maximum.at(decel, self.vehicles["scene"], self.vehicles["deceleration"])
+        out["deceleration"] = decel
+        return out
+
+    def to_pandas(self) -> pd.DataFrame:
+        """The pairs as a table (one row per pair)."""
+        import pandas as pd
+
+        return pd.DataFrame(self.pairs)
+
+
+def _grid(scene: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A simulation's positions, velocities (times, vehicles, 2) and presence (times, vehicles)."""
+    pos = np.asarray(scene.positions, dtype=np.float64)
+    vel = np.asarray(scene.velocities, dtype=np.float64)
+    inside = np.asarray(scene.in_roi, dtype=bool)
+    if pos.ndim != 3 or pos.shape[2] != 2 or vel.shape != pos.shape or inside.shape != pos.shape[:2]:
+        raise InvalidInputError(
+            "a scene needs positions and velocities of shape (times, vehicles, 2) and in_roi of shape "
+            f"(times, vehicles); got {pos.shape}, {vel.shape} and {inside.shape}"
+        )
+    return pos, vel, inside
+
+
+def _check_size(size: Any) -> tuple[float, float]:
+    try:
+        vals = tuple(float(v) for v in size)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"size must be (length, width), got {size!r}") from None
+    if len(vals) != 2 or not all(math.isfinite(v) and v > 0 for v in vals):
+        raise InvalidInputError(f"size must be two positive lengths (length, width), got {size!r}")
+    return vals[0], vals[1]
+
+
+def criticality(
+    scenes: Any,
+    *,
+    size: Any = None,
+    dt: float | None = None,
+    min_speed: float = MIN_SPEED,
+    ego: int | Sequence[int] | np.ndarray | None = None,
+    steps: int | None = None,
+) -> Criticality:
+    """Criticality measures of ``scenes``: :class:`~dpgp.scenarios.Scenarios`, one
+    :class:`~dpgp.simulation.Simulation` or a list of them, or recorded
+    :class:`~dpgp.Frames` (windows of ``steps + 1`` consecutive frames, :func:`recorded_scenes`).
+    ``size``: every vehicle's (length, width) in the data's unit (default: the frames' recorded
+    median size when they carry one, else :data:`DEFAULT_SIZE`). ``dt``: seconds between times
+    (default: the scenes' own). ``ego``: a vehicle per scene (or one for all): only the pairs
+    with it."""
+    from ..data.frames import Frames
+
+    if isinstance(scenes, Frames):
+        summary = scenes.summary
+        if size is None and getattr(summary, "object_size", None) is not None:
+            size = summary.object_size
+        scenes = recorded_scenes(scenes, 40 if steps is None else steps, dt=dt)
+    elif steps is not None:
+        raise InvalidInputError("steps= cuts recorded frames into scenes; generated scenes have their own")
+    sims = getattr(scenes, "simulations", None)
+    if sims is None:
+        sims = list(scenes) if isinstance(scenes, (list, tuple)) else [scenes]
+    length, width = _check_size(DEFAULT_SIZE if size is None else size)
+    if not (isinstance(min_speed, (int, float)) and math.isfinite(min_speed) and min_speed >= 0):
+        raise InvalidInputError(f"min_speed must be a finite speed >= 0, got {min_speed!r}")
+    grids = [_grid(s) for s in sims]
+    steps_dt = {float(s.dt) for s in sims} if dt is None else {float(dt)}
+    if len(steps_dt) > 1:
+        raise InvalidInputError(f"the scenes have different time steps {sorted(steps_dt)}: measure them apart")
+    step = steps_dt.pop() if steps_dt else 1.0
+    if not (math.isfinite(step) and step > 0):
+        raise InvalidInputError(f"dt must be a positive number of seconds, got {step!r}")
+    vehicles = [g[0].shape[1] for g in grids]
+    rows = np.r_[0, np.cumsum([g[0].shape[0] * g[0].shape[1] for g in grids])].astype(np.int64)
+    flat = (
+        lambda i, shape: np.ascontiguousarray(  # noqa: E731
+            np.concatenate([g[i].reshape(shape) for g in grids]) if grids else np.zeros((0, *shape[1:]))
+        )
+    )
+    pos, vel, present = flat(0, (-1, 2)), flat(1, (-1, 2)), flat(2, (-1,)).astype(bool)
+    sizes = np.tile([length, width], (sum(vehicles), 1)).astype(np.float64)
+    scene, a, b, ttc, gap, pet, hit, decel = _core.criticality(
+        pos, vel, present, rows, vehicles, sizes, step, float(min_speed)
+    )
+    pairs = {"scene": scene, "a": a, "b": b, "ttc": ttc, "gap": gap, "pet": pet, "collision": hit}
+    per_vehicle = {
+        "scene": np.repeat(np.arange(len(grids)), vehicles).astype(np.int64),
+        "vehicle": np.concatenate([np.arange(n) for n in vehicles]).astype(np.int64)
+        if grids
+        else np.zeros(0, np.int64),
+        "deceleration": decel,
+    }
+    if ego is not None:
+        e = np.broadcast_to(np.asarray(ego), (len(grids),))
+        if e.dtype.kind not in "iu" or np.any(e < 0) or np.any(e >= np.maximum(vehicles, 1)):
+            raise InvalidInputError(f"ego must be a vehicle of each scene (0 <= ego < its vehicles), got {ego!r}")
+        mine = (a == e[scene]) | (b == e[scene])
+        pairs = {k: v[mine] for k, v in pairs.items()}
+    return Criticality(pairs, per_vehicle, len(grids))
+
+
+@dataclass(frozen=True)
+class RecordedScene:
+    """A window of recorded frames as a scene: ``positions``, ``velocities`` (times, vehicles,
+    2), ``in_roi`` (times, vehicles: the vehicle is in that frame), its ``tracks`` (vehicles,)
+    and ``dt``."""
+
+    positions: np.ndarray
+    velocities: np.ndarray
+    in_roi: np.ndarray
+    tracks: np.ndarray
+    dt: float
+
+
+def recorded_scenes(
+    frames: Any, steps: int, *, dt: float | None = None, stride: int | None = None
+) -> list[RecordedScene]:
+    """Recorded frames as scenes of ``steps + 1`` times each, a scene starting every ``stride``
+    frames (default ``steps + 1``: scenes side by side). A frame's id is its time when numeric
+    (frames made by :func:`dpgp.make_frames`); a scene ends before a frame that does not lie on its
+    time grid (``dt`` apart: a gap or another recording). Vehicles are followed by their track
+    ids; frames without tracks give scenes of one frame each."""
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
+        raise InvalidInputError(f"steps must be a whole number >= 0, got {steps!r}")
+    step = dt if dt is not None else getattr(frames.summary, "dt", None)
+    if frames.tracks is None:
+        steps, step = 0, 1.0 if step is None else step
+    if step is None or not (math.isfinite(float(step)) and float(step) > 0):
+        raise InvalidInputError("dt: the frames' time step in seconds is not known from them; pass dt=")
+    step = float(step)
+    stride = steps + 1 if stride is None else int(stride)
+    if stride < 1:
+        raise InvalidInputError(f"stride must be >= 1, got {stride!r}")
+    ids = np.asarray(frames.ids)
+    times = ids.astype(np.float64) if ids.dtype.kind in "iuf" else np.arange(len(frames)) * step
+    out = []
+    for i in range(0, len(frames), stride):
+        k = np.rint((times[i : i + steps + 1] - times[i]) / step)
+        on = np.abs(times[i : i + steps + 1] - times[i] - k * step) <= 1e-6 * step
+        keep = np.cumprod(on & (k == np.arange(len(k)))).astype(bool)  # consecutive grid times
+        n = int(keep.sum())
+        rows = [np.arange(frames.offsets[i + j], frames.offsets[i + j + 1]) for j in range(n)]
+        track = frames.tracks[np.concatenate(rows)] if frames.tracks is not None else np.arange(len(rows[0]))
+        cols, col_of = np.unique(track, return_inverse=True)
+        pos = np.zeros((n, len(cols), 2))
+        vel = np.zeros((n, len(cols), 2))
+        inside = np.zeros((n, len(cols)), dtype=bool)
+        t_of = np.repeat(np.arange(n), [len(r) for r in rows])
+        all_rows = np.concatenate(rows)
+        pos[t_of, col_of] = frames.xy[all_rows]
+        vel[t_of, col_of] = frames.v[all_rows]
+        inside[t_of, col_of] = True
+        out.append(RecordedScene(pos, vel, inside, cols, step))
+    return out
+
+
+__all__ = ["Criticality", "criticality", "recorded_scenes", "RecordedScene", "DEFAULT_SIZE", "MIN_SPEED"]

@@ -1,0 +1,217 @@
+"""Criticality measures (issue 35) against a plain numpy/scipy oracle: overlap by corner-in-polygon
+and edge crossings, time to collision by scanning time and bisecting, the gap as a small convex
+program (scipy), post-encroachment time in closed form for straight constant-velocity paths."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+import dpgp
+from dpgp.evaluate.criticality import Criticality, criticality, recorded_scenes
+from dpgp.exceptions import InvalidInputError
+
+SIZE = (4.0, 1.8)
+
+
+def corners(c, h, size=SIZE) -> np.ndarray:
+    u, n = np.array([math.cos(h), math.sin(h)]), np.array([-math.sin(h), math.cos(h)])
+    hl, hw = size[0] / 2, size[1] / 2
+    return np.array([c + i * hl * u + j * hw * n for i, j in ((1, 1), (-1, 1), (-1, -1), (1, -1))])
+
+
+def _cross(u, v) -> float:
+    return float(u[0] * v[1] - u[1] * v[0])
+
+
+def _inside(p, poly) -> bool:
+    cross = [_cross(poly[(k + 1) % 4] - poly[k], p - poly[k]) for k in range(4)]
+    return all(c >= -1e-12 for c in cross) or all(c <= 1e-12 for c in cross)
+
+
+def _segments_cross(p0, p1, q0, q1) -> bool:
+    d = lambda a, b, c: _cross(b - a, c - a)  # noqa: E731
+    return d(p0, p1, q0) * d(p0, p1, q1) <= 0 and d(q0, q1, p0) * d(q0, q1, p1) <= 0
+
+
+def overlap(a: np.ndarray, b: np.ndarray) -> bool:
+    """Two convex quadrilaterals share a point: a corner of one inside the other, or edges cross."""
+    if any(_inside(p, b) for p in a) or any(_inside(p, a) for p in b):
+        return True
+    return any(_segments_cross(a[i], a[(i + 1) % 4], b[k], b[(k + 1) % 4]) for i in range(4) for k in range(4))
+
+
+def oracle_ttc(ca, ha, va, cb, hb, vb) -> float:
+    """Translating convex polygons first touch where a corner of one meets an edge of the other:
+    the least time over the 32 corner-edge pairs (a 2 x 2 solve each), 0 if they touch now."""
+    a, b = corners(ca, ha), corners(cb, hb)
+    if overlap(a, b):
+        return 0.0
+    best = math.inf
+    for p_poly, q_poly, w in ((a, b, va - vb), (b, a, vb - va)):  # corner's motion against the edge's
+        for p in p_poly:
+            for k in range(4):
+                q0, q1 = q_poly[k], q_poly[(k + 1) % 4]
+                m = np.c_[w, q0 - q1]
+                if abs(np.linalg.det(m)) < 1e-12:
+                    continue
+                t, u = np.linalg.solve(m, q0 - p)
+                if t >= 0 and -1e-12 <= u <= 1 + 1e-12:
+                    best = min(best, t)
+    return best
+
+
+def oracle_gap(a: np.ndarray, b: np.ndarray) -> float:
+    if overlap(a, b):
+        return 0.0
+
+    def dist2(w):
+        p, q = w[:4] @ a, w[4:] @ b
+        return float(np.sum((p - q) ** 2))
+
+    cons = [{"type": "eq", "fun": lambda w: w[:4].sum() - 1}, {"type": "eq", "fun": lambda w: w[4:].sum() - 1}]
+    res = minimize(dist2, np.full(8, 0.25), bounds=[(0, 1)] * 8, constraints=cons, method="SLSQP",
+                   options={"ftol": 1e-15, "maxiter": 500})  # fmt: skip
+    return math.sqrt(res.fun)
+
+
+def straight_scene(rng, vehicles=4, steps=6, dt=0.5):
+    """Vehicles on straight lines at constant velocity (each present over a run of times)."""
+    p0 = rng.uniform(-15, 15, size=(vehicles, 2))
+    speed = rng.uniform(0, 12, size=vehicles)
+    speed[0] = 0.0  # one stands (heading: +x)
+    h = rng.uniform(-math.pi, math.pi, size=vehicles)
+    v = speed[:, None] * np.c_[np.cos(h), np.sin(h)]
+    t = np.arange(steps + 1) * dt
+    pos = p0[None] + t[:, None, None] * v[None]
+    inside = np.ones((steps + 1, vehicles), dtype=bool)
+    inside[: rng.integers(0, 3), 1] = False  # vehicle 1 enters late
+    inside[steps - 1 :, 2] = False  # vehicle 2 leaves early
+    return SimpleNamespace(positions=pos, velocities=np.broadcast_to(v, pos.shape).copy(), in_roi=inside, dt=dt)
+
+
+def oracle_pet(s, a, b) -> float:
+    """Straight constant-velocity paths: where the lines cross within both driven paths, the
+    intervals each vehicle covers the point (its centre within half its length), apart or not."""
+    va, vb = s.velocities[0, a], s.velocities[0, b]
+    ta, tb = np.flatnonzero(s.in_roi[:, a]), np.flatnonzero(s.in_roi[:, b])
+    if len(ta) < 2 or len(tb) < 2 or np.hypot(*va) == 0 or np.hypot(*vb) == 0:
+        return math.inf
+    pa, pb = s.positions[ta[0], a], s.positions[tb[0], b]
+    m = np.c_[va, -vb]
+    if abs(np.linalg.det(m)) < 1e-12:
+        return math.inf
+    ua, ub = np.linalg.solve(m, pb - pa)  # seconds after each first time
+    if not (0 <= ua <= (ta[-1] - ta[0]) * s.dt and 0 <= ub <= (tb[-1] - tb[0]) * s.dt):
+        return math.inf
+    end_a, end_b = (ta[-1] - ta[0]) * s.dt, (tb[-1] - tb[0]) * s.dt
+    half_a, half_b = SIZE[0] / 2 / np.hypot(*va), SIZE[0] / 2 / np.hypot(*vb)
+    ina, outa = max(ua - half_a, 0.0) + ta[0] * s.dt, ua + half_a + ta[0] * s.dt
+    inb, outb = max(ub - half_b, 0.0) + tb[0] * s.dt, ub + half_b + tb[0] * s.dt
+    outa = math.inf if ua + half_a > end_a else outa
+    outb = math.inf if ub + half_b > end_b else outb
+    return max(inb - outa, ina - outb, 0.0)
+
+
+def heading_of(v) -> float:
+    return math.atan2(v[1], v[0]) if np.hypot(*v) >= 0.5 else 0.0
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_measures_match_the_oracle_on_straight_scenes(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    s = straight_scene(rng)
+    c = criticality(s, size=SIZE)
+    assert isinstance(c, Criticality) and c.n_scenes == 1
+    seen = 0
+    for i in range(len(c.pairs["a"])):
+        a, b = c.pairs["a"][i], c.pairs["b"][i]
+        both = np.flatnonzero(s.in_roi[:, a] & s.in_roi[:, b])
+        ha, hb = heading_of(s.velocities[0, a]), heading_of(s.velocities[0, b])
+        ttc = min(
+            oracle_ttc(s.positions[t, a], ha, s.velocities[t, a], s.positions[t, b], hb, s.velocities[t, b])
+            for t in both
+        )
+        gap = min(oracle_gap(corners(s.positions[t, a], ha), corners(s.positions[t, b], hb)) for t in both)
+        hit = any(overlap(corners(s.positions[t, a], ha), corners(s.positions[t, b], hb)) for t in both)
+        assert c.pairs["ttc"][i] == pytest.approx(ttc, abs=1e-6) or (math.isinf(ttc) and math.isinf(c.pairs["ttc"][i]))
+        assert c.pairs["gap"][i] == pytest.approx(gap, abs=1e-6)
+        assert bool(c.pairs["collision"][i]) == hit
+        pet = oracle_pet(s, a, b)
+        assert c.pairs["pet"][i] == pytest.approx(pet, abs=1e-9) or (math.isinf(pet) and math.isinf(c.pairs["pet"][i]))
+        seen += 1
+    assert seen == 6  # every pair of the 4 vehicles is in the scene together at some time
+    np.testing.assert_array_equal(c.vehicles["deceleration"], 0.0)  # constant speeds
+
+
+def test_the_cases_the_random_scenes_must_reach() -> None:
+    """Over many random scenes the oracle's cases all occur: finite and infinite TTC and PET,
+    collisions and none (a check that the comparison above is not vacuous)."""
+    ttc, pet, hit = [], [], []
+    for seed in range(40):
+        c = criticality(straight_scene(np.random.default_rng(seed)), size=SIZE)
+        ttc += list(c.pairs["ttc"])
+        pet += list(c.pairs["pet"])
+        hit += list(c.pairs["collision"])
+    ttc, pet = np.array(ttc), np.array(pet)
+    assert np.any((ttc > 0) & np.isfinite(ttc)) and np.any(np.isinf(ttc)) and np.any(ttc == 0)
+    assert np.any((pet > 0) & np.isfinite(pet)) and np.any(np.isinf(pet))
+    assert any(hit) and not all(hit)
+
+
+def test_deceleration_per_scene_and_ego() -> None:
+    speeds = np.array([10.0, 9.0, 6.0, 6.0, 7.0])
+    v = np.zeros((5, 2, 2))
+    v[:, 0, 0] = speeds
+    v[:, 1, 1] = 3.0
+    pos = np.cumsum(v * 0.5, axis=0)
+    pos[:, 1] += [100.0, 0.0]
+    s = SimpleNamespace(positions=pos, velocities=v, in_roi=np.ones((5, 2), bool), dt=0.5)
+    c = criticality([s, s], size=SIZE)
+    np.testing.assert_allclose(c.vehicles["deceleration"], [6.0, 0.0, 6.0, 0.0])
+    per = c.per_scene()
+    np.testing.assert_allclose(per["deceleration"], [6.0, 6.0])
+    assert per["ttc"].shape == (2,) and not per["collision"].any()
+    assert len(criticality([s, s], ego=[0, 1]).pairs["a"]) == 2
+    with pytest.raises(InvalidInputError, match="ego"):
+        criticality(s, ego=2)
+    with pytest.raises(InvalidInputError, match="size"):
+        criticality(s, size=(4.0, -1.0))
+    with pytest.raises(InvalidInputError, match="shape"):
+        criticality(SimpleNamespace(positions=pos[:, :, :1], velocities=v, in_roi=s.in_roi, dt=0.5))
+    bad = SimpleNamespace(
+        positions=np.where(np.arange(5)[:, None, None] == 2, np.nan, pos), velocities=v, in_roi=s.in_roi, dt=0.5
+    )
+    with pytest.raises(InvalidInputError, match="non-finite"):
+        criticality(bad)
+
+
+def test_recorded_frames_as_scenes(tmp_path) -> None:
+    """Windows of consecutive frames, vehicles followed by track id: a vehicle that leaves and
+    one that enters take their own columns, and the measures are those of the window's grid."""
+    import pandas as pd
+
+    rows = []
+    for t in range(8):
+        rows.append({"track": 1, "t": t * 0.5, "x": 5.0 * t * 0.5, "y": 0.0})
+        if t >= 2:
+            rows.append({"track": 2, "t": t * 0.5, "x": 30.0 - 4.0 * (t - 2) * 0.5, "y": 0.5})
+        if t < 4:
+            rows.append({"track": 3, "t": t * 0.5, "x": -20.0, "y": 3.5 * t * 0.5})
+    frames = dpgp.make_frames(pd.DataFrame(rows), dt=0.5)
+    scenes = recorded_scenes(frames, 3)
+    assert [s.positions.shape[0] for s in scenes] == [4, 4]
+    first = scenes[0]
+    np.testing.assert_array_equal(first.tracks, [1, 2, 3])
+    np.testing.assert_array_equal(first.in_roi[:, 1], [False, False, True, True])
+    c = criticality(frames, steps=3, size=SIZE)
+    assert c.n_scenes == 2
+    direct = criticality(scenes, size=SIZE)
+    for k in c.pairs:
+        np.testing.assert_array_equal(c.pairs[k], direct.pairs[k])
+    with pytest.raises(InvalidInputError, match="steps"):
+        recorded_scenes(frames, -1)
