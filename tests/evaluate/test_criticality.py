@@ -215,3 +215,12 @@ def test_recorded_frames_as_scenes(tmp_path) -> None:
         np.testing.assert_array_equal(c.pairs[k], direct.pairs[k])
     with pytest.raises(InvalidInputError, match="steps"):
         recorded_scenes(frames, -1)
+
+
+def test_the_default_size_is_the_recorded_one_else_a_car_in_the_frames_unit() -> None:
+    from dpgp.evaluate.criticality import DEFAULT_SIZE, default_size
+
+    assert default_size(None) == DEFAULT_SIZE
+    assert default_size(SimpleNamespace(object_size=(5.0, 2.0), length_unit="m")) == (5.0, 2.0)
+    ft = default_size(SimpleNamespace(object_size=None, length_unit="ft"))
+    assert ft == pytest.approx((DEFAULT_SIZE[0] / 0.3048, DEFAULT_SIZE[1] / 0.3048))

@@ -269,3 +269,5 @@ def test_cli_evaluate_writes_the_table_and_the_figure(tmp_path, capsys):
     printed = capsys.readouterr().out
     margin = table.loc["constant_velocity", "dpgp_margin"]
     assert f"over constant_velocity {margin:+.3f}" in printed and "note:" not in printed
+    # recorded windows' criticality beside generated scenes'
+    assert "criticality" in printed and "recorded" in printed and "generated" in printed

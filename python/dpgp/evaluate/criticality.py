@@ -91,6 +91,16 @@ def _grid(scene: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return pos, vel, inside
 
 
+def default_size(summary: Any) -> tuple[float, float]:
+    """The size frames' vehicles have: their recorded median (``summary.object_size``), else
+    :data:`DEFAULT_SIZE` in their length unit."""
+    recorded = getattr(summary, "object_size", None)
+    if recorded is not None:
+        return float(recorded[0]), float(recorded[1])
+    per_metre = 1 / 0.3048 if getattr(summary, "length_unit", None) == "ft" else 1.0
+    return DEFAULT_SIZE[0] * per_metre, DEFAULT_SIZE[1] * per_metre
+
+
 def _check_size(size: Any) -> tuple[float, float]:
     try:
         vals = tuple(float(v) for v in size)
@@ -114,15 +124,13 @@ def criticality(
     :class:`~dpgp.simulation.Simulation` or a list of them, or recorded
     :class:`~dpgp.Frames` (windows of ``steps + 1`` consecutive frames, :func:`recorded_scenes`).
     ``size``: every vehicle's (length, width) in the data's unit (default: the frames' recorded
-    median size when they carry one, else :data:`DEFAULT_SIZE`). ``dt``: seconds between times
+    median size when they carry one, else :data:`DEFAULT_SIZE` in their unit). ``dt``: seconds between times
     (default: the scenes' own). ``ego``: a vehicle per scene (or one for all): only the pairs
     with it."""
     from ..data.frames import Frames
 
     if isinstance(scenes, Frames):
-        summary = scenes.summary
-        if size is None and getattr(summary, "object_size", None) is not None:
-            size = summary.object_size
+        size = default_size(scenes.summary) if size is None else size
         scenes = recorded_scenes(scenes, 40 if steps is None else steps, dt=dt)
     elif steps is not None:
         raise InvalidInputError("steps= cuts recorded frames into scenes; generated scenes have their own")
@@ -141,11 +149,11 @@ def criticality(
         raise InvalidInputError(f"dt must be a positive number of seconds, got {step!r}")
     vehicles = [g[0].shape[1] for g in grids]
     rows = np.r_[0, np.cumsum([g[0].shape[0] * g[0].shape[1] for g in grids])].astype(np.int64)
-    flat = (
-        lambda i, shape: np.ascontiguousarray(  # noqa: E731
-            np.concatenate([g[i].reshape(shape) for g in grids]) if grids else np.zeros((0, *shape[1:]))
-        )
-    )
+
+    def flat(i: int, shape: tuple[int, ...]) -> np.ndarray:
+        parts = [g[i].reshape(shape) for g in grids]
+        return np.ascontiguousarray(np.concatenate(parts) if parts else np.zeros((0, *shape[1:])))
+
     pos, vel, present = flat(0, (-1, 2)), flat(1, (-1, 2)), flat(2, (-1,)).astype(bool)
     sizes = np.tile([length, width], (sum(vehicles), 1)).astype(np.float64)
     scene, a, b, ttc, gap, pet, hit, decel = _core.criticality(
@@ -166,6 +174,35 @@ def criticality(
         mine = (a == e[scene]) | (b == e[scene])
         pairs = {k: v[mine] for k, v in pairs.items()}
     return Criticality(pairs, per_vehicle, len(grids))
+
+
+def compare(model: Any, frames: Any, *, steps: int = 16, n: int = 500, seed: int = 0) -> pd.DataFrame:
+    """Recorded against generated: the per-scene measures of ``frames`` cut into windows of
+    ``steps + 1`` frames and of ``n`` scenes of ``steps`` steps from ``model`` (its
+    ``sample_scenarios`` with every default), a vehicle the training frames' size
+    (:func:`default_size`). Rows ``recorded`` and ``generated``; columns the number of scenes, the
+    shares of scenes with a collision, a time to collision under 1 s and a post-encroachment time
+    under 1 s, and the medians of the least time to collision and gap and of the hardest
+    deceleration."""
+    import pandas as pd
+
+    size = default_size(getattr(model.frames_, "summary", None))
+    rows = {}
+    for name, c in (
+        ("recorded", criticality(frames, steps=steps, size=size)),
+        ("generated", criticality(model.sample_scenarios(n, steps=steps, seed=seed), size=size)),
+    ):
+        per = c.per_scene()
+        rows[name] = {
+            "scenes": c.n_scenes,
+            "collision": per["collision"].mean() if c.n_scenes else np.nan,
+            "ttc_under_1s": np.mean(per["ttc"] < 1.0) if c.n_scenes else np.nan,
+            "pet_under_1s": np.mean(per["pet"] < 1.0) if c.n_scenes else np.nan,
+            "median_ttc": np.median(per["ttc"]) if c.n_scenes else np.nan,
+            "median_gap": np.median(per["gap"]) if c.n_scenes else np.nan,
+            "median_deceleration": np.median(per["deceleration"]) if c.n_scenes else np.nan,
+        }
+    return pd.DataFrame(rows).T
 
 
 @dataclass(frozen=True)
@@ -223,4 +260,7 @@ def recorded_scenes(
     return out
 
 
-__all__ = ["Criticality", "criticality", "recorded_scenes", "RecordedScene", "DEFAULT_SIZE", "MIN_SPEED"]
+__all__ = [
+    "Criticality", "criticality", "compare", "default_size", "recorded_scenes", "RecordedScene", "DEFAULT_SIZE",
+    "MIN_SPEED",
+]  # fmt: skip
