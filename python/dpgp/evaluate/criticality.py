@@ -117,7 +117,7 @@ def criticality(
     size: Any = None,
     dt: float | None = None,
     min_speed: float = MIN_SPEED,
-    ego: int | Sequence[int] | np.ndarray | None = None,
+    ego: bool | int | Sequence[int] | np.ndarray | None = None,
     steps: int | None = None,
 ) -> Criticality:
     """Criticality measures of ``scenes``: :class:`~dpgp.scenarios.Scenarios`, one
@@ -126,8 +126,16 @@ def criticality(
     ``size``: every vehicle's (length, width) in the data's unit (default: the frames' recorded
     median size when they carry one, else :data:`DEFAULT_SIZE` in their unit). ``dt``: seconds between times
     (default: the scenes' own). ``ego``: a vehicle per scene (or one for all): only the pairs
-    with it."""
+    with it, ``-1`` none; ``True``: the scenarios' own, :attr:`~dpgp.scenarios.Scenarios.ego`)."""
     from ..data.frames import Frames
+
+    if ego is True:
+        ego = getattr(scenes, "ego", None)
+        if ego is None:
+            raise InvalidInputError(
+                "ego=True measures against the scenarios' own ego vehicles, and these have none: "
+                "generate them with sample_scenarios(..., ego=(x, y))"
+            )
 
     if isinstance(scenes, Frames):
         size = default_size(scenes.summary) if size is None else size
@@ -169,8 +177,10 @@ def criticality(
     }
     if ego is not None:
         e = np.broadcast_to(np.asarray(ego), (len(grids),))
-        if e.dtype.kind not in "iu" or np.any(e < 0) or np.any(e >= np.maximum(vehicles, 1)):
-            raise InvalidInputError(f"ego must be a vehicle of each scene (0 <= ego < its vehicles), got {ego!r}")
+        if e.dtype.kind not in "iu" or np.any(e < -1) or np.any(e >= np.maximum(vehicles, 1)):
+            raise InvalidInputError(
+                f"ego must be a vehicle of each scene (0 <= ego < its vehicles, or -1: none), got {ego!r}"
+            )
         mine = (a == e[scene]) | (b == e[scene])
         pairs = {k: v[mine] for k, v in pairs.items()}
     return Criticality(pairs, per_vehicle, len(grids))

@@ -10,7 +10,8 @@ scenariogeneration ships (:func:`validate`).
 
 What a file holds, for scenario ``s`` of the table ``Scenarios.to_pandas()``:
 
-- a ``ScenarioObject`` per generated vehicle (``vehicle{i}``, category ``car``) or pedestrian
+- a ``ScenarioObject`` per generated vehicle (``vehicle{i}``, category ``car``; the scenario's
+  ego vehicle, when :attr:`Scenarios.ego` names one, ``Ego``) or pedestrian
   (``pedestrian{i}``), with a bounding box centred on the tracked point: the size the model
   records (:mod:`dpgp.provenance`: the tracks' median length and width), else
   :data:`DEFAULT_SIZES`; per-row ``length``/``width``/``height`` columns in the table win;
@@ -179,6 +180,7 @@ def write_openscenario(
         "road": road,
     }
     patterns = np.asarray(scenarios.patterns)
+    egos = getattr(scenarios, "ego", None)
     if single:
         targets = [path]
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -190,7 +192,7 @@ def write_openscenario(
     try:
         for s in range(n):
             part = {c: v[bounds[s] : bounds[s + 1]] for c, v in cols.items()}
-            objs = _objects(part, end, scale, (ox, oy), kind, box)
+            objs = _objects(part, end, scale, (ox, oy), kind, box, -1 if egos is None else int(egos[s]))
             head = f"scenario {s} of {n}, pattern {int(patterns[s])}, seed {seed_text}"
             text = f"{description}: {head}" if description else f"dpgp generated {head}"
             _write_atomic(template.render(objs, s, int(patterns[s]), text), targets[s])
@@ -222,8 +224,10 @@ def _objects(
     origin: tuple[float, float],
     kind: str,
     box: tuple[float, float, float],
+    ego: int = -1,
 ) -> list[_Object]:
-    """The objects of one scenario's rows (sorted by vehicle, then time)."""
+    """The objects of one scenario's rows (sorted by vehicle, then time); vehicle ``ego`` is
+    named ``Ego`` (replay tools attach the vehicle under test to that name)."""
     veh = part["vehicle"].astype(np.int64)
     starts = np.flatnonzero(np.r_[True, veh[1:] != veh[:-1]]) if len(veh) else np.array([], dtype=np.int64)
     stops = np.r_[starts[1:], len(veh)]
@@ -234,7 +238,7 @@ def _objects(
     h = (part["_heading"] if "_heading" in part else headings(part["vx"], part["vy"], starts)).tolist()
     for a, b in zip(starts.tolist(), stops.tolist()):
         out.append(
-            _Object(f"{kind}{int(veh[a])}", kind, _row_size(part, a, box, scale), t[a:b], x[a:b], y[a:b], h[a:b],
+            _Object("Ego" if int(veh[a]) == ego else f"{kind}{int(veh[a])}", kind, _row_size(part, a, box, scale), t[a:b], x[a:b], y[a:b], h[a:b],
                     t[b - 1] if t[b - 1] < end else None)
         )  # fmt: skip
     return out
@@ -626,7 +630,7 @@ def read_openscenario(path: str | os.PathLike) -> pd.DataFrame:
     xmlschema, which takes about a second a file).
 
     Returns one row per vertex: ``entity, vehicle, t, x, y, heading`` (metres, seconds,
-    radians, as in the file); an object with a single row (a teleport only) gives one row at
+    radians, as in the file; ``vehicle`` -1 for the ego vehicle, ``Ego``); an object with a single row (a teleport only) gives one row at
     ``t = 0``. ``attrs["parameters"]`` holds the ParameterDeclarations, ``attrs["description"]``
     the header's, ``attrs["deleted"]`` ``{entity: time}`` for the DeleteEntityActions,
     ``attrs["sizes"]`` ``{entity: (length, width, height)}`` and ``attrs["kinds"]``
@@ -668,7 +672,8 @@ def read_openscenario(path: str | os.PathLike) -> pd.DataFrame:
             rows["y"].append(pos.y)
             rows["heading"].append(pos.h)
     df = pd.DataFrame(rows)
-    df.insert(1, "vehicle", df["entity"].str.extract(r"(\d+)$")[0].astype(np.int64))
+    # the ego vehicle (named Ego) has no number: -1
+    df.insert(1, "vehicle", pd.to_numeric(df["entity"].str.extract(r"(\d+)$")[0]).fillna(-1).astype(np.int64))
     df = df.sort_values(["vehicle", "t"], kind="stable", ignore_index=True)
     kinds: dict[str, str] = {}
     sizes: dict[str, tuple[float, float, float]] = {}

@@ -68,11 +68,21 @@ _COLUMNS = ["scenario", "vehicle", "t", "x", "y", "vx", "vy"]
 @dataclass(frozen=True, eq=False)
 class Scenarios:
     """Generated scenarios: ``scenarios[i]`` is the :class:`~dpgp.simulation.Simulation` of
-    scenario ``i``; ``patterns`` and ``counts`` give each one's pattern and vehicle count."""
+    scenario ``i``; ``patterns`` and ``counts`` give each one's pattern and vehicle count;
+    ``ego`` (when asked for, :func:`choose_ego`) each one's ego vehicle, ``-1`` where none
+    qualified: the vehicle a system under test replaces, named ``Ego`` in OpenSCENARIO files and
+    ``s{scenario}_ego`` in SUMO's."""
 
     simulations: list[Simulation]
     patterns: np.ndarray
     counts: np.ndarray
+    ego: np.ndarray | None = None
+
+    def _is_ego(self, scenario: np.ndarray, vehicle: np.ndarray) -> np.ndarray:
+        """Whether each ``(scenario, vehicle)`` row is its scenario's ego."""
+        if self.ego is None:
+            return np.zeros(len(vehicle), dtype=bool)
+        return np.asarray(self.ego)[scenario.astype(np.int64)] == vehicle
 
     def __len__(self) -> int:
         return len(self.simulations)
@@ -118,7 +128,7 @@ class Scenarios:
     def to_sumo(self, path: str | os.PathLike, vtype: str = "DEFAULT_VEHTYPE") -> None:
         """Write SUMO floating-car data (``<fcd-export>``; gzip if ``path`` ends in ``.gz``).
 
-        Vehicle ids are ``s{scenario}_v{vehicle}``. Scenario ``s`` is shifted in time by
+        Vehicle ids are ``s{scenario}_v{vehicle}``, a scenario's ego's ``s{scenario}_ego``. Scenario ``s`` is shifted in time by
         ``s * (steps + 1) * dt`` so that scenarios follow one another on one regular time grid
         (framing the file again gives frames that each hold one scenario). ``speed`` and
         ``angle`` (degrees clockwise from north, +y) carry the velocity, as SUMO writes them.
@@ -133,7 +143,9 @@ class Scenarios:
         vx, vy = df["vx"].to_numpy()[order], df["vy"].to_numpy()[order]
         speed = np.hypot(vx, vy)
         angle = np.degrees(np.arctan2(vx, vy)) % 360.0
-        ids = [f"s{s}_v{v}" for s, v in zip(df["scenario"].to_numpy()[order], df["vehicle"].to_numpy()[order])]
+        sc, veh = df["scenario"].to_numpy()[order], df["vehicle"].to_numpy()[order]
+        ego = self._is_ego(sc, veh)
+        ids = [f"s{s}_ego" if e else f"s{s}_v{v}" for s, v, e in zip(sc, veh, ego)]
         x, y, tick = df["x"].to_numpy()[order], df["y"].to_numpy()[order], tick[order]
         lines = [
             '<?xml version="1.0" encoding="UTF-8"?>',
@@ -239,10 +251,72 @@ def sample_scenarios(
     low_data_threshold: float | None = LOW_DATA_THRESHOLD,
     dynamics: str | None = None,
     max_curvature: float | str | None = None,
+    ego: Any = None,
 ) -> Scenarios:
     """Generate ``n`` scenarios; see :meth:`dpgp.DPGP.sample_scenarios`. ``model``: a
     :class:`~dpgp.fitted.FittedPatterns` (or a fitted estimator, which hands one down).
-    ``max_curvature``: the pure field's turning limit over heading (:mod:`.headings`)."""
+    ``max_curvature``: the pure field's turning limit over heading (:mod:`.headings`). ``ego``:
+    ``(x, y)`` or ``(x, y, heading in degrees)``, each scenario's ego vehicle by
+    :func:`choose_ego`."""
+    rule = _ego_rule(ego)
+    scenes = _sample(model, n, steps, pattern, seed, dt=dt, method=method, stochastic=stochastic, roi=roi,
+                     low_data_threshold=low_data_threshold, dynamics=dynamics, max_curvature=max_curvature)  # fmt: skip
+    if rule is None:
+        return scenes
+    return Scenarios(scenes.simulations, scenes.patterns, scenes.counts, choose_ego(scenes.simulations, *rule))
+
+
+#: An ego's start heading lies within this many degrees of the rule's heading.
+EGO_HEADING_TOLERANCE = 45.0
+
+
+def _ego_rule(ego: Any) -> tuple[tuple[float, float], float | None] | None:
+    if ego is None:
+        return None
+    try:
+        vals = [float(v) for v in ego]
+    except (TypeError, ValueError):
+        vals = []
+    if len(vals) not in (2, 3) or not all(np.isfinite(vals)):
+        raise InvalidInputError(
+            f"ego must be (x, y) or (x, y, heading in degrees): the vehicle nearest that point at the start "
+            f"(heading that way), got {ego!r}"
+        )
+    return (vals[0], vals[1]), (vals[2] if len(vals) == 3 else None)
+
+
+def choose_ego(sims: list[Simulation], point: tuple[float, float], heading: float | None = None,
+               min_speed: float = 0.5) -> np.ndarray:  # fmt: skip
+    """Each scenario's ego: of its vehicles inside the ROI at the start (and, with ``heading``,
+    moving at least ``min_speed`` within :data:`EGO_HEADING_TOLERANCE` degrees of it: an
+    approach), the one nearest ``point``; ``-1`` where none qualifies."""
+    out = np.full(len(sims), -1, dtype=np.int64)
+    for i, sim in enumerate(sims):
+        xy, v, inside = sim.positions[0], sim.velocities[0], sim.in_roi[0].copy()
+        if heading is not None:
+            turn = np.degrees(np.angle(np.exp(1j * (np.arctan2(v[:, 1], v[:, 0]) - np.radians(heading)))))
+            inside &= (np.hypot(v[:, 0], v[:, 1]) >= min_speed) & (np.abs(turn) <= EGO_HEADING_TOLERANCE)
+        if inside.any():
+            d = np.hypot(xy[:, 0] - point[0], xy[:, 1] - point[1])
+            out[i] = int(np.argmin(np.where(inside, d, np.inf)))
+    return out
+
+
+def _sample(
+    model: Any,
+    n: int,
+    steps: int,
+    pattern: int | None,
+    seed: int | None,
+    *,
+    dt: float | None,
+    method: str,
+    stochastic: bool,
+    roi: tuple[float, float, float, float] | None,
+    low_data_threshold: float | None,
+    dynamics: str | None,
+    max_curvature: float | str | None,
+) -> Scenarios:
     fit = as_fitted(model)
     if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 0:
         raise InvalidInputError(f"n must be a whole number >= 0, got {n!r}")

@@ -1499,7 +1499,9 @@ class DPGP:
         by the learned residual model with interaction. ``options``: ``dt``, ``method``,
         ``stochastic``, ``roi``, ``low_data_threshold``, ``dynamics`` (``"field"``: the earlier
         generator — counts from φ, independent positions, the paper's rollout), ``max_curvature``
-        (its turning limit over heading, as in :meth:`simulate`). Returns :class:`dpgp.scenarios.Scenarios`
+        (its turning limit over heading, as in :meth:`simulate`), ``ego`` (``(x, y)`` or ``(x, y,
+        heading in degrees)``: each scenario's vehicle nearest that point at the start, heading
+        that way, becomes its ego vehicle, named ``Ego`` on export). Returns :class:`dpgp.scenarios.Scenarios`
         (``to_pandas``, ``to_csv``, ``to_sumo``).
 
         ``duration`` (seconds; issue 20): long scenarios that switch pattern by the learned
@@ -1514,6 +1516,8 @@ class DPGP:
         if options.get("duration") is not None:
             from ..generate.long import sample_long_scenarios
 
+            if options.get("ego") is not None:
+                raise InvalidInputError("ego= applies to scenarios of steps (not to long scenarios, duration=, yet)")
             duration = options.pop("duration")
             if options.get("dynamics") in (True, None):
                 options["dynamics"] = "interactive"
