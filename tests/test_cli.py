@@ -185,6 +185,13 @@ def test_generate_csv_and_sumo(model_file, tmp_path):
                  "--seed", "2", "--pattern", "0"]) == 0  # fmt: skip
     tracks = dpgp.read_tracks(xml, preset="sumo")
     assert tracks["id"].str.match(r"s\d+_v\d+").all()
+    # --ego: each scenario's vehicle nearest the point is its ego, s<scenario>_ego
+    ego = tmp_path / "ego.out"
+    args = ["generate", str(model_file), "-n", "3", "-o", str(ego), "--format", "sumo", "--steps", "5", "--seed", "2"]
+    assert main([*args, "--ego", "0", "0"]) == 0
+    ids = set(dpgp.read_tracks(ego, preset="sumo")["id"])
+    assert {f"s{s}_ego" for s in range(3)} <= ids
+    assert main([*args, "--ego", "0"]) == 1  # a point needs two coordinates
     # a generated SUMO file is valid input for a new fit
     assert (
         main(

@@ -230,6 +230,8 @@ def _generate(args: argparse.Namespace) -> int:
 
     model = DPGP.load(args.model)
     if args.duration is not None:
+        if args.ego is not None:
+            raise InvalidInputError("--ego applies to scenarios of --steps, not to long scenarios (--duration) yet")
         return _generate_long(model, args)
     if args.phases is not None:
         raise InvalidInputError("--phases applies to long scenarios: give --duration too")
@@ -249,7 +251,7 @@ def _generate(args: argparse.Namespace) -> int:
             args.seed = secrets.randbelow(2**31)
     scen = model.sample_scenarios(
         args.n, steps=args.steps, pattern=args.pattern, seed=args.seed, dt=args.dt, method=args.method,
-        stochastic=not args.mean, dynamics=args.dynamics,
+        stochastic=not args.mean, dynamics=args.dynamics, ego=args.ego,
     )  # fmt: skip
     if xosc:
         paths = scen.to_openscenario(
@@ -528,6 +530,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="interactive (default; field with --method rk4), relaxed, or field (the paper's rollout)",
     )
     p.add_argument("--mean", action="store_true", help="follow the posterior mean instead of drawing velocities")
+    p.add_argument("--ego", type=float, nargs="+", metavar="X Y [HEADING]",
+                   help="each scenario's vehicle nearest (X, Y) at the start (heading within 45 degrees of HEADING, "
+                   "degrees, if given) is its ego vehicle: Ego in OpenSCENARIO, s<scenario>_ego in SUMO")  # fmt: skip
     p.add_argument("--seed", type=int, help="random seed (default: random)")
     p.add_argument("--duration", type=float, help="long scenarios of this many seconds that switch pattern over time "
                    "by the learned transitions (CSV with the pattern in force; needs frames with times)")  # fmt: skip
