@@ -335,10 +335,10 @@ def _evaluate(args: argparse.Namespace) -> int:
         if args.realism_plot:
             ev.realism.plot().savefig(args.realism_plot, dpi=100)
             print(f"wrote {args.realism_plot}")
-    from .evaluate.criticality import compare
+    from .generate.criticality import compare
 
     crit = compare(model, test)
-    print("criticality (dpgp.evaluate.criticality; per scene of 16 steps: recorded windows, generated scenes):")
+    print("criticality (dpgp.generate.criticality; per scene of 16 steps: recorded windows, generated scenes):")
     print(crit.to_string(float_format=lambda x: f"{x:.3f}"))
     if args.output:
         ev.table.to_csv(args.output)

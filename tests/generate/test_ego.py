@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 import dpgp
-from dpgp.evaluate.criticality import criticality
 from dpgp.exceptions import InvalidInputError
 from dpgp.generate import openscenario as osc
+from dpgp.generate.criticality import criticality
 from dpgp.generate.scenarios import choose_ego
 
 

@@ -4,7 +4,7 @@ working; the closed-form density baselines are in :mod:`.baselines`), partition 
 (:mod:`.metrics`) and the realism of generated scenarios (:mod:`.realism_checks`, named so that
 it does not shadow the ``realism`` function)."""
 
-from . import baselines, criticality, metrics, realism_checks, scores
+from . import baselines, metrics, realism_checks, scores
 from .realism_checks import Realism, model_realism
 from .scores import (
     LENGTH_GRID,

@@ -27,6 +27,7 @@ requests are an ``InvalidInputError`` before anything is drawn; generate in batc
 
 from __future__ import annotations
 
+import dataclasses
 import gzip
 import os
 from dataclasses import dataclass
@@ -77,6 +78,17 @@ class Scenarios:
     patterns: np.ndarray
     counts: np.ndarray
     ego: np.ndarray | None = None
+    #: Drawn from a tilted generator (:mod:`.critical`): each scene's likelihood ratio against the
+    #: natural one, and the training frame it started from.
+    weights: np.ndarray | None = None
+    sources: np.ndarray | None = None
+
+    def estimate(self, event: Any, size: Any = None) -> Any:
+        """The natural rate of ``event`` (e.g. ``"ttc<1.0"``) estimated from these scenes with
+        their :attr:`weights` (natural scenes: 1): a :class:`~dpgp.generate.criticality.Estimate`."""
+        from .criticality import estimate
+
+        return estimate(self, event, size=size)
 
     def _is_ego(self, scenario: np.ndarray, vehicle: np.ndarray) -> np.ndarray:
         """Whether each ``(scenario, vehicle)`` row is its scenario's ego."""
@@ -252,18 +264,49 @@ def sample_scenarios(
     dynamics: str | None = None,
     max_curvature: float | str | None = None,
     ego: Any = None,
+    tilt: Any = None,
 ) -> Scenarios:
     """Generate ``n`` scenarios; see :meth:`dpgp.DPGP.sample_scenarios`. ``model``: a
     :class:`~dpgp.fitted.FittedPatterns` (or a fitted estimator, which hands one down).
     ``max_curvature``: the pure field's turning limit over heading (:mod:`.headings`). ``ego``:
     ``(x, y)`` or ``(x, y, heading in degrees)``, each scenario's ego vehicle by
-    :func:`choose_ego`."""
+    :func:`choose_ego`. ``tilt``: draw each scene's training frame from these probabilities (one
+    per training frame, :func:`tilted_frames`; :mod:`.critical`) instead of the natural ones
+    (:func:`natural_frames`), and weigh it by the ratio."""
     rule = _ego_rule(ego)
     scenes = _sample(model, n, steps, pattern, seed, dt=dt, method=method, stochastic=stochastic, roi=roi,
-                     low_data_threshold=low_data_threshold, dynamics=dynamics, max_curvature=max_curvature)  # fmt: skip
+                     low_data_threshold=low_data_threshold, dynamics=dynamics, max_curvature=max_curvature,
+                     tilt=tilt)  # fmt: skip
     if rule is None:
         return scenes
-    return Scenarios(scenes.simulations, scenes.patterns, scenes.counts, choose_ego(scenes.simulations, *rule))
+    return dataclasses.replace(scenes, ego=choose_ego(scenes.simulations, *rule))
+
+
+def natural_frames(model: Any) -> np.ndarray:
+    """The natural probability of starting from each training frame: its pattern's weight over
+    the pattern's number of frames."""
+    fit = as_fitted(model)
+    labels = np.asarray(fit.labels, dtype=np.int64)
+    counts = np.bincount(labels, minlength=fit.n_patterns)
+    return np.asarray(fit.weights, dtype=np.float64)[labels] / counts[labels]
+
+
+def tilted_frames(model: Any, tilt: Any) -> np.ndarray:
+    """``tilt`` checked: one probability per training frame, summing to 1 (normalised), positive
+    wherever the natural generator is (else a scene could not be weighed)."""
+    p = natural_frames(model)
+    try:
+        q = np.asarray(tilt, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        q = np.zeros(0)
+    if q.shape != p.shape or not np.all(np.isfinite(q) & (q >= 0)) or q.sum() <= 0:
+        raise InvalidInputError(
+            f"tilt must give {len(p)} probabilities >= 0, one per training frame (see dpgp.generate.critical)"
+        )
+    q = q / q.sum()
+    if np.any((q == 0) & (p > 0)):
+        raise InvalidInputError("tilt gives probability 0 to training frames the natural generator starts from")
+    return q
 
 
 #: An ego's start heading lies within this many degrees of the rule's heading.
@@ -316,6 +359,7 @@ def _sample(
     low_data_threshold: float | None,
     dynamics: str | None,
     max_curvature: float | str | None,
+    tilt: Any = None,
 ) -> Scenarios:
     fit = as_fitted(model)
     if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 0:
@@ -340,12 +384,22 @@ def _sample(
     if seed is not None and (isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) or seed < 0):
         raise InvalidInputError(f"seed must be a whole number >= 0 or None, got {seed!r}")
     rng = np.random.default_rng(seed)
+    dynamics = check_dynamics(dynamics, method)
+    kappa = check_max_curvature(max_curvature, fit, dynamics)
+    if tilt is not None:
+        if dynamics == "field" or pattern is not None:
+            raise InvalidInputError(
+                "tilt= draws the starting frames of the default generator: drop dynamics='field' and pattern="
+            )
+        q = tilted_frames(fit, tilt)
+        chosen = rng.choice(len(q), size=n, p=q).astype(np.int64)
+        scenes = _interactive(fit, fit.labels[chosen].astype(np.int64), psi, rng, steps=steps, dt=float(dt),
+                              stochastic=stochastic, roi=box, low_data_threshold=thr, dynamics=dynamics, chosen=chosen)  # fmt: skip
+        return dataclasses.replace(scenes, weights=natural_frames(fit)[chosen] / q[chosen], sources=chosen)
     if pattern is None:
         patterns = rng.choice(fit.n_patterns, size=n, p=fit.weights).astype(np.int64)
     else:
         patterns = np.full(n, _check_pattern(fit, pattern), dtype=np.int64)
-    dynamics = check_dynamics(dynamics, method)
-    kappa = check_max_curvature(max_curvature, fit, dynamics)
     if dynamics != "field":
         return _interactive(fit, patterns, psi, rng, steps=steps, dt=float(dt), stochastic=stochastic, roi=box,
                             low_data_threshold=thr, dynamics=dynamics)  # fmt: skip
@@ -388,15 +442,17 @@ def pattern_counts(fit: FittedPatterns, patterns: np.ndarray, rng: np.random.Gen
 
 
 def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistributions, rng: np.random.Generator, *,
-                 steps: int, dt: float, stochastic: bool, roi: Any, low_data_threshold: float | None, dynamics: str) -> Scenarios:  # fmt: skip
-    """Scenes from each pattern's own frames: the positions of one of them (a recorded
+                 steps: int, dt: float, stochastic: bool, roi: Any, low_data_threshold: float | None, dynamics: str,
+                 chosen: np.ndarray | None = None) -> Scenarios:  # fmt: skip
+    """Scenes from each pattern's own frames (``chosen``: these training frames, one a scene): the positions of one of them (a recorded
     configuration: its count, spacing and groups), less any vehicle closer than the pattern's
     recorded spacing to one kept before it; velocities jointly from its GP at those positions,
     rolled out by the residual model and interaction. Thinning, draws and rollouts run in
     parallel in the core, one seed per scenario."""
     if len(patterns) == 0:
         return Scenarios([], patterns, np.zeros(0, dtype=np.int64))
-    chosen = pattern_frames(fit, patterns, rng)
+    if chosen is None:
+        chosen = pattern_frames(fit, patterns, rng)
     requested = fit.frames.sizes[chosen]
     rows = np.concatenate([np.arange(fit.frames.offsets[f], fit.frames.offsets[f + 1]) for f in chosen])
     starts = np.ascontiguousarray(fit.frames.xy[rows], dtype=np.float64)

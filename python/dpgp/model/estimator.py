@@ -1490,6 +1490,18 @@ class DPGP:
             max_curvature,
         )  # fmt: skip
 
+    def sample_critical(self, n: int, event: Any, *, steps: int = 16, seed: int | None = None, **options: Any) -> Any:
+        """``n`` scenarios of ``steps`` steps drawn toward ``event`` (e.g. ``"ttc<1.0"``,
+        ``"collision"``; :class:`dpgp.generate.criticality.Event`): their starting frames from a tilt
+        learned by the cross-entropy method, each with its likelihood ratio against the natural
+        generator (``Scenarios.weights``), so that ``Scenarios.estimate(event)`` gives the event's
+        natural rate without bias. ``options``: ``per_round``, ``rounds`` (the tilt's learning),
+        ``size`` (vehicles' length and width), ``ego`` (as in :meth:`sample_scenarios`; the event
+        is then measured against it). See :mod:`dpgp.generate.critical`."""
+        from ..generate.critical import sample_critical
+
+        return sample_critical(self._fitted(), n, event, steps=steps, seed=seed, **options)
+
     def sample_scenarios(
         self, n: int, steps: int = 100, pattern: int | None = None, seed: int | None = None, **options: Any
     ) -> Any:

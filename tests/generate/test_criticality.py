@@ -12,8 +12,8 @@ import pytest
 from scipy.optimize import minimize
 
 import dpgp
-from dpgp.evaluate.criticality import Criticality, criticality, recorded_scenes
 from dpgp.exceptions import InvalidInputError
+from dpgp.generate.criticality import Criticality, criticality, recorded_scenes
 
 SIZE = (4.0, 1.8)
 
@@ -218,7 +218,7 @@ def test_recorded_frames_as_scenes(tmp_path) -> None:
 
 
 def test_the_default_size_is_the_recorded_one_else_a_car_in_the_frames_unit() -> None:
-    from dpgp.evaluate.criticality import DEFAULT_SIZE, default_size
+    from dpgp.generate.criticality import DEFAULT_SIZE, default_size
 
     assert default_size(None) == DEFAULT_SIZE
     assert default_size(SimpleNamespace(object_size=(5.0, 2.0), length_unit="m")) == (5.0, 2.0)

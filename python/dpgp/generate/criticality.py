@@ -215,6 +215,120 @@ def compare(model: Any, frames: Any, *, steps: int = 16, n: int = 500, seed: int
     return pd.DataFrame(rows).T
 
 
+#: The measures an event may name, and which way is critical: below a threshold, or above it.
+EVENT_MEASURES = {"ttc": "<", "gap": "<", "pet": "<", "deceleration": ">"}
+
+
+@dataclass(frozen=True)
+class Event:
+    """A critical event of a scene: ``measure`` (``ttc``, ``gap``, ``pet`` or ``deceleration``,
+    :meth:`Criticality.per_scene`) below (``<``) or above (``>``) ``threshold``, or
+    ``"collision"``. ``Event.parse("ttc<1.0")``; ``ego``: the measure against the scenes' ego
+    vehicles only."""
+
+    measure: str
+    threshold: float = 0.0
+    ego: bool = False
+
+    @classmethod
+    def parse(cls, text: Any, ego: bool = False) -> Event:
+        if isinstance(text, Event):
+            return text
+        t = str(text).replace(" ", "")
+        if t == "collision":
+            return cls("collision", 0.0, ego)
+        for name, op in EVENT_MEASURES.items():
+            if t.startswith(name + op):
+                try:
+                    value = float(t[len(name) + 1 :])
+                except ValueError:
+                    break
+                if math.isfinite(value):
+                    return cls(name, value, ego)
+        raise InvalidInputError(
+            f"an event is 'collision' or one of {', '.join(n + o + 'VALUE' for n, o in EVENT_MEASURES.items())} "
+            f"(e.g. 'ttc<1.0'), got {text!r}"
+        )
+
+    def score(self, per_scene: dict[str, np.ndarray]) -> np.ndarray:
+        """How critical each scene is, larger more (the event: a score at or above :attr:`level`):
+        minus the measure for ``<``, the measure for ``>``, minus the gap for a collision."""
+        if self.measure == "collision":
+            return -per_scene["gap"]
+        value = per_scene[self.measure]
+        return -value if EVENT_MEASURES[self.measure] == "<" else value
+
+    @property
+    def level(self) -> float:
+        if self.measure == "collision":
+            return 0.0
+        return -self.threshold if EVENT_MEASURES[self.measure] == "<" else self.threshold
+
+    def happened(self, per_scene: dict[str, np.ndarray]) -> np.ndarray:
+        if self.measure == "collision":
+            return per_scene["collision"].copy()
+        value = per_scene[self.measure]
+        return value < self.threshold if EVENT_MEASURES[self.measure] == "<" else value > self.threshold
+
+    def __str__(self) -> str:
+        text = (
+            "collision"
+            if self.measure == "collision"
+            else f"{self.measure}{EVENT_MEASURES[self.measure]}{self.threshold:g}"
+        )
+        return text + (" (ego)" if self.ego else "")
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """An event's natural rate from weighted scenes: per scene, with its standard error and 95 %
+    interval (normal), per hour of simulated traffic (scenes of ``seconds`` each), how many scenes
+    had it (``hits``) of ``n``, and the effective sample size of the weights, ``(Σw)² / Σw²``."""
+
+    event: str
+    rate: float
+    stderr: float
+    interval: tuple[float, float]
+    per_hour: float
+    hits: int
+    n: int
+    ess: float
+    seconds: float
+
+    def __str__(self) -> str:
+        lo, hi = self.interval
+        return (
+            f"{self.event}: {self.rate:.4g} a scene (95 % interval {lo:.4g} to {hi:.4g}; {self.per_hour:.4g} an hour "
+            f"of {self.seconds:g} s scenes), {self.hits} of {self.n} scenes, effective sample size {self.ess:.1f}"
+        )
+
+
+def estimate(scenes: Any, event: Any, *, size: Any = None, weights: Any = None) -> Estimate:
+    """The natural rate of ``event`` (:class:`Event` or its text) from ``scenes`` drawn with
+    likelihood-ratio ``weights`` against the natural generator (default: the scenes' own, else
+    1: natural draws): ``mean(w 1[event])``, unbiased whatever the tilt that drew them."""
+    ev = Event.parse(event)
+    c = criticality(scenes, size=size, ego=True if ev.ego else None)
+    n = c.n_scenes
+    w = getattr(scenes, "weights", None) if weights is None else weights
+    w = np.ones(n) if w is None else np.asarray(w, dtype=np.float64)
+    if w.shape != (n,) or not np.all(np.isfinite(w) & (w >= 0)):
+        raise InvalidInputError(f"weights must be {n} finite numbers >= 0, one per scene")
+    if n == 0:
+        raise InvalidInputError("no scenes to estimate a rate from")
+    hit = ev.happened(c.per_scene())
+    x = w * hit
+    rate = float(x.mean())
+    se = float(x.std(ddof=1) / math.sqrt(n)) if n > 1 else math.inf
+    sims = getattr(scenes, "simulations", scenes)
+    seconds = float(sims[0].steps * sims[0].dt) if n and hasattr(sims[0], "steps") else float("nan")
+    ess = float(w.sum() ** 2 / np.sum(w * w)) if np.any(w > 0) else 0.0
+    return Estimate(
+        str(ev), rate, se, (max(rate - 1.96 * se, 0.0), rate + 1.96 * se),
+        rate * 3600.0 / seconds if seconds > 0 else float("nan"), int(hit.sum()), n, ess, seconds,
+    )  # fmt: skip
+
+
 @dataclass(frozen=True)
 class RecordedScene:
     """A window of recorded frames as a scene: ``positions``, ``velocities`` (times, vehicles,
@@ -271,6 +385,6 @@ def recorded_scenes(
 
 
 __all__ = [
-    "Criticality", "criticality", "compare", "default_size", "recorded_scenes", "RecordedScene", "DEFAULT_SIZE",
+    "Criticality", "criticality", "compare", "Event", "Estimate", "estimate", "EVENT_MEASURES", "default_size", "recorded_scenes", "RecordedScene", "DEFAULT_SIZE",
     "MIN_SPEED",
 ]  # fmt: skip

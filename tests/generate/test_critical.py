@@ -1,0 +1,77 @@
+"""Importance-sampled scenarios (issue 35): exact likelihood ratios of the tilted starting frames
+(against a direct computation of both probabilities), weights of mean 1, and an event's rate from
+tilted scenes agreeing with crude Monte Carlo of the natural generator."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import dpgp
+from dpgp.exceptions import InvalidInputError
+from dpgp.generate.critical import learn_tilt, natural_frames
+from dpgp.generate.criticality import Event
+
+
+@pytest.fixture(scope="module")
+def model() -> dpgp.DPGP:
+    frames = dpgp.datasets.synthetic("intersection", n_frames=60, seed=8)
+    return dpgp.DPGP(iterations=3, seed=3, progress=False).fit(frames)
+
+
+def test_the_weights_are_the_ratio_of_the_frames_probabilities(model) -> None:
+    labels = model.labels_
+    # naturally: a pattern by its weight, then one of its frames uniformly
+    direct = np.array([model.weights_[k] / np.sum(labels == k) for k in labels])
+    np.testing.assert_allclose(natural_frames(model), direct, rtol=1e-15)
+    assert natural_frames(model).sum() == pytest.approx(1.0, abs=1e-12)
+    q = np.random.default_rng(0).uniform(0.2, 3.0, size=len(labels))
+    scenes = model.sample_scenarios(3000, steps=1, seed=5, tilt=q)
+    q = q / q.sum()
+    np.testing.assert_allclose(scenes.weights, direct[scenes.sources] / q[scenes.sources], rtol=1e-14)
+    np.testing.assert_array_equal(scenes.patterns, labels[scenes.sources])
+    # each scene starts from its source frame: its vehicles are a subset of the frame's positions
+    frames = model.frames_
+    for s in range(5):
+        start = scenes.simulations[s].positions[0][scenes.simulations[s].in_roi[0]]
+        f = frames[int(scenes.sources[s])]
+        assert all(np.any(np.all(np.isclose(f.xy, p), axis=1)) for p in start)
+    # E_q[w] = 1: the mean weight within 4 standard errors, the exact expectation to rounding
+    w = scenes.weights
+    assert abs(w.mean() - 1) <= 4 * w.std(ddof=1) / math.sqrt(len(w))
+    assert float(np.sum(q * direct / q)) == pytest.approx(1.0, abs=1e-12)
+    # the natural probabilities as a tilt: every weight exactly 1
+    natural = model.sample_scenarios(50, steps=1, seed=5, tilt=natural_frames(model))
+    np.testing.assert_allclose(natural.weights, 1.0, rtol=1e-14)
+
+
+def test_a_tilted_estimate_agrees_with_crude_monte_carlo(model) -> None:
+    event = "deceleration>25"
+    q, levels = learn_tilt(model, event, per_round=300, rounds=4, steps=8, seed=1)
+    assert np.all(q > 0) and q.sum() == pytest.approx(1.0)
+    tilted = model.sample_scenarios(3000, steps=8, seed=2, tilt=q)
+    crude = model.sample_scenarios(3000, steps=8, seed=3)
+    a, b = tilted.estimate(event), crude.estimate(event)
+    assert crude.weights is None and b.ess == pytest.approx(3000) and b.hits > 30
+    assert abs(a.rate - b.rate) <= 4 * math.hypot(a.stderr, b.stderr), (a, b)
+    # the tilt draws the event more often than nature does
+    assert a.hits > 1.5 * b.hits, (a.hits, b.hits, levels)
+    assert a.interval[0] <= a.rate <= a.interval[1] and a.per_hour == pytest.approx(a.rate * 3600 / 4.0)
+
+
+def test_events_and_tilts_are_checked(model) -> None:
+    assert Event.parse("ttc < 1.5") == Event("ttc", 1.5)
+    assert str(Event.parse("deceleration>4")) == "deceleration>4"
+    for bad in ("ttc>1", "speed<3", "ttc<x", "ttc<inf", ""):
+        with pytest.raises(InvalidInputError, match="event"):
+            Event.parse(bad)
+    n = len(model.labels_)
+    for bad in (np.ones(n - 1), -np.ones(n), np.zeros(n), np.r_[0.0, np.ones(n - 1)], "flat"):
+        with pytest.raises(InvalidInputError, match="tilt"):
+            model.sample_scenarios(2, steps=1, tilt=bad)
+    with pytest.raises(InvalidInputError, match="tilt"):
+        model.sample_scenarios(2, steps=1, tilt=np.ones(n), dynamics="field")
+    scenes = model.sample_critical(20, "collision", per_round=50, rounds=2, seed=0, steps=4)
+    assert scenes.weights.shape == (20,) and np.all(scenes.weights > 0)
