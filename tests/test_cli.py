@@ -192,6 +192,17 @@ def test_generate_csv_and_sumo(model_file, tmp_path):
     ids = set(dpgp.read_tracks(ego, preset="sumo")["id"])
     assert {f"s{s}_ego" for s in range(3)} <= ids
     assert main([*args, "--ego", "0"]) == 1  # a point needs two coordinates
+    # --critical: tilted toward an event, a table of weights and measures beside the output
+    crit = tmp_path / "crit.csv"
+    base = ["generate", str(model_file), "-n", "6", "-o", str(crit), "--steps", "4", "--seed", "1"]
+    assert main([*base, "--critical", "gap<1.0"]) == 0
+    table = pd.read_csv(tmp_path / "crit.critical.csv")
+    assert len(table) == 6 and (table["weight"] > 0).all()
+    assert {"ttc", "gap", "pet", "collision", "deceleration", "event", "source_frame"} <= set(table.columns)
+    np.testing.assert_array_equal(table["event"], table["gap"] < 1.0)
+    assert set(pd.read_csv(crit)["scenario"]) <= set(range(6))
+    assert main([*base, "--critical", "speed<3"]) == 1  # an event it does not know
+    assert main([*base, "--critical", "gap<1.0", "--pattern", "0"]) == 1
     # a generated SUMO file is valid input for a new fit
     assert (
         main(

@@ -249,10 +249,17 @@ def _generate(args: argparse.Namespace) -> int:
             import secrets
 
             args.seed = secrets.randbelow(2**31)
-    scen = model.sample_scenarios(
-        args.n, steps=args.steps, pattern=args.pattern, seed=args.seed, dt=args.dt, method=args.method,
-        stochastic=not args.mean, dynamics=args.dynamics, ego=args.ego,
-    )  # fmt: skip
+    if args.critical is not None:
+        if args.pattern is not None or args.dynamics not in (None, "interactive") or args.mean:
+            raise InvalidInputError("--critical tilts the default generator: drop --pattern, --dynamics and --mean")
+        scen = model.sample_critical(args.n, args.critical, steps=args.steps, seed=args.seed, ego=args.ego)
+    else:
+        scen = model.sample_scenarios(
+            args.n, steps=args.steps, pattern=args.pattern, seed=args.seed, dt=args.dt, method=args.method,
+            stochastic=not args.mean, dynamics=args.dynamics, ego=args.ego,
+        )  # fmt: skip
+    if args.critical is not None:
+        _write_critical(scen, args)
     if xosc:
         paths = scen.to_openscenario(
             args.output, model, units=args.units, origin=args.origin or (0.0, 0.0), road_network=args.road_network,
@@ -265,6 +272,27 @@ def _generate(args: argparse.Namespace) -> int:
     print(scen)
     print(f"wrote {args.output}")
     return 0
+
+
+def _write_critical(scen: Any, args: argparse.Namespace) -> None:
+    """``generate --critical``: a table of every scenario's weight, starting frame and measures
+    beside the output (``DIR/critical.csv`` for a directory, else ``NAME.critical.csv``), and the
+    event's estimated natural rate."""
+    import numpy as np
+    import pandas as pd
+
+    from .generate.criticality import Event, criticality
+
+    event = Event.parse(args.critical, ego=args.ego is not None)
+    per = criticality(scen, ego=True if event.ego else None).per_scene()
+    table = pd.DataFrame({"scenario": np.arange(len(scen)), "weight": scen.weights, "source_frame": scen.sources,
+                          **per, "event": event.happened(per)})  # fmt: skip
+    out = Path(args.output)
+    path = out / "critical.csv" if out.is_dir() or out.suffix == "" else out.with_name(out.stem + ".critical.csv")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    table.to_csv(path, index=False, float_format="%.17g")
+    print(scen.estimate(event))
+    print(f"wrote {path}")
 
 
 def _generate_long(model: Any, args: argparse.Namespace) -> int:
@@ -530,6 +558,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="interactive (default; field with --method rk4), relaxed, or field (the paper's rollout)",
     )
     p.add_argument("--mean", action="store_true", help="follow the posterior mean instead of drawing velocities")
+    p.add_argument("--critical", metavar="EVENT",
+                   help="draw the scenarios toward an event ('ttc<1.0', 'gap<0.5', 'pet<1', 'deceleration>4', "
+                   "'collision'; with --ego, against the ego) with their likelihood ratios; writes a table of "
+                   "weights and measures beside the output and prints the event's natural rate")  # fmt: skip
     p.add_argument("--ego", type=float, nargs="+", metavar="X Y [HEADING]",
                    help="each scenario's vehicle nearest (X, Y) at the start (heading within 45 degrees of HEADING, "
                    "degrees, if given) is its ego vehicle: Ego in OpenSCENARIO, s<scenario>_ego in SUMO")  # fmt: skip
