@@ -75,3 +75,15 @@ def test_events_and_tilts_are_checked(model) -> None:
         model.sample_scenarios(2, steps=1, tilt=np.ones(n), dynamics="field")
     scenes = model.sample_critical(20, "collision", per_round=50, rounds=2, seed=0, steps=4)
     assert scenes.weights.shape == (20,) and np.all(scenes.weights > 0)
+    for bad in ({"per_round": 0}, {"rounds": 0}, {"rounds": 1.5}, {"per_round": True}):
+        with pytest.raises(InvalidInputError, match="round"):
+            learn_tilt(model, "collision", steps=2, **bad)
+
+
+def test_tilted_scenes_export_to_valid_openscenario(model, tmp_path) -> None:
+    from dpgp.generate import openscenario as osc
+
+    scenes = model.sample_critical(3, "gap<1.0", per_round=40, rounds=2, seed=1, steps=6, ego=(0.0, 0.0))
+    for p in scenes.to_openscenario(tmp_path / "xosc", model, units="m"):
+        assert osc.validate(p) == [], p
+        assert "Ego" in set(osc.read_openscenario(p)["entity"])

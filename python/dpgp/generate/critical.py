@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from ..exceptions import InvalidInputError
 from .criticality import Event, criticality
 from .scenarios import natural_frames, sample_scenarios, tilted_frames
 
@@ -45,6 +46,9 @@ def learn_tilt(
     training frame) and each round's level (the elite's least score; the event's is
     ``Event.level``)."""
     ev = Event.parse(event, ego=ego is not None)
+    for name, value in (("per_round", per_round), ("rounds", rounds)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise InvalidInputError(f"{name} must be a whole number >= 1, got {value!r}")
     p = natural_frames(model)
     q = p.copy()
     levels: list[float] = []
