@@ -291,7 +291,7 @@ def _write_critical(scen: Any, args: argparse.Namespace) -> None:
     path = out / "critical.csv" if out.is_dir() or out.suffix == "" else out.with_name(out.stem + ".critical.csv")
     path.parent.mkdir(parents=True, exist_ok=True)
     table.to_csv(path, index=False, float_format="%.17g")
-    print(scen.estimate(event))
+    print(scen.estimate(event, measures=per))
     print(f"wrote {path}")
 
 

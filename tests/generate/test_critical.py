@@ -12,7 +12,7 @@ import pytest
 import dpgp
 from dpgp.exceptions import InvalidInputError
 from dpgp.generate.critical import learn_tilt, natural_frames
-from dpgp.generate.criticality import Event
+from dpgp.generate.criticality import Estimate, Event, criticality
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +59,19 @@ def test_a_tilted_estimate_agrees_with_crude_monte_carlo(model) -> None:
     # the tilt draws the event more often than nature does
     assert a.hits > 1.5 * b.hits, (a.hits, b.hits, levels)
     assert a.interval[0] <= a.rate <= a.interval[1] and a.per_hour == pytest.approx(a.rate * 3600 / 4.0)
+    # measures computed once give the same estimate; batches combine by their hits and weights
+    per = criticality(tilted).per_scene()
+    assert tilted.estimate(event, measures=per) == a
+    hit = Event.parse(event).happened(per)
+    halves = [
+        Estimate.of(hit[s], tilted.weights[s], event=event, seconds=4.0) for s in (slice(0, 1500), slice(1500, None))
+    ]
+    joined = Estimate.of(np.r_[hit[:1500], hit[1500:]], np.r_[tilted.weights[:1500], tilted.weights[1500:]],
+                         event=event, seconds=4.0)  # fmt: skip
+    assert joined == a and sum(h.hits for h in halves) == a.hits
+    assert a.rate == pytest.approx(np.mean([h.rate for h in halves]))
+    with pytest.raises(InvalidInputError, match="weights"):
+        Estimate.of(hit, tilted.weights[:-1])
 
 
 def test_events_and_tilts_are_checked(model) -> None:

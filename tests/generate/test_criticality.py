@@ -176,7 +176,11 @@ def test_deceleration_per_scene_and_ego() -> None:
     per = c.per_scene()
     np.testing.assert_allclose(per["deceleration"], [6.0, 6.0])
     assert per["ttc"].shape == (2,) and not per["collision"].any()
-    assert len(criticality([s, s], ego=[0, 1]).pairs["a"]) == 2
+    mine = criticality([s, s], ego=[0, 1])
+    assert len(mine.pairs["a"]) == 2
+    # against the ego, the deceleration is the ego's own: vehicle 0 brakes, vehicle 1 does not
+    np.testing.assert_allclose(mine.per_scene()["deceleration"], [6.0, 0.0])
+    np.testing.assert_array_equal(criticality([s, s], ego=[-1, 0]).per_scene()["deceleration"], [0.0, 6.0])
     with pytest.raises(InvalidInputError, match="ego"):
         criticality(s, ego=2)
     with pytest.raises(InvalidInputError, match="size"):

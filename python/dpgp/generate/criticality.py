@@ -126,7 +126,7 @@ def criticality(
     ``size``: every vehicle's (length, width) in the data's unit (default: the frames' recorded
     median size when they carry one, else :data:`DEFAULT_SIZE` in their unit). ``dt``: seconds between times
     (default: the scenes' own). ``ego``: a vehicle per scene (or one for all): only the pairs
-    with it, ``-1`` none; ``True``: the scenarios' own, :attr:`~dpgp.scenarios.Scenarios.ego`)."""
+    with it and its own deceleration, ``-1`` none; ``True``: the scenarios' own, :attr:`~dpgp.scenarios.Scenarios.ego`)."""
     from ..data.frames import Frames
 
     if ego is True:
@@ -183,6 +183,8 @@ def criticality(
             )
         mine = (a == e[scene]) | (b == e[scene])
         pairs = {k: v[mine] for k, v in pairs.items()}
+        own = per_vehicle["vehicle"] == e[per_vehicle["scene"]]  # the ego's own deceleration
+        per_vehicle = {k: v[own] for k, v in per_vehicle.items()}
     return Criticality(pairs, per_vehicle, len(grids))
 
 
@@ -295,6 +297,26 @@ class Estimate:
     ess: float
     seconds: float
 
+    @classmethod
+    def of(cls, hit: Any, weights: Any = None, *, event: str = "", seconds: float = float("nan")) -> Estimate:
+        """The estimate from each scene's ``hit`` (whether the event happened) and likelihood-ratio
+        ``weights`` (default 1: natural draws): ``mean(w 1[hit])``, unbiased whatever the tilt
+        that drew the scenes. Batches combine by concatenating their hits and weights."""
+        hit = np.asarray(hit, dtype=bool).ravel()
+        n = len(hit)
+        w = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64)
+        if w.shape != (n,) or not np.all(np.isfinite(w) & (w >= 0)):
+            raise InvalidInputError(f"weights must be {n} finite numbers >= 0, one per scene")
+        if n == 0:
+            raise InvalidInputError("no scenes to estimate a rate from")
+        x = w * hit
+        rate = float(x.mean())
+        se = float(x.std(ddof=1) / math.sqrt(n)) if n > 1 else math.inf
+        ess = float(w.sum() ** 2 / np.sum(w * w)) if np.any(w > 0) else 0.0
+        per_hour = rate * 3600.0 / seconds if seconds > 0 else float("nan")
+        interval = (max(rate - 1.96 * se, 0.0), rate + 1.96 * se)
+        return cls(event, rate, se, interval, per_hour, int(hit.sum()), n, ess, float(seconds))
+
     def __str__(self) -> str:
         lo, hi = self.interval
         return (
@@ -303,30 +325,19 @@ class Estimate:
         )
 
 
-def estimate(scenes: Any, event: Any, *, size: Any = None, weights: Any = None) -> Estimate:
+def estimate(scenes: Any, event: Any, *, size: Any = None, weights: Any = None, measures: Any = None) -> Estimate:
     """The natural rate of ``event`` (:class:`Event` or its text) from ``scenes`` drawn with
     likelihood-ratio ``weights`` against the natural generator (default: the scenes' own, else
-    1: natural draws): ``mean(w 1[event])``, unbiased whatever the tilt that drew them."""
+    1: natural draws): ``mean(w 1[event])``, unbiased whatever the tilt that drew them.
+    ``measures``: the scenes' :meth:`Criticality.per_scene` when already computed (against the
+    ego for an ego event), so they are not measured twice."""
     ev = Event.parse(event)
-    c = criticality(scenes, size=size, ego=True if ev.ego else None)
-    n = c.n_scenes
+    if measures is None:
+        measures = criticality(scenes, size=size, ego=True if ev.ego else None).per_scene()
     w = getattr(scenes, "weights", None) if weights is None else weights
-    w = np.ones(n) if w is None else np.asarray(w, dtype=np.float64)
-    if w.shape != (n,) or not np.all(np.isfinite(w) & (w >= 0)):
-        raise InvalidInputError(f"weights must be {n} finite numbers >= 0, one per scene")
-    if n == 0:
-        raise InvalidInputError("no scenes to estimate a rate from")
-    hit = ev.happened(c.per_scene())
-    x = w * hit
-    rate = float(x.mean())
-    se = float(x.std(ddof=1) / math.sqrt(n)) if n > 1 else math.inf
     sims = getattr(scenes, "simulations", scenes)
-    seconds = float(sims[0].steps * sims[0].dt) if n and hasattr(sims[0], "steps") else float("nan")
-    ess = float(w.sum() ** 2 / np.sum(w * w)) if np.any(w > 0) else 0.0
-    return Estimate(
-        str(ev), rate, se, (max(rate - 1.96 * se, 0.0), rate + 1.96 * se),
-        rate * 3600.0 / seconds if seconds > 0 else float("nan"), int(hit.sum()), n, ess, seconds,
-    )  # fmt: skip
+    seconds = float(sims[0].steps * sims[0].dt) if len(sims) and hasattr(sims[0], "steps") else float("nan")
+    return Estimate.of(ev.happened(measures), w, event=str(ev), seconds=seconds)
 
 
 @dataclass(frozen=True)

@@ -83,12 +83,13 @@ class Scenarios:
     weights: np.ndarray | None = None
     sources: np.ndarray | None = None
 
-    def estimate(self, event: Any, size: Any = None) -> Any:
+    def estimate(self, event: Any, size: Any = None, measures: Any = None) -> Any:
         """The natural rate of ``event`` (e.g. ``"ttc<1.0"``) estimated from these scenes with
-        their :attr:`weights` (natural scenes: 1): a :class:`~dpgp.generate.criticality.Estimate`."""
+        their :attr:`weights` (natural scenes: 1): a :class:`~dpgp.generate.criticality.Estimate`
+        (``measures``: their per-scene measures when already computed)."""
         from .criticality import estimate
 
-        return estimate(self, event, size=size)
+        return estimate(self, event, size=size, measures=measures)
 
     def _is_ego(self, scenario: np.ndarray, vehicle: np.ndarray) -> np.ndarray:
         """Whether each ``(scenario, vehicle)`` row is its scenario's ego."""
