@@ -48,7 +48,7 @@ def test_the_weights_are_the_ratio_of_the_frames_probabilities(model) -> None:
 
 
 def test_a_tilted_estimate_agrees_with_crude_monte_carlo(model) -> None:
-    event = "deceleration>25"
+    event = "deceleration>19"
     q, levels = learn_tilt(model, event, per_round=300, rounds=4, steps=8, seed=1)
     assert np.all(q > 0) and q.sum() == pytest.approx(1.0)
     tilted = model.sample_scenarios(3000, steps=8, seed=2, tilt=q)

@@ -110,7 +110,17 @@ def test_fallback_to_psi_for_patterns_with_little_data(model, monkeypatch):
 
 
 @pytest.mark.parametrize("dynamics", ["field", "interactive"])
-def test_velocities_are_drawn_from_the_pattern_gp(model, dynamics):
+def test_velocities_are_drawn_from_the_pattern_gp(model, dynamics, monkeypatch):
+    if dynamics == "interactive":
+        # without interaction (rule 0, free): a follower would start no faster than its gap allows
+        records = sc.motion_records
+
+        def free(*args, **kwargs):
+            out = np.array(records(*args, **kwargs))
+            out[:, 3] = 0.0
+            return out
+
+        monkeypatch.setattr(sc, "motion_records", free)
     mean = model.sample_scenarios(30, steps=0, pattern=0, seed=1, stochastic=False, dynamics=dynamics)
     drawn = model.sample_scenarios(
         30, steps=0, pattern=0, seed=1, dynamics=dynamics

@@ -962,3 +962,66 @@ fn vehicles_queue_at_a_red_line_and_the_crossing_traffic_passes() {
     let green = run(&[], &mut field);
     assert!(green.positions[180][0] > 65.0, "{:?}", green.positions[180]);
 }
+
+#[test]
+fn a_generated_queue_starts_at_speeds_that_keep_its_gaps() {
+    // a standing front vehicle (the field is 0 from x = 35), a queue of three behind it 10 apart,
+    // and one free in the next lane; the field wants 15 elsewhere (a pattern's mean mixes the
+    // queue with free flow)
+    let motion = Motion::from_slice(&rec(&[
+        1.0, 0.5, 0.5, 1.0, 2.0, 7.0, 1.5, 1.0, 2.0, 1.5, -1.0, 1.0,
+    ]))
+    .unwrap();
+    let Rule::Vehicles { idm, .. } = motion.rule else {
+        panic!("vehicles")
+    };
+    let mut field = |q: &[Point]| -> Result<Vec<[f64; 2]>> {
+        Ok(q.iter()
+            .map(|p| {
+                if p[0] >= 35.0 {
+                    [0.0, 0.0]
+                } else {
+                    [15.0, 0.0]
+                }
+            })
+            .collect())
+    };
+    let start = [
+        [40.0, 0.0],
+        [30.0, 0.0],
+        [20.0, 0.0],
+        [10.0, 0.0],
+        [10.0, 3.5],
+    ];
+    let r = drive(&start, None, &opts(0.5, 2), &motion, None, &mut field).unwrap();
+    let speed = |t: usize, j: usize| r.velocities[t * 5 + j][0];
+    let c = 1.0 / (2.0 * (idm.accel * idm.decel).sqrt());
+    // each follower no faster than IDM keeps its desired gap at behind its leader's speed
+    for j in 1..4 {
+        let (u, lead) = (speed(0, j), speed(0, j - 1));
+        let s_star = idm.jam + u * idm.headway + u * (u - lead) * c;
+        assert!(
+            s_star <= 10.0 + 1e-9,
+            "vehicle {j}: s* {s_star} at {u} behind {lead}"
+        );
+        assert!(u > 0.0 && u < 15.0 && r.velocities[j][1] == 0.0, "{u}");
+    }
+    // settled from the front: the first follower's speed is the root of s* = gap behind a standing leader
+    let u1 = (-idm.headway + (idm.headway.powi(2) + 4.0 * c * 3.0).sqrt()) / (2.0 * c);
+    assert!((speed(0, 1) - u1).abs() < 1e-12, "{} vs {u1}", speed(0, 1));
+    // no hard braking at the first step (it braked from 15 to about 0 before)
+    for j in 1..4 {
+        assert!(
+            speed(0, j) - speed(1, j) < 0.5 * idm.decel,
+            "vehicle {j}: {} -> {}",
+            speed(0, j),
+            speed(1, j)
+        );
+    }
+    // the vehicle in the next lane is nobody's follower: its draw stands
+    assert_eq!(r.velocities[4], [15.0, 0.0]);
+    // recorded starts keep their own velocities
+    let own = vec![[15.0, 0.0]; 5];
+    let r = drive(&start, Some(&own), &opts(0.5, 1), &motion, None, &mut field).unwrap();
+    assert!(r.velocities[..5].iter().all(|v| *v == [15.0, 0.0]));
+}
