@@ -240,8 +240,10 @@ impl Scene<'_> {
         self.validate()?;
         let (l, times) = (self.vehicles, self.times());
         let heads: Vec<Vec<f64>> = (0..l).map(|j| self.headings(j)).collect();
-        let rect =
-            |t: usize, j: usize| Rect::new(self.positions[t * l + j], heads[j][t], self.sizes[j]);
+        // each vehicle's rectangle at each time, built once (a pair's loop reads them l times)
+        let rects: Vec<Rect> = (0..times * l)
+            .map(|r| Rect::new(self.positions[r], heads[r % l][r / l], self.sizes[r % l]))
+            .collect();
         let paths: Vec<Path> = (0..l).map(|j| Path::of(self, j)).collect();
         let mut pairs = Vec::new();
         for a in 0..l {
@@ -261,11 +263,11 @@ impl Scene<'_> {
                         continue;
                     }
                     together = true;
-                    let (x, y) = (rect(t, a), rect(t, b));
-                    let ttc = time_to_collision(&x, self.velocities[ra], &y, self.velocities[rb]);
+                    let (x, y) = (&rects[ra], &rects[rb]);
+                    let ttc = time_to_collision(x, self.velocities[ra], y, self.velocities[rb]);
                     pair.ttc = pair.ttc.min(ttc);
                     pair.collision |= ttc == 0.0;
-                    pair.gap = pair.gap.min(gap(&x, &y));
+                    pair.gap = pair.gap.min(gap(x, y));
                 }
                 if together {
                     pair.pet = paths[a].encroachment(&paths[b]);

@@ -45,3 +45,30 @@ pub fn headings<'a>(name: &str, a: &'a Option<PyReadonlyArray1<'_, f64>>) -> Cor
         }),
     }
 }
+
+/// `offsets` as indices: rising from 0 to `rows`, one more entry than `groups` (group `i` is rows
+/// `offsets[i]..offsets[i + 1]`).
+pub fn offsets_of(
+    offsets: &PyReadonlyArray1<'_, i64>,
+    groups: usize,
+    rows: usize,
+) -> CoreResult<Vec<usize>> {
+    let offsets: Vec<usize> = offsets
+        .as_array()
+        .iter()
+        .map(|&o| {
+            usize::try_from(o)
+                .map_err(|_| CoreError(Error::Shape("offsets must be non-negative".into())))
+        })
+        .collect::<CoreResult<_>>()?;
+    if offsets.len() != groups + 1
+        || offsets.first() != Some(&0)
+        || offsets.last() != Some(&rows)
+        || offsets.windows(2).any(|w| w[1] < w[0])
+    {
+        return Err(CoreError(Error::Shape(
+            "offsets must rise from 0 to the number of rows, one more entry than groups".into(),
+        )));
+    }
+    Ok(offsets)
+}

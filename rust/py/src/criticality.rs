@@ -4,7 +4,7 @@ use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::prelude::*;
 use rayon::prelude::*;
 
-use crate::convert::pairs;
+use crate::convert::{offsets_of, pairs};
 use crate::errors::CoreError;
 use dpgp_core::Error;
 use dpgp_core::criticality::{Measures, Scene};
@@ -48,20 +48,14 @@ pub fn criticality<'py>(
             "present must be a C-contiguous bool array".into(),
         ))
     })?;
-    let offsets: Vec<usize> = (offsets.as_array().iter())
-        .map(|&o| usize::try_from(o).unwrap_or(usize::MAX))
-        .collect();
     let rows = present.len();
-    if offsets.len() != vehicles.len() + 1
-        || offsets.first() != Some(&0)
-        || offsets.last() != Some(&rows)
-        || offsets.windows(2).any(|w| w[1] < w[0])
-        || positions.len() != rows
+    let offsets = offsets_of(&offsets, vehicles.len(), rows)?;
+    if positions.len() != rows
         || velocities.len() != rows
         || vehicles.iter().sum::<usize>() != sizes.len()
     {
         return Err(CoreError(Error::Shape(
-            "scenes: offsets must rise from 0 to the rows of positions, velocities and present (one more than scenes), and sizes hold one row per vehicle of every scene".into(),
+            "scenes: positions, velocities and present need the same rows, and sizes one row per vehicle of every scene".into(),
         ))
         .into());
     }

@@ -7,7 +7,7 @@ use numpy::{
 use pyo3::prelude::*;
 use rayon::prelude::*;
 
-use crate::convert::{pairs, to_numpy};
+use crate::convert::{offsets_of, pairs, to_numpy};
 use crate::errors::{CoreError, CoreResult};
 use crate::sampler::{PySampler, pattern_at};
 use dpgp_core::Error;
@@ -165,32 +165,6 @@ fn headed<'p>(
         Some((h, speed)) => field.with_headings(h[a..b].to_vec(), speed),
         None => field,
     }
-}
-
-fn offsets_of(
-    offsets: &PyReadonlyArray1<'_, i64>,
-    groups: usize,
-    rows: usize,
-) -> CoreResult<Vec<usize>> {
-    let offsets: Vec<usize> = offsets
-        .as_array()
-        .iter()
-        .map(|&o| {
-            usize::try_from(o)
-                .map_err(|_| CoreError(Error::Shape("offsets must be non-negative".into())))
-        })
-        .collect::<CoreResult<_>>()?;
-    if offsets.len() != groups + 1
-        || offsets.first() != Some(&0)
-        || offsets.last() != Some(&rows)
-        || offsets.windows(2).any(|w| w[1] < w[0])
-    {
-        return Err(CoreError(Error::Shape(
-            "offsets must rise from 0 to the number of start positions, one more entry than slots"
-                .into(),
-        )));
-    }
-    Ok(offsets)
 }
 
 /// One [`Motion`] per rollout from a `(rollouts, MOTION_FIELDS)` array.
