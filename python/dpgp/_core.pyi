@@ -145,7 +145,16 @@ def scene_rollouts(
     starts: NDArray[np.float64] | None = None,
     start_offsets: NDArray[np.int64] | None = None,
     headings: _Headings | None = None,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_], list[int]]: ...
+    shift: tuple[float, float] | None = None,
+) -> tuple[
+    NDArray[np.float64],
+    NDArray[np.float64],
+    NDArray[np.bool_],
+    NDArray[np.bool_],
+    list[int],
+    list[float],
+    NDArray[np.float64],
+]: ...
 def field_means(
     sampler: Sampler,
     slots: list[int],

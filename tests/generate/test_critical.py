@@ -11,7 +11,7 @@ import pytest
 
 import dpgp
 from dpgp.exceptions import InvalidInputError
-from dpgp.generate.critical import learn_tilt, natural_frames
+from dpgp.generate.critical import MAX_SHIFT, Tilt, learn_tilt, natural_frames
 from dpgp.generate.criticality import Estimate, Event, criticality
 
 
@@ -49,9 +49,10 @@ def test_the_weights_are_the_ratio_of_the_frames_probabilities(model) -> None:
 
 def test_a_tilted_estimate_agrees_with_crude_monte_carlo(model) -> None:
     event = "deceleration>19"
-    q, levels = learn_tilt(model, event, per_round=300, rounds=4, steps=8, seed=1)
-    assert np.all(q > 0) and q.sum() == pytest.approx(1.0)
-    tilted = model.sample_scenarios(3000, steps=8, seed=2, tilt=q)
+    tilt, levels = learn_tilt(model, event, per_round=300, rounds=4, steps=8, seed=1)
+    assert np.all(tilt.frames > 0) and tilt.frames.sum() == pytest.approx(1.0)
+    assert tilt.shift is not None and 0 < math.hypot(*tilt.shift) <= MAX_SHIFT
+    tilted = model.sample_scenarios(3000, steps=8, seed=2, tilt=tilt)
     crude = model.sample_scenarios(3000, steps=8, seed=3)
     a, b = tilted.estimate(event), crude.estimate(event)
     assert crude.weights is None and b.ess == pytest.approx(3000) and b.hits > 30
@@ -72,6 +73,33 @@ def test_a_tilted_estimate_agrees_with_crude_monte_carlo(model) -> None:
     assert a.rate == pytest.approx(np.mean([h.rate for h in halves]))
     with pytest.raises(InvalidInputError, match="weights"):
         Estimate.of(hit, tilted.weights[:-1])
+
+
+def test_a_shifted_innovation_is_weighed_exactly(model) -> None:
+    """One innovation per scene drawn from N(mu, I): weights of mean 1, the natural generator at
+    mu = 0 bit for bit, and an event's estimate agreeing with crude Monte Carlo."""
+    p = natural_frames(model)
+    plain = model.sample_scenarios(40, steps=6, seed=4, tilt=p)
+    zero = model.sample_scenarios(40, steps=6, seed=4, tilt=Tilt(p, (0.0, 0.0)))
+    for a, b in zip(plain, zero):
+        np.testing.assert_array_equal(a.positions, b.positions)
+    np.testing.assert_array_equal(zero.weights, 1.0)
+    shifted = model.sample_scenarios(4000, steps=6, seed=5, tilt=Tilt(None, (-2.0, 0.5)))
+    w = shifted.weights
+    assert np.all(np.isfinite(w) & (w > 0)) and np.std(w) > 0.1
+    assert abs(w.mean() - 1) <= 4 * w.std(ddof=1) / math.sqrt(len(w)), w.mean()
+    # the shifted innovation is drawn around the shift (where its vehicle was still there)
+    z = shifted.picks[np.all(np.isfinite(shifted.picks), axis=1)]
+    assert len(z) > 1000 and np.allclose(z.mean(axis=0), [-2.0, 0.5], atol=0.15)
+    event = "deceleration>12"
+    crude = model.sample_scenarios(4000, steps=6, seed=6).estimate(event)
+    a = shifted.estimate(event)
+    assert crude.hits > 30 and abs(a.rate - crude.rate) <= 4 * math.hypot(a.stderr, crude.stderr), (a, crude)
+    for bad in ((1.0,), (np.nan, 0.0), "up"):
+        with pytest.raises(InvalidInputError, match="shift"):
+            model.sample_scenarios(2, steps=1, tilt=Tilt(None, bad))  # type: ignore[arg-type]
+    with pytest.raises(InvalidInputError, match="stochastic"):
+        model.sample_scenarios(2, steps=1, tilt=Tilt(None, (1.0, 0.0)), stochastic=False)
 
 
 def test_events_and_tilts_are_checked(model) -> None:

@@ -82,6 +82,9 @@ class Scenarios:
     #: natural one, and the training frame it started from.
     weights: np.ndarray | None = None
     sources: np.ndarray | None = None
+    #: With a :class:`Tilt` of the innovations: each scene's shifted innovation (``(n, 2)``; NaN
+    #: where its vehicle was gone by then), what :func:`~dpgp.generate.critical.learn_tilt` learns from.
+    picks: np.ndarray | None = None
 
     def estimate(self, event: Any, size: Any = None, measures: Any = None) -> Any:
         """The natural rate of ``event`` (e.g. ``"ttc<1.0"``) estimated from these scenes with
@@ -273,7 +276,8 @@ def sample_scenarios(
     ``(x, y)`` or ``(x, y, heading in degrees)``, each scenario's ego vehicle by
     :func:`choose_ego`. ``tilt``: draw each scene's training frame from these probabilities (one
     per training frame, :func:`tilted_frames`; :mod:`.critical`) instead of the natural ones
-    (:func:`natural_frames`), and weigh it by the ratio."""
+    (:func:`natural_frames`), or from a :class:`Tilt` that may also shift an innovation, and weigh
+    each scene by its likelihood ratio."""
     rule = _ego_rule(ego)
     scenes = _sample(model, n, steps, pattern, seed, dt=dt, method=method, stochastic=stochastic, roi=roi,
                      low_data_threshold=low_data_threshold, dynamics=dynamics, max_curvature=max_curvature,
@@ -281,6 +285,23 @@ def sample_scenarios(
     if rule is None:
         return scenes
     return dataclasses.replace(scenes, ego=choose_ego(scenes.simulations, *rule))
+
+
+@dataclass(frozen=True)
+class Tilt:
+    """An importance-sampling tilt of the default generator (:mod:`.critical`): ``frames``, the
+    probability of starting from each training frame (``None``: the natural ones,
+    :func:`natural_frames`); ``shift``, the mean ``(along, across)`` from which one uniformly
+    chosen residual innovation of each scene is drawn (``None``: none; the core's ``Shift``,
+    ``docs/criticality.md``). Each scene's weight is the product of both exact ratios."""
+
+    frames: Any = None
+    shift: tuple[float, float] | None = None
+
+    @classmethod
+    def of(cls, tilt: Any) -> Tilt:
+        """A :class:`Tilt`, or frame probabilities alone."""
+        return tilt if isinstance(tilt, Tilt) else cls(frames=tilt)
 
 
 def natural_frames(model: Any) -> np.ndarray:
@@ -392,11 +413,18 @@ def _sample(
             raise InvalidInputError(
                 "tilt= draws the starting frames of the default generator: drop dynamics='field' and pattern="
             )
-        q = tilted_frames(fit, tilt)
+        tilt = Tilt.of(tilt)
+        p = natural_frames(fit)
+        q = p if tilt.frames is None else tilted_frames(fit, tilt.frames)
+        shift = _check_shift(tilt.shift, stochastic)
         chosen = rng.choice(len(q), size=n, p=q).astype(np.int64)
         scenes = _interactive(fit, fit.labels[chosen].astype(np.int64), psi, rng, steps=steps, dt=float(dt),
-                              stochastic=stochastic, roi=box, low_data_threshold=thr, dynamics=dynamics, chosen=chosen)  # fmt: skip
-        return dataclasses.replace(scenes, weights=natural_frames(fit)[chosen] / q[chosen], sources=chosen)
+                              stochastic=stochastic, roi=box, low_data_threshold=thr, dynamics=dynamics, chosen=chosen,
+                              shift=shift)  # fmt: skip
+        ratio = p[chosen] / q[chosen]
+        if scenes.weights is not None:  # the shifted innovations' own ratios
+            ratio = ratio * scenes.weights
+        return dataclasses.replace(scenes, weights=ratio, sources=chosen)
     if pattern is None:
         patterns = rng.choice(fit.n_patterns, size=n, p=fit.weights).astype(np.int64)
     else:
@@ -427,6 +455,20 @@ def _sample(
     return Scenarios(sims, patterns, counts)
 
 
+def _check_shift(shift: Any, stochastic: bool) -> tuple[float, float] | None:
+    if shift is None:
+        return None
+    try:
+        mean = tuple(float(v) for v in shift)
+    except (TypeError, ValueError):
+        mean = ()
+    if len(mean) != 2 or not all(np.isfinite(mean)):
+        raise InvalidInputError(f"a tilt's shift is two finite numbers (along, across), got {shift!r}")
+    if not stochastic:
+        raise InvalidInputError("a tilt's shift moves drawn innovations: drop stochastic=False")
+    return (mean[0], mean[1])
+
+
 def pattern_frames(fit: FittedPatterns, patterns: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """A training frame per scenario, drawn uniformly from its pattern's own."""
     out = np.zeros(len(patterns), dtype=np.int64)
@@ -444,7 +486,7 @@ def pattern_counts(fit: FittedPatterns, patterns: np.ndarray, rng: np.random.Gen
 
 def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistributions, rng: np.random.Generator, *,
                  steps: int, dt: float, stochastic: bool, roi: Any, low_data_threshold: float | None, dynamics: str,
-                 chosen: np.ndarray | None = None) -> Scenarios:  # fmt: skip
+                 chosen: np.ndarray | None = None, shift: tuple[float, float] | None = None) -> Scenarios:  # fmt: skip
     """Scenes from each pattern's own frames (``chosen``: these training frames, one a scene): the positions of one of them (a recorded
     configuration: its count, spacing and groups), less any vehicle closer than the pattern's
     recorded spacing to one kept before it; velocities jointly from its GP at those positions,
@@ -463,11 +505,11 @@ def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistri
     seeds = [int(s) for s in rng.integers(0, 2**63, size=len(patterns), dtype=np.uint64)]
     spacing = motion_model(fit).spacing[patterns]
     unused = np.ones((1, 1))  # the core's histogram placement: not used when starts are given
-    pos, vel, inside, low, sizes = _core.scene_rollouts(
+    pos, vel, inside, low, sizes, log_ratios, picks = _core.scene_rollouts(
         fit.sampler, [int(fit.slots[k]) for k in patterns], requested.tolist(), [0] * len(patterns),
         unused, (1, 1), tuple(psi.roi), spacing.tolist(),  # type: ignore[arg-type]
         motion_records(patterns, dynamics, motion_model(fit)), seeds, bool(stochastic), float(dt), int(steps), tuple(roi), low_data_threshold,
-        starts, np.r_[0, np.cumsum(requested)].astype(np.int64), headings,
+        starts, np.r_[0, np.cumsum(requested)].astype(np.int64), headings, shift,
     )  # fmt: skip
     sims = split(
         pos,
@@ -482,7 +524,10 @@ def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistri
         roi=roi,
         dynamics=dynamics,
     )
-    return Scenarios(sims, patterns, np.asarray(sizes, dtype=np.int64))
+    if shift is None:
+        return Scenarios(sims, patterns, np.asarray(sizes, dtype=np.int64))
+    # weighed by the shifted innovation's ratio (the starting frames' is _sample's)
+    return Scenarios(sims, patterns, np.asarray(sizes, dtype=np.int64), weights=np.exp(log_ratios), picks=picks)
 
 
 __all__ = ["Scenarios", "sample_scenarios", "distributions", "pattern_positions", "MIN_OWN_POSITIONS", "MAX_SCENARIOS"]

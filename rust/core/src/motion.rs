@@ -40,7 +40,7 @@ use rand_distr::{Distribution, StandardNormal};
 
 use crate::error::{Error, Result};
 use crate::frame::Point;
-use crate::rng::{Phase, stream};
+use crate::rng::{Phase, stream, uniform};
 use crate::simulate::{Field, HeadingTrack, LateFlags, Method, Options, Rollout};
 
 /// Stream entity of the residual's innovations (entity 0 is the GP draw at step 0).
@@ -48,6 +48,8 @@ const NOISE_ENTITY: u64 = 1;
 /// Stream entity of the pedestrians' step jitter ([`Motion::jitter`]): its own stream, so that a
 /// model without jitter draws exactly the numbers it drew before.
 const JITTER_ENTITY: u64 = 2;
+/// Stream entity of a [`Shift`]'s choice of the innovation it moves.
+const SHIFT_ENTITY: u64 = 3;
 /// Passes that settle a generated queue's first speeds from its front ([`start_behind_leaders`]).
 const START_PASSES: usize = 8;
 /// Cosine of the widest angle between two vehicles' headings at which one follows the other (60°).
@@ -676,6 +678,72 @@ fn speed_bound(a: &[f64; 2], b: &[f64; 2]) -> f64 {
     a[0].hypot(a[1]) + b[0].hypot(b[1])
 }
 
+/// An importance-sampling tilt of the residual's innovations (issue 35): one of the rollout's
+/// `vehicles × (steps + 1)` innovation slots, chosen uniformly (its own stream), draws its
+/// standard normals from `N(mean, I)` instead of `N(0, I)`; every other draw stays natural. The
+/// rollout's ratio of natural to tilted density is then exact whatever path it took: with
+/// `a_c = mean · z_c − |mean|² / 2` for each slot `c` drawn (its final `z`) and `a_c = 0` for a
+/// slot never drawn (its vehicle not there), `p / q = 1 / mean_c exp(a_c)` (the mixture over
+/// which slot moved). One shifted innovation at a time is the defensive form of "make one
+/// driver's wish jump": its weights stay bounded where shifting every draw degenerates them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Shift {
+    pub mean: [f64; 2],
+}
+
+/// A [`Shift`] at work in one rollout: its slot, the terms `a_c` so far, and the shifted
+/// innovation (NaN until its slot is drawn).
+struct Shifting {
+    mean: [f64; 2],
+    slot: usize,
+    slots: usize,
+    terms: Vec<f64>,
+    pick: [f64; 2],
+}
+
+impl Shifting {
+    fn new(shift: Shift, seed: u64, vehicles: usize, steps: usize) -> Result<Self> {
+        if !shift.mean.iter().all(|m| m.is_finite()) {
+            return Err(Error::InvalidInput(format!(
+                "the innovations' shift must be finite, got {:?}",
+                shift.mean
+            )));
+        }
+        let slots = (vehicles * (steps + 1)).max(1);
+        let u = uniform(seed, 0, Phase::Simulate, SHIFT_ENTITY);
+        Ok(Self {
+            mean: shift.mean,
+            slot: ((u * slots as f64) as usize).min(slots - 1),
+            slots,
+            terms: Vec::new(),
+            pick: [f64::NAN; 2],
+        })
+    }
+
+    /// Vehicle `j`'s standard normals `z` at step `t`, shifted when theirs is the slot.
+    fn draw(&mut self, t: usize, j: usize, vehicles: usize, z: [f64; 2]) -> [f64; 2] {
+        let m = self.mean;
+        let z = if t * vehicles + j == self.slot {
+            self.pick = [z[0] + m[0], z[1] + m[1]];
+            self.pick
+        } else {
+            z
+        };
+        self.terms
+            .push(m[0] * z[0] + m[1] * z[1] - 0.5 * (m[0] * m[0] + m[1] * m[1]));
+        z
+    }
+
+    /// `ln(p / q) = −ln(mean_c exp(a_c))`, the slots never drawn counting `exp(0)`.
+    fn log_ratio(&self) -> f64 {
+        let top = self.terms.iter().copied().fold(0.0, f64::max);
+        let rest = (self.slots - self.terms.len().min(self.slots)) as f64;
+        let sum: f64 =
+            self.terms.iter().map(|a| (a - top).exp()).sum::<f64>() + rest * (-top).exp();
+        -(top + (sum / self.slots as f64).ln())
+    }
+}
+
 /// A generated scene's first velocities where vehicles follow one another: no faster than IDM
 /// keeps its desired gap at, `s*(u, Δu) ≤ gap` with `s* = jam + u T + u (u − u_leader) /
 /// (2 √(a b))`, so that the first step does not brake behind the leader. The field's draw at a
@@ -745,7 +813,31 @@ pub fn drive(
     seed: Option<u64>,
     field: &mut dyn Field,
 ) -> Result<Rollout> {
-    drive_on(start, v0, None, &[], opts, motion, seed, field)
+    drive_on(start, v0, None, &[], opts, motion, seed, None, field)
+}
+
+/// [`drive`] of a generated scene (`v0 = None`) whose residual innovations are tilted by
+/// `shift` ([`Shift`]; stochastic only: it moves draws). [`Rollout::log_ratio`] is the scene's
+/// log likelihood ratio, [`Rollout::pick`] its shifted innovation (NaN: its slot was never drawn).
+pub fn drive_shifted(
+    start: &[Point],
+    opts: &Options,
+    motion: &Motion,
+    seed: u64,
+    shift: Shift,
+    field: &mut dyn Field,
+) -> Result<Rollout> {
+    drive_on(
+        start,
+        None,
+        None,
+        &[],
+        opts,
+        motion,
+        Some(seed),
+        Some(shift),
+        field,
+    )
 }
 
 /// Driver states carried from an earlier rollout ([`Rollout::drivers`]): each agent's desired
@@ -788,6 +880,7 @@ pub fn drive_on(
     opts: &Options,
     motion: &Motion,
     seed: Option<u64>,
+    shift: Option<Shift>,
     field: &mut dyn Field,
 ) -> Result<Rollout> {
     let renew = drivers.is_some_and(|d| d.renew);
@@ -820,6 +913,15 @@ pub fn drive_on(
     }
     let mut out = Rollout::begin(start, opts)?;
     let (l, dt) = (start.len(), opts.dt);
+    let mut shifting = match (shift, seed) {
+        (Some(s), Some(seed)) => Some(Shifting::new(s, seed, l, opts.steps)?),
+        (Some(_), None) => {
+            return Err(Error::InvalidInput(
+                "a shift of the innovations needs drawn innovations (a stochastic rollout with a seed)".into(),
+            ));
+        }
+        (None, _) => None,
+    };
     let tau_across = match motion.spread {
         Spread::Components => motion.tau,
         Spread::Heading { tau_across, .. } => tau_across,
@@ -910,8 +1012,11 @@ pub fn drive_on(
                             match rng.as_mut() {
                                 // the stationary residual, in the spread's frame at the mean
                                 Some(rng) => {
-                                    let z =
+                                    let mut z =
                                         [StandardNormal.sample(rng), StandardNormal.sample(rng)];
+                                    if let Some(s) = shifting.as_mut() {
+                                        z = s.draw(0, j, l, z);
+                                    }
                                     let r = stationary(mean[a], z, motion);
                                     [w[0] + r[0], w[1] + r[1]]
                                 }
@@ -942,10 +1047,13 @@ pub fn drive_on(
                 let mut desired = Vec::with_capacity(x.len());
                 let mut current = Vec::with_capacity(x.len());
                 for (a, &j) in active.iter().enumerate() {
-                    let z: [f64; 2] = match rng.as_mut() {
+                    let mut z: [f64; 2] = match rng.as_mut() {
                         Some(rng) => [StandardNormal.sample(rng), StandardNormal.sample(rng)],
                         None => [0.0; 2],
                     };
+                    if let Some(s) = shifting.as_mut() {
+                        z = s.draw(t, j, l, z);
+                    }
                     // where the field knows less (support < 1), its driver follows it more
                     // slowly: with no data there (the prior's zero mean), it keeps its wish
                     let (rho, kick, turn) = match &known {
@@ -1020,6 +1128,10 @@ pub fn drive_on(
         out.positions.extend_from_slice(&next);
     }
     late.fill(field, &mut out.low_data)?;
+    if let Some(s) = shifting {
+        out.log_ratio = s.log_ratio();
+        out.pick = s.pick;
+    }
     out.drivers = if motion.tau_heading.is_some() {
         steering
     } else {

@@ -275,6 +275,11 @@ pub struct Rollout {
     /// Interactive rollouts only ([`crate::motion::drive_on`]): each vehicle's driver state after
     /// the last step, to continue it in another rollout (empty otherwise).
     pub drivers: Vec<[f64; 2]>,
+    /// Interactive rollouts with a [`crate::motion::Shift`] of the residual's innovations: the
+    /// log likelihood ratio of the rollout's random draws, natural against shifted, and the
+    /// shifted innovation (NaN where its slot was never drawn; 0 and NaN without a shift).
+    pub log_ratio: f64,
+    pub pick: [f64; 2],
 }
 
 impl Rollout {
@@ -292,6 +297,8 @@ impl Rollout {
             in_roi: Vec::with_capacity(rows),
             low_data: vec![false; rows],
             drivers: Vec::new(),
+            log_ratio: 0.0,
+            pick: [f64::NAN; 2],
         };
         out.positions.extend_from_slice(start);
         out.in_roi

@@ -15,7 +15,9 @@ use dpgp_core::frame::Inputs;
 use dpgp_core::free_speed::{AtFreeSpeed, FreeSpeeds, SECTORS};
 use dpgp_core::gibbs::Sampler;
 use dpgp_core::kernel::Point;
-use dpgp_core::motion::{Carried, MOTION_FIELDS, Motion, Stop, drive, drive_on};
+use dpgp_core::motion::{
+    Carried, MOTION_FIELDS, Motion, Shift, Stop, drive, drive_on, drive_shifted,
+};
 use dpgp_core::pattern_model::PatternModel;
 use dpgp_core::placement::{Grid, place, thin_kept};
 use dpgp_core::rng::{Phase, stream};
@@ -327,6 +329,7 @@ pub fn motion_rollouts<'py>(
             &opts,
             &motion[i],
             seed,
+            None,
             field.as_mut(),
         )
     })?;
@@ -342,10 +345,12 @@ pub fn motion_rollouts<'py>(
 /// `counts[i]` vehicles from position grid `grids[grid[i]]` (rows of bin weights, `bins`
 /// `(nx, ny)` over `grid_roi`) no closer than `spacing[i]`, draws their velocities jointly from
 /// the pattern in `slots[i]` (the mean if not `stochastic`), and rolls them out by `motion[i]`.
-/// Every draw comes from `seeds[i]`. Returns the arrays of [`rollouts`] and each scene's
-/// vehicle count.
+/// Every draw comes from `seeds[i]`. `shift`: the residual's innovations tilted by a
+/// [`Shift`] of that mean (stochastic only). Returns the arrays of [`rollouts`], each scene's
+/// vehicle count, and with a shift each scene's log likelihood ratio and picked innovation
+/// ([`drive_shifted`]; zeros and NaN without).
 #[pyfunction]
-#[pyo3(signature = (sampler, slots, counts, grid, grids, bins, grid_roi, spacing, motion, seeds, stochastic, dt, steps, roi=None, low_data=None, starts=None, start_offsets=None, headings=None))]
+#[pyo3(signature = (sampler, slots, counts, grid, grids, bins, grid_roi, spacing, motion, seeds, stochastic, dt, steps, roi=None, low_data=None, starts=None, start_offsets=None, headings=None, shift=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn scene_rollouts<'py>(
     py: Python<'py>,
@@ -367,14 +372,24 @@ pub fn scene_rollouts<'py>(
     starts: Option<PyReadonlyArray2<'py, f64>>,
     start_offsets: Option<PyReadonlyArray1<'py, i64>>,
     headings: Headings<'py>,
+    shift: Option<(f64, f64)>,
 ) -> PyResult<(
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray2<f64>>,
     Bound<'py, PyArray1<bool>>,
     Bound<'py, PyArray1<bool>>,
     Vec<usize>,
+    Vec<f64>,
+    Bound<'py, PyArray2<f64>>,
 )> {
     let n = slots.len();
+    let shift = shift.map(|(a, b)| Shift { mean: [a, b] });
+    if shift.is_some() && !stochastic {
+        return Err(CoreError(Error::InvalidInput(
+            "a shift of the innovations needs drawn innovations (stochastic)".into(),
+        ))
+        .into());
+    }
     // recorded configurations, one per scenario (thinned to the spacing), instead of placement
     let configs: Option<(&[Point], Vec<usize>)> = match (&starts, &start_offsets) {
         (Some(s), Some(o)) => {
@@ -451,11 +466,16 @@ pub fn scene_rollouts<'py>(
                 )
             }
         };
-        drive(&start, None, &opts, &motion[i], seed, &mut field)
+        match (shift, seed) {
+            (Some(s), Some(seed)) => drive_shifted(&start, &opts, &motion[i], seed, s, &mut field),
+            _ => drive(&start, None, &opts, &motion[i], seed, &mut field),
+        }
     })?;
     let sizes = rollouts.iter().map(|r| r.vehicles).collect();
+    let ratios = rollouts.iter().map(|r| r.log_ratio).collect();
+    let picks = to_numpy(py, rollouts.iter().map(|r| r.pick).collect());
     let (pos, vel, inside, low) = arrays(py, rollouts);
-    Ok((pos, vel, inside, low, sizes))
+    Ok((pos, vel, inside, low, sizes, ratios, picks))
 }
 
 /// Roll vehicles through the affine field `v(p) = a p + b` (`a` row-major): constant for

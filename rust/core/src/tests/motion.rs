@@ -666,6 +666,7 @@ fn a_rollout_continued_with_its_drivers_is_the_rollout_run_on() {
         &opts(0.5, 6),
         &motion,
         None,
+        None,
         &mut field,
     )
     .unwrap();
@@ -699,6 +700,7 @@ fn a_rollout_continued_with_its_drivers_is_the_rollout_run_on() {
             &opts(0.5, 1),
             &motion,
             None,
+            None,
             &mut field
         )
         .is_err()
@@ -711,6 +713,7 @@ fn a_rollout_continued_with_its_drivers_is_the_rollout_run_on() {
             &[],
             &opts(0.5, 1),
             &motion,
+            None,
             None,
             &mut field
         )
@@ -740,6 +743,7 @@ fn a_vehicle_standing_in_a_queue_keeps_its_heading() {
         &[],
         &opts(0.5, 20),
         &motion,
+        None,
         None,
         &mut Stop,
     )
@@ -779,6 +783,7 @@ fn a_driver_follows_a_field_only_as_far_as_it_knows() {
             &[],
             &opts(0.5, 4),
             &motion,
+            None,
             None,
             &mut Known(s),
         )
@@ -832,6 +837,7 @@ fn renewed_drivers_take_up_the_new_field_as_far_as_it_knows_them() {
                 &[],
                 &opts(0.5, 3),
                 motion,
+                None,
                 None,
                 &mut East(s),
             )
@@ -941,6 +947,7 @@ fn vehicles_queue_at_a_red_line_and_the_crossing_traffic_passes() {
             &opts(0.5, 60),
             &motion,
             None,
+            None,
             field,
         )
         .unwrap()
@@ -1024,4 +1031,132 @@ fn a_generated_queue_starts_at_speeds_that_keep_its_gaps() {
     let own = vec![[15.0, 0.0]; 5];
     let r = drive(&start, Some(&own), &opts(0.5, 1), &motion, None, &mut field).unwrap();
     assert!(r.velocities[..5].iter().all(|v| *v == [15.0, 0.0]));
+}
+
+/// The standard normal density of a pair.
+fn phi2(z: [f64; 2]) -> f64 {
+    (-(z[0] * z[0] + z[1] * z[1]) / 2.0).exp() / (2.0 * std::f64::consts::PI)
+}
+
+#[test]
+fn a_shift_weighs_its_draws_by_the_mixture_density() {
+    // 3 vehicles x 3 times = 9 slots, 7 of them drawn (two vehicles gone): the ratio against a
+    // direct computation of both densities, natural (every draw standard) over the mixture of
+    // "slot c drawn from N(mu, I)" (an undrawn slot's component is the natural density)
+    let mean = [-1.3, 0.4];
+    let mut s = Shifting::new(Shift { mean }, 11, 3, 2).unwrap();
+    let drawn = [(0, 0), (0, 1), (0, 2), (1, 0), (1, 1), (2, 0), (2, 1)];
+    let mut zs = Vec::new();
+    for (k, &(t, j)) in drawn.iter().enumerate() {
+        let raw = [0.3 * k as f64 - 0.7, 0.5 - 0.2 * k as f64];
+        let z = s.draw(t, j, 3, raw);
+        if t * 3 + j == s.slot {
+            assert_eq!(z, [raw[0] + mean[0], raw[1] + mean[1]]);
+            assert_eq!(s.pick, z);
+        } else {
+            assert_eq!(z, raw);
+        }
+        zs.push(z);
+    }
+    let p: f64 = zs.iter().map(|&z| phi2(z)).product();
+    let mut q = 0.0;
+    for c in 0..9 {
+        let mut qc = 1.0;
+        for (k, &(t, j)) in drawn.iter().enumerate() {
+            let z = zs[k];
+            qc *= if t * 3 + j == c {
+                phi2([z[0] - mean[0], z[1] - mean[1]])
+            } else {
+                phi2(z)
+            };
+        }
+        q += qc / 9.0;
+    }
+    let want = (p / q).ln();
+    assert!(
+        (s.log_ratio() - want).abs() < 1e-12,
+        "{} vs {want}",
+        s.log_ratio()
+    );
+    // no shift: every weight 1
+    let mut none = Shifting::new(Shift { mean: [0.0; 2] }, 11, 3, 2).unwrap();
+    none.draw(0, 0, 3, [2.0, -1.0]);
+    assert_eq!(none.log_ratio(), 0.0);
+    assert!(
+        Shifting::new(
+            Shift {
+                mean: [f64::NAN, 0.0]
+            },
+            1,
+            1,
+            1
+        )
+        .is_err()
+    );
+}
+
+#[test]
+fn shifted_rollouts_have_mean_weight_one_and_unbiased_expectations() {
+    // a free vehicle and a follower on a uniform field; the statistic is the follower's last
+    // speed above 16.5 (rare naturally, frequent when its wish is pushed up)
+    let motion = Motion::from_slice(&rec(&[
+        2.0, 1.0, 0.5, 1.0, 2.0, 7.0, 1.5, 1.0, 2.0, 1.5, 0.1, 1.0,
+    ]))
+    .unwrap();
+    let mut field = |q: &[Point]| -> Result<Vec<[f64; 2]>> { Ok(vec![[15.0, 0.0]; q.len()]) };
+    let start = [[0.0, 0.0], [0.0, 20.0]];
+    let o = opts(0.5, 4);
+    let n = 20_000;
+    let stat = |r: &Rollout| f64::from(u8::from(r.velocities[4 * 2 + 1][0] > 16.5));
+    let (mut w_sum, mut w2, mut hit, mut hit2, mut natural) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for seed in 0..n as u64 {
+        let r = drive_shifted(
+            &start,
+            &o,
+            &motion,
+            seed,
+            Shift { mean: [2.0, 0.0] },
+            &mut field,
+        )
+        .unwrap();
+        let w = r.log_ratio.exp();
+        w_sum += w;
+        w2 += w * w;
+        hit += w * stat(&r);
+        hit2 += (w * stat(&r)).powi(2);
+        let nat = drive(
+            &start,
+            None,
+            &o,
+            &motion,
+            Some(seed + 1_000_000),
+            &mut field,
+        )
+        .unwrap();
+        natural += stat(&nat);
+    }
+    let nf = n as f64;
+    let (mean_w, se_w) = (w_sum / nf, ((w2 / nf - (w_sum / nf).powi(2)) / nf).sqrt());
+    assert!((mean_w - 1.0).abs() < 4.0 * se_w, "{mean_w} ± {se_w}");
+    let (est, se) = (hit / nf, ((hit2 / nf - (hit / nf).powi(2)) / nf).sqrt());
+    let crude = natural / nf;
+    let se_crude = (crude * (1.0 - crude) / nf).sqrt();
+    assert!(crude > 0.002 && crude < 0.2, "{crude}");
+    assert!(
+        (est - crude).abs() < 4.0 * (se * se + se_crude * se_crude).sqrt(),
+        "{est} ± {se} vs {crude} ± {se_crude}"
+    );
+    // without a seed there is nothing to shift
+    let err = drive_on(
+        &start,
+        None,
+        None,
+        &[],
+        &o,
+        &motion,
+        None,
+        Some(Shift { mean: [1.0, 0.0] }),
+        &mut field,
+    );
+    assert!(err.is_err());
 }
