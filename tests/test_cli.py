@@ -192,6 +192,14 @@ def test_generate_csv_and_sumo(model_file, tmp_path):
     ids = set(dpgp.read_tracks(ego, preset="sumo")["id"])
     assert {f"s{s}_ego" for s in range(3)} <= ids
     assert main([*args, "--ego", "0"]) == 1  # a point needs two coordinates
+    # --place-ego: a vehicle placed at the point in every scenario is the ego
+    x0, x1, y0, y1 = dpgp.DPGP.load(model_file)._fitted().roi
+    at = (0.5 * (x0 + x1), 0.5 * (y0 + y1))
+    assert main([*args, "--ego", str(at[0]), str(at[1]), "--place-ego"]) == 0
+    placed = dpgp.read_tracks(ego, preset="sumo")
+    first = placed[placed["id"].str.endswith("_ego")].sort_values("t").groupby("id").head(1)
+    assert len(first) == 3 and np.allclose(first[["x", "y"]].to_numpy(), at, atol=1e-2)
+    assert main([*args, "--place-ego"]) == 1  # placed where? --ego X Y
     # --critical: tilted toward an event, a table of weights and measures beside the output
     crit = tmp_path / "crit.csv"
     base = ["generate", str(model_file), "-n", "6", "-o", str(crit), "--steps", "4", "--seed", "1"]

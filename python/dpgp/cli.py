@@ -249,6 +249,13 @@ def _generate(args: argparse.Namespace) -> int:
             import secrets
 
             args.seed = secrets.randbelow(2**31)
+    if args.place_ego:
+        from .generate.scenarios import Ego
+
+        if args.ego is None or len(args.ego) not in (2, 3):
+            raise InvalidInputError("--place-ego places the ego at --ego X Y [HEADING]: give --ego too")
+        heading = args.ego[2] if len(args.ego) == 3 else None
+        args.ego = Ego(args.ego[0], args.ego[1], heading, placed=True)
     if args.critical is not None:
         if args.pattern is not None or args.dynamics not in (None, "interactive") or args.mean:
             raise InvalidInputError("--critical tilts the default generator: drop --pattern, --dynamics and --mean")
@@ -565,6 +572,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ego", type=float, nargs="+", metavar="X Y [HEADING]",
                    help="each scenario's vehicle nearest (X, Y) at the start (heading within 45 degrees of HEADING, "
                    "degrees, if given) is its ego vehicle: Ego in OpenSCENARIO, s<scenario>_ego in SUMO")  # fmt: skip
+    p.add_argument("--place-ego", action="store_true",
+                   help="with --ego: place the ego at (X, Y) in every scenario (heading HEADING over heading fields) "
+                   "instead of choosing the nearest recorded vehicle")  # fmt: skip
     p.add_argument("--seed", type=int, help="random seed (default: random)")
     p.add_argument("--duration", type=float, help="long scenarios of this many seconds that switch pattern over time "
                    "by the learned transitions (CSV with the pattern in force; needs frames with times)")  # fmt: skip

@@ -1,5 +1,5 @@
 """The ego vehicle of generated scenarios (issue 35): chosen by rule (nearest a point at the start,
-heading that way), named ``Ego`` in OpenSCENARIO files (valid against the schema, its trajectory
+heading that way) or placed by the user (the first vehicle of every scene), named ``Ego`` in OpenSCENARIO files (valid against the schema, its trajectory
 the chosen vehicle's) and ``s{scenario}_ego`` in SUMO's, and the pairs criticality measures
 relative to it."""
 
@@ -14,7 +14,8 @@ import dpgp
 from dpgp.exceptions import InvalidInputError
 from dpgp.generate import openscenario as osc
 from dpgp.generate.criticality import criticality
-from dpgp.generate.scenarios import choose_ego
+from dpgp.generate.motion import motion_model
+from dpgp.generate.scenarios import Ego, choose_ego, natural_frames
 
 
 @pytest.fixture(scope="module")
@@ -77,3 +78,33 @@ def test_bad_egos_are_refused_before_any_work(model) -> None:
         model.sample_scenarios(1, duration=2.0, ego=(0.0, 0.0))
     with pytest.raises(InvalidInputError, match="own ego"):
         criticality(model.sample_scenarios(2, steps=2), ego=True)
+
+
+def test_a_placed_ego_starts_every_scene_where_the_user_put_it(model) -> None:
+    fit = model._fitted()
+    x0, x1, y0, y1 = fit.roi
+    at = (0.5 * (x0 + x1), 0.5 * (y0 + y1))
+    scenes = model.sample_scenarios(60, steps=6, seed=4, ego=Ego(*at, placed=True))
+    assert scenes.ego.tolist() == [0] * 60
+    spacing = motion_model(fit).spacing
+    for s, sim in enumerate(scenes):
+        np.testing.assert_array_equal(sim.positions[0, 0], at)
+        # the others are the source frame's vehicles, none closer to it than the pattern's spacing
+        others = sim.positions[0, 1:]
+        assert np.all(np.hypot(*(others - np.array(at)).T) >= spacing[scenes.patterns[s]] - 1e-9)
+        assert np.all(np.isfinite(sim.velocities[0, 0])) and sim.in_roi[0, 0]
+    # the measures against it, and its frame tilt's weights unchanged by it (it is not drawn)
+    mine = criticality(scenes, ego=True)
+    assert len(mine.pairs["a"]) and np.all((mine.pairs["a"] == 0) | (mine.pairs["b"] == 0))
+    p = natural_frames(model)
+    q = np.random.default_rng(1).uniform(0.5, 2.0, len(p))
+    tilted = model.sample_scenarios(30, steps=2, seed=5, tilt=q, ego=Ego(*at, placed=True))
+    np.testing.assert_allclose(tilted.weights, p[tilted.sources] / (q / q.sum())[tilted.sources], rtol=1e-14)
+    assert tilted.ego.tolist() == [0] * 30
+    # refused: outside the ROI, with the pure-field generator
+    with pytest.raises(InvalidInputError, match="ROI"):
+        model.sample_scenarios(2, steps=1, ego=Ego(x1 + 100.0, y1, placed=True))
+    with pytest.raises(InvalidInputError, match="field"):
+        model.sample_scenarios(2, steps=1, ego=Ego(*at, placed=True), dynamics="field")
+    with pytest.raises(InvalidInputError, match="ego"):
+        model.sample_scenarios(2, steps=1, ego=Ego(float("nan"), 0.0, placed=True))

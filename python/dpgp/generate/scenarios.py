@@ -279,12 +279,16 @@ def sample_scenarios(
     (:func:`natural_frames`), or from a :class:`Tilt` that may also shift an innovation, and weigh
     each scene by its likelihood ratio."""
     rule = _ego_rule(ego)
+    placed = rule if isinstance(rule, Ego) and rule.placed else None
     scenes = _sample(model, n, steps, pattern, seed, dt=dt, method=method, stochastic=stochastic, roi=roi,
                      low_data_threshold=low_data_threshold, dynamics=dynamics, max_curvature=max_curvature,
-                     tilt=tilt)  # fmt: skip
+                     tilt=tilt, place=placed)  # fmt: skip
     if rule is None:
         return scenes
-    return dataclasses.replace(scenes, ego=choose_ego(scenes.simulations, *rule))
+    if placed is not None:  # the first vehicle of every scene
+        egos = np.array([0 if s.in_roi.shape[1] and s.in_roi[0, 0] else -1 for s in scenes.simulations], np.int64)
+        return dataclasses.replace(scenes, ego=egos)
+    return dataclasses.replace(scenes, ego=choose_ego(scenes.simulations, rule.point, rule.heading))
 
 
 @dataclass(frozen=True)
@@ -335,19 +339,43 @@ def tilted_frames(model: Any, tilt: Any) -> np.ndarray:
 EGO_HEADING_TOLERANCE = 45.0
 
 
-def _ego_rule(ego: Any) -> tuple[tuple[float, float], float | None] | None:
+@dataclass(frozen=True)
+class Ego:
+    """A scenario's ego vehicle, the one a system under test replaces: by rule (``placed=False``,
+    :func:`choose_ego`), the vehicle nearest ``(x, y)`` at the start (with ``heading``, in
+    degrees, one moving within :data:`EGO_HEADING_TOLERANCE` of it: an approach); or
+    ``placed`` there by the user, the first vehicle of every scene (the recorded ones closer than
+    the pattern's spacing to it dropped), its velocity drawn from the field as the others' (over
+    heading, at ``heading``; unknown without one). ``ego=(x, y)`` and ``(x, y, heading)`` are the rule."""
+
+    x: float
+    y: float
+    heading: float | None = None
+    placed: bool = False
+
+    @property
+    def point(self) -> tuple[float, float]:
+        return (self.x, self.y)
+
+
+def _ego_rule(ego: Any) -> Ego | None:
     if ego is None:
         return None
-    try:
-        vals = [float(v) for v in ego]
-    except (TypeError, ValueError):
-        vals = []
+    if isinstance(ego, Ego):
+        vals = [ego.x, ego.y] + ([] if ego.heading is None else [ego.heading])
+        placed = bool(ego.placed)
+    else:
+        try:
+            vals = [float(v) for v in ego]
+        except (TypeError, ValueError):
+            vals = []
+        placed = False
     if len(vals) not in (2, 3) or not all(np.isfinite(vals)):
         raise InvalidInputError(
             f"ego must be (x, y) or (x, y, heading in degrees): the vehicle nearest that point at the start "
-            f"(heading that way), got {ego!r}"
+            f"(heading that way), or an Ego placed there; got {ego!r}"
         )
-    return (vals[0], vals[1]), (vals[2] if len(vals) == 3 else None)
+    return Ego(float(vals[0]), float(vals[1]), float(vals[2]) if len(vals) == 3 else None, placed)
 
 
 def choose_ego(sims: list[Simulation], point: tuple[float, float], heading: float | None = None,
@@ -382,6 +410,7 @@ def _sample(
     dynamics: str | None,
     max_curvature: float | str | None,
     tilt: Any = None,
+    place: Ego | None = None,
 ) -> Scenarios:
     fit = as_fitted(model)
     if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 0:
@@ -408,6 +437,12 @@ def _sample(
     rng = np.random.default_rng(seed)
     dynamics = check_dynamics(dynamics, method)
     kappa = check_max_curvature(max_curvature, fit, dynamics)
+    if place is not None:
+        if dynamics == "field":
+            raise InvalidInputError("a placed ego joins the default generator's scenes: drop dynamics='field'")
+        x0, x1, y0, y1 = box
+        if not (x0 <= place.x <= x1 and y0 <= place.y <= y1):
+            raise InvalidInputError(f"the placed ego ({place.x:g}, {place.y:g}) lies outside the ROI {tuple(box)}")
     if tilt is not None:
         if dynamics == "field" or pattern is not None:
             raise InvalidInputError(
@@ -420,7 +455,7 @@ def _sample(
         chosen = rng.choice(len(q), size=n, p=q).astype(np.int64)
         scenes = _interactive(fit, fit.labels[chosen].astype(np.int64), psi, rng, steps=steps, dt=float(dt),
                               stochastic=stochastic, roi=box, low_data_threshold=thr, dynamics=dynamics, chosen=chosen,
-                              shift=shift)  # fmt: skip
+                              shift=shift, place=place)  # fmt: skip
         ratio = p[chosen] / q[chosen]
         if scenes.weights is not None:  # the shifted innovations' own ratios
             ratio = ratio * scenes.weights
@@ -431,7 +466,7 @@ def _sample(
         patterns = np.full(n, _check_pattern(fit, pattern), dtype=np.int64)
     if dynamics != "field":
         return _interactive(fit, patterns, psi, rng, steps=steps, dt=float(dt), stochastic=stochastic, roi=box,
-                            low_data_threshold=thr, dynamics=dynamics)  # fmt: skip
+                            low_data_threshold=thr, dynamics=dynamics, place=place)  # fmt: skip
     counts = psi.sample_counts(n, rng)
     own = {int(k): pattern_positions(fit, int(k), psi) for k in np.unique(patterns)}
     starts = [own[int(k)].sample_positions(int(c), rng) for k, c in zip(patterns, counts)]
@@ -486,7 +521,8 @@ def pattern_counts(fit: FittedPatterns, patterns: np.ndarray, rng: np.random.Gen
 
 def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistributions, rng: np.random.Generator, *,
                  steps: int, dt: float, stochastic: bool, roi: Any, low_data_threshold: float | None, dynamics: str,
-                 chosen: np.ndarray | None = None, shift: tuple[float, float] | None = None) -> Scenarios:  # fmt: skip
+                 chosen: np.ndarray | None = None, shift: tuple[float, float] | None = None,
+                 place: Ego | None = None) -> Scenarios:  # fmt: skip
     """Scenes from each pattern's own frames (``chosen``: these training frames, one a scene): the positions of one of them (a recorded
     configuration: its count, spacing and groups), less any vehicle closer than the pattern's
     recorded spacing to one kept before it; velocities jointly from its GP at those positions,
@@ -501,7 +537,14 @@ def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistri
     starts = np.ascontiguousarray(fit.frames.xy[rows], dtype=np.float64)
     # a field over heading: each recorded vehicle's heading goes with its position
     prev = None if fit.frames.prev_heading is None else fit.frames.prev_heading[rows]
-    headings = for_core(fit, start_headings(fit.frames.v[rows], prev, heading_speed(fit), len(rows)))
+    h = start_headings(fit.frames.v[rows], prev, heading_speed(fit), len(rows))
+    if place is not None:
+        # the placed ego first in each scene: thinning keeps it and drops recorded vehicles too close
+        at = np.r_[0, np.cumsum(requested)][:-1]
+        starts = np.ascontiguousarray(np.insert(starts, at, [place.x, place.y], axis=0))
+        h = np.insert(h, at, np.nan if place.heading is None else np.radians(place.heading))
+        requested = requested + 1
+    headings = for_core(fit, h)
     seeds = [int(s) for s in rng.integers(0, 2**63, size=len(patterns), dtype=np.uint64)]
     spacing = motion_model(fit).spacing[patterns]
     unused = np.ones((1, 1))  # the core's histogram placement: not used when starts are given

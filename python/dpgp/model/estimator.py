@@ -1513,7 +1513,9 @@ class DPGP:
         generator — counts from φ, independent positions, the paper's rollout), ``max_curvature``
         (its turning limit over heading, as in :meth:`simulate`), ``ego`` (``(x, y)`` or ``(x, y,
         heading in degrees)``: each scenario's vehicle nearest that point at the start, heading
-        that way, becomes its ego vehicle, named ``Ego`` on export). Returns :class:`dpgp.scenarios.Scenarios`
+        that way, becomes its ego vehicle, named ``Ego`` on export; or
+        :class:`~dpgp.generate.scenarios.Ego` ``(x, y, heading, placed=True)``: a vehicle placed
+        there in every scenario). Returns :class:`dpgp.scenarios.Scenarios`
         (``to_pandas``, ``to_csv``, ``to_sumo``).
 
         ``duration`` (seconds; issue 20): long scenarios that switch pattern by the learned
