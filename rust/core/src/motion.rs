@@ -692,13 +692,13 @@ pub struct Shift {
 }
 
 /// A [`Shift`] at work in one rollout: its slot, the terms `a_c` so far, and the shifted
-/// innovation (NaN until its slot is drawn).
+/// innovation (once its slot is drawn).
 struct Shifting {
     mean: [f64; 2],
     slot: usize,
     slots: usize,
     terms: Vec<f64>,
-    pick: [f64; 2],
+    pick: Option<[f64; 2]>,
 }
 
 impl Shifting {
@@ -716,7 +716,7 @@ impl Shifting {
             slot: ((u * slots as f64) as usize).min(slots - 1),
             slots,
             terms: Vec::new(),
-            pick: [f64::NAN; 2],
+            pick: None,
         })
     }
 
@@ -724,8 +724,9 @@ impl Shifting {
     fn draw(&mut self, t: usize, j: usize, vehicles: usize, z: [f64; 2]) -> [f64; 2] {
         let m = self.mean;
         let z = if t * vehicles + j == self.slot {
-            self.pick = [z[0] + m[0], z[1] + m[1]];
-            self.pick
+            let moved = [z[0] + m[0], z[1] + m[1]];
+            self.pick = Some(moved);
+            moved
         } else {
             z
         };
@@ -818,7 +819,7 @@ pub fn drive(
 
 /// [`drive`] of a generated scene (`v0 = None`) whose residual innovations are tilted by
 /// `shift` ([`Shift`]; stochastic only: it moves draws). [`Rollout::log_ratio`] is the scene's
-/// log likelihood ratio, [`Rollout::pick`] its shifted innovation (NaN: its slot was never drawn).
+/// log likelihood ratio, [`Rollout::pick`] its shifted innovation (`None`: its slot was never drawn).
 pub fn drive_shifted(
     start: &[Point],
     opts: &Options,

@@ -277,9 +277,9 @@ pub struct Rollout {
     pub drivers: Vec<[f64; 2]>,
     /// Interactive rollouts with a [`crate::motion::Shift`] of the residual's innovations: the
     /// log likelihood ratio of the rollout's random draws, natural against shifted, and the
-    /// shifted innovation (NaN where its slot was never drawn; 0 and NaN without a shift).
+    /// shifted innovation (`None` where its slot was never drawn; 0 and `None` without a shift).
     pub log_ratio: f64,
-    pub pick: [f64; 2],
+    pub pick: Option<[f64; 2]>,
 }
 
 impl Rollout {
@@ -298,7 +298,7 @@ impl Rollout {
             low_data: vec![false; rows],
             drivers: Vec::new(),
             log_ratio: 0.0,
-            pick: [f64::NAN; 2],
+            pick: None,
         };
         out.positions.extend_from_slice(start);
         out.in_roi

@@ -473,7 +473,13 @@ pub fn scene_rollouts<'py>(
     })?;
     let sizes = rollouts.iter().map(|r| r.vehicles).collect();
     let ratios = rollouts.iter().map(|r| r.log_ratio).collect();
-    let picks = to_numpy(py, rollouts.iter().map(|r| r.pick).collect());
+    let picks = to_numpy(
+        py,
+        rollouts
+            .iter()
+            .map(|r| r.pick.unwrap_or([f64::NAN; 2]))
+            .collect(),
+    );
     let (pos, vel, inside, low) = arrays(py, rollouts);
     Ok((pos, vel, inside, low, sizes, ratios, picks))
 }

@@ -1052,7 +1052,7 @@ fn a_shift_weighs_its_draws_by_the_mixture_density() {
         let z = s.draw(t, j, 3, raw);
         if t * 3 + j == s.slot {
             assert_eq!(z, [raw[0] + mean[0], raw[1] + mean[1]]);
-            assert_eq!(s.pick, z);
+            assert_eq!(s.pick, Some(z));
         } else {
             assert_eq!(z, raw);
         }
