@@ -44,9 +44,11 @@ def test_readme_commands_are_the_demo_then_what_ci_runs():
     assert blocks[0] == "pip install . && dpgp demo"
     install, tests = blocks[1].split(" && ", 1)
     ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
-    # CI runs the same install and the same tests (as python3 -m ..., with checks in between).
+    # CI runs the same install and the same tests (as python3 -m ..., with checks in between),
+    # each test command on its own line: under `set -e` a failure left of `&&` would not stop it
     assert f"python3 -m {install}\n" in ci
-    assert tests.replace("python -m", "python3 -m") in ci
+    for command in tests.split(" && "):
+        assert f"\n{command.replace('python -m', 'python3 -m')}\n" in ci, command
 
 
 def _tables():
