@@ -784,3 +784,48 @@ def test_model_files_keep_the_acceleration_trust():
     for bad in (-0.1, 1.5, "x"):
         with pytest.raises(dpgp.DataFormatError):
             motion.MotionModel.from_dict({**d, "accel_trust": bad})
+
+
+def test_generated_vehicles_keep_at_least_their_size_as_jam_distance_and_corridor():
+    """Generated scenes' IDM jam distance and corridor are at least the vehicles' length and width
+    (learned ones can be less); rollouts of recorded frames keep the learned ones. Two vehicles,
+    the follower faster and its side overlapping the leader's though their centres are further
+    apart across than the learned corridor: with the bounds it brakes behind the leader, with the
+    learned corridor it drives into it."""
+    from dpgp.generate.rollout import motion_rollouts
+
+    model = dpgp.DPGP.load(FIXTURES / "field_model.npz")
+    fit = model._fitted()
+    base = motion.motion_model(fit)
+    assert base.agents == "vehicles" and base.size is not None  # supplied for a file written before it
+    length, width = 4.5, 1.8
+    m = dataclasses.replace(base, jam=2.0, lateral=0.5, personal=0.2, size=(length, width))
+    assert m.bounded == (length, width)
+    generated, recorded = m.record(0), m.record(0, recorded=True)
+    assert (generated[5], generated[9]) == (length, width) and (recorded[5], recorded[9]) == (2.0, 0.5)
+    unbounded = dataclasses.replace(m, size=None)
+    assert unbounded.bounded == (2.0, 0.5) and unbounded.record(0)[5] == 2.0
+
+    # the follower at the origin, 12 ahead and 1.2 across the leader, along the field's heading
+    x0 = fit.frames.xy[0]
+    e = fit.frames.v[0] / np.hypot(*fit.frames.v[0])
+    n = np.array([-e[1], e[0]])
+    xy = np.array([x0, x0 + 12.0 * e + 1.2 * n])
+    v = np.array([8.0 * e, 0.5 * e])
+    box = (-1e300, 1e300, -1e300, 1e300)
+
+    def overlaps(mm):
+        """At which steps the two vehicles' boxes (along e) overlap."""
+        sim = motion_rollouts(fit, [int(fit.labels[0])], [xy], [v], steps=12, dt=0.25, seeds=None, roi=box,
+                              low_data_threshold=None, dynamics="interactive", motion=mm)[0]  # fmt: skip
+        d = sim.positions[:, 1] - sim.positions[:, 0]
+        return np.flatnonzero((np.abs(d @ e) < length) & (np.abs(d @ n) < width))
+
+    assert len(overlaps(m)) == 0
+    assert len(overlaps(unbounded)) > 0  # without the bounds the follower drives into the leader
+
+    d = m.to_dict()
+    assert motion.MotionModel.from_dict(d).size == (length, width)
+    assert motion.MotionModel.from_dict({k: w for k, w in d.items() if k != "size"}).size is None
+    with pytest.raises(dpgp.DataFormatError):
+        motion.MotionModel.from_dict({**d, "size": [4.5, -1.0]})

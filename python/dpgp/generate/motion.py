@@ -86,7 +86,11 @@ of followers moving at least 30% of the median speed within ``s0 + 3 s × speed`
 comfortable deceleration ``b``: the 90th percentiles of the tracks' speed increases and
 decreases per second. A free vehicle (no leader) changes speed by IDM's free-road term too,
 toward its desired speed and not past it, instead of taking it at once: the residual's
-innovations change the wish, not the speed, from one step to the next.
+innovations change the wish, not the speed, from one step to the next. In generated scenes the
+jam distance is at least the vehicles' recorded length and the corridor's half-width at least
+their width (:attr:`MotionModel.bounded`): a leader is any vehicle ahead whose side overlaps one's
+own, and no queue stands closer than a length (US-101's generated scenes touched in 14.7 % of
+scenes before, 11.9 % after; Peachtree's realism ratio 0.843 before, 0.857 after).
 
 **Personal distance.** Pedestrians: the :data:`SPACING_PERCENTILE` (5th) percentile of
 nearest-neighbour distances. Vehicles: the same, at most half the jam distance (a last guard;
@@ -108,6 +112,7 @@ from .. import _core
 from ..data.frames import Frames
 from ..exceptions import DataFormatError
 from ..gp.fitted import FittedPatterns
+from .criticality import default_size
 from .headings import carried, heading_speed, start_headings
 from .rollout import motion_rollouts
 
@@ -181,6 +186,11 @@ PROFILE_KNOTS = 8  # knots of the spread's profile over the field's speed (motio
 _KIND = {"free": 0, "vehicles": 1, "pedestrians": 2}
 
 
+def _size(v: Any) -> tuple[float, float]:
+    length, width = (float(x) for x in v)
+    return length, width
+
+
 @dataclass(frozen=True, eq=False)
 class MotionModel:
     """Learned generation parameters: per pattern ``tau`` (K,) seconds (generated scenes),
@@ -194,7 +204,9 @@ class MotionModel:
     ``tau_across_share × τ`` in generated scenes (with ``τ_rollout`` in rollouts of recorded
     frames); ``"xy"`` (files written before it), per x/y component. ``accel_trust``: the share
     of a recorded vehicle's acceleration its driver's desired speed starts from in rollouts of
-    recorded frames (:meth:`recorded_drivers`; 0, and in files written before it: its own speed)."""
+    recorded frames (:meth:`recorded_drivers`; 0, and in files written before it: its own speed).
+    ``size``: the vehicles' (length, width), the recorded median (:attr:`bounded` uses it; ``None``
+    for pedestrians, and in files written before it, where :func:`motion_model` supplies it)."""
 
     agents: str
     tau: np.ndarray
@@ -218,6 +230,7 @@ class MotionModel:
     jitter: np.ndarray | None = None
     personal_rollout: float = float("nan")
     accel_trust: float = 0.0
+    size: tuple[float, float] | None = None
 
     @property
     def rollout_tau(self) -> np.ndarray:
@@ -254,10 +267,24 @@ class MotionModel:
         share = np.minimum(self.accel_trust * a0 / self.accel, MAX_ACCEL_SHARE)
         return v * ((1.0 - share) ** -0.25)[:, None]
 
+    @property
+    def bounded(self) -> tuple[float, float]:
+        """The IDM jam distance and corridor half-width of generated vehicles: the learned ones, at
+        least the vehicles' length and width (:attr:`size`). Learned from where recorded vehicles
+        stood, they can be less: a leader's centre is then closer than a length (Peachtree's
+        queues: 7 ft against 16 ft vehicles), or a vehicle whose side overlaps one's own is no
+        leader (US-101: a corridor of 4.2 ft against 5.9 ft wide vehicles), and generated
+        vehicles overlap. Rollouts of recorded frames keep the learned ones, with which their time
+        constant was chosen."""
+        if self.size is None or self.agents != "vehicles":
+            return self.jam, self.lateral
+        return max(self.jam, self.size[0]), max(self.lateral, self.size[1])
+
     def record(self, k: int, interaction: bool = True, recorded: bool = False) -> np.ndarray:
         """Pattern ``k``'s flat record for the core (``motion.rs``: ``MOTION_FIELDS``);
         ``recorded``: for a rollout of a recorded frame (its time constant :attr:`rollout_tau`)."""
         kind = _KIND[self.agents] if interaction else 0
+        jam, lateral = (self.jam, self.lateral) if recorded else self.bounded
         personal = self.personal
         if recorded and self.agents == "pedestrians" and np.isfinite(self.personal_rollout):
             # rollouts of recorded frames: the personal distance that predicts recorded tracks
@@ -269,7 +296,7 @@ class MotionModel:
         heading = self.sigma_frame == "heading"
         return np.array(
             [tau, self.sigma[k, 0], self.sigma[k, 1], kind, personal if personal > 0 else self.personal,
-             *(nan_free(v) for v in (self.jam, self.headway, self.accel, self.decel, self.lateral)),
+             *(nan_free(v) for v in (jam, self.headway, self.accel, self.decel, lateral)),
              self.min_speed if heading else -1.0, tau if recorded or not heading else tau * self.tau_across_share,
              # rollouts of recorded frames do not steer: their vehicles keep their own heading
              # and relax it with τ_rollout (steering toward the field raised Peachtree's FDE at
@@ -306,6 +333,7 @@ class MotionModel:
         out["jitter"] = None if self.jitter is None else [float(x) for x in self.jitter]
         out["personal_rollout"] = None if np.isnan(self.personal_rollout) else float(self.personal_rollout)
         out["accel_trust"] = float(self.accel_trust)
+        out["size"] = None if self.size is None else [float(v) for v in self.size]
         return out
 
     @classmethod
@@ -345,6 +373,8 @@ class MotionModel:
                 personal_rollout=float("nan") if d.get("personal_rollout") is None else float(d["personal_rollout"]),
                 # files written before it: each driver wants its own speed
                 accel_trust=float(d.get("accel_trust", 0.0)),
+                # files written before it: the frames' (motion_model)
+                size=None if d.get("size") is None else _size(d["size"]),
             )
         except (KeyError, TypeError, ValueError) as e:
             raise DataFormatError(f"not a stored motion model ({type(e).__name__}: {e})") from None
@@ -359,6 +389,7 @@ class MotionModel:
             or (m.jitter is not None and not (np.all(np.isfinite(m.jitter)) and np.all(m.jitter >= 0)))
             or not (np.isnan(m.personal_rollout) or (np.isfinite(m.personal_rollout) and m.personal_rollout >= 0))
             or not (0.0 <= m.accel_trust <= 1.0)
+            or (m.size is not None and not all(np.isfinite(v) and v > 0 for v in m.size))
             or (
                 m.profile is not None
                 and (
@@ -837,7 +868,8 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     stand = stand_speed(frames, dt) if STEER else 0.0
     return _rollout_choice(fit, held, MotionModel(
         agents, tau, sigma, pairs, spacing, personal, jam, headway, accel, decel, max(lateral, 1e-9),
-        tau_across_share=TAU_ACROSS_SHARE["vehicles"], tau_heading=tau_h, heading_tolerance=tol, stand_speed=stand, **frame,
+        tau_across_share=TAU_ACROSS_SHARE["vehicles"], tau_heading=tau_h, heading_tolerance=tol, stand_speed=stand,
+        size=default_size(frames.summary), **frame,
     ))  # fmt: skip
 
 
@@ -1102,7 +1134,9 @@ def motion_model(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     learned from its training frames."""
     cached = fit.cache.get("motion")
     if cached is not None and cached[0] is fit.frames and (agents == "auto" or cached[1].agents == agents):
-        return cached[1]
+        if cached[1].size is None and cached[1].agents == "vehicles":  # a file written before it
+            fit.cache["motion"] = (fit.frames, replace(cached[1], size=default_size(fit.frames.summary)))
+        return fit.cache["motion"][1]
     m = learn(fit, agents)
     if agents == "auto":
         fit.cache["motion"] = (fit.frames, m)
