@@ -150,6 +150,16 @@ def test_generate_long_scenarios(tmp_path, capsys):
     plain = tmp_path / "plain.csv"
     assert main(["generate", str(model), "-n", "1", "-o", str(plain), "--duration", "5", "--seed", "3"]) == 0
     assert "phase" not in pd.read_csv(plain).columns
+    # --ego in long scenarios: the first vehicle to come to the point, a column; none placed there
+    egoed = tmp_path / "ego.csv"
+    assert main(["generate", str(model), "-n", "2", "-o", str(egoed), "--duration", "5", "--seed", "3",
+                 "--ego", "20", "20"]) == 0  # fmt: skip
+    df = pd.read_csv(egoed)
+    assert df["ego"].dtype == bool and (df[df["ego"]].groupby("scenario")["vehicle"].nunique() <= 1).all()
+    assert "an ego vehicle (the first to come to the point)" in capsys.readouterr().out
+    assert main(["generate", str(model), "-n", "1", "-o", str(tmp_path / "p.csv"), "--duration", "5",
+                 "--ego", "20", "20", "--place-ego"]) == 1  # fmt: skip
+    assert "--place-ego" in capsys.readouterr().err and not (tmp_path / "p.csv").exists()
     assert main(["generate", str(model), "-n", "1", "-o", str(tmp_path / "x.csv"), "--phases", "2"]) == 1
     assert "--duration" in capsys.readouterr().err
     assert (

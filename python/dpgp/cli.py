@@ -230,8 +230,11 @@ def _generate(args: argparse.Namespace) -> int:
 
     model = DPGP.load(args.model)
     if args.duration is not None:
-        if args.ego is not None:
-            raise InvalidInputError("--ego applies to scenarios of --steps, not to long scenarios (--duration) yet")
+        if args.place_ego:
+            raise InvalidInputError(
+                "--place-ego applies to scenarios of --steps; in long scenarios (--duration) the ego is the first "
+                "vehicle to come to --ego X Y [HEADING]"
+            )
         return _generate_long(model, args)
     if args.phases is not None:
         raise InvalidInputError("--phases applies to long scenarios: give --duration too")
@@ -323,7 +326,7 @@ def _generate_long(model: Any, args: argparse.Namespace) -> int:
         raise InvalidInputError("--no-stop-lines applies to long scenarios by phases: give --phases too")
     scen = model.sample_scenarios(
         args.n, duration=args.duration, seed=args.seed, stochastic=not args.mean, dynamics=args.dynamics or True,
-        phases=phases, stop_lines=not args.no_stop_lines, free_speeds=not args.no_stop_lines,
+        phases=phases, stop_lines=not args.no_stop_lines, free_speeds=not args.no_stop_lines, ego=args.ego,
     )  # fmt: skip
     if phases is not None and not args.no_stop_lines:
         lines = model.stop_lines(phases)
@@ -331,12 +334,17 @@ def _generate_long(model: Any, args: argparse.Namespace) -> int:
             f"{len(lines)} stop line(s) learned from the recorded queues, {int(lines.red.any(axis=0).sum())} red in some phase"
         )
     out = pd.concat([sc.to_pandas().assign(scenario=i) for i, sc in enumerate(scen)], ignore_index=True)
-    cols = ["scenario", "vehicle", "t", "x", "y", "vx", "vy", "pattern"] + (["phase"] if "phase" in out else [])
+    if args.ego is not None:  # a scenario without an ego has no column of its own
+        out["ego"] = out["ego"].fillna(False).astype(bool) if "ego" in out else False
+    cols = ["scenario", "vehicle", "t", "x", "y", "vx", "vy", "pattern"] + [c for c in ("phase", "ego") if c in out]
     from .io._atomic import write_atomic
 
     write_atomic(args.output, lambda fh: out[cols].to_csv(fh, index=False))
     switches = sum(sc.switches() for sc in scen)
     print(f"{len(scen)} long scenario(s) of {args.duration:g} s, {len(out)} vehicle-steps, {switches} pattern switches")
+    if args.ego is not None:
+        found = sum(sc.ego >= 0 for sc in scen)
+        print(f"an ego vehicle (the first to come to the point) in {found} of {len(scen)} scenario(s): column ego")
     print(f"wrote {args.output}")
     return 0
 
@@ -571,7 +579,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "weights and measures beside the output and prints the event's natural rate")  # fmt: skip
     p.add_argument("--ego", type=float, nargs="+", metavar="X Y [HEADING]",
                    help="each scenario's vehicle nearest (X, Y) at the start (heading within 45 degrees of HEADING, "
-                   "degrees, if given) is its ego vehicle: Ego in OpenSCENARIO, s<scenario>_ego in SUMO")  # fmt: skip
+                   "degrees, if given) is its ego vehicle: Ego in OpenSCENARIO, s<scenario>_ego in SUMO; in long "
+                   "scenarios (--duration), the first vehicle to come within a lane's width of (X, Y): column ego")  # fmt: skip
     p.add_argument("--place-ego", action="store_true",
                    help="with --ego: place the ego at (X, Y) in every scenario (heading HEADING over heading fields) "
                    "instead of choosing the nearest recorded vehicle")  # fmt: skip

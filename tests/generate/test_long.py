@@ -234,3 +234,49 @@ def test_drivers_take_up_the_fields_of_a_new_phase_when_it_begins(model, monkeyp
     calls.clear()
     model.sample_scenarios(1, duration=60.0, seed=4, dynamics=True, phases=ph, phase_fields="in turn")
     assert not any(c[1] for c in calls)
+
+
+def test_the_ego_of_a_long_scenario_is_the_first_vehicle_to_come_to_the_point(model):
+    """ego=(x, y[, heading]): the first vehicle (by time, the nearest at that time) within a lane's
+    width of the point, along the heading; an oracle per vehicle from the table. Criticality
+    measures take long scenarios and, with ego=True, their own egos."""
+    from dpgp.generate.criticality import criticality
+
+    fit = model._fitted()
+    reach = lane_scale(motion_model(fit))
+    for ego, heading in (((20.0, 20.0), None), ((20.0, 20.0, 90.0), 90.0), ((5.0, 20.0, 0.0), 0.0)):
+        scen = sample_long_scenarios(fit, model.transitions_, 3, 15.0, seed=4, ego=ego)
+        for sc in scen:
+            tab = sc.table
+            d = np.hypot(tab["x"] - ego[0], tab["y"] - ego[1])
+            ok = d <= reach
+            if heading is not None:
+                angle = np.degrees(np.arctan2(tab["vy"], tab["vx"])) - heading
+                ok &= (np.abs((angle + 180) % 360 - 180) <= 45) & (np.hypot(tab["vx"], tab["vy"]) >= 0.5)
+            firsts = [
+                (g["t"].min(), d[g.index][g["t"] == g["t"].min()].min(), v) for v, g in tab[ok].groupby("vehicle")
+            ]
+            want = min(firsts)[2] if firsts else -1
+            assert sc.ego == want
+            if want >= 0:
+                rows = sc.to_pandas()
+                assert (rows["ego"] == (rows["vehicle"] == want)).all()
+                # the table as a grid: vehicle i is column i, absent rows NaN
+                at = np.rint(tab["t"].to_numpy() / sc.dt).astype(int)
+                np.testing.assert_array_equal(sc.positions[at, tab["vehicle"]], tab[["x", "y"]].to_numpy())
+                assert sc.in_roi.sum() == len(tab) and np.isnan(sc.positions[~sc.in_roi]).all()
+        chosen = [sc for sc in scen if sc.ego >= 0]
+        assert chosen, "no scenario has an ego here: move the point"
+        own = criticality(chosen, ego=True)
+        same = criticality(chosen, ego=np.array([sc.ego for sc in chosen]))
+        for name in ("ttc", "gap", "pet", "deceleration"):
+            np.testing.assert_array_equal(own.per_scene()[name], same.per_scene()[name])
+        egos = np.array([sc.ego for sc in chosen])[own.pairs["scene"]]
+        assert np.all((own.pairs["a"] == egos) | (own.pairs["b"] == egos))
+    assert "ego" not in sample_long_scenarios(fit, model.transitions_, 1, 5.0, seed=4)[0].to_pandas()
+    from dpgp.generate.scenarios import Ego
+
+    with pytest.raises(InvalidInputError, match="placed"):
+        sample_long_scenarios(fit, model.transitions_, 1, 5.0, seed=4, ego=Ego(20.0, 20.0, placed=True))
+    with pytest.raises(InvalidInputError, match="ego"):
+        sample_long_scenarios(fit, model.transitions_, 1, 5.0, seed=4, ego=(1.0,))

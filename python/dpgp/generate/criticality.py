@@ -131,6 +131,8 @@ def criticality(
 
     if ego is True:
         ego = getattr(scenes, "ego", None)
+        if ego is None and isinstance(scenes, (list, tuple)) and scenes and all(hasattr(s, "ego") for s in scenes):
+            ego = np.array([s.ego for s in scenes], dtype=np.int64)  # long scenarios, each with its own
         if ego is None:
             raise InvalidInputError(
                 "ego=True measures against the scenarios' own ego vehicles, and these have none: "

@@ -31,7 +31,7 @@ does not import the evaluation layer)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -45,6 +45,7 @@ from .free_speeds import learn_free_speeds
 from .headings import carried, heading_speed, start_headings
 from .motion import consecutive_pairs, motion_model
 from .rollout import motion_rollouts
+from .scenarios import EGO_HEADING_TOLERANCE, Ego, ego_rule
 from .stop_lines import learn_stop_lines
 
 MAX_VEHICLES = 400  # a scene never holds more at once (entries beyond are skipped)
@@ -65,15 +66,51 @@ class LongScenario:
     dt: float
     #: the phase in force at each step (None: scheduled pattern by pattern)
     phases: np.ndarray | None = None
+    #: the ego vehicle's number (``sample_long_scenarios(ego=...)``; -1: none)
+    ego: int = -1
 
     def switches(self) -> int:
         return int(np.count_nonzero(np.diff(self.patterns)))
 
     def to_pandas(self) -> pd.DataFrame:
-        """The table with the pattern in force at each row's step (and the phase, if scheduled by phase)."""
+        """The table with the pattern in force at each row's step (and the phase, if scheduled by
+        phase; and whether the row is the ego's, if the scenario has one)."""
         step = np.rint(self.table["t"].to_numpy() / self.dt).astype(int)
         out = self.table.assign(pattern=self.patterns[step])
-        return out if self.phases is None else out.assign(phase=self.phases[step])
+        if self.phases is not None:
+            out = out.assign(phase=self.phases[step])
+        return out if self.ego < 0 else out.assign(ego=self.table["vehicle"].to_numpy() == self.ego)
+
+    def _grid(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        steps = np.rint(self.table["t"].to_numpy() / self.dt).astype(np.int64)
+        vid = self.table["vehicle"].to_numpy().astype(np.int64)
+        shape = (len(self.t), int(vid.max()) + 1 if len(vid) else 0)
+        pos, vel = np.full((*shape, 2), np.nan), np.full((*shape, 2), np.nan)
+        inside = np.zeros(shape, dtype=bool)
+        pos[steps, vid] = self.table[["x", "y"]].to_numpy()
+        vel[steps, vid] = self.table[["vx", "vy"]].to_numpy()
+        inside[steps, vid] = True
+        return pos, vel, inside
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(times, vehicles, 2), NaN where a vehicle is not in the scene (vehicle ``i`` is column
+        ``i``), as :class:`~dpgp.generate.simulation.Simulation` holds them: criticality
+        measures (:func:`~dpgp.generate.criticality.criticality`) take long scenarios too."""
+        return self._grid()[0]
+
+    @property
+    def velocities(self) -> np.ndarray:
+        return self._grid()[1]
+
+    @property
+    def in_roi(self) -> np.ndarray:
+        """(times, vehicles): whether each vehicle is in the scene at each time."""
+        return self._grid()[2]
+
+    @property
+    def steps(self) -> int:
+        return len(self.t) - 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -126,6 +163,25 @@ class Area:
         out = np.zeros(len(ij), dtype=bool)
         out[ok] = self.occupied[ij[ok, 0], ij[ok, 1]]
         return out
+
+
+def first_at(scene: LongScenario, rule: Ego, reach: float, min_speed: float = 0.5) -> int:
+    """The ego of a long scenario by ``rule``: the first vehicle (by time; the nearest of those at
+    that time) within ``reach`` of the rule's point, and with a heading, one moving at least
+    ``min_speed`` within :data:`~dpgp.generate.scenarios.EGO_HEADING_TOLERANCE` degrees of it (the
+    first to come along that approach); ``-1`` when none does."""
+    tab = scene.table
+    xy, v = tab[["x", "y"]].to_numpy(), tab[["vx", "vy"]].to_numpy()
+    d = np.hypot(xy[:, 0] - rule.x, xy[:, 1] - rule.y)
+    ok = d <= reach
+    if rule.heading is not None:
+        turn = np.degrees(np.angle(np.exp(1j * (np.arctan2(v[:, 1], v[:, 0]) - np.radians(rule.heading)))))
+        ok &= (np.hypot(v[:, 0], v[:, 1]) >= min_speed) & (np.abs(turn) <= EGO_HEADING_TOLERANCE)
+    if not ok.any():
+        return -1
+    rows = np.flatnonzero(ok)
+    first = rows[np.lexsort((d[rows], tab["t"].to_numpy()[rows]))[0]]
+    return int(tab["vehicle"].to_numpy()[first])
 
 
 def lane_scale(motion: Any) -> float:
@@ -297,6 +353,7 @@ def sample_long_scenarios(
     cycle_splits: str = "mean",
     stop_lines: bool = True,
     free_speeds: bool = True,
+    ego: Any = None,
 ) -> list[LongScenario]:
     """``n`` :class:`LongScenario` of ``duration`` seconds; see the module's description.
     ``phases`` (:class:`dpgp.evaluate.phases.Phases`): switch by phase (:class:`PhaseSchedule`),
@@ -309,7 +366,15 @@ def sample_long_scenarios(
     recorded cycle's (``"recorded"``; :class:`PhaseSchedule`). ``stop_lines``: by phase,
     vehicles stop at the red signals' stop lines (:func:`.stop_lines.learn_stop_lines`);
     ``free_speeds``: with them, each field is raised to the recorded free speeds where it is
-    slower (:func:`.free_speeds.learn_free_speeds`)."""
+    slower (:func:`.free_speeds.learn_free_speeds`). ``ego``: ``(x, y)`` or ``(x, y, heading in
+    degrees)``, each scenario's ego vehicle is the first to come within a lane's width
+    (:func:`lane_scale`) of that point, along that heading (:func:`first_at`)."""
+    rule = ego_rule(ego)
+    if rule is not None and rule.placed:
+        raise InvalidInputError(
+            "a placed ego joins scenarios of steps (sample_scenarios); in long scenarios the ego is the first vehicle "
+            "to come to a point: give ego=(x, y) or (x, y, heading)"
+        )
     if phase_fields not in ("together", "in turn"):
         raise InvalidInputError(f"phase_fields must be 'together' or 'in turn', got {phase_fields!r}")
     if cycle_splits not in ("mean", "recorded"):
@@ -414,8 +479,9 @@ def sample_long_scenarios(
                 next_id += 1
         t, vid, xy, v = (np.concatenate([c[i] for c in chunks]) for i in range(4))
         table = pd.DataFrame({"t": t, "vehicle": vid, "x": xy[:, 0], "y": xy[:, 1], "vx": v[:, 0], "vy": v[:, 1]})
-        out.append(LongScenario(table, np.arange(steps + 1) * dt, patterns, dt, None if phases is None else in_phase))
+        scene = LongScenario(table, np.arange(steps + 1) * dt, patterns, dt, None if phases is None else in_phase)
+        out.append(scene if rule is None else replace(scene, ego=first_at(scene, rule, lane_scale(motion))))
     return out
 
 
-__all__ = ["LongScenario", "Entries", "learn_entries", "sample_long_scenarios"]
+__all__ = ["LongScenario", "Entries", "learn_entries", "sample_long_scenarios", "first_at"]

@@ -278,7 +278,7 @@ def sample_scenarios(
     per training frame, :func:`tilted_frames`; :mod:`.critical`) instead of the natural ones
     (:func:`natural_frames`), or from a :class:`Tilt` that may also shift an innovation, and weigh
     each scene by its likelihood ratio."""
-    rule = _ego_rule(ego)
+    rule = ego_rule(ego)
     placed = rule if isinstance(rule, Ego) and rule.placed else None
     scenes = _sample(model, n, steps, pattern, seed, dt=dt, method=method, stochastic=stochastic, roi=roi,
                      low_data_threshold=low_data_threshold, dynamics=dynamics, max_curvature=max_curvature,
@@ -358,7 +358,8 @@ class Ego:
         return (self.x, self.y)
 
 
-def _ego_rule(ego: Any) -> Ego | None:
+def ego_rule(ego: Any) -> Ego | None:
+    """``ego=`` checked: ``None``, or the :class:`Ego` it names."""
     if ego is None:
         return None
     if isinstance(ego, Ego):

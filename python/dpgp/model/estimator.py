@@ -1525,13 +1525,12 @@ class DPGP:
         :class:`dpgp.evaluate.phases.Phases`), else pattern by pattern; by phase, vehicles stop at
         the red signals' stop lines (:meth:`stop_lines`; ``stop_lines=False``: not) and drive at
         the recorded free speeds where the fields are slower (``free_speeds=False``: not;
-        :mod:`dpgp.generate.free_speeds`).
+        :mod:`dpgp.generate.free_speeds`). ``ego`` ``(x, y)`` or ``(x, y, heading)`` there: each
+        scenario's ego is the first vehicle to come to that point, along that heading.
         Returns a list of :class:`dpgp.generate.long.LongScenario`."""
         if options.get("duration") is not None:
             from ..generate.long import sample_long_scenarios
 
-            if options.get("ego") is not None:
-                raise InvalidInputError("ego= applies to scenarios of steps (not to long scenarios, duration=, yet)")
             duration = options.pop("duration")
             if options.get("dynamics") in (True, None):
                 options["dynamics"] = "interactive"
