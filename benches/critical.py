@@ -20,8 +20,8 @@ event's tilt) against as many natural ones, both scored against the recorded tes
         [--realism 2000] [--cache DIR] [--plots DIR]
 
 ``--model NAME=PATH`` uses a saved fit (else: fitted here, 20 sweeps on the training 70 %, kept in
-``--cache``). ``--cache DIR`` keeps the crude runs' measures there (by model file and count) and
-the fits. ``--plots DIR``: each set's figure of the measure's natural and tilted distributions.
+``--cache``). ``--cache DIR`` keeps the crude runs' measures there (by model file, count and the
+generator's sources) and the fits. ``--plots DIR``: each set's figure of the measure's natural and tilted distributions.
 """
 
 from __future__ import annotations
@@ -63,8 +63,19 @@ def batches(model, n: int, seed: int, size, tilt=None):
     return {k: np.concatenate(v) for k, v in per.items()}, np.concatenate(weights)
 
 
+def generator_version() -> str:
+    """What the crude run's scenes depend on besides the fit: the generation layer's sources and the
+    core library (a cached run of an older generator is not reused)."""
+    root = Path(dpgp.__file__).resolve().parent
+    h = hashlib.sha1()
+    for f in sorted((root / "generate").glob("*.py")) + sorted(root.glob("_core*")):
+        h.update(f.read_bytes())
+    return h.hexdigest()
+
+
 def crude_run(model, path: str, n: int, size, cache: Path | None) -> dict[str, np.ndarray]:
-    key = hashlib.sha1(f"{Path(path).resolve()}:{Path(path).stat().st_mtime_ns}:{n}:{STEPS}".encode()).hexdigest()[:12]
+    what = f"{Path(path).resolve()}:{Path(path).stat().st_mtime_ns}:{n}:{STEPS}:{generator_version()}"
+    key = hashlib.sha1(what.encode()).hexdigest()[:12]
     kept = None if cache is None else cache / f"crude-{key}.npz"
     if kept is not None and kept.exists():
         return dict(np.load(kept))
