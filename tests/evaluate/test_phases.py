@@ -215,7 +215,7 @@ def test_evidence_forward_pass_posteriors_and_viterbi_match_every_path_enumerate
     )
 
 
-def _ambiguous_labels(cycles: int = 8, length: int = 40, seed: int = 0):
+def _ambiguous_labels(cycles: int = 5, length: int = 40, seed: int = 0):
     """Frames that patterns 0 and 1 explain best, either one by chance, in both phases: the
     labels (each frame's most likely pattern) say nothing of the phase. What does is the pattern
     that explains every frame nearly as well: 2 in phase A, 3 in phase B."""
