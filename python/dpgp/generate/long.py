@@ -32,6 +32,7 @@ does not import the evaluation layer)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -45,7 +46,7 @@ from .free_speeds import learn_free_speeds
 from .headings import carried, heading_speed, start_headings
 from .motion import consecutive_pairs, motion_model
 from .rollout import motion_rollouts
-from .scenarios import EGO_HEADING_TOLERANCE, Ego, ego_rule
+from .scenarios import Ego, ego_rule, moving_along
 from .stop_lines import learn_stop_lines
 
 MAX_VEHICLES = 400  # a scene never holds more at once (entries beyond are skipped)
@@ -81,7 +82,9 @@ class LongScenario:
             out = out.assign(phase=self.phases[step])
         return out if self.ego < 0 else out.assign(ego=self.table["vehicle"].to_numpy() == self.ego)
 
+    @cached_property
     def _grid(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Positions, velocities and presence as (times, vehicles) grids, built once."""
         steps = np.rint(self.table["t"].to_numpy() / self.dt).astype(np.int64)
         vid = self.table["vehicle"].to_numpy().astype(np.int64)
         shape = (len(self.t), int(vid.max()) + 1 if len(vid) else 0)
@@ -97,16 +100,16 @@ class LongScenario:
         """(times, vehicles, 2), NaN where a vehicle is not in the scene (vehicle ``i`` is column
         ``i``), as :class:`~dpgp.generate.simulation.Simulation` holds them: criticality
         measures (:func:`~dpgp.generate.criticality.criticality`) take long scenarios too."""
-        return self._grid()[0]
+        return self._grid[0]
 
     @property
     def velocities(self) -> np.ndarray:
-        return self._grid()[1]
+        return self._grid[1]
 
     @property
     def in_roi(self) -> np.ndarray:
         """(times, vehicles): whether each vehicle is in the scene at each time."""
-        return self._grid()[2]
+        return self._grid[2]
 
     @property
     def steps(self) -> int:
@@ -175,8 +178,7 @@ def first_at(scene: LongScenario, rule: Ego, reach: float, min_speed: float = 0.
     d = np.hypot(xy[:, 0] - rule.x, xy[:, 1] - rule.y)
     ok = d <= reach
     if rule.heading is not None:
-        turn = np.degrees(np.angle(np.exp(1j * (np.arctan2(v[:, 1], v[:, 0]) - np.radians(rule.heading)))))
-        ok &= (np.hypot(v[:, 0], v[:, 1]) >= min_speed) & (np.abs(turn) <= EGO_HEADING_TOLERANCE)
+        ok &= moving_along(v, rule.heading, min_speed)
     if not ok.any():
         return -1
     rows = np.flatnonzero(ok)

@@ -379,6 +379,13 @@ def ego_rule(ego: Any) -> Ego | None:
     return Ego(float(vals[0]), float(vals[1]), float(vals[2]) if len(vals) == 3 else None, placed)
 
 
+def moving_along(v: np.ndarray, heading: float, min_speed: float) -> np.ndarray:
+    """Which velocities ``v`` (n, 2) move at least ``min_speed`` within
+    :data:`EGO_HEADING_TOLERANCE` degrees of ``heading`` (degrees): an approach."""
+    turn = np.degrees(np.angle(np.exp(1j * (np.arctan2(v[:, 1], v[:, 0]) - np.radians(heading)))))
+    return (np.hypot(v[:, 0], v[:, 1]) >= min_speed) & (np.abs(turn) <= EGO_HEADING_TOLERANCE)
+
+
 def choose_ego(sims: list[Simulation], point: tuple[float, float], heading: float | None = None,
                min_speed: float = 0.5) -> np.ndarray:  # fmt: skip
     """Each scenario's ego: of its vehicles inside the ROI at the start (and, with ``heading``,
@@ -388,8 +395,7 @@ def choose_ego(sims: list[Simulation], point: tuple[float, float], heading: floa
     for i, sim in enumerate(sims):
         xy, v, inside = sim.positions[0], sim.velocities[0], sim.in_roi[0].copy()
         if heading is not None:
-            turn = np.degrees(np.angle(np.exp(1j * (np.arctan2(v[:, 1], v[:, 0]) - np.radians(heading)))))
-            inside &= (np.hypot(v[:, 0], v[:, 1]) >= min_speed) & (np.abs(turn) <= EGO_HEADING_TOLERANCE)
+            inside &= moving_along(v, heading, min_speed)
         if inside.any():
             d = np.hypot(xy[:, 0] - point[0], xy[:, 1] - point[1])
             out[i] = int(np.argmin(np.where(inside, d, np.inf)))
