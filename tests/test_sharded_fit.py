@@ -365,7 +365,12 @@ def _loaded(client: Any, directory: Any) -> int:
     from dpgp.model import sharded
 
     where = os.path.abspath(directory)
-    return sum(client.run(lambda: sum(k[0] == where for k in sharded._LOADED)).values())
+
+    def held(dask_worker: Any) -> int:
+        actors = dask_worker.state.actors.values()
+        return sum(isinstance(a, sharded.ShardServer) and a.directory == where for a in actors)
+
+    return sum(client.run(held).values())
 
 
 def test_fitting_again_lets_the_workers_drop_the_last_fits_shards(shard_dir, cluster):

@@ -8,7 +8,7 @@ them on request, and answer with sums, counts and the few frames a move needs). 
 answers from its frames alone (the protocol: ``rust/core/src/subcluster_shard.rs``). A shard's
 answer depends only on its frames and the request, and answers are added up in shard order, so
 the same seed and the same shards give the same chain in this process and on any cluster, and a
-worker that is lost is replaced by reading its shard again (Dask recomputes the lost load).
+shard whose worker is lost is read again by a new actor on a live worker (:class:`DaskShards`).
 
 The settings that the estimator resolves from data (``"auto"`` defaults, the basis, mean and
 variance of the velocities) come from :func:`settings_sample`: every frame up to
@@ -18,6 +18,7 @@ shard at a time by the leader, so that both ways of serving the shards start fro
 
 from __future__ import annotations
 
+import gc
 import hashlib
 import os
 import threading
@@ -35,6 +36,10 @@ from ..exceptions import InvalidInputError
 
 #: Frames from which a sharded fit resolves its data-dependent settings.
 SAMPLE_FRAMES = 20_000
+#: Times in a row a request is sent to a new actor of its shard after its worker was lost.
+REPLACEMENTS = 3
+#: Seconds :meth:`DaskShards.close` waits for the workers to drop a chain's shards.
+DROP_SECONDS = 10.0
 
 
 class LabelsLost(RuntimeError):
@@ -149,32 +154,17 @@ def local_shards(manifest: ShardManifest, headed: bool = False) -> list[Any]:
 
 
 # --- served by Dask workers ------------------------------------------------------------------
-#: This worker process's shards, by (directory, shard number, with headings): loaded once, kept.
-_LOADED: dict[tuple[str, int, bool], Any] = {}
+class ShardServer:
+    """A Dask actor: shard ``i`` of ``directory`` read once into the worker that holds the actor,
+    answering the chain's requests there. Requests to an actor go from the leader straight to its
+    worker (no scheduler in between): a sweep's many short round trips take a third of a task's."""
 
+    def __init__(self, directory: str, i: int, headed: bool = False):
+        self.directory, self.index = directory, int(i)
+        self._shard = core_shard(directory, i, headed)
 
-def load_shard(directory: str, i: int, headed: bool = False) -> tuple[str, int, bool]:
-    """A worker's task: read shard ``i`` of ``directory`` into this process (once; ``headed``:
-    with its previous headings); returns the key the requests name it by."""
-    key = (directory, int(i), bool(headed))
-    if key not in _LOADED:
-        _LOADED[key] = core_shard(directory, i, headed)
-    return key
-
-
-def serve_request(key: tuple[str, int, bool], request: bytes) -> bytes:
-    """A worker's task: the shard's reply to one request (the shard is read here if this worker
-    has not loaded it: a task that moved, or a worker that replaced a lost one)."""
-    return _LOADED[load_shard(*key)].handle(request)
-
-
-def forget_shards(directory: str) -> int:
-    """Run on every worker by :meth:`DaskShards.close`: drop the shards of ``directory`` this
-    process loaded; returns how many."""
-    keys = [k for k in _LOADED if k[0] == directory]
-    for k in keys:
-        del _LOADED[k]
-    return len(keys)
+    def handle(self, request: bytes) -> bytes:
+        return self._shard.handle(request)
 
 
 class ShardSource:
@@ -228,26 +218,40 @@ class ShardSource:
 
 
 class DaskShards:
-    """The shards of ``manifest`` served by the workers of a Dask ``client``: each shard is
-    loaded by one worker and kept there (a future per shard, held for the life of the chain);
-    each request runs beside it. Counts the requests, the bytes sent and received, and the
-    seconds spent waiting for replies (chains in several threads may share it)."""
+    """The shards of ``manifest`` served by the workers of a Dask ``client``: each shard is read by
+    one :class:`ShardServer` actor, spread over the workers, and kept there for the life of the
+    chain (the actors' futures are held); each request goes to its shard's actor. Counts the
+    requests, the bytes sent and received, and the seconds spent waiting for replies (chains in
+    several threads may share it).
+
+    A worker lost mid-fit takes its actors with it (Dask does not rebuild an actor): the shard is
+    read again by a new actor on a live worker and the request sent there. The new shard holds no
+    labels, so a request that needs them fails with :class:`LabelsLost` and the fit redoes its
+    sweeps from its copy of the last rebuild (the same chain); it never computes with another
+    copy's labels."""
 
     def __init__(self, client: Any, manifest: ShardManifest, headed: bool = False):
         self._client, self.headed = client, headed
-        directory = self._directory = os.path.abspath(manifest.directory)
-        tag = uuid.uuid4().hex[:8]
+        self._directory = os.path.abspath(manifest.directory)
+        self._tag = uuid.uuid4().hex[:8]
+        self._replaced = [0] * manifest.n_shards  # actors made again per shard (workers lost)
+        workers = sorted(client.scheduler_info()["workers"])
         self._loads = [
-            client.submit(load_shard, directory, i, headed, key=f"dpgp-shard-{tag}-{i}")
-            for i in range(manifest.n_shards)
+            self._load(i, [workers[i % len(workers)]] if workers else None) for i in range(manifest.n_shards)
         ]
-        client.gather(self._loads)  # every shard read once, before the chain starts
+        self._actors = client.gather(self._loads)  # every shard read once, before the chain starts
         self._count = threading.Lock()
         self.bytes_sent = 0
         self.bytes_received = 0
         self.requests = 0
         self.calls = 0
+        self.replaced = 0
         self.seconds = 0.0  # waiting for the workers (the rest of a sweep is the leader's)
+
+    def _load(self, i: int, workers: list[str] | None) -> Any:
+        key = f"dpgp-shard-{self._tag}-{i}-{self._replaced[i]}"
+        pin: dict[str, Any] = {"workers": workers, "allow_other_workers": True} if workers else {}
+        return self._client.submit(ShardServer, self._directory, i, self.headed, actor=True, key=key, **pin)
 
     @property
     def closed(self) -> bool:
@@ -257,43 +261,79 @@ class DaskShards:
         if self.closed:
             raise RuntimeError("the shards' link is closed: the workers have dropped the shards")
         t = time.perf_counter()
-        # Beside its shard, which holds the chain's labels: the load's worker. A load whose worker
-        # was lost is read again first (Dask recomputes it), so that the requests of a shard keep
-        # going to one worker; one that runs elsewhere finds no labels and the fit redoes its
-        # sweeps (LabelsLost), never computes with another copy's.
-        where = self._client.who_has(self._loads)
-        lost = [self._loads[s] for s, _ in jobs if not where.get(self._loads[s].key)]
-        if lost:
-            from distributed import wait
-
-            wait(lost)
-            where = self._client.who_has(self._loads)
-        futures = []
-        for s, request in jobs:
-            near = list(where.get(self._loads[s].key, ()))
-            pin: dict[str, Any] = {"workers": near, "allow_other_workers": True} if near else {}
-            futures.append(self._client.submit(serve_request, self._loads[s], request, pure=False, retries=2, **pin))
-        replies = self._client.gather(futures)
+        pending = [self._send(s, request) for s, request in jobs]  # all sent, then all awaited
+        replies = [self._reply(s, request, f) for (s, request), f in zip(jobs, pending)]
         with self._count:
             self.bytes_sent += sum(len(r) for _, r in jobs)
             self.bytes_received += sum(len(r) for r in replies)
             self.requests += len(jobs)
             self.calls += 1
             self.seconds += time.perf_counter() - t
-        return list(replies)
+        return replies
+
+    def _send(self, s: int, request: bytes) -> Any:
+        """``request`` sent to shard ``s``'s actor (a new one when its worker was lost, up to
+        :data:`REPLACEMENTS` times in a row): the pending reply."""
+        for attempt in range(REPLACEMENTS + 1):
+            try:
+                return self._actors[s].handle(request)
+            except (OSError, RuntimeError):  # the actor's worker is gone (a lost comm, a lost actor)
+                if attempt == REPLACEMENTS or not self._lost(s):
+                    raise
+                self._replace(s)
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def _reply(self, s: int, request: bytes, pending: Any) -> bytes:
+        """Shard ``s``'s reply to ``request``, sent again to a new actor when its worker was lost
+        while it worked (up to :data:`REPLACEMENTS` times in a row)."""
+        for attempt in range(REPLACEMENTS + 1):
+            try:
+                return pending.result()
+            except LabelsLost:
+                raise
+            except (OSError, RuntimeError):
+                if attempt == REPLACEMENTS or not self._lost(s):
+                    raise
+                self._replace(s)
+                pending = self._send(s, request)
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def _lost(self, s: int) -> bool:
+        """Whether shard ``s``'s actor is gone: its future failed or no worker holds it."""
+        f = self._loads[s]
+        return f.status == "error" or not self._client.who_has([f]).get(f.key)
+
+    def _replace(self, s: int) -> None:
+        with self._count:
+            self._replaced[s] += 1
+            self.replaced += 1
+        old = self._loads[s]
+        self._loads[s] = self._load(s, None)
+        self._actors[s] = self._loads[s].result()
+        old.release()
 
     def close(self) -> None:
-        """Let the workers drop the shards (a fitted model then can no longer gather its frames
-        from them; the estimator closes its link when it fits again)."""
+        """Let the workers drop the shards (the actors go with their futures; a fitted model then
+        can no longer gather its frames from them; the estimator closes its link when it fits
+        again). Waits up to :data:`DROP_SECONDS` for the workers to let the actors go."""
         if not self._loads:
             return
+        keys = {f.key for f in self._loads}
         for f in self._loads:
             f.release()
-        self._loads = []
+        self._loads, self._actors = [], []
+        gc.collect()  # a used actor proxy sits in a reference cycle, and holds its key until freed
+        deadline = time.monotonic() + DROP_SECONDS
         try:
-            self._client.run(forget_shards, self._directory)
+            while time.monotonic() < deadline and any(self._client.run(_holds, keys).values()):
+                time.sleep(0.05)
         except Exception:  # noqa: BLE001 - a closed client or a gone cluster has nothing to drop
             pass
+
+
+def _holds(keys: set[str], dask_worker: Any) -> bool:
+    """Run on every worker by :meth:`DaskShards.close`: whether it still holds one of these actors."""
+    return any(k in dask_worker.state.actors for k in keys)
 
 
 def manifest_of(frames: Any) -> ShardManifest | None:
