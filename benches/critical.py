@@ -9,9 +9,8 @@ for each event a tilt learned by :func:`dpgp.generate.critical.learn_tilt` (``--
 and its 95 % interval, the tilted estimate, its standard error and effective sample size, whether
 it lies in the 95 % interval of a crude run just large enough to see the event 300 times (the
 first scenes of the crude run; the issue's reference), the z of its difference from the whole crude
-run's rate, and the acceleration: how many
-crude scenes the tilted estimate's relative error would take, ``(1 − p) / (p RE²)``, over the
-scenes it took (tilted, and tilted plus learning). Then the realism score's kinematic features
+run's rate, and the acceleration (:attr:`Estimate.acceleration`): how many crude scenes the tilted
+estimate's standard error would take, over the scenes it took (tilted, and tilted plus learning). Then the realism score's kinematic features
 (speed, acceleration, turn rate, angular acceleration) of ``--realism`` tilted scenes (the rarest
 event's tilt) against as many natural ones, both scored against the recorded test windows.
 
@@ -173,13 +172,11 @@ def main() -> None:
             learned = args.per_round * len(levels)
             per, w = batches(model, args.tilted, 2_000_000, size, tilt=tilt)
             e = Estimate.of(event.happened(per), w)
-            re = e.stderr / e.rate if e.rate > 0 else math.inf
-            need = (1 - e.rate) / (e.rate * re * re) if e.rate > 0 else math.nan
             z = (e.rate - c.rate) / math.hypot(e.stderr, c.stderr)
             inside = "n/a" if c300 is None else str(c300.interval[0] <= e.rate <= c300.interval[1])
             print(f"  {str(event):22s} {c.rate:10.3e} [{c.interval[0]:.3e}, {c.interval[1]:.3e}] "
                   f"{e.rate:11.3e} ± {e.stderr:.2e} {e.hits:6d} {e.ess:7.0f} {inside:>5s} ({first:7d}) {z:6.2f} "
-                  f"{need / e.n:7.2f} {need / (e.n + learned):11.2f}", flush=True)  # fmt: skip
+                  f"{e.acceleration:7.2f} {e.acceleration * e.n / (e.n + learned):11.2f}", flush=True)  # fmt: skip
             last = (event, tilt, per, w)
             print(f"    levels {np.round(levels, 2).tolist()}, shift {tilt.shift}", flush=True)
         if last is not None and args.realism > 0:

@@ -75,6 +75,25 @@ def test_a_tilted_estimate_agrees_with_crude_monte_carlo(model) -> None:
         Estimate.of(hit, tilted.weights[:-1])
 
 
+def test_an_estimates_acceleration_is_crude_monte_carlos_scenes_for_its_error() -> None:
+    rng = np.random.default_rng(4)
+    hit = rng.random(4000) < 0.05
+    natural = Estimate.of(hit)  # natural draws: the binomial variance, (n - 1) / n of it
+    assert natural.acceleration == pytest.approx(3999 / 4000, rel=1e-12)
+    # a tilt that draws the event in every scene, with weights near the rate: many crude scenes
+    # for each of its own; weights that vary widely cost more than crude Monte Carlo
+    w_good = 0.05 * (1 + 0.1 * rng.standard_normal(4000))
+    good = Estimate.of(np.ones(4000, dtype=bool), w_good)
+    want = good.rate * (1 - good.rate) / np.var(w_good, ddof=1)  # stderr² n = the weights' variance
+    assert good.acceleration == pytest.approx(want, rel=1e-9) and good.acceleration > 100
+    w_bad = np.where(rng.random(4000) < 0.001, 50.0, 0.0)
+    bad = Estimate.of(np.ones(4000, dtype=bool), w_bad)
+    assert bad.acceleration < 1
+    assert math.isnan(Estimate.of(np.zeros(10, dtype=bool)).acceleration)
+    assert Estimate.of(np.ones(10, dtype=bool), np.full(10, 0.2)).acceleration == math.inf
+    assert "x crude Monte Carlo" in str(natural)
+
+
 def test_a_shifted_innovation_is_weighed_exactly(model) -> None:
     """One innovation per scene drawn from N(mu, I): weights of mean 1, the natural generator at
     mu = 0 bit for bit, and an event's estimate agreeing with crude Monte Carlo."""

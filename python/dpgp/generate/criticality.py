@@ -287,7 +287,8 @@ class Event:
 class Estimate:
     """An event's natural rate from weighted scenes: per scene, with its standard error and 95 %
     interval (normal), per hour of simulated traffic (scenes of ``seconds`` each), how many scenes
-    had it (``hits``) of ``n``, and the effective sample size of the weights, ``(Σw)² / Σw²``."""
+    had it (``hits``) of ``n``, the effective sample size of the weights, ``(Σw)² / Σw²``, and
+    the :attr:`acceleration` over crude Monte Carlo."""
 
     event: str
     rate: float
@@ -319,11 +320,25 @@ class Estimate:
         interval = (max(rate - 1.96 * se, 0.0), rate + 1.96 * se)
         return cls(event, rate, se, interval, per_hour, int(hit.sum()), n, ess, float(seconds))
 
+    @property
+    def acceleration(self) -> float:
+        """How many natural scenes crude Monte Carlo would need for this standard error, per scene
+        this estimate took: ``rate (1 − rate) / (stderr² n)``. About 1 for natural draws ((n − 1) /
+        n exactly); above 1 where a tilt helped, below 1 where its weights' spread cost more than
+        it drew the event more often (``docs/criticality.md``). NaN without a hit or a standard
+        error; ``inf`` for a standard error of 0 (every weighted hit the same)."""
+        if not (self.rate > 0 and math.isfinite(self.stderr)):
+            return math.nan
+        if self.stderr == 0:
+            return math.inf
+        return self.rate * (1.0 - self.rate) / (self.stderr**2 * self.n)
+
     def __str__(self) -> str:
         lo, hi = self.interval
         return (
             f"{self.event}: {self.rate:.4g} a scene (95 % interval {lo:.4g} to {hi:.4g}; {self.per_hour:.4g} an hour "
-            f"of {self.seconds:g} s scenes), {self.hits} of {self.n} scenes, effective sample size {self.ess:.1f}"
+            f"of {self.seconds:g} s scenes), {self.hits} of {self.n} scenes, effective sample size {self.ess:.1f}, "
+            f"{self.acceleration:.3g}x crude Monte Carlo's scenes for this error"
         )
 
 
