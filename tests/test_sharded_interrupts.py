@@ -10,7 +10,7 @@ import pytest
 from conftest import interrupt_after
 
 _CTRL_C = """
-import signal, sys
+import signal, sys, threading, time
 import dpgp
 
 def main():
@@ -21,7 +21,13 @@ def main():
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                       silence_logs=50) as lc, Client(lc) as client:
         model = dpgp.DPGP(iterations=100000, progress=False, noise_var=0.5)
-        print("fitting", flush=True)
+
+        def after_the_first_sweep():  # history_ is made afresh by fit
+            while len((model.__dict__.get("history_") or {}).get("log_joint", ())) < 1:
+                time.sleep(0.05)
+            print("fitting", flush=True)
+
+        threading.Thread(target=after_the_first_sweep, daemon=True).start()
         model.fit(sys.argv[1], client=client)
         print("sweeps", model.n_iter_, flush=True)
         print("predict", model.predict(frames[:3]).tolist(), flush=True)
@@ -38,9 +44,8 @@ def test_ctrl_c_keeps_the_state_reached_on_a_cluster(tmp_path):
 
     script = tmp_path / "fit.py"
     script.write_text(_CTRL_C)
-    # the cluster's start and the fit's, then sweeps under way: a small fit on a cluster is round
-    # trips (several per split-merge move), seconds a sweep on a loaded 2-core machine
-    code, out, err, _ = interrupt_after([sys.executable, str(script), str(tmp_path / "shards")], 35.0, 180)
+    # Ctrl-C 2 s after the first sweep (the script says "fitting" then), mid-sweep or between
+    code, out, err, _ = interrupt_after([sys.executable, str(script), str(tmp_path / "shards")], 2.0, 180)
     assert code == 0, err
     assert "fit interrupted after" in err and "keeps the state reached" in err
     assert 1 <= int(out.split("sweeps")[1].split()[0]) < 100000
