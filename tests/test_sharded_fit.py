@@ -310,7 +310,7 @@ def test_chains_over_shards_on_a_cluster_are_the_in_process_chains(shard_dir, cl
     # from one pattern, two sweeps: on a cluster each of the chains' passes over the shards is a
     # round trip (a sweep of 600 frames takes about 1.5 s against 0.25 s in process), and neither
     # the dispersed start (tested in process above) nor more sweeps is what the cluster changes
-    settings = {**CHAINS, "init": "one", "iterations": 2, "block": 1}
+    settings = {**CHAINS, "init": "one"}
     on_cluster = dpgp.fit_chains(shard_dir, 2, cluster[1], **settings)
     here = dpgp.fit_chains(shard_dir, 2, **settings)
     np.testing.assert_array_equal(on_cluster.labels, here.labels)

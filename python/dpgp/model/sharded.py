@@ -160,7 +160,7 @@ class ShardServer:
     worker (no scheduler in between): a sweep's many short round trips take a third of a task's."""
 
     def __init__(self, directory: str, i: int, headed: bool = False):
-        self.directory, self.index = directory, int(i)
+        self.directory = directory
         self._shard = core_shard(directory, i, headed)
 
     def handle(self, request: bytes) -> bytes:
@@ -245,7 +245,6 @@ class DaskShards:
         self.bytes_received = 0
         self.requests = 0
         self.calls = 0
-        self.replaced = 0
         self.seconds = 0.0  # waiting for the workers (the rest of a sweep is the leader's)
 
     def _load(self, i: int, workers: list[str] | None) -> Any:
@@ -272,30 +271,28 @@ class DaskShards:
         return replies
 
     def _send(self, s: int, request: bytes) -> Any:
-        """``request`` sent to shard ``s``'s actor (a new one when its worker was lost, up to
-        :data:`REPLACEMENTS` times in a row): the pending reply."""
+        """``request`` sent to shard ``s``'s actor: the pending reply, or ``None`` when it could not
+        be sent (its worker gone: :meth:`_reply` finds out and sends it again)."""
+        try:
+            return self._actors[s].handle(request)
+        except (OSError, RuntimeError):
+            return None
+
+    def _reply(self, s: int, request: bytes, pending: Any) -> bytes:
+        """Shard ``s``'s reply to ``request``, sent again to a new actor when its worker was lost
+        (before or while it worked; up to :data:`REPLACEMENTS` times in a row)."""
         for attempt in range(REPLACEMENTS + 1):
             try:
-                return self._actors[s].handle(request)
+                if pending is None:
+                    pending = self._actors[s].handle(request)
+                return pending.result()
+            except LabelsLost:
+                raise
             except (OSError, RuntimeError):  # the actor's worker is gone (a lost comm, a lost actor)
                 if attempt == REPLACEMENTS or not self._lost(s):
                     raise
                 self._replace(s)
-        raise AssertionError("unreachable")  # pragma: no cover
-
-    def _reply(self, s: int, request: bytes, pending: Any) -> bytes:
-        """Shard ``s``'s reply to ``request``, sent again to a new actor when its worker was lost
-        while it worked (up to :data:`REPLACEMENTS` times in a row)."""
-        for attempt in range(REPLACEMENTS + 1):
-            try:
-                return pending.result()
-            except LabelsLost:
-                raise
-            except (OSError, RuntimeError):
-                if attempt == REPLACEMENTS or not self._lost(s):
-                    raise
-                self._replace(s)
-                pending = self._send(s, request)
+                pending = None
         raise AssertionError("unreachable")  # pragma: no cover
 
     def _lost(self, s: int) -> bool:
@@ -306,7 +303,6 @@ class DaskShards:
     def _replace(self, s: int) -> None:
         with self._count:
             self._replaced[s] += 1
-            self.replaced += 1
         old = self._loads[s]
         self._loads[s] = self._load(s, None)
         self._actors[s] = self._loads[s].result()
