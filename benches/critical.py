@@ -3,7 +3,9 @@ the shared data.
 
 For each data set: ``--crude`` natural scenes of 16 steps (every default of ``sample_scenarios``)
 measured once (:func:`dpgp.generate.criticality.criticality`, per scene); events "hardest
-deceleration above a threshold" with the thresholds at the crude run's ``--rates`` quantiles;
+deceleration above a threshold" (or ``--measure`` ttc, gap, pet below one) with the thresholds
+at the crude run's ``--rates`` quantiles (a rate inside an atom of the measure, such as the scenes
+braking at the generator's bound, has no event: the bench says how many scenes sit there);
 for each event a tilt learned by :func:`dpgp.generate.critical.learn_tilt` (``--rounds`` of
 ``--per-round`` scenes) and ``--tilted`` scenes drawn with it. Prints per event: the crude rate
 and its 95 % interval, the tilted estimate, its standard error and effective sample size, whether
@@ -16,7 +18,7 @@ event's tilt) against as many natural ones, both scored against the recorded tes
 
     python benches/critical.py [--only sumo_junction,us101_linked] [--model NAME=PATH ...]
         [--crude 300000] [--rates 1e-2,3e-3,1e-3] [--tilted 30000] [--per-round 1000] [--rounds 6]
-        [--realism 2000] [--cache DIR] [--plots DIR]
+        [--realism 2000] [--cache DIR] [--plots DIR] [--measure deceleration]
 
 ``--model NAME=PATH`` uses a saved fit (else: fitted here, 20 sweeps on the training 70 %, kept in
 ``--cache``). ``--cache DIR`` keeps the crude runs' measures there (by model file, count and the
@@ -38,7 +40,7 @@ import dpgp
 from dpgp.evaluate import split_in_time
 from dpgp.evaluate.realism_checks import realism, recorded_windows
 from dpgp.generate.critical import learn_tilt
-from dpgp.generate.criticality import Estimate, Event, criticality, default_size
+from dpgp.generate.criticality import EVENT_MEASURES, Estimate, Event, criticality, default_size
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from realism import datasets  # noqa: E402  (benches/realism.py, this folder)
@@ -144,6 +146,7 @@ def main() -> None:
     ap.add_argument("--realism", type=int, default=2_000)
     ap.add_argument("--cache", type=Path)
     ap.add_argument("--plots", type=Path)
+    ap.add_argument("--measure", default="deceleration", choices=sorted(EVENT_MEASURES))
     args = ap.parse_args()
     given = dict(m.split("=", 1) for m in args.model)
     sets = datasets()
@@ -153,14 +156,24 @@ def main() -> None:
         size = default_size(frames.summary)
         t0 = time.perf_counter()
         crude = crude_run(model, path, args.crude, size, args.cache)
-        n = len(crude["deceleration"])
+        n = len(crude[args.measure])
         print(f"\n{name} ({Path(path).name}; unit {unit}): {n} crude scenes in {time.perf_counter() - t0:.0f} s")
         print(f"  {'event':22s} {'crude rate [95 %]':>30s} {'tilted rate ± se':>24s} {'hits':>6s} {'ESS':>7s} "
               f"{'in 300-hit crude CI (n)':>23s} {'z':>6s} {'accel.':>7s} {'w/ learning':>11s}")  # fmt: skip
         last = None
+        values = crude[args.measure]
+        above = EVENT_MEASURES[args.measure] == ">"
         for rate in (float(r) for r in args.rates.split(",")):
-            threshold = float(np.quantile(crude["deceleration"], 1 - rate))
-            event = Event("deceleration", round(threshold, 3))
+            threshold = float(np.quantile(values, 1 - rate if above else rate))
+            # a measure with an atom at its end (the braking bound; touching vehicles' ttc and gap
+            # of 0) has no event that rare: say how many scenes sit there instead
+            edge = float(values.max() if above else values.min())
+            if abs(threshold - edge) <= 1e-9 * max(1.0, abs(edge)):
+                share = float(np.mean(np.abs(values - edge) <= 1e-9 * max(1.0, abs(edge))))
+                print(f"  {args.measure} at rate {rate:g}: none; {share:.4f} of the crude scenes sit at its "
+                      f"{'largest' if above else 'least'} value, {edge:.4g}", flush=True)  # fmt: skip
+                continue
+            event = Event(args.measure, round(threshold, 3))
             hits = event.happened(crude)
             c = Estimate.of(hits)
             # the issue's reference: a crude run just large enough to see the event 300 times
@@ -184,9 +197,9 @@ def main() -> None:
             print(f"  kinematic realism scores, natural -> tilted toward {last[0]} (ratio):")
             for f, (a, b) in k.items():
                 print(f"    {f:22s} {a:.4f} -> {b:.4f} ({b / a:.3f})")
-        if last is not None and args.plots is not None:
-            thresholds = [float(np.quantile(crude["deceleration"], 1 - float(r))) for r in args.rates.split(",")]
-            plot(args.plots, name, crude["deceleration"], last[2]["deceleration"], last[3], thresholds)
+        if last is not None and args.plots is not None and above:
+            thresholds = [float(np.quantile(values, 1 - float(r))) for r in args.rates.split(",")]
+            plot(args.plots, name, values, last[2][args.measure], last[3], thresholds)
 
 
 if __name__ == "__main__":

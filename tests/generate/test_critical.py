@@ -48,27 +48,29 @@ def test_the_weights_are_the_ratio_of_the_frames_probabilities(model) -> None:
 
 
 def test_a_tilted_estimate_agrees_with_crude_monte_carlo(model) -> None:
-    event = "deceleration>19"
-    tilt, levels = learn_tilt(model, event, per_round=300, rounds=4, steps=8, seed=1)
+    # braking at the bound (9 m/s²) within 3 steps: in 6 % of natural scenes, from some frames far
+    # more often than from others (over 8 steps, 17 %: reached in the first round, little to tilt)
+    event = "deceleration>8.9"
+    tilt, levels = learn_tilt(model, event, per_round=300, rounds=4, steps=3, seed=1)
     assert np.all(tilt.frames > 0) and tilt.frames.sum() == pytest.approx(1.0)
     assert tilt.shift is not None and 0 < math.hypot(*tilt.shift) <= MAX_SHIFT
-    tilted = model.sample_scenarios(3000, steps=8, seed=2, tilt=tilt)
-    crude = model.sample_scenarios(3000, steps=8, seed=3)
+    tilted = model.sample_scenarios(3000, steps=3, seed=2, tilt=tilt)
+    crude = model.sample_scenarios(3000, steps=3, seed=3)
     a, b = tilted.estimate(event), crude.estimate(event)
     assert crude.weights is None and b.ess == pytest.approx(3000) and b.hits > 30
     assert abs(a.rate - b.rate) <= 4 * math.hypot(a.stderr, b.stderr), (a, b)
     # the tilt draws the event more often than nature does
     assert a.hits > 1.5 * b.hits, (a.hits, b.hits, levels)
-    assert a.interval[0] <= a.rate <= a.interval[1] and a.per_hour == pytest.approx(a.rate * 3600 / 4.0)
+    assert a.interval[0] <= a.rate <= a.interval[1] and a.per_hour == pytest.approx(a.rate * 3600 / 1.5)
     # measures computed once give the same estimate; batches combine by their hits and weights
     per = criticality(tilted).per_scene()
     assert tilted.estimate(event, measures=per) == a
     hit = Event.parse(event).happened(per)
     halves = [
-        Estimate.of(hit[s], tilted.weights[s], event=event, seconds=4.0) for s in (slice(0, 1500), slice(1500, None))
+        Estimate.of(hit[s], tilted.weights[s], event=event, seconds=1.5) for s in (slice(0, 1500), slice(1500, None))
     ]
     joined = Estimate.of(np.r_[hit[:1500], hit[1500:]], np.r_[tilted.weights[:1500], tilted.weights[1500:]],
-                         event=event, seconds=4.0)  # fmt: skip
+                         event=event, seconds=1.5)  # fmt: skip
     assert joined == a and sum(h.hits for h in halves) == a.hits
     assert a.rate == pytest.approx(np.mean([h.rate for h in halves]))
     with pytest.raises(InvalidInputError, match="weights"):
@@ -110,7 +112,7 @@ def test_a_shifted_innovation_is_weighed_exactly(model) -> None:
     # the shifted innovation is drawn around the shift (where its vehicle was still there)
     z = shifted.picks[np.all(np.isfinite(shifted.picks), axis=1)]
     assert len(z) > 1000 and np.allclose(z.mean(axis=0), [-2.0, 0.5], atol=0.15)
-    event = "deceleration>12"
+    event = "deceleration>8.9"
     crude = model.sample_scenarios(4000, steps=6, seed=6).estimate(event)
     a = shifted.estimate(event)
     assert crude.hits > 30 and abs(a.rate - crude.rate) <= 4 * math.hypot(a.stderr, crude.stderr), (a, crude)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -96,7 +97,7 @@ def test_fitted_model_recovers_spreads_along_and_across_the_heading():
     assert np.all(np.abs(got / [along, across] - 1) < 0.15), m.sigma
     # the record draws the innovation in the heading frame: min_speed, τ across
     rec = m.record(0)
-    assert len(rec) == 17 + 3 * motion.PROFILE_KNOTS and rec[10] == m.min_speed
+    assert len(rec) == 20 + 3 * motion.PROFILE_KNOTS and rec[10] == m.min_speed
     assert rec[11] == m.tau[0] * m.tau_across_share
 
 
@@ -220,8 +221,8 @@ def test_model_files_keep_steering_and_the_profile():
     back = motion.MotionModel.from_dict(d)
     assert back.tau_heading == 2.5 and np.array_equal(back.profile, prof)
     rec = back.record(0)
-    assert len(rec) == 17 + 3 * motion.PROFILE_KNOTS and rec[12] == 2.5
-    np.testing.assert_array_equal(rec[13:-4], prof.T.ravel())
+    assert len(rec) == 20 + 3 * motion.PROFILE_KNOTS and rec[12] == 2.5
+    np.testing.assert_array_equal(rec[13:-7], prof.T.ravel())
     # rollouts of recorded frames do not steer; files written before: no steering, flat profile
     assert back.record(0, recorded=True)[12] == -1.0
     old = motion.MotionModel.from_dict({k: v for k, v in d.items() if k not in ("tau_heading", "profile")})
@@ -318,10 +319,10 @@ def test_model_files_keep_the_tolerance_and_the_stand_speed():
     d = m.to_dict()
     back = motion.MotionModel.from_dict(d)
     assert back.heading_tolerance == 0.08 and back.stand_speed == 0.2
-    assert list(back.record(0)[-4:-2]) == [0.08, 0.2]
-    assert list(back.record(0, recorded=True)[-4:-2]) == [0.0, 0.0]  # rollouts of recorded frames: neither
+    assert list(back.record(0)[-7:-5]) == [0.08, 0.2]
+    assert list(back.record(0, recorded=True)[-7:-5]) == [0.0, 0.0]  # rollouts of recorded frames: neither
     old = motion.MotionModel.from_dict({k: v for k, v in d.items() if k not in ("heading_tolerance", "stand_speed")})
-    assert list(old.record(0)[-4:-2]) == [0.0, 0.0]
+    assert list(old.record(0)[-7:-5]) == [0.0, 0.0]
     for bad in ({"heading_tolerance": -0.1}, {"heading_tolerance": 4.0}, {"stand_speed": -1.0}):
         with pytest.raises(dpgp.DataFormatError):
             motion.MotionModel.from_dict({**d, **bad})
@@ -672,7 +673,7 @@ def test_rollouts_of_recorded_pedestrians_keep_the_distance_their_tracks_keep():
         assert motion.rollout_personal_distance(f, dt, 0.6) == pytest.approx(want), tag
     m = motion.MotionModel("pedestrians", np.ones(1), np.ones((1, 2)), np.zeros(1, np.int64), np.ones(1), 0.6,
                            sigma_frame="heading", jitter=np.array([0.2, 0.1]), personal_rollout=0.0)  # fmt: skip
-    assert m.record(0)[3] == 2 and m.record(0)[4] == 0.6 and list(m.record(0)[-2:]) == [0.2, 0.1]
+    assert m.record(0)[3] == 2 and m.record(0)[4] == 0.6 and list(m.record(0)[-5:-3]) == [0.2, 0.1]
     assert m.record(0, recorded=True)[3] == 0  # no rule in rollouts of recorded frames
     back = motion.MotionModel.from_dict(m.to_dict())
     assert back.personal_rollout == 0.0 and np.array_equal(back.jitter, [0.2, 0.1])
@@ -680,7 +681,7 @@ def test_rollouts_of_recorded_pedestrians_keep_the_distance_their_tracks_keep():
         {k: v for k, v in m.to_dict().items() if k not in ("jitter", "personal_rollout")}
     )
     assert old.jitter is None and np.isnan(old.personal_rollout)
-    assert list(old.record(0)[-2:]) == [0.0, 0.0] and old.record(0, recorded=True)[3] == 2
+    assert list(old.record(0)[-5:-3]) == [0.0, 0.0] and old.record(0, recorded=True)[3] == 2
     with pytest.raises(dpgp.DataFormatError):
         motion.MotionModel.from_dict({**m.to_dict(), "jitter": [-0.1, 0.0]})
 
@@ -829,3 +830,38 @@ def test_generated_vehicles_keep_at_least_their_size_as_jam_distance_and_corrido
     assert motion.MotionModel.from_dict({k: w for k, w in d.items() if k != "size"}).size is None
     with pytest.raises(dpgp.DataFormatError):
         motion.MotionModel.from_dict({**d, "size": [4.5, -1.0]})
+
+
+def test_generated_vehicles_brake_no_harder_than_their_bound():
+    """Generated vehicles brake at most ``brake`` (about 0.9 g in the frames' unit; issue 35: IDM
+    stopped US-101 vehicles from 40 ft/s in one step), whatever asks for it: a leader, a falling
+    wish or the personal distance. Rollouts of recorded frames keep plain IDM+; a file written
+    before the bound gets it from the frames' unit."""
+    from dpgp.generate.criticality import criticality
+
+    model = dpgp.DPGP.load(FIXTURES / "field_model.npz")
+    fit = model._fitted()
+    base = motion.motion_model(fit)
+    assert base.brake == motion.max_brake(fit.frames.summary)  # supplied for a file written before it
+    assert motion.max_brake(None) == motion.MAX_BRAKE
+    assert motion.max_brake(SimpleNamespace(length_unit="ft")) == pytest.approx(29.5276, abs=1e-4)
+    assert list(base.record(0)[-3:]) == [base.brake, *base.size]
+    assert list(base.record(0, recorded=True)[-3:]) == [0.0, 0.0, 0.0]  # rollouts of recorded frames: plain IDM+
+    d = base.to_dict()
+    assert motion.MotionModel.from_dict(d).brake == base.brake
+    assert np.isnan(motion.MotionModel.from_dict({k: v for k, v in d.items() if k != "brake"}).brake)
+    with pytest.raises(dpgp.DataFormatError):
+        motion.MotionModel.from_dict({**d, "brake": -1.0})
+
+    def hardest(brake):
+        fit.cache["motion"] = (fit.frames, dataclasses.replace(base, brake=brake))
+        scenes = model.sample_scenarios(200, steps=12, seed=3)
+        return criticality(scenes).per_scene()["deceleration"]
+
+    try:
+        free = hardest(float("inf"))  # no bound (the core's 0)
+        bound = float(np.percentile(free, 50))
+        assert bound > 0 and free.max() > 1.5 * bound
+        assert hardest(bound).max() <= bound * (1 + 1e-9)
+    finally:
+        fit.cache["motion"] = (fit.frames, base)

@@ -183,6 +183,10 @@ TOLERANCE_GRID = np.r_[0.0, np.geomspace(0.01, 0.64, 13)]
 #: standard errors of the paired per-step gain over δ = 0 that a heading tolerance must reach
 TOLERANCE_SE = 2.0
 PROFILE_KNOTS = 8  # knots of the spread's profile over the field's speed (motion.rs: PROFILE_KNOTS)
+#: the hardest a generated vehicle brakes (m/s²): emergency braking on a dry road, about 0.9 g (SUMO's
+#: emergency deceleration of a passenger car). Without it IDM stopped US-101 vehicles from 40 ft/s in
+#: one 0.5 s step when a neighbour drifted into their corridor (issue 35)
+MAX_BRAKE = 9.0
 _KIND = {"free": 0, "vehicles": 1, "pedestrians": 2}
 
 
@@ -206,7 +210,9 @@ class MotionModel:
     of a recorded vehicle's acceleration its driver's desired speed starts from in rollouts of
     recorded frames (:meth:`recorded_drivers`; 0, and in files written before it: its own speed).
     ``size``: the vehicles' (length, width), the recorded median (:attr:`bounded` uses it; ``None``
-    for pedestrians, and in files written before it, where :func:`motion_model` supplies it)."""
+    for pedestrians, and in files written before it, where :func:`motion_model` supplies it).
+    ``brake``: the hardest generated vehicles brake (:data:`MAX_BRAKE` in the frames' length unit;
+    NaN for pedestrians, and in files written before it, where :func:`motion_model` supplies it)."""
 
     agents: str
     tau: np.ndarray
@@ -231,6 +237,7 @@ class MotionModel:
     personal_rollout: float = float("nan")
     accel_trust: float = 0.0
     size: tuple[float, float] | None = None
+    brake: float = float("nan")
 
     @property
     def rollout_tau(self) -> np.ndarray:
@@ -280,6 +287,13 @@ class MotionModel:
             return self.jam, self.lateral
         return max(self.jam, self.size[0]), max(self.lateral, self.size[1])
 
+    def _braking(self, recorded: bool) -> tuple[float, float, float]:
+        """The core's ``brake``, ``length`` and ``width`` (``motion.rs``: ``Idm``; 0: none)."""
+        if recorded or self.agents != "vehicles":
+            return 0.0, 0.0, 0.0
+        brake = self.brake if np.isfinite(self.brake) and self.brake > 0 else 0.0  # 0: no bound
+        return (brake, 0.0, 0.0) if self.size is None else (brake, *self.size)
+
     def record(self, k: int, interaction: bool = True, recorded: bool = False) -> np.ndarray:
         """Pattern ``k``'s flat record for the core (``motion.rs``: ``MOTION_FIELDS``);
         ``recorded``: for a rollout of a recorded frame (its time constant :attr:`rollout_tau`)."""
@@ -305,7 +319,11 @@ class MotionModel:
              *(self.profile.T.ravel() if heading and self.profile is not None else [-1.0] + [0.0] * (3 * PROFILE_KNOTS - 1)),
              *((self.heading_tolerance, self.stand_speed) if heading and not recorded and self.tau_heading > 0 else (0.0, 0.0)),
              # the step jitter (pedestrians; stochastic rollouts only: mean rollouts draw none)
-             *(self.jitter if heading and self.jitter is not None else (0.0, 0.0))],
+             *(self.jitter if heading and self.jitter is not None else (0.0, 0.0)),
+             # generated vehicles: the braking bound, and the size for cut-ins and for keeping out
+             # of a side alongside (0: none; rollouts of recorded frames keep the IDM+ their time
+             # constant was chosen with)
+             *self._braking(recorded)],
             dtype=np.float64,
         )  # fmt: skip
 
@@ -334,6 +352,7 @@ class MotionModel:
         out["personal_rollout"] = None if np.isnan(self.personal_rollout) else float(self.personal_rollout)
         out["accel_trust"] = float(self.accel_trust)
         out["size"] = None if self.size is None else [float(v) for v in self.size]
+        out["brake"] = None if np.isnan(self.brake) else float(self.brake)
         return out
 
     @classmethod
@@ -375,6 +394,7 @@ class MotionModel:
                 accel_trust=float(d.get("accel_trust", 0.0)),
                 # files written before it: the frames' (motion_model)
                 size=None if d.get("size") is None else _size(d["size"]),
+                brake=float("nan") if d.get("brake") is None else float(d["brake"]),
             )
         except (KeyError, TypeError, ValueError) as e:
             raise DataFormatError(f"not a stored motion model ({type(e).__name__}: {e})") from None
@@ -390,6 +410,7 @@ class MotionModel:
             or not (np.isnan(m.personal_rollout) or (np.isfinite(m.personal_rollout) and m.personal_rollout >= 0))
             or not (0.0 <= m.accel_trust <= 1.0)
             or (m.size is not None and not all(np.isfinite(v) and v > 0 for v in m.size))
+            or not (np.isnan(m.brake) or m.brake > 0)
             or (
                 m.profile is not None
                 and (
@@ -869,7 +890,7 @@ def learn(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     return _rollout_choice(fit, held, MotionModel(
         agents, tau, sigma, pairs, spacing, personal, jam, headway, accel, decel, max(lateral, 1e-9),
         tau_across_share=TAU_ACROSS_SHARE["vehicles"], tau_heading=tau_h, heading_tolerance=tol, stand_speed=stand,
-        size=default_size(frames.summary), **frame,
+        size=default_size(frames.summary), brake=max_brake(frames.summary), **frame,
     ))  # fmt: skip
 
 
@@ -1129,13 +1150,20 @@ def _accelerations(
     )
 
 
+def max_brake(summary: Any) -> float:
+    """:data:`MAX_BRAKE` in the frames' length unit (``summary.length_unit``; metres when not known)."""
+    return MAX_BRAKE / 0.3048 if getattr(summary, "length_unit", None) == "ft" else MAX_BRAKE
+
+
 def motion_model(fit: FittedPatterns, agents: str = "auto") -> MotionModel:
     """The fitted model's :class:`MotionModel`: kept in its cache (and in the model file), else
     learned from its training frames."""
     cached = fit.cache.get("motion")
     if cached is not None and cached[0] is fit.frames and (agents == "auto" or cached[1].agents == agents):
-        if cached[1].size is None and cached[1].agents == "vehicles":  # a file written before it
-            fit.cache["motion"] = (fit.frames, replace(cached[1], size=default_size(fit.frames.summary)))
+        m = cached[1]
+        if m.agents == "vehicles" and (m.size is None or np.isnan(m.brake)):  # a file written before them
+            size = default_size(fit.frames.summary) if m.size is None else m.size
+            fit.cache["motion"] = (fit.frames, replace(m, size=size, brake=max_brake(fit.frames.summary)))
         return fit.cache["motion"][1]
     m = learn(fit, agents)
     if agents == "auto":

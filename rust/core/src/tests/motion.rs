@@ -7,6 +7,9 @@ const IDM: Idm = Idm {
     accel: 1.0,
     decel: 2.0,
     lateral: 1.5,
+    brake: f64::INFINITY,
+    length: 0.0,
+    width: 0.0,
 };
 
 /// A record of the 12 numbers before steering and the profile: no steering, a flat profile.
@@ -1159,4 +1162,180 @@ fn shifted_rollouts_have_mean_weight_one_and_unbiased_expectations() {
         &mut field,
     );
     assert!(err.is_err());
+}
+
+/// [`IDM`] with the vehicles' length (the cut-in moderation) and a braking bound.
+const BOUNDED: Idm = Idm {
+    brake: 9.0,
+    length: 4.5,
+    width: 1.8,
+    ..IDM
+};
+
+#[test]
+fn the_cah_moderates_idm_as_the_acc_model_does() {
+    // without a length, or a leader, it is IDM+ itself
+    let gap = Some((6.0, 15.0));
+    assert_eq!(
+        acc_accel(15.0, 15.0, gap, &IDM),
+        idm_accel(15.0, 15.0, gap, &IDM)
+    );
+    assert_eq!(
+        acc_accel(10.0, 15.0, None, &BOUNDED),
+        idm_accel(10.0, 15.0, None, &BOUNDED)
+    );
+    // where IDM brakes less than the CAH's collision-free deceleration, IDM
+    let easy = Some((60.0, 14.0));
+    assert_eq!(
+        acc_accel(15.0, 15.0, easy, &BOUNDED),
+        idm_accel(15.0, 15.0, easy, &BOUNDED)
+    );
+    // a neighbour cutting in 6 ahead (bumper gap 1.5) at one's own speed: IDM+ asks for about
+    // 18 b; the CAH sees no approach (a_CAH = 0) and the blend brakes at about b. By hand:
+    // s* = 7 + 15 * 1.5 = 29.5, a_IDM = 1 - (29.5 / 6)^2 = -23.1736111;
+    // (1 - c) a_IDM + c (0 + b tanh(a_IDM / b)) = -0.2317361 + 0.99 * 2 * tanh(-11.5868056)
+    let idm = idm_accel(15.0, 15.0, gap, &BOUNDED);
+    assert!(
+        (idm - (1.0 - (29.5f64 / 6.0).powi(2))).abs() < 1e-12,
+        "{idm}"
+    );
+    let want = 0.01 * idm + 0.99 * 2.0 * (idm / 2.0).tanh();
+    let got = acc_accel(15.0, 15.0, gap, &BOUNDED);
+    assert!((got - want).abs() < 1e-12, "{got} vs {want}");
+    assert!(
+        (got - (-2.211_736_1)).abs() < 1e-6 && got < -BOUNDED.decel,
+        "{got}"
+    );
+    // closing at 5 on a bumper gap of 10: a_CAH = -25 / 20 = -1.25; IDM+ brakes harder, and the
+    // blend lies between them, no softer than the CAH minus b
+    let closing = Some((14.5, 10.0));
+    let idm = idm_accel(15.0, 15.0, closing, &BOUNDED);
+    let cah = -1.25;
+    let want = 0.01 * idm + 0.99 * (cah + 2.0 * ((idm - cah) / 2.0).tanh());
+    let got = acc_accel(15.0, 15.0, closing, &BOUNDED);
+    assert!(idm < cah && (got - want).abs() < 1e-12, "{got} vs {want}");
+    assert!(got > idm && got < cah, "{idm} < {got} < {cah}");
+}
+
+#[test]
+fn vehicles_brake_no_harder_than_their_bound() {
+    let rule = |idm| Rule::Vehicles { idm, personal: 2.0 };
+    let dt = 0.5;
+    // a neighbour alongside drifts into the corridor 3 ahead at the follower's speed: IDM+ (and
+    // the Euler guard) stop the follower in one step; bounded, it loses dt * brake at most
+    let x = [[0.0, 0.0], [3.0, 1.2]];
+    let current = [[15.0, 0.0], [15.0, 0.0]];
+    let desired = current;
+    let plain = interact(&x, &current, &desired, &rule(IDM), dt);
+    assert_eq!(plain[0], [0.0, 0.0]);
+    let bounded = interact(&x, &current, &desired, &rule(BOUNDED), dt);
+    let u = bounded[0][0].hypot(bounded[0][1]);
+    assert!(u >= 15.0 - dt * 9.0 - 1e-12 && u < 15.0, "{:?}", bounded[0]);
+    // a wish that falls at once, and the personal distance pushing two vehicles apart, also
+    // slow a vehicle by dt * brake at most
+    let free = interact(
+        &[[0.0, 0.0]],
+        &[[15.0, 0.0]],
+        &[[0.5, 0.0]],
+        &rule(BOUNDED),
+        dt,
+    );
+    assert!((free[0][0] - (15.0 - dt * 9.0)).abs() < 1e-12, "{free:?}");
+    let head_on = [[0.0, 0.0], [1.0, 0.0]];
+    let v = interact(
+        &head_on,
+        &[[15.0, 0.0], [-15.0, 0.0]],
+        &[[15.0, 0.0], [-15.0, 0.0]],
+        &rule(BOUNDED),
+        dt,
+    );
+    for (vi, ci) in v.iter().zip([15.0, 15.0]) {
+        assert!(vi[0].hypot(vi[1]) >= ci - dt * 9.0 - 1e-12, "{v:?}");
+    }
+    // unbounded, the same guard stops them
+    let v = interact(
+        &head_on,
+        &[[15.0, 0.0], [-15.0, 0.0]],
+        &[[15.0, 0.0], [-15.0, 0.0]],
+        &rule(IDM),
+        dt,
+    );
+    assert!(
+        v.iter().all(|vi| vi[0].hypot(vi[1]) < 15.0 - dt * 9.0),
+        "{v:?}"
+    );
+}
+
+#[test]
+fn a_motion_record_carries_the_braking_bound_and_the_length() {
+    let mut r = rec(&[2.0, 1.0, 1.0, 1.0, 2.0, 7.0, 1.5, 1.0, 2.0, 1.5, -1.0, 2.0]);
+    let idm = |r: &[f64]| match Motion::from_slice(r).unwrap().rule {
+        Rule::Vehicles { idm, .. } => idm,
+        _ => unreachable!(),
+    };
+    // zeros: no bound, no length
+    assert_eq!(idm(&r), IDM);
+    r[17 + 3 * PROFILE_KNOTS] = 9.0;
+    r[18 + 3 * PROFILE_KNOTS] = 4.5;
+    r[19 + 3 * PROFILE_KNOTS] = 1.8;
+    assert_eq!(idm(&r), BOUNDED);
+    for (at, bad) in [
+        (17, -1.0),
+        (17, f64::NAN),
+        (18, -1.0),
+        (18, f64::INFINITY),
+        (19, f64::NAN),
+    ] {
+        let mut b = r.clone();
+        b[at + 3 * PROFILE_KNOTS] = bad;
+        assert!(Motion::from_slice(&b).is_err(), "{at} {bad}");
+    }
+}
+
+#[test]
+fn a_vehicle_alongside_does_not_move_into_ones_side() {
+    let rule = Rule::Vehicles {
+        idm: BOUNDED,
+        personal: 0.5,
+    };
+    let dt = 0.5;
+    // j, 1 ahead and 3 to the left of i (their mean heading is x), drifts right at 2 while i
+    // drifts left at 2: across they may close (3 - 1.8) / dt = 2.4 of their 4, so 1.6 is removed,
+    // half from each, and after the step they are a width apart across
+    let x = [[0.0, 0.0], [1.0, 3.0]];
+    let vel = [[10.0, 2.0], [10.0, -2.0]];
+    let v = interact(&x, &vel, &vel, &rule, dt);
+    assert!(
+        (v[0][0] - 10.0).abs() < 1e-12 && (v[0][1] - 1.2).abs() < 1e-12,
+        "{v:?}"
+    );
+    assert!(
+        (v[1][0] - 10.0).abs() < 1e-12 && (v[1][1] + 1.2).abs() < 1e-12,
+        "{v:?}"
+    );
+    let after = (x[1][1] + dt * v[1][1]) - (x[0][1] + dt * v[0][1]);
+    assert!((after - 1.8).abs() < 1e-12, "{after}");
+    // the same in the other order
+    let w = interact(
+        &[x[1], x[0]],
+        &[vel[1], vel[0]],
+        &[vel[1], vel[0]],
+        &rule,
+        dt,
+    );
+    assert_eq!([w[1], w[0]], [v[0], v[1]]);
+    // a length or more ahead it cuts in (the follower's car following answers it), and slowly
+    // enough it drifts on; without the vehicles' size, no rule
+    let ahead = [[0.0, 0.0], [4.6, 3.0]];
+    assert_eq!(interact(&ahead, &vel, &vel, &rule, dt), vel);
+    let slow = [[10.0, 1.0], [10.0, -1.0]];
+    assert_eq!(interact(&x, &slow, &slow, &rule, dt), slow);
+    let plain = Rule::Vehicles {
+        idm: Idm {
+            width: 0.0,
+            ..BOUNDED
+        },
+        personal: 0.5,
+    };
+    assert_eq!(interact(&x, &vel, &vel, &plain, dt), vel);
 }
