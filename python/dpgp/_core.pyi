@@ -180,6 +180,7 @@ def criticality(
     sizes: NDArray[np.float64],
     dt: float,
     min_speed: float,
+    headings: NDArray[np.float64] | None = None,
 ) -> tuple[
     NDArray[np.int64],
     NDArray[np.int64],

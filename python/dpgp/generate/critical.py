@@ -23,9 +23,9 @@ event's own); estimate each frame's chance of reaching it from every scene drawn
 frame, shrunk toward the overall chance (a frame seen once with a hit is not taken as certain, one
 never drawn keeps the overall chance); move ``μ`` to the weighted mean of the elite scenes'
 shifted innovations. The gain is bounded by what the tilted inputs decide: an event decided
-elsewhere (on the shared fits, the hardest decelerations come from the interaction, a vehicle
-entering a follower's corridor close ahead) is drawn at about its natural rate, and the estimate
-has about crude Monte Carlo's variance. The natural generator (no tilt) is unchanged.
+elsewhere (on the shared fits, a vehicle braking at the generator's bound, which the interaction
+decides) is drawn at about its natural rate, and the estimate has about crude Monte Carlo's
+variance (``docs/criticality.md``). The natural generator (no tilt) is unchanged.
 """
 
 from __future__ import annotations

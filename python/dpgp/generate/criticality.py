@@ -3,9 +3,10 @@
 :func:`criticality` measures generated :class:`~dpgp.scenarios.Scenarios`, single simulations,
 or recorded :class:`~dpgp.Frames` (cut into windows of consecutive frames by
 :func:`recorded_scenes`). Each vehicle is a rectangle of ``size`` (length, width) along its
-heading: its velocity's direction when at least ``min_speed`` fast, else the last such (before any,
-the first one after; a vehicle that never moves faces +x). Per pair of vehicles, over the times both
-are in the scene:
+heading: its velocity's direction when at least ``min_speed`` fast, else its recorded heading where
+the scene has one (recorded frames' ``prev_heading``: the way it last moved), else the last such
+(before any, the first one after; a vehicle that never moves and has no recorded heading faces
++x). Per pair of vehicles, over the times both are in the scene:
 
 - ``ttc``: time to collision, the least over the times of how long until their rectangles would
   touch if both kept their velocities (0 when they touch, ``inf`` when they never would);
@@ -166,8 +167,15 @@ def criticality(
 
     pos, vel, present = flat(0, (-1, 2)), flat(1, (-1, 2)), flat(2, (-1,)).astype(bool)
     sizes = np.tile([length, width], (sum(vehicles), 1)).astype(np.float64)
+    # recorded scenes' headings (a standing vehicle faces the way it last moved); NaN: not known
+    known = [getattr(s, "headings", None) for s in sims]
+    heads = None
+    if any(h is not None for h in known):
+        heads = np.ascontiguousarray(np.concatenate(
+            [np.full(g[2].size, np.nan) if h is None else np.asarray(h, np.float64).reshape(-1) for g, h in zip(grids, known)]
+        ))  # fmt: skip
     scene, a, b, ttc, gap, pet, hit, decel = _core.criticality(
-        pos, vel, present, rows, vehicles, sizes, step, float(min_speed)
+        pos, vel, present, rows, vehicles, sizes, step, float(min_speed), heads
     )
     pairs = {"scene": scene, "a": a, "b": b, "ttc": ttc, "gap": gap, "pet": pet, "collision": hit}
     per_vehicle = {
@@ -360,14 +368,17 @@ def estimate(scenes: Any, event: Any, *, size: Any = None, weights: Any = None, 
 @dataclass(frozen=True)
 class RecordedScene:
     """A window of recorded frames as a scene: ``positions``, ``velocities`` (times, vehicles,
-    2), ``in_roi`` (times, vehicles: the vehicle is in that frame), its ``tracks`` (vehicles,)
-    and ``dt``."""
+    2), ``in_roi`` (times, vehicles: the vehicle is in that frame), its ``tracks`` (vehicles,),
+    ``dt`` and ``headings`` (times, vehicles: the frames' ``prev_heading``, the heading each
+    vehicle last moved with, NaN where not known; ``None`` when the frames carry none): a
+    vehicle standing through the window faces it, not +x."""
 
     positions: np.ndarray
     velocities: np.ndarray
     in_roi: np.ndarray
     tracks: np.ndarray
     dt: float
+    headings: np.ndarray | None = None
 
 
 def recorded_scenes(
@@ -408,7 +419,11 @@ def recorded_scenes(
         pos[t_of, col_of] = frames.xy[all_rows]
         vel[t_of, col_of] = frames.v[all_rows]
         inside[t_of, col_of] = True
-        out.append(RecordedScene(pos, vel, inside, cols, step))
+        heads = None
+        if frames.prev_heading is not None:
+            heads = np.full((n, len(cols)), np.nan)
+            heads[t_of, col_of] = frames.prev_heading[all_rows]
+        out.append(RecordedScene(pos, vel, inside, cols, step, heads))
     return out
 
 

@@ -3,8 +3,11 @@
 //! A scene is a rollout's grid: `steps + 1` times by `l` vehicles, time-major, each cell a
 //! position, a velocity and whether the vehicle is there (inside the ROI). Each vehicle is a
 //! rectangle, its length along its heading and its width across, centred on its position. Its
-//! heading is its velocity's direction when that is at least `min_speed` fast, else the last such
-//! direction (before any, the first one after; a vehicle that never moves faces +x).
+//! heading is its velocity's direction when that is at least `min_speed` fast, else its recorded
+//! heading when the scene gives one (recorded frames' `prev_heading`: the heading it last moved
+//! with), else the last such direction (before any, the first one after; a vehicle that never
+//! moves and has no recorded heading faces +x: a standing queue's vehicles faced across their
+//! lanes and touched their neighbours').
 //!
 //! Per pair of vehicles, over the times both are there:
 //! - **time to collision**: how long until their rectangles would touch if both kept their
@@ -133,6 +136,9 @@ pub struct Scene<'a> {
     pub sizes: &'a [[f64; 2]],
     pub dt: f64,
     pub min_speed: f64,
+    /// Per row, the heading (radians) a vehicle slower than `min_speed` faces, NaN where not
+    /// known; `None`: none known.
+    pub headings: Option<&'a [f64]>,
 }
 
 /// The measures of the pair of vehicles `a < b`.
@@ -174,6 +180,19 @@ impl Scene<'_> {
                 self.positions.len(),
                 self.velocities.len(),
                 rows
+            )));
+        }
+        if let Some(h) = self.headings
+            && (h.len() != rows || h.iter().any(|x| x.is_infinite()))
+        {
+            return Err(Error::InvalidInput(format!(
+                "headings need one finite value or NaN per row ({rows}), got {} values{}",
+                h.len(),
+                if h.iter().any(|x| x.is_infinite()) {
+                    ", some infinite"
+                } else {
+                    ""
+                }
             )));
         }
         if !(self.dt.is_finite() && self.dt > 0.0) {
@@ -219,8 +238,13 @@ impl Scene<'_> {
         let own: Vec<Option<f64>> = (0..self.times())
             .map(|t| {
                 let (r, v) = (t * l + j, self.velocities[t * l + j]);
-                (self.present[r] && v[0].hypot(v[1]) >= self.min_speed.max(f64::MIN_POSITIVE))
-                    .then(|| v[1].atan2(v[0]))
+                if !self.present[r] {
+                    None
+                } else if v[0].hypot(v[1]) >= self.min_speed.max(f64::MIN_POSITIVE) {
+                    Some(v[1].atan2(v[0]))
+                } else {
+                    self.headings.map(|h| h[r]).filter(|h| h.is_finite())
+                }
             })
             .collect();
         let first = own.iter().flatten().next().copied().unwrap_or(0.0);

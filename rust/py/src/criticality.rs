@@ -27,7 +27,9 @@ type Out<'py> = (
 /// `present` (time-major, `vehicles[i]` a time), its vehicles' sizes (length, width) the next
 /// `vehicles[i]` rows of `sizes`. Returns the pairs' scene, `a`, `b`, time to collision, gap,
 /// post-encroachment time and collision flag, then every vehicle's hardest deceleration.
+/// `headings` (per row, NaN: not known): the heading a vehicle slower than `min_speed` faces.
 #[pyfunction]
+#[pyo3(signature = (positions, velocities, present, offsets, vehicles, sizes, dt, min_speed, headings=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn criticality<'py>(
     py: Python<'py>,
@@ -39,7 +41,18 @@ pub fn criticality<'py>(
     sizes: PyReadonlyArray2<'py, f64>,
     dt: f64,
     min_speed: f64,
+    headings: Option<PyReadonlyArray1<'py, f64>>,
 ) -> PyResult<Out<'py>> {
+    let headings = headings
+        .as_ref()
+        .map(|h| {
+            h.as_slice().map_err(|_| {
+                CoreError(Error::Shape(
+                    "headings must be a C-contiguous float array".into(),
+                ))
+            })
+        })
+        .transpose()?;
     let positions = pairs("positions", &positions)?;
     let velocities = pairs("velocities", &velocities)?;
     let sizes = pairs("sizes", &sizes)?;
@@ -52,10 +65,11 @@ pub fn criticality<'py>(
     let offsets = offsets_of(&offsets, vehicles.len(), rows)?;
     if positions.len() != rows
         || velocities.len() != rows
+        || headings.is_some_and(|h| h.len() != rows)
         || vehicles.iter().sum::<usize>() != sizes.len()
     {
         return Err(CoreError(Error::Shape(
-            "scenes: positions, velocities and present need the same rows, and sizes one row per vehicle of every scene".into(),
+            "scenes: positions, velocities, present (and headings) need the same rows, and sizes one row per vehicle of every scene".into(),
         ))
         .into());
     }
@@ -71,6 +85,7 @@ pub fn criticality<'py>(
         sizes: &sizes[first[i]..first[i + 1]],
         dt,
         min_speed,
+        headings: headings.map(|h| &h[offsets[i]..offsets[i + 1]]),
     };
     let mut all: Vec<Measures> = Vec::with_capacity(vehicles.len());
     for chunk in (0..vehicles.len()).collect::<Vec<_>>().chunks(CHUNK) {

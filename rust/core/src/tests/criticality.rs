@@ -101,6 +101,7 @@ fn scene_measures_by_hand() {
         sizes: &sizes,
         dt,
         min_speed: 0.5,
+        headings: None,
     };
     let m = scene.measures().unwrap();
     assert_eq!(m.pairs.len(), 3);
@@ -149,6 +150,7 @@ fn a_collision_and_the_hardest_deceleration() {
         sizes: &[CAR, CAR],
         dt: 0.5,
         min_speed: 0.5,
+        headings: None,
     };
     let m = scene.measures().unwrap();
     assert_eq!(m.deceleration, vec![8.0, 0.0]);
@@ -172,6 +174,7 @@ fn headings_hold_while_standing_and_bad_scenes_are_errors() {
         sizes: &sizes,
         dt: 1.0,
         min_speed: 0.5,
+        headings: None,
     };
     assert_eq!(scene.headings(0), vec![std::f64::consts::FRAC_PI_2; 4]);
     let still = [[0.0; 2]; 4];
@@ -243,4 +246,58 @@ fn headings_hold_while_standing_and_bad_scenes_are_errors() {
             deceleration: vec![]
         }
     );
+}
+
+#[test]
+fn a_standing_vehicle_faces_its_recorded_heading() {
+    use std::f64::consts::FRAC_PI_2;
+    // two cars standing side by side in lanes along y, 3 apart (wider than a car): facing +x,
+    // the default of a vehicle that never moves, their 4-long boxes overlap; facing their
+    // recorded heading (north), they do not
+    let pos = vec![[0.0, 0.0], [3.0, 0.0], [0.0, 0.0], [3.0, 0.0]];
+    let vel = vec![[0.0, 0.0]; 4];
+    let present = [true; 4];
+    let sizes = [CAR, CAR];
+    let north = [FRAC_PI_2; 4];
+    let scene = Scene {
+        vehicles: 2,
+        positions: &pos,
+        velocities: &vel,
+        present: &present,
+        sizes: &sizes,
+        dt: 0.5,
+        min_speed: 0.5,
+        headings: None,
+    };
+    assert!(scene.measures().unwrap().pairs[0].collision);
+    let recorded = Scene {
+        headings: Some(&north),
+        ..scene
+    };
+    assert_eq!(recorded.headings(0), vec![FRAC_PI_2; 2]);
+    let p = recorded.measures().unwrap().pairs[0];
+    assert!(!p.collision && close(p.gap, 1.0), "{p:?}");
+    // a moving vehicle's own velocity wins; NaN is not known (the velocity's, held); a recorded
+    // heading per row or none
+    let moving = vec![[0.0, 0.0], [3.0, 0.0], [1.0, 0.0], [3.0, 0.0]];
+    let east = vec![[1.0, 0.0], [0.0, 0.0], [1.0, 0.0], [0.0, 0.0]];
+    let some = [f64::NAN, FRAC_PI_2, f64::NAN, FRAC_PI_2];
+    let s = Scene {
+        positions: &moving,
+        velocities: &east,
+        headings: Some(&some),
+        ..scene
+    };
+    assert_eq!(s.headings(0), vec![0.0; 2]);
+    assert_eq!(s.headings(1), vec![FRAC_PI_2; 2]);
+    for bad in [&north[..3], &[0.0, 0.0, f64::INFINITY, 0.0][..]] {
+        assert!(
+            Scene {
+                headings: Some(bad),
+                ..scene
+            }
+            .measures()
+            .is_err()
+        );
+    }
 }
