@@ -69,7 +69,7 @@ fits), and a desired speed below the recorded speed
 next to a stand (:func:`stand_speed`) stands: the field of a queue is slow, not at rest, and
 queued vehicles crept. Vehicles steer only where their recorded headings are not mostly noise
 (:data:`STEER_NOISE_SHARE`, :func:`heading_noise_share`: NGSIM US-101's are, 77 % of their step
-changes). A generated vehicle starts along the field's heading. Rollouts of recorded frames do not steer (they keep their own heading and relax with
+changes). A generated vehicle starts along the field's heading (where the field is too slow to have one, along its recorded frame's heading). Rollouts of recorded frames do not steer (they keep their own heading and relax with
 ``τ_rollout``).
 
 **Agents.** ``"pedestrians"`` when 99% of the training speeds are below

@@ -41,7 +41,7 @@ from .._validate import check_roi
 from ..exceptions import InvalidInputError
 from ..gp.fitted import FittedPatterns, as_fitted
 from .distributions import EmpiricalDistributions
-from .headings import check_max_curvature, for_core, heading_speed, start_headings
+from .headings import check_max_curvature, heading_speed, start_headings
 from .motion import motion_model
 from .rollout import motion_records, split
 from .simulation import (
@@ -551,7 +551,9 @@ def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistri
         starts = np.ascontiguousarray(np.insert(starts, at, [place.x, place.y], axis=0))
         h = np.insert(h, at, np.nan if place.heading is None else np.radians(place.heading))
         requested = requested + 1
-    headings = for_core(fit, h)
+    # every fit's core takes them: a field over heading's inputs, and where the field is too slow
+    # to have a heading, a steering vehicle's start (a fit over position ignores them otherwise)
+    headings = (np.ascontiguousarray(h, dtype=np.float64), heading_speed(fit))
     seeds = [int(s) for s in rng.integers(0, 2**63, size=len(patterns), dtype=np.uint64)]
     spacing = motion_model(fit).spacing[patterns]
     unused = np.ones((1, 1))  # the core's histogram placement: not used when starts are given

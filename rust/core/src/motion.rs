@@ -1102,6 +1102,10 @@ pub fn drive_on(
                 ));
             }
             if t == 0 {
+                let recorded: Option<Vec<f64>> = field
+                    .recorded_headings()
+                    .filter(|r| r.len() == l)
+                    .map(<[f64]>::to_vec);
                 let mut rng = seed.map(|s| stream(s, 0, Phase::Simulate, NOISE_ENTITY));
                 // a recorded start keeps its own velocities exactly
                 let mut jit = if v0.is_none() { jitter_rng(0) } else { None };
@@ -1157,11 +1161,17 @@ pub fn drive_on(
                         }
                     };
                     steering[j] = [want[j][1].atan2(want[j][0]), want[j][0].hypot(want[j][1])];
-                    if let (None, Some(_), Some((e, _))) =
-                        (v0, motion.tau_heading, heading(mean[a], motion))
-                    {
-                        // a generated vehicle starts along its lane: the field's heading, at
-                        // the drawn velocity's speed along it (standing if that is negative)
+                    // a generated vehicle starts along its lane: the field's heading, else (a
+                    // field too slow to have one: a queue) the heading it was recorded with, at
+                    // the drawn velocity's speed along it (standing if that is negative). A
+                    // queued vehicle started along its slow field's drawn velocity faced any way,
+                    // and its rectangle lay across the next lane's (SUMO junction: half the
+                    // touching pairs of generated scenes were within a length at the start).
+                    let lane = heading(mean[a], motion).map(|(e, _)| e).or_else(|| {
+                        let h = recorded.as_ref().map_or(f64::NAN, |r| r[j]);
+                        h.is_finite().then(|| [h.cos(), h.sin()])
+                    });
+                    if let (None, Some(_), Some(e)) = (v0, motion.tau_heading, lane) {
                         let along = want[j][0] * e[0] + want[j][1] * e[1];
                         steering[j] = [e[1].atan2(e[0]), along];
                         let go = drive_speed(along, motion);

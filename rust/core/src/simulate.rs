@@ -173,6 +173,13 @@ pub trait Field {
 
     /// The previous headings of the vehicles the next queries are about (`NaN`: unknown).
     fn set_headings(&mut self, _h: &[f64]) {}
+
+    /// Every vehicle's recorded heading at the start (`NaN`: unknown), whatever the field's
+    /// inputs: a generated steering vehicle starts along it where the field is too slow to have
+    /// a heading ([`crate::motion::drive`]). Default `None`.
+    fn recorded_headings(&self) -> Option<&[f64]> {
+        None
+    }
 }
 
 /// The previous heading of every vehicle of a rollout, kept as frames carry it
@@ -461,6 +468,8 @@ pub struct PatternField<'a> {
     support: bool,
     /// A field over heading: the vehicles' headings ([`Field::start_headings`]).
     headings: Option<HeadingInput>,
+    /// The vehicles' recorded headings at the start ([`Field::recorded_headings`]).
+    recorded: Option<Vec<f64>>,
     /// The points (and, over heading, headings) of the flags put off so far
     /// ([`StepInfo::deferred`]).
     late: Vec<Point>,
@@ -487,9 +496,16 @@ impl<'a> PatternField<'a> {
             draw_once: false,
             support: false,
             headings: None,
+            recorded: None,
             late: Vec::new(),
             late_h: Vec::new(),
         })
+    }
+
+    /// The vehicles' recorded headings at the start (`NaN`: unknown; [`Field::recorded_headings`]).
+    pub fn with_recorded_headings(mut self, h: Vec<f64>) -> Self {
+        self.recorded = Some(h);
+        self
     }
 
     /// The field queried at each vehicle's previous heading too, `start` at the start (`NaN`:
@@ -561,6 +577,10 @@ impl Field for PatternField<'_> {
         if let Some(own) = self.headings.as_mut() {
             own.now = h.to_vec();
         }
+    }
+
+    fn recorded_headings(&self) -> Option<&[f64]> {
+        self.recorded.as_deref()
     }
 
     fn step_start(&mut self, step: usize, q: &[Point]) -> Result<StepInfo> {

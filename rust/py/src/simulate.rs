@@ -450,9 +450,14 @@ pub fn scene_rollouts<'py>(
                     .into_iter()
                     .map(|k| off[i] + k)
                     .collect();
+                // the kept vehicles' recorded headings: a field over heading's inputs, and every
+                // steering vehicle's start where the field is too slow to have a heading
                 let field = match h {
                     Some((h, speed)) => {
-                        field.with_headings(kept.iter().map(|&k| h[k]).collect(), speed)
+                        let kept_h: Vec<f64> = kept.iter().map(|&k| h[k]).collect();
+                        field
+                            .with_recorded_headings(kept_h.clone())
+                            .with_headings(kept_h, speed)
                     }
                     None => field,
                 };

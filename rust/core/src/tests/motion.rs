@@ -1339,3 +1339,75 @@ fn a_vehicle_alongside_does_not_move_into_ones_side() {
     };
     assert_eq!(interact(&x, &vel, &vel, &plain, dt), vel);
 }
+
+#[test]
+fn a_generated_vehicle_in_a_slow_field_starts_along_its_recorded_heading() {
+    // a field too slow to have a heading (0.05 < min_speed 0.1), drawn east at 1 at the start:
+    // a generated steering vehicle with a recorded heading north starts facing north, at the
+    // drawn velocity's speed along it (0 here: it stands), and keeps facing north; without one
+    // it starts along its drawn velocity (east)
+    struct Slow(Option<Vec<f64>>);
+    impl Field for Slow {
+        fn velocity(&mut self, q: &[Point]) -> Result<Vec<[f64; 2]>> {
+            Ok(vec![[0.05, 0.0]; q.len()])
+        }
+        fn step_start(&mut self, step: usize, q: &[Point]) -> Result<crate::simulate::StepInfo> {
+            // the start's GP draw: east at 1
+            let east = if step == 0 { [0.95, 0.0] } else { [0.0; 2] };
+            Ok(crate::simulate::StepInfo {
+                offset: vec![east; q.len()],
+                low_data: vec![false; q.len()],
+                deferred: false,
+            })
+        }
+        fn recorded_headings(&self) -> Option<&[f64]> {
+            self.0.as_deref()
+        }
+    }
+    let motion = Motion {
+        rule: Rule::Free,
+        ..steering_vehicles(2.0)
+    };
+    let north = std::f64::consts::FRAC_PI_2;
+    let r = drive(
+        &[[0.0, 0.0]],
+        None,
+        &opts(0.5, 4),
+        &motion,
+        None,
+        &mut Slow(Some(vec![north])),
+    )
+    .unwrap();
+    assert_eq!(r.drivers[0][0], north, "{:?}", r.drivers);
+    // standing at the start, then relaxing toward the field's speed, always north
+    assert!(r.velocities[0][1].abs() < 1e-12, "{:?}", r.velocities);
+    assert!(
+        r.velocities
+            .iter()
+            .all(|v| v[0].abs() < 1e-12 && v[1] >= 0.0),
+        "{:?}",
+        r.velocities
+    );
+    let r = drive(
+        &[[0.0, 0.0]],
+        None,
+        &opts(0.5, 4),
+        &motion,
+        None,
+        &mut Slow(None),
+    )
+    .unwrap();
+    assert_eq!(r.drivers[0][0], 0.0, "{:?}", r.drivers);
+    assert!(r.velocities[0][0] > 0.9, "{:?}", r.velocities);
+    // an unknown recorded heading (NaN) is none
+    let r = drive(
+        &[[0.0, 0.0]],
+        None,
+        &opts(0.5, 4),
+        &motion,
+        None,
+        &mut Slow(Some(vec![f64::NAN])),
+    )
+    .unwrap();
+    assert_eq!(r.drivers[0][0], 0.0, "{:?}", r.drivers);
+}
