@@ -154,6 +154,7 @@ def scene_rollouts(
     list[int],
     list[float],
     NDArray[np.float64],
+    NDArray[np.float64],
 ]: ...
 def field_means(
     sampler: Sampler,

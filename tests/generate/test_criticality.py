@@ -5,6 +5,7 @@ program (scipy), post-encroachment time in closed form for straight constant-vel
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -213,3 +214,39 @@ def test_the_default_size_is_the_recorded_one_else_a_car_in_the_frames_unit() ->
     assert default_size(SimpleNamespace(object_size=(5.0, 2.0), length_unit="m")) == (5.0, 2.0)
     ft = default_size(SimpleNamespace(object_size=None, length_unit="ft"))
     assert ft == pytest.approx((DEFAULT_SIZE[0] / 0.3048, DEFAULT_SIZE[1] / 0.3048))
+
+
+def test_a_generated_steering_vehicle_standing_faces_its_heading() -> None:
+    """Generated scenes of steering vehicles carry each vehicle's heading (``Simulation.headings``):
+    a vehicle standing through a scene has velocity 0 and so no heading of its own, and its
+    rectangle faced +x beside its neighbour's. The same standing pair as from recorded frames,
+    as a generated scene; and a steering model's scenes carry headings exactly where their
+    vehicles are there."""
+    import dataclasses
+
+    from dpgp.generate import motion
+    from dpgp.generate.rollout import Simulation
+
+    t = np.arange(4) * 0.5
+    pos = np.broadcast_to(np.array([[0.0, 0.0], [3.0, 0.0]]), (4, 2, 2)).copy()
+    still = dict(positions=pos, velocities=np.zeros_like(pos), t=t, in_roi=np.ones((4, 2), bool),
+                 low_data=np.zeros((4, 2), bool), pattern=0, method="euler", stochastic=True,
+                 roi=(-50.0, 50.0, -50.0, 50.0), dynamics="interactive")  # fmt: skip
+    north = Simulation(**still, headings=np.full((4, 2), math.pi / 2))
+    c = criticality(north, size=SIZE)
+    assert not c.pairs["collision"][0] and c.pairs["gap"][0] == pytest.approx(3.0 - SIZE[1])
+    assert criticality(Simulation(**still), size=SIZE).pairs["collision"][0]
+
+    model = dpgp.DPGP.load(Path(__file__).parents[1] / "fixtures" / "field_model.npz")
+    fit = model._fitted()
+    base = motion.motion_model(fit)
+    assert not base.steers and model.sample_scenarios(5, steps=3, seed=2).simulations[0].headings is None
+    steering = dataclasses.replace(base, sigma_frame="heading", min_speed=0.1, tau_heading=2.0)
+    fit.cache["motion"] = (fit.frames, steering)
+    try:
+        sims = model.sample_scenarios(30, steps=6, seed=2).simulations
+    finally:
+        fit.cache["motion"] = (fit.frames, base)
+    for s in sims:
+        assert s.headings is not None and s.headings.shape == s.in_roi.shape
+        np.testing.assert_array_equal(np.isfinite(s.headings), s.in_roi)

@@ -42,6 +42,10 @@ class Simulation:
     #: interactive rollouts: each vehicle's driver state after the last step, ``(l, 2)`` (its
     #: desired velocity, or heading and desired speed when it steers), to continue it
     drivers: np.ndarray | None = None
+    #: generated scenes of steering vehicles: each vehicle's heading (radians) at each time,
+    #: ``(steps + 1, l)``, NaN where not there: a standing vehicle's velocity (0) has none, and
+    #: criticality measures turn its rectangle with this
+    headings: np.ndarray | None = None
 
     @property
     def steps(self) -> int:
@@ -95,8 +99,10 @@ def motion_records(patterns: Any, dynamics: str, motion: Any, recorded: bool = F
 
 
 def split(pos: np.ndarray, vel: np.ndarray, inside: np.ndarray, low: np.ndarray, sizes: Any, patterns: list[int], *,
-          steps: int, dt: float, stochastic: bool, roi: Any, dynamics: str, method: str = "euler") -> list[Simulation]:  # fmt: skip
-    """The core's concatenated time-major arrays cut into one :class:`Simulation` per rollout."""
+          steps: int, dt: float, stochastic: bool, roi: Any, dynamics: str, method: str = "euler",
+          headings: np.ndarray | None = None) -> list[Simulation]:  # fmt: skip
+    """The core's concatenated time-major arrays cut into one :class:`Simulation` per rollout
+    (``headings``, the steering vehicles': kept where any is known)."""
     t = np.arange(steps + 1) * float(dt)
     out, row = [], 0
     for i, l in enumerate(sizes):
@@ -115,6 +121,9 @@ def split(pos: np.ndarray, vel: np.ndarray, inside: np.ndarray, low: np.ndarray,
                 stochastic=stochastic,
                 roi=tuple(float(v) for v in roi),  # type: ignore[arg-type]
                 dynamics=dynamics,
+                headings=None
+                if headings is None or np.isnan(headings[sl]).all()
+                else headings[sl].reshape(steps + 1, l),
             )
         )
     return out

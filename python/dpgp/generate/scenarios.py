@@ -557,7 +557,7 @@ def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistri
     seeds = [int(s) for s in rng.integers(0, 2**63, size=len(patterns), dtype=np.uint64)]
     spacing = motion_model(fit).spacing[patterns]
     unused = np.ones((1, 1))  # the core's histogram placement: not used when starts are given
-    pos, vel, inside, low, sizes, log_ratios, picks = _core.scene_rollouts(
+    pos, vel, inside, low, sizes, log_ratios, picks, heads = _core.scene_rollouts(
         fit.sampler, [int(fit.slots[k]) for k in patterns], requested.tolist(), [0] * len(patterns),
         unused, (1, 1), tuple(psi.roi), spacing.tolist(),  # type: ignore[arg-type]
         motion_records(patterns, dynamics, motion_model(fit)), seeds, bool(stochastic), float(dt), int(steps), tuple(roi), low_data_threshold,
@@ -575,6 +575,7 @@ def _interactive(fit: FittedPatterns, patterns: np.ndarray, psi: EmpiricalDistri
         stochastic=stochastic,
         roi=roi,
         dynamics=dynamics,
+        headings=heads,
     )
     if shift is None:
         return Scenarios(sims, patterns, np.asarray(sizes, dtype=np.int64))

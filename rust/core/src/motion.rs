@@ -1045,6 +1045,9 @@ pub fn drive_on(
     }
     let mut out = Rollout::begin(start, opts)?;
     let (l, dt) = (start.len(), opts.dt);
+    if motion.tau_heading.is_some() {
+        out.headings = vec![f64::NAN; (opts.steps + 1) * l];
+    }
     let mut shifting = match (shift, seed) {
         (Some(s), Some(seed)) => Some(Shifting::new(s, seed, l, opts.steps)?),
         (Some(_), None) => {
@@ -1250,6 +1253,9 @@ pub fn drive_on(
             for (a, &j) in active.iter().enumerate() {
                 out.velocities[row + j] = vel[j];
                 out.low_data[row + j] = info.low_data[a];
+                if let Some(h) = out.headings.get_mut(row + j) {
+                    *h = steering[j][0];
+                }
                 if let Some(track) = track.as_mut() {
                     track.moved(j, vel[j]);
                 }

@@ -287,6 +287,10 @@ pub struct Rollout {
     /// shifted innovation (`None` where its slot was never drawn; 0 and `None` without a shift).
     pub log_ratio: f64,
     pub pick: Option<[f64; 2]>,
+    /// Interactive rollouts of steering vehicles: each vehicle's heading at each time (rows, as
+    /// `positions`; NaN where it is not there), which a standing vehicle's zero velocity does
+    /// not give; empty otherwise.
+    pub headings: Vec<f64>,
 }
 
 impl Rollout {
@@ -306,6 +310,7 @@ impl Rollout {
             drivers: Vec::new(),
             log_ratio: 0.0,
             pick: None,
+            headings: Vec::new(),
         };
         out.positions.extend_from_slice(start);
         out.in_roi

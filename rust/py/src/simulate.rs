@@ -381,6 +381,7 @@ pub fn scene_rollouts<'py>(
     Vec<usize>,
     Vec<f64>,
     Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray1<f64>>,
 )> {
     let n = slots.len();
     let shift = shift.map(|(a, b)| Shift { mean: [a, b] });
@@ -478,6 +479,18 @@ pub fn scene_rollouts<'py>(
     })?;
     let sizes = rollouts.iter().map(|r| r.vehicles).collect();
     let ratios = rollouts.iter().map(|r| r.log_ratio).collect();
+    // steering vehicles' headings (NaN: not steering), row for row with the positions
+    let headings: Vec<f64> = rollouts
+        .iter()
+        .flat_map(|r| {
+            if r.headings.is_empty() {
+                vec![f64::NAN; r.positions.len()]
+            } else {
+                r.headings.clone()
+            }
+        })
+        .collect();
+    let headings = PyArray1::from_vec(py, headings);
     let picks = to_numpy(
         py,
         rollouts
@@ -486,7 +499,7 @@ pub fn scene_rollouts<'py>(
             .collect(),
     );
     let (pos, vel, inside, low) = arrays(py, rollouts);
-    Ok((pos, vel, inside, low, sizes, ratios, picks))
+    Ok((pos, vel, inside, low, sizes, ratios, picks, headings))
 }
 
 /// Roll vehicles through the affine field `v(p) = a p + b` (`a` row-major): constant for

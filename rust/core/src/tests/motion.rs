@@ -1369,16 +1369,21 @@ fn a_generated_vehicle_in_a_slow_field_starts_along_its_recorded_heading() {
         ..steering_vehicles(2.0)
     };
     let north = std::f64::consts::FRAC_PI_2;
-    let r = drive(
-        &[[0.0, 0.0]],
-        None,
-        &opts(0.5, 4),
-        &motion,
-        None,
-        &mut Slow(Some(vec![north])),
-    )
-    .unwrap();
+    let run = |m: &Motion, recorded: Option<Vec<f64>>| {
+        drive(
+            &[[0.0, 0.0]],
+            None,
+            &opts(0.5, 4),
+            m,
+            None,
+            &mut Slow(recorded),
+        )
+        .unwrap()
+    };
+    let r = run(&motion, Some(vec![north]));
     assert_eq!(r.drivers[0][0], north, "{:?}", r.drivers);
+    // its heading at every time goes with the rollout (its zero velocity at the start has none)
+    assert_eq!(r.headings, vec![north; 5]);
     // standing at the start, then relaxing toward the field's speed, always north
     assert!(r.velocities[0][1].abs() < 1e-12, "{:?}", r.velocities);
     assert!(
@@ -1388,26 +1393,17 @@ fn a_generated_vehicle_in_a_slow_field_starts_along_its_recorded_heading() {
         "{:?}",
         r.velocities
     );
-    let r = drive(
-        &[[0.0, 0.0]],
-        None,
-        &opts(0.5, 4),
-        &motion,
-        None,
-        &mut Slow(None),
-    )
-    .unwrap();
+    let r = run(&motion, None);
     assert_eq!(r.drivers[0][0], 0.0, "{:?}", r.drivers);
     assert!(r.velocities[0][0] > 0.9, "{:?}", r.velocities);
+    assert_eq!(r.headings, vec![0.0; 5]);
+    // a rollout without steering records none
+    let plain = Motion {
+        tau_heading: None,
+        ..motion
+    };
+    assert!(run(&plain, None).headings.is_empty());
     // an unknown recorded heading (NaN) is none
-    let r = drive(
-        &[[0.0, 0.0]],
-        None,
-        &opts(0.5, 4),
-        &motion,
-        None,
-        &mut Slow(Some(vec![f64::NAN])),
-    )
-    .unwrap();
+    let r = run(&motion, Some(vec![f64::NAN]));
     assert_eq!(r.drivers[0][0], 0.0, "{:?}", r.drivers);
 }
