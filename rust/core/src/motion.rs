@@ -183,7 +183,8 @@ pub struct Motion {
 /// 2 pedestrians), personal, jam, headway, accel, decel, lateral, min_speed, tau_across,
 /// tau_heading`, then the [`Profile`]: [`PROFILE_KNOTS`] field speeds, as many along factors and
 /// as many across factors, then `heading_tolerance` (rad), `stand_speed`, the two
-/// [`Motion::jitter`] spreads, and the vehicles' [`Idm::brake`], [`Idm::length`] and [`Idm::width`] (0: none). `min_speed < 0`: [`Spread::Components`] (`tau_across`, `tau_heading`
+/// [`Motion::jitter`] spreads, and the vehicles' [`Idm::brake`], [`Idm::length`] and
+/// [`Idm::width`] (0: none). `min_speed < 0`: [`Spread::Components`] (`tau_across`, `tau_heading`
 /// and the profile unused), else [`Spread::Heading`]; `tau_heading < 0`: no steering;
 /// a first knot speed `< 0`: the flat profile.
 pub const MOTION_FIELDS: usize = 20 + 3 * PROFILE_KNOTS;
