@@ -612,6 +612,88 @@ fn stop_gap(x: Point, e: [f64; 2], u: f64, stops: &[Stop], p: &Idm) -> Option<f6
     best
 }
 
+/// Seconds ahead within which a vehicle yields at a crossing path ([`yield_gap`]).
+const CONFLICT_HORIZON: f64 = 5.0;
+/// Seconds a yielding vehicle leaves between the other clearing the crossing and its own arrival.
+const CONFLICT_MARGIN: f64 = 1.0;
+
+/// First come, first served where paths cross (generated vehicles with headings and a size):
+/// the gap (centre to centre, to the standing vehicle it stands for) to the crossing point of
+/// `i`'s path with that of a vehicle `j` heading across it (more than 60° apart) that reaches the
+/// crossing first and would not have cleared it `CONFLICT_MARGIN` before `i` arrives; `i` then
+/// stops clear of `j`'s path (half a length and half a width short), unless it cannot stop there
+/// any more within its braking bound (it is committed). Arrival and clearing times are at each
+/// vehicle's current or desired speed along its heading, whichever is larger (a vehicle waiting
+/// to go is not standing for good), within [`CONFLICT_HORIZON`]; ties go to the lower index. The
+/// fitted fields know no right of way: generated vehicles from crossing approaches drove through
+/// each other (SUMO junction: about a third of generated scenes touching, recorded none).
+fn yield_gap(
+    i: usize,
+    x: &[Point],
+    current: &[[f64; 2]],
+    desired: &[[f64; 2]],
+    heads: &[[f64; 2]],
+    idm: &Idm,
+) -> Option<f64> {
+    if !(idm.length > 0.0 && idm.width > 0.0) {
+        return None;
+    }
+    let clear = 0.5 * (idm.length + idm.width);
+    let dot = |a: [f64; 2], b: [f64; 2]| a[0] * b[0] + a[1] * b[1];
+    let speed = |k: usize| {
+        let h = heads[k];
+        dot(current[k], h)
+            .max(desired[k][0].hypot(desired[k][1]))
+            .max(0.0)
+    };
+    // seconds to cover `s` at `u` (never, standing)
+    let time = |s: f64, u: f64| {
+        if u > TINY {
+            s.max(0.0) / u
+        } else {
+            f64::INFINITY
+        }
+    };
+    let ei = heads[i];
+    let ui = speed(i);
+    let mut best: Option<f64> = None;
+    for j in 0..x.len() {
+        let ej = heads[j];
+        if j == i || dot(ei, ej) >= CROSSING {
+            continue;
+        }
+        let det = ei[0] * ej[1] - ei[1] * ej[0];
+        if det.abs() < 0.2 {
+            continue; // nearly opposite: no crossing point ahead
+        }
+        let d = [x[j][0] - x[i][0], x[j][1] - x[i][1]];
+        // x_i + s_i e_i = x_j + s_j e_j
+        let si = (d[0] * ej[1] - d[1] * ej[0]) / det;
+        let sj = (d[0] * ei[1] - d[1] * ei[0]) / det;
+        if si <= clear || sj <= -clear {
+            continue; // i already on the crossing (it goes on), or j past it
+        }
+        let uj = speed(j);
+        let (arrive_i, arrive_j) = (time(si - clear, ui), time(sj - clear, uj));
+        if arrive_i > CONFLICT_HORIZON || arrive_j > arrive_i || (arrive_j == arrive_i && j > i) {
+            continue;
+        }
+        if arrive_i >= time(sj + clear, uj) + CONFLICT_MARGIN {
+            continue; // j is gone before i comes
+        }
+        let room = si - clear;
+        let u = dot(current[i], ei).max(0.0);
+        if idm.brake.is_finite() && u * u / (2.0 * idm.brake) > room {
+            continue; // too close to stop: committed
+        }
+        let gap = room + idm.jam;
+        if best.is_none_or(|g| gap < g) {
+            best = Some(gap);
+        }
+    }
+    best
+}
+
 /// The nearest agent ahead of `i` (along `heading`, a unit vector) whose lateral offset is
 /// within `lateral`: (its index, gap along the heading).
 fn leader(
@@ -680,8 +762,16 @@ pub fn interact_headed(
                 };
                 let ahead = leader(i, x, e, idm.lateral, heads);
                 let gap = ahead.map(|(j, g)| (g, current[j][0] * e[0] + current[j][1] * e[1]));
-                // a red stop line nearer than the leader is the leader, standing
-                let gap = match (gap, stop_gap(x[i], e, u, stops, &idm)) {
+                // a red stop line, or a crossing another vehicle reaches first, nearer than the
+                // leader is the leader, standing
+                let stop = match (stop_gap(x[i], e, u, stops, &idm), heads) {
+                    (s, Some(h)) => match (s, yield_gap(i, x, current, desired, h, &idm)) {
+                        (Some(a), Some(b)) => Some(a.min(b)),
+                        (a, b) => a.or(b),
+                    },
+                    (s, None) => s,
+                };
+                let gap = match (gap, stop) {
                     (Some((g, _)), Some(s)) if s < g => Some((s, 0.0)),
                     (None, Some(s)) => Some((s, 0.0)),
                     (gap, _) => gap,

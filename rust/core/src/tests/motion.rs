@@ -1407,3 +1407,40 @@ fn a_generated_vehicle_in_a_slow_field_starts_along_its_recorded_heading() {
     let r = run(&motion, Some(vec![f64::NAN]));
     assert_eq!(r.drivers[0][0], 0.0, "{:?}", r.drivers);
 }
+
+#[test]
+fn at_a_crossing_the_vehicle_that_comes_second_yields() {
+    let rule = |idm| Rule::Vehicles { idm, personal: 0.5 };
+    let heads = [[1.0, 0.0], [0.0, 1.0]];
+    let go = |x: [Point; 2], idm| {
+        let vel = [[10.0, 0.0], [0.0, 10.0]];
+        interact_headed(&x, &vel, &vel, Some(&heads), &[], &rule(idm), 0.5)
+    };
+    // i 20 west of the crossing heading east, j 15 south heading north, both at 10: clear of each
+    // other's paths by half a length and half a width (3.15), j arrives at 1.185 s, i at 1.685 s,
+    // before j has cleared (1.815 s) plus the margin: i brakes for a standing vehicle one jam
+    // distance beyond the point where it stops clear (gap 20 - 3.15 + 7), j drives on
+    let v = go([[-20.0, 0.0], [0.0, -15.0]], BOUNDED);
+    let gap = Some((20.0 - 3.15 + 7.0, 0.0));
+    let want = 10.0 + 0.5 * acc_accel(10.0, 10.0, gap, &BOUNDED);
+    assert!(
+        (v[0][0] - want).abs() < 1e-9 && want < 8.0,
+        "{v:?} vs {want}"
+    );
+    assert_eq!(v[1], [0.0, 10.0]);
+    // without the vehicles' size (rollouts of recorded frames), no such rule
+    assert_eq!(
+        go([[-20.0, 0.0], [0.0, -15.0]], IDM),
+        [[10.0, 0.0], [0.0, 10.0]]
+    );
+    // i too close to stop clear within its braking bound (5 ahead: 1.85 of room, 5.6 needed)
+    // goes on, and j, now second, yields
+    let v = go([[-5.0, 0.0], [0.0, -15.0]], BOUNDED);
+    assert_eq!(v[0], [10.0, 0.0]);
+    assert!(v[1][1] < 9.0 && v[1][0] == 0.0, "{v:?}");
+    // j already past the crossing, or far enough ahead to have cleared it: nobody yields
+    for j in [[0.0, 5.0], [0.0, -3.5]] {
+        let far = go([[-40.0, 0.0], j], BOUNDED);
+        assert_eq!(far, [[10.0, 0.0], [0.0, 10.0]], "{j:?}");
+    }
+}
