@@ -168,8 +168,9 @@ def main() -> None:
             # a measure with an atom at its end (the braking bound; touching vehicles' ttc and gap
             # of 0) has no event that rare: say how many scenes sit there instead
             edge = float(values.max() if above else values.min())
-            if abs(threshold - edge) <= 1e-9 * max(1.0, abs(edge)):
-                share = float(np.mean(np.abs(values - edge) <= 1e-9 * max(1.0, abs(edge))))
+            tol = 1e-9 * max(1.0, abs(edge))
+            if abs(threshold - edge) <= tol:
+                share = float(np.mean(np.abs(values - edge) <= tol))
                 print(f"  {args.measure} at rate {rate:g}: none; {share:.4f} of the crude scenes sit at its "
                       f"{'largest' if above else 'least'} value, {edge:.4g}", flush=True)  # fmt: skip
                 continue

@@ -109,6 +109,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .. import _core
+from ..data._previous import in_frame_units
 from ..data.frames import Frames
 from ..exceptions import DataFormatError
 from ..gp.fitted import FittedPatterns
@@ -1152,7 +1153,7 @@ def _accelerations(
 
 def max_brake(summary: Any) -> float:
     """:data:`MAX_BRAKE` in the frames' length unit (``summary.length_unit``; metres when not known)."""
-    return MAX_BRAKE / 0.3048 if getattr(summary, "length_unit", None) == "ft" else MAX_BRAKE
+    return in_frame_units(MAX_BRAKE, getattr(summary, "length_unit", None))
 
 
 def motion_model(fit: FittedPatterns, agents: str = "auto") -> MotionModel:

@@ -182,18 +182,15 @@ impl Scene<'_> {
                 rows
             )));
         }
-        if let Some(h) = self.headings
-            && (h.len() != rows || h.iter().any(|x| x.is_infinite()))
-        {
-            return Err(Error::InvalidInput(format!(
-                "headings need one finite value or NaN per row ({rows}), got {} values{}",
-                h.len(),
-                if h.iter().any(|x| x.is_infinite()) {
-                    ", some infinite"
-                } else {
-                    ""
-                }
-            )));
+        if let Some(h) = self.headings {
+            let infinite = h.iter().any(|x| x.is_infinite());
+            if h.len() != rows || infinite {
+                return Err(Error::InvalidInput(format!(
+                    "headings need one finite value or NaN per row ({rows}), got {} values{}",
+                    h.len(),
+                    if infinite { ", some infinite" } else { "" }
+                )));
+            }
         }
         if !(self.dt.is_finite() && self.dt > 0.0) {
             return Err(Error::InvalidInput(format!(

@@ -764,13 +764,11 @@ pub fn interact_headed(
                 let gap = ahead.map(|(j, g)| (g, current[j][0] * e[0] + current[j][1] * e[1]));
                 // a red stop line, or a crossing another vehicle reaches first, nearer than the
                 // leader is the leader, standing
-                let stop = match (stop_gap(x[i], e, u, stops, &idm), heads) {
-                    (s, Some(h)) => match (s, yield_gap(i, x, current, desired, h, &idm)) {
-                        (Some(a), Some(b)) => Some(a.min(b)),
-                        (a, b) => a.or(b),
-                    },
-                    (s, None) => s,
-                };
+                let crossing = heads.and_then(|h| yield_gap(i, x, current, desired, h, &idm));
+                let stop = [stop_gap(x[i], e, u, stops, &idm), crossing]
+                    .into_iter()
+                    .flatten()
+                    .reduce(f64::min);
                 let gap = match (gap, stop) {
                     (Some((g, _)), Some(s)) if s < g => Some((s, 0.0)),
                     (None, Some(s)) => Some((s, 0.0)),

@@ -442,7 +442,7 @@ pub fn scene_rollouts<'py>(
         }
         None => None,
     };
-    let rollouts = in_parallel(py, &sampler, &slots, |_, p, i| {
+    let mut rollouts = in_parallel(py, &sampler, &slots, |_, p, i| {
         let seed = stochastic.then_some(seeds[i]);
         let field = PatternField::drawn_once(p, seed, low_data)?;
         let (start, mut field) = match &configs {
@@ -481,12 +481,12 @@ pub fn scene_rollouts<'py>(
     let ratios = rollouts.iter().map(|r| r.log_ratio).collect();
     // steering vehicles' headings (NaN: not steering), row for row with the positions
     let headings: Vec<f64> = rollouts
-        .iter()
+        .iter_mut()
         .flat_map(|r| {
             if r.headings.is_empty() {
                 vec![f64::NAN; r.positions.len()]
             } else {
-                r.headings.clone()
+                std::mem::take(&mut r.headings)
             }
         })
         .collect();
